@@ -37,10 +37,15 @@ REAL_ENVMAPS = sorted(ENVMAP_DIR.rglob("*.hdr")) if ENVMAP_DIR else []
 needs_shared = pytest.mark.skipif(SHARED is None, reason="../shared (real data) is not present")
 
 
+# Two threads at most: CI machines have 2 cores, and oversubscription makes torch 10-50x slower
+# when other processes share the machine.
+torch.set_num_threads(min(2, torch.get_num_threads()))
+
+
 @pytest.fixture(autouse=True)
 def _seed() -> None:
     random.seed(0)
-    np.random.seed(0)
+    np.random.seed(0)  # noqa: NPY002 - seeds libraries that use the legacy global generator
     torch.manual_seed(0)
 
 

@@ -28,7 +28,7 @@ def as_tensor(x: Any, *, dtype: torch.dtype | None = None, device: Any = None) -
     if isinstance(x, torch.Tensor):
         return x.to(dtype=dtype or x.dtype, device=device or x.device)
     if isinstance(x, np.ndarray):
-        t = torch.from_numpy(np.ascontiguousarray(x))
+        t = torch.from_numpy(np.ascontiguousarray(x).reshape(x.shape))
         return t.to(dtype=dtype or t.dtype, device=device or "cpu")
     return torch.as_tensor(x, dtype=dtype or torch.float32, device=device)
 

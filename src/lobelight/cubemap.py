@@ -24,6 +24,7 @@ from __future__ import annotations
 import torch
 
 from ._backend import as_tensor, dispatch
+from .errors import InputError
 
 __all__ = [
     "FACE_NAMES",
@@ -84,25 +85,28 @@ def direction_to_face_uv(dirs):
     ax, ay, az = x.abs(), y.abs(), z.abs()
     is_x = (ax >= ay) & (ax >= az)
     is_y = ~is_x & (ay >= az)
-    is_z = ~is_x & ~is_y
     face = torch.where(
-        is_x, torch.where(x >= 0, 0, 1), torch.where(is_y, torch.where(y >= 0, 2, 3), torch.where(z >= 0, 4, 5))
+        is_x,
+        torch.where(x >= 0, 0, 1),
+        torch.where(is_y, torch.where(y >= 0, 2, 3), torch.where(z >= 0, 4, 5)),
     ).long()
     ma = torch.where(is_x, ax, torch.where(is_y, ay, az)).clamp_min(torch.finfo(dirs.dtype).tiny)
     # sc, tc per face from GL table 8.19
-    sc = torch.where(is_x, torch.where(x >= 0, -z, z), torch.where(is_y, x, torch.where(z >= 0, x, -x)))
+    sc = torch.where(
+        is_x, torch.where(x >= 0, -z, z), torch.where(is_y, x, torch.where(z >= 0, x, -x))
+    )
     tc = torch.where(is_x, -y, torch.where(is_y, torch.where(y >= 0, z, -z), -y))
     return face, sc / ma, tc / ma
 
 
 def texel_uv(res: int, *, device=None, dtype=torch.float32) -> torch.Tensor:
     """Face coordinates of texel centres: ``(R,)`` values ``(2 k + 1)/R - 1``."""
-    return (2 * torch.arange(res, device=device, dtype=torch.float64) + 1) / res - 1
+    return ((2 * torch.arange(res, device=device, dtype=torch.float64) + 1) / res - 1).to(dtype)
 
 
 def texel_directions(res: int, *, device=None, dtype=torch.float32) -> torch.Tensor:
     """Unit directions of all texel centres, ``(6, R, R, 3)`` indexed ``[face, row(t), col(s)]``."""
-    c = texel_uv(res, device=device)
+    c = texel_uv(res, device=device, dtype=torch.float64)
     v, u = torch.meshgrid(c, c, indexing="ij")  # (R, R) rows follow v (= t), columns u (= s)
     face = torch.arange(6, device=device).reshape(6, 1, 1).expand(6, res, res)
     d = face_uv_to_direction(face, u.expand(6, res, res), v.expand(6, res, res))
@@ -128,7 +132,7 @@ def texel_solid_angles(res: int, *, device=None, dtype=torch.float32) -> torch.T
 
 def _check_cube(cube: torch.Tensor, name: str = "cube") -> None:
     if cube.ndim != 4 or cube.shape[0] != 6 or cube.shape[1] != cube.shape[2]:
-        raise ValueError(f"{name} must be a (6, R, R, C) cube map, got shape {tuple(cube.shape)}")
+        raise InputError(name, f"must be a (6, R, R, C) cube map, got shape {tuple(cube.shape)}")
 
 
 def pad_seamless(cube: torch.Tensor, pad: int = 1) -> torch.Tensor:
@@ -172,7 +176,9 @@ def pad_seamless(cube: torch.Tensor, pad: int = 1) -> torch.Tensor:
     return out
 
 
-def sample(cube: torch.Tensor, dirs: torch.Tensor, *, padded: torch.Tensor | None = None) -> torch.Tensor:
+def sample(
+    cube: torch.Tensor, dirs: torch.Tensor, *, padded: torch.Tensor | None = None
+) -> torch.Tensor:
     """Bilinear, seamless lookup of a cube map in directions.
 
     Parameters
@@ -222,7 +228,7 @@ def downsample(cube: torch.Tensor) -> torch.Tensor:
     _check_cube(cube)
     res = cube.shape[1]
     if res % 2:
-        raise ValueError(f"cube resolution must be even to downsample, got {res}")
+        raise InputError("cube", f"resolution must be even to downsample, got {res}")
     w = texel_solid_angles(res, device=cube.device, dtype=cube.dtype).unsqueeze(-1)
     h = res // 2
     num = (cube * w).reshape(6, h, 2, h, 2, -1).sum((2, 4))
