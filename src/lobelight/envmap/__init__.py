@@ -1,0 +1,17 @@
+"""Environment maps: distant HDR lighting and its Gaussian-prefiltered chain.
+
+- :class:`EnvMap` radiance arriving from each direction (lat-long in Mitsuba 3's orientation, or
+  a cube map in GL layout); ``radiance(dirs)``, ``to_cubemap(res)``, ``rotate(R)``, ``power()``.
+- :func:`load` / :func:`save` ``.hdr`` and ``.exr`` files (lat-long or cross cube maps), checked
+  at the door: a bad file is one :class:`lobelight.errors.InputError` naming it.
+- :func:`builtin` a procedural sky with a small, very bright sun, so nothing needs a file.
+- :func:`prefilter` -> :class:`Prefiltered`, whose ``integrate(mu, lam)`` approximates
+  ``int exp(lam (mu.w - 1)) L(w) dw`` with one interpolated lookup per lobe.
+"""
+
+from ._builtin import builtin
+from ._envmap import EnvMap
+from ._io import load, save
+from ._prefilter import Prefiltered, prefilter, sg_integral
+
+__all__ = ["EnvMap", "Prefiltered", "builtin", "load", "prefilter", "save", "sg_integral"]

@@ -1,0 +1,483 @@
+"""Reading and writing environment maps: Radiance ``.hdr`` and OpenEXR ``.exr``.
+
+Formats. ``.hdr`` files are Radiance RGBE (run-length encoded or flat), decoded by OpenCV
+(``cv2``) and written by it (RLE). ``.exr`` files are read and written with the ``OpenEXR``
+package (channels ``R``, ``G``, ``B``, or a single ``Y`` used for all three; any alpha is
+ignored; only the first part of a multi-part file is read). Files are written as float32 (or
+half with ``half=True``), ZIP-compressed, scanline EXR. The Radiance ``EXPOSURE`` header is
+ignored, as Mitsuba and OpenCV ignore it (a warning is logged when it is not 1).
+
+Layouts in a file, told apart by the image's aspect ratio unless ``layout=`` says:
+
+- ``2:1`` — ``"latlong"``: Mitsuba 3's lat-long orientation (:mod:`lobelight.envmap._envmap`;
+  row 0 is the zenith, column 0 looks along -Z, a quarter of the way along +X).
+- ``3:4`` — ``"vcross"``, vertical cross of faces of ``n = W/3`` pixels (HDRShop / Debevec)::
+
+        .  +Y  .
+       -X  -Z  +X
+        .  -Y  .
+        .  +Z  .        (+Z, the back, appears rotated by 180 degrees)
+
+- ``4:3`` — ``"hcross"``, horizontal cross, ``n = W/4``::
+
+        .  +Y  .   .
+       -X  -Z  +X  +Z
+        .  -Y  .   .
+
+- ``6:1`` — ``"strip"``: the GL faces +X, -X, +Y, -Y, +Z, -Z left to right, each exactly as
+  stored in a :mod:`lobelight.cubemap` (rows = t, columns = s).
+
+In the crosses each face is what a viewer at the centre sees with the cube unfolded around the
+front face -Z (up +Y, right +X): the pixel at face coordinates ``(a, b)`` in ``[-1, 1]`` (``a``
+to the right, ``b`` down, pixel centres at ``(2 k + 1)/n - 1``) looks along
+``centre + a * right + b * down`` with::
+
+    face  centre  right  down   (vcross; hcross differs only in +Z: right -X, down -Y)
+    +Y    +Y      +X     -Z
+    -X    -X      -Z     -Y
+    -Z    -Z      +X     -Y
+    +X    +X      +Z     -Y
+    -Y    -Y      +X     +Z
+    +Z    +Z      +X     +Y
+
+so neighbouring pixels across every drawn edge of a cross look in neighbouring directions. A
+cross converts to the GL cube layout without resampling: each GL texel is one cross pixel,
+found from its direction (:func:`cross_pixels`). Unused areas of a cross are ignored on loading
+and written black.
+
+Checks at the door. Every problem is one :class:`~lobelight.errors.InputError` naming the file:
+missing file, directory, empty file, unsupported extension, content that is not the format
+its extension says (text, PNG, random bytes), a truncated or corrupt file, an aspect ratio that
+names no layout, and NaN, infinite or negative radiance. OpenCV 5 rejects truncated RGBE data,
+but OpenCV 4 ignores the decoder's error and returns a partly filled image, so the RLE stream is
+walked here first (:func:`_rgbe_complete_scanlines`) and a short file is reported with the
+scanline where it ends. With ``sanitize=True``, NaN and negative values become 0 and +Inf the
+largest finite value in the image, with a logged warning that gives the counts.
+
+Writing is atomic: the file is written under a temporary name in the same directory and then
+renamed over ``path`` (``os.replace``), so an interrupted save never leaves a half-written file.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import os
+import re
+import tempfile
+from pathlib import Path
+
+import cv2
+import numpy as np
+import OpenEXR
+import torch
+
+from .. import cubemap
+from ..errors import InputError
+from ._envmap import EnvMap, describe_bad_values
+
+__all__ = ["CROSS_FACES", "FILE_LAYOUTS", "cross_pixels", "load", "save"]
+
+logger = logging.getLogger(__name__)
+
+FILE_LAYOUTS = ("latlong", "vcross", "hcross", "strip")
+_EXTENSIONS = (".hdr", ".exr")
+# Largest value a half float holds; larger radiance would be written as +Inf.
+_HALF_MAX = 65504.0
+
+# Per cross layout: GL face name -> (block row, block column, centre, right, down), with the
+# block position in units of faces. Directions as in the module docstring.
+_X, _Y, _Z = (1, 0, 0), (0, 1, 0), (0, 0, 1)
+
+
+def _neg(v: tuple[int, int, int]) -> tuple[int, int, int]:
+    return (-v[0], -v[1], -v[2])
+
+
+_COMMON = {
+    "+y": (0, 1, _Y, _X, _neg(_Z)),
+    "-x": (1, 0, _neg(_X), _neg(_Z), _neg(_Y)),
+    "-z": (1, 1, _neg(_Z), _X, _neg(_Y)),
+    "+x": (1, 2, _X, _Z, _neg(_Y)),
+    "-y": (2, 1, _neg(_Y), _X, _Z),
+}
+CROSS_FACES = {
+    "vcross": {**_COMMON, "+z": (3, 1, _Z, _X, _Y)},
+    "hcross": {**_COMMON, "+z": (1, 3, _Z, _neg(_X), _neg(_Y))},
+}
+# (rows, columns) of a layout's image in faces
+_GRID = {"vcross": (4, 3), "hcross": (3, 4), "strip": (1, 6)}
+
+
+def cross_pixels(kind: str, n: int) -> tuple[torch.Tensor, torch.Tensor]:
+    """Where each GL cube texel lies in a cross (or strip) image with faces of ``n`` pixels.
+
+    Computed from directions: the centre of GL texel ``[f, i, j]`` (:mod:`lobelight.cubemap`)
+    is expressed in the coordinates ``(a, b)`` of the cross face of the same axis, which land
+    exactly on a pixel centre.
+
+    Returns
+    -------
+    rows, cols : (6, n, n) int64 pixel indices into the ``(H, W)`` image
+    """
+    k = torch.arange(n, dtype=torch.float64)
+    c = (2 * k + 1) / n - 1  # texel-centre face coordinates
+    v, u = torch.meshgrid(c, c, indexing="ij")
+    face = torch.arange(6).reshape(6, 1, 1).expand(6, n, n)
+    # (6, n, n, 3) unnormalised directions; their major component is exactly +-1
+    p = cubemap.face_uv_to_direction(face, u.expand(6, n, n), v.expand(6, n, n))
+    rows = torch.empty(6, n, n, dtype=torch.long)
+    cols = torch.empty(6, n, n, dtype=torch.long)
+    if kind == "strip":
+        i, j = torch.meshgrid(torch.arange(n), torch.arange(n), indexing="ij")
+        for f in range(6):
+            rows[f], cols[f] = i, j + f * n
+        return rows, cols
+    for f, name in enumerate(cubemap.FACE_NAMES):
+        brow, bcol, centre, right, down = CROSS_FACES[kind][name]
+        pf = p[f]
+        # the cross face of the same axis as GL face f (p . centre == 1 on that face)
+        assert bool(((pf @ torch.tensor(centre, dtype=torch.float64)) == 1).all())
+        a = pf @ torch.tensor(right, dtype=torch.float64)  # (n, n) face coordinates
+        b = pf @ torch.tensor(down, dtype=torch.float64)
+        col = ((a + 1) * n - 1) / 2  # pixel index whose centre is at a
+        row = ((b + 1) * n - 1) / 2
+        rows[f] = torch.round(row).long() + brow * n
+        cols[f] = torch.round(col).long() + bcol * n
+    return rows, cols
+
+
+# -- loading ---------------------------------------------------------------------------------
+
+
+def load(path: str | Path, *, layout: str | None = None, sanitize: bool = False) -> EnvMap:
+    """Read an environment map from a ``.hdr`` or ``.exr`` file.
+
+    Parameters
+    ----------
+    path : file path
+    layout : ``None`` (from the aspect ratio: 2:1, 3:4, 4:3, 6:1), ``"cubemap"`` (any of the
+        cube layouts, from the aspect ratio), or one of ``"latlong"`` (any size), ``"vcross"``,
+        ``"hcross"``, ``"strip"``; see the module docstring for their conventions
+    sanitize : replace NaN and negative values by 0 and +Inf by the largest finite value (with
+        a logged warning) instead of refusing the file
+
+    Returns
+    -------
+    EnvMap named by the path, layout ``"latlong"`` or ``"cubemap"``, on the CPU.
+
+    Raises
+    ------
+    InputError
+        Naming the file, for every problem listed in the module docstring.
+    """
+    p = Path(path)
+    name = str(path)
+    if layout is not None and layout not in (*FILE_LAYOUTS, "cubemap"):
+        raise InputError(
+            "layout", f"must be None, 'cubemap' or one of {FILE_LAYOUTS}, got {layout!r}"
+        )
+    ext = p.suffix.lower()
+    if not p.exists():
+        raise InputError(name, "no such file")
+    if p.is_dir():
+        raise InputError(name, "is a directory, not an image file")
+    if ext not in _EXTENSIONS:
+        raise InputError(
+            name, f"unsupported file type {ext or '(no extension)'!r}: lobelight reads .hdr, .exr"
+        )
+    try:
+        buf = p.read_bytes()
+    except OSError as e:
+        raise InputError(name, f"cannot read the file ({e.strerror or e})") from e
+    if not buf:
+        raise InputError(name, "the file is empty")
+    img = _read_hdr(buf, name) if ext == ".hdr" else _read_exr(p, buf, name)  # (H, W, 3) f32
+
+    h, w = img.shape[:2]
+    kind = _file_layout(h, w, layout, name)
+    used = None
+    if kind != "latlong":
+        n = w // _GRID[kind][1]
+        rows, cols = cross_pixels(kind, n)
+        used = np.zeros((h, w), bool)
+        used[rows.numpy(), cols.numpy()] = True
+        img = np.where(used[..., None], img, np.float32(0))  # unused cross areas do not count
+    img = _check_values(img, name, sanitize=sanitize)
+    if kind == "latlong":
+        return EnvMap(img, layout="latlong", name=name)
+    cube = img[rows.numpy(), cols.numpy()]  # (6, n, n, 3)
+    return EnvMap(cube, layout="cubemap", name=name)
+
+
+def _file_layout(h: int, w: int, layout: str | None, name: str) -> str:
+    if layout == "latlong":
+        return "latlong"
+    if layout in _GRID:
+        gr, gc = _GRID[layout]
+        if w % gc or h * gc != w * gr:
+            raise InputError(
+                name, f"a {layout} image must be {gc}n x {gr}n pixels (W x H), got {w} x {h}"
+            )
+        return layout
+    fits = [k for k, (gr, gc) in _GRID.items() if w % gc == 0 and h * gc == w * gr]
+    if layout is None and w == 2 * h:
+        return "latlong"
+    if fits:
+        return fits[0]
+    want = "3:4 vertical cross, 4:3 horizontal cross or 6:1 strip"
+    if layout is None:
+        want = "2:1 lat-long, " + want
+    raise InputError(
+        name,
+        f"cannot tell the layout of a {w} x {h} image: expected a {want} "
+        "(or pass layout='latlong' for a lat-long map of another size)",
+    )
+
+
+def _check_values(img: np.ndarray, name: str, *, sanitize: bool) -> np.ndarray:
+    """Refuse, or with ``sanitize`` repair, NaN / Inf / negative radiance. ``(H, W, 3)``."""
+    problem = describe_bad_values(torch.from_numpy(img))
+    if problem is None:
+        return img
+    if not sanitize:
+        raise InputError(name, problem + "; load with sanitize=True to repair them")
+    nan = np.isnan(img)
+    neg = img < 0  # includes -Inf
+    pinf = np.isposinf(img)
+    finite = img[np.isfinite(img)]
+    top = float(finite.max()) if finite.size else 0.0
+    out = np.where(nan | neg, np.float32(0), img)
+    out = np.where(pinf, np.float32(max(top, 0.0)), out).astype(np.float32)
+    logger.warning(
+        "%s: sanitized %d NaN and %d negative values to 0 and clamped %d +Inf values to %g",
+        name,
+        int(nan.sum()),
+        int(neg.sum()),
+        int(pinf.sum()),
+        max(top, 0.0),
+    )
+    return out
+
+
+def _sniff(buf: bytes) -> str:
+    """Name of a known format from its first bytes, for messages."""
+    if buf.startswith(b"\x76\x2f\x31\x01"):
+        return "an OpenEXR file"
+    if buf.startswith(b"#?"):
+        return "a Radiance HDR file"
+    if buf.startswith(b"\x89PNG"):
+        return "a PNG image"
+    if buf.startswith(b"\xff\xd8\xff"):
+        return "a JPEG image"
+    head = buf[:512]
+    if head and all(32 <= c < 127 or c in b"\t\r\n" for c in head):
+        return "a text file"
+    return "not an image format lobelight knows"
+
+
+# -- Radiance RGBE ---------------------------------------------------------------------------
+
+_RES_LINE = re.compile(rb"^([-+][XY]) (\d+) ([-+][XY]) (\d+)$")
+
+
+def _read_hdr(buf: bytes, name: str) -> np.ndarray:
+    """Decode a Radiance RGBE file's bytes to ``(H, W, 3)`` float32 RGB, checking everything."""
+    if not buf.startswith(b"#?"):
+        raise InputError(name, f"not a Radiance HDR file (it is {_sniff(buf)})")
+    end = buf.find(b"\n\n", 0, 1 << 16)  # the header ends with an empty line
+    if end < 0:
+        raise InputError(name, "corrupt Radiance header (no end of header in the first 64 KiB)")
+    header = buf[:end].decode("latin-1").split("\n")
+    for line in header[1:]:
+        if line.startswith("FORMAT=") and line.strip() != "FORMAT=32-bit_rle_rgbe":
+            raise InputError(name, f"unsupported Radiance pixel format {line.strip()!r}")
+        if line.startswith("EXPOSURE="):
+            try:
+                exposure = float(line.split("=", 1)[1])
+            except ValueError:
+                exposure = 1.0
+            if not math.isclose(exposure, 1.0, rel_tol=1e-6):
+                logger.warning("%s: ignoring EXPOSURE=%g (as Mitsuba does)", name, exposure)
+    nl = buf.find(b"\n", end + 2)
+    res_line = buf[end + 2 : nl if nl >= 0 else len(buf)].strip()
+    m = _RES_LINE.match(res_line)
+    if nl < 0 or not m:
+        raise InputError(name, "corrupt Radiance header (no resolution line like '-Y 512 +X 1024')")
+    if (m.group(1), m.group(3)) != (b"-Y", b"+X"):
+        raise InputError(
+            name, f"unsupported Radiance pixel order {res_line.decode()!r} (only '-Y H +X W')"
+        )
+    h, w = int(m.group(2)), int(m.group(4))
+    if h == 0 or w == 0:
+        raise InputError(name, f"the image is empty ({w} x {h})")
+    done = _rgbe_complete_scanlines(buf, nl + 1, h, w)
+    if done < h:
+        raise InputError(
+            name, f"truncated or corrupt RGBE data: scanline {done + 1} of {h} is incomplete"
+        )
+    level = cv2.utils.logging.getLogLevel()
+    cv2.utils.logging.setLogLevel(cv2.utils.logging.LOG_LEVEL_SILENT)  # we report errors
+    try:
+        img = cv2.imdecode(np.frombuffer(buf, np.uint8), cv2.IMREAD_UNCHANGED)
+    except cv2.error as e:
+        raise InputError(name, f"OpenCV cannot decode the RGBE data ({e})") from e
+    finally:
+        cv2.utils.logging.setLogLevel(level)
+    if img is None or img.shape != (h, w, 3) or img.dtype != np.float32:
+        raise InputError(name, "OpenCV cannot decode the RGBE data")
+    return np.ascontiguousarray(img[..., ::-1])  # BGR -> RGB
+
+
+def _rgbe_complete_scanlines(buf: bytes, pos: int, h: int, w: int) -> int:
+    """Number of complete scanlines in RGBE data starting at ``pos`` (``h`` when whole).
+
+    Follows the decoder of Radiance / OpenCV (``RGBE_ReadPixels_RLE``): widths outside
+    ``[8, 32767]`` are flat; otherwise a scanline starts with ``2 2 hi lo`` (``hi lo`` = width)
+    and holds four channels of runs (``128 + n`` then one byte, or ``n`` then ``n`` bytes); a
+    scanline without that start means the rest of the image is flat 4-byte pixels. The walk is
+    sequential by nature (a run's length is in the data), one Python step per run: ~10 ms for a
+    1024 x 512 map.
+    """
+    n = len(buf)
+    if w < 8 or w > 0x7FFF:
+        return min(h, (n - pos) // (4 * w))
+    for y in range(h):
+        if pos + 4 > n:
+            return y
+        if buf[pos] != 2 or buf[pos + 1] != 2 or buf[pos + 2] & 0x80:
+            return min(h, y + (n - pos) // (4 * w))  # not RLE: flat from here on
+        if (buf[pos + 2] << 8) | buf[pos + 3] != w:
+            return y  # wrong scanline width: corrupt
+        pos += 4
+        for _ in range(4):
+            k = 0
+            while k < w:
+                if pos >= n:
+                    return y
+                t = buf[pos]
+                if t > 128:
+                    k += t - 128
+                    pos += 2
+                elif t == 0:
+                    return y  # a zero-length run is invalid
+                else:
+                    k += t
+                    pos += 1 + t
+            if k != w or pos > n:
+                return y
+    return h
+
+
+# -- OpenEXR ---------------------------------------------------------------------------------
+
+
+def _read_exr(p: Path, buf: bytes, name: str) -> np.ndarray:
+    """Read an OpenEXR file to ``(H, W, 3)`` float32 RGB."""
+    if not buf.startswith(b"\x76\x2f\x31\x01"):
+        raise InputError(name, f"not an OpenEXR file (it is {_sniff(buf)})")
+    try:
+        f = OpenEXR.File(str(p), separate_channels=True)
+        parts = f.parts
+        if not parts:
+            raise InputError(name, "truncated or corrupt OpenEXR file (no image could be read)")
+        chans = parts[0].channels
+    except InputError:
+        raise
+    except Exception as e:
+        raise InputError(name, f"truncated or corrupt OpenEXR file ({e})") from e
+    names = sorted(chans)
+    if all(c in chans for c in "RGB"):
+        planes = [chans[c].pixels for c in "RGB"]
+    elif "Y" in chans:
+        planes = [chans["Y"].pixels] * 3
+    else:
+        raise InputError(name, f"no R, G, B (or Y) channels in the OpenEXR file; it has {names}")
+    if any(pl is None or pl.ndim != 2 or pl.shape != planes[0].shape for pl in planes):
+        raise InputError(name, "the OpenEXR channels are subsampled or of different sizes")
+    return np.stack([np.asarray(pl, dtype=np.float32) for pl in planes], -1)
+
+
+# -- saving ----------------------------------------------------------------------------------
+
+
+def save(env: EnvMap, path: str | Path, *, cross: str = "vcross", half: bool = False) -> Path:
+    """Write an environment map to ``path``, atomically; the format follows the extension.
+
+    Parameters
+    ----------
+    env : the map
+    path : ``.exr`` (float32, or half with ``half=True``; ZIP compression) or ``.hdr`` (RGBE
+        RLE: 8-bit mantissas with a shared exponent, ~0.4 % of the largest channel)
+    cross : how a cube map is laid out: ``"vcross"``, ``"hcross"`` or ``"strip"`` (module
+        docstring); lat-long maps are written as they are
+    half : write half floats (EXR only); radiance above 65504 is refused
+
+    Returns
+    -------
+    The path written.
+
+    Raises
+    ------
+    InputError
+        Unsupported extension, missing directory, half-float overflow, or a failed write.
+    """
+    p = Path(path)
+    name = str(path)
+    ext = p.suffix.lower()
+    if ext not in _EXTENSIONS:
+        raise InputError(name, f"unsupported file type {ext or '(no extension)'!r}: use .hdr, .exr")
+    if half and ext != ".exr":
+        raise InputError("half", "half floats are only for .exr files")
+    if not p.parent.is_dir():
+        raise InputError(name, f"the directory {str(p.parent)!r} does not exist")
+    if p.is_dir():
+        raise InputError(name, "is a directory")
+    data = env.data.detach().cpu()
+    if env.layout == "cubemap":
+        if cross not in _GRID:
+            raise InputError("cross", f"must be one of {tuple(_GRID)}, got {cross!r}")
+        n = data.shape[1]
+        gr, gc = _GRID[cross]
+        rows, cols = cross_pixels(cross, n)
+        img = torch.zeros(gr * n, gc * n, 3)
+        img[rows, cols] = data
+    else:
+        img = data
+    arr = np.ascontiguousarray(img.numpy(), dtype=np.float32)  # (H, W, 3)
+    if half:
+        peak = float(arr.max(initial=0.0))
+        if peak > _HALF_MAX:
+            raise InputError(
+                name, f"radiance up to {peak:g} does not fit in half floats (max {_HALF_MAX:g})"
+            )
+        arr = arr.astype(np.float16)
+    fd, tmp = tempfile.mkstemp(dir=p.parent, prefix=f".{p.name}.", suffix=f".tmp{ext}")
+    os.close(fd)  # written by name below (OpenEXR opens the file itself)
+    try:
+        if ext == ".hdr":
+            ok, enc = cv2.imencode(".hdr", np.ascontiguousarray(arr[..., ::-1]))  # RGB -> BGR
+            if not ok:
+                raise InputError(name, "OpenCV could not encode the image as RGBE")
+            with open(tmp, "wb") as fh:
+                fh.write(enc.tobytes())
+                fh.flush()
+                os.fsync(fh.fileno())
+        else:
+            header = {"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage}
+            OpenEXR.File(header, {"RGB": arr}).write(tmp)
+        os.replace(tmp, p)
+    except InputError:
+        _remove(tmp)
+        raise
+    except Exception as e:
+        _remove(tmp)
+        raise InputError(name, f"cannot write the file ({e})") from e
+    return p
+
+
+def _remove(tmp: str) -> None:
+    try:
+        os.unlink(tmp)
+    except OSError:
+        pass
