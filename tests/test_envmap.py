@@ -121,6 +121,15 @@ def test_latlong_landmarks():
     np.testing.assert_allclose(env.radiance(np.array([0.0, 0, -1])), [2, 2, 2], rtol=1e-5)
 
 
+def test_radiance_follows_in_place_edits():
+    # the prepared lookup is cached; editing `data` in place must not serve stale values
+    env = EnvMap(torch.ones(6, 4, 4, 3), layout="cubemap")
+    d = torch.randn(20, 3)
+    torch.testing.assert_close(env.radiance(d), torch.ones(20, 3))
+    env.data.mul_(3)
+    torch.testing.assert_close(env.radiance(d), torch.full((20, 3), 3.0))
+
+
 def test_radiance_keeps_shapes_and_numpy():
     env = EnvMap(np.ones((8, 16, 3), np.float32), layout="latlong")
     d = np.random.default_rng(0).normal(size=(4, 5, 3))
@@ -130,6 +139,7 @@ def test_radiance_keeps_shapes_and_numpy():
     assert isinstance(out, torch.Tensor) and out.dtype == torch.float32
     with pytest.raises(InputError, match="dirs"):
         env.radiance(np.ones((3, 2)))
+    assert env.radiance(np.zeros((0, 3))).shape == (0, 3)
 
 
 def test_cubemap_radiance_is_cubemap_sample():
@@ -194,20 +204,21 @@ def test_power_of_constant_maps():
 def test_latlong_power_is_integral_of_interpolant():
     """power() against brute force: the mean of radiance() over a fine equal-area grid.
 
-    The grid (2048 x 4096 cells, uniform in cos(theta) and phi) resolves the 16 x 32 map's
-    bilinear interpolant; midpoint-rule error on a piecewise-bilinear function with these
-    spacings is < 1e-5 relative.
+    The grid (512 x 1024 cells, uniform in cos(theta) and phi) resolves the 16 x 32 map's
+    bilinear interpolant with ~30 samples per pixel; the midpoint rule's error at its kinks is
+    O((spacing / pixel)^2 / 8) per kink and cancels on average: measured 1e-5, bound 5e-5
+    (4x finer measured 2e-6: it converges to power()).
     """
     rng = np.random.default_rng(3)
     env = EnvMap(rng.uniform(0, 1, (16, 32, 3)).astype(np.float32), layout="latlong")
-    n = 2048
+    n = 512
     z = 1 - (np.arange(n) + 0.5) / n * 2
     phi = (np.arange(2 * n) + 0.5) / (2 * n) * 2 * math.pi
     zz, pp = np.meshgrid(z, phi, indexing="ij")
     s = np.sqrt(1 - zz**2)
     d = np.stack([np.sin(pp) * s, zz, -np.cos(pp) * s], -1).reshape(-1, 3)
     brute = env.radiance(d).astype(np.float64).mean(0) * FOUR_PI
-    np.testing.assert_allclose(env.power().numpy(), brute, rtol=1e-5)
+    np.testing.assert_allclose(env.power().numpy(), brute, rtol=5e-5)
 
 
 # -- resampling ---------------------------------------------------------------------------------
@@ -257,7 +268,7 @@ def test_to_cubemap_averages_over_texels():
     torch.testing.assert_close(env.to_cubemap(res), ref.float(), rtol=3e-3, atol=0)
 
 
-@pytest.mark.parametrize("res", [8, 64, 256])
+@pytest.mark.parametrize("res", [8, 100])
 @pytest.mark.parametrize("where", ["horizon", "near_zenith", "wrap"])
 def test_small_sun_keeps_its_power(res, where):
     """A 3-pixel sun of a 1024 x 512 map keeps its power in a cube map of any resolution.
@@ -273,6 +284,42 @@ def test_small_sun_keeps_its_power(res, where):
     env = EnvMap(data, layout="latlong")
     cube = EnvMap(env.to_cubemap(res), layout="cubemap")
     torch.testing.assert_close(cube.power(), env.power(), rtol=1e-5, atol=0)
+
+
+@pytest.mark.parametrize("where", [(60, 100), (90, 255)])
+def test_upsampled_sun_is_not_overshot(where):
+    """Splatted texels stay close to the true averages when texels are far smaller than pixels.
+
+    A 2 x 3-pixel sun of a 128 x 256 map into a 512 cube map (texels 4-13x smaller than a
+    pixel): an average over a texel can never exceed the brightest pixel, so overshoot is the
+    splat's counting error. With R2 points it is measured at 0.7 % (a regular grid of the same
+    size gave 6 %); bound 1.5 %. The power is exact.
+    """
+    r0, c0 = where
+    data = torch.full((128, 256, 3), 0.5)
+    for dc in range(3):
+        data[r0 : r0 + 2, (c0 + dc) % 256] = 1000.0
+    env = EnvMap(data, layout="latlong")
+    cube = env.to_cubemap(512)
+    assert float(cube.max()) <= 1.015 * 1000
+    torch.testing.assert_close(
+        EnvMap(cube, layout="cubemap").power(), env.power(), rtol=1e-5, atol=0
+    )
+
+
+def test_cube_spike_keeps_its_power():
+    """A single very bright cube texel keeps its power through resampling to other layouts.
+
+    Splatted with its exact share (texel solid angle); the rest averages a constant. 1e-5 is
+    float32 rounding of the sums.
+    """
+    cube = torch.full((6, 16, 16, 3), 0.25)
+    cube[4, 3, 11] = torch.tensor([8e4, 6e4, 3e4])  # on +Z, off-centre
+    env = EnvMap(cube, layout="cubemap")
+    for out in [EnvMap(env.to_cubemap(7), layout="cubemap"), env.to_latlong(24)]:
+        torch.testing.assert_close(out.power(), env.power(), rtol=1e-5, atol=0)
+    rot = _random_rotation(np.random.default_rng(1))
+    torch.testing.assert_close(env.rotate(rot).power(), env.power(), rtol=1e-5, atol=0)
 
 
 def _round_trip_errors(env: EnvMap, res: int, height: int) -> tuple[float, float]:

@@ -30,16 +30,25 @@ Power. :meth:`EnvMap.power` is the exact integral of the map's own interpolant f
 times ``sin(theta)``) and ``sum L * exact texel solid angle`` for cube maps.
 
 Resampling. :meth:`~EnvMap.to_cubemap`, :meth:`~EnvMap.to_latlong` and :meth:`~EnvMap.rotate` set
-every target texel to the solid-angle-weighted *average* of the source over the texel, estimated
-with a stratified grid of ``s_a x s_b`` sub-samples. The cell of lat-long pixel ``(i, j)`` is
-``theta in [i - 1/2, i + 1/2] pi/(H-1)`` (clipped to ``[0, pi]``) by ``phi in [j, j + 1] 2 pi/W``,
-the region around its sample point; its sub-samples are equally spaced in ``cos(theta)`` and
-``phi``, so each covers the same solid angle. A cube texel's sub-samples are equally spaced in
-face coordinates and weighted by their solid angle. By default the grid is chosen per texel and
-per axis so that sub-samples are at most ``1/4`` of a *source* pixel apart along that axis, where
-the source pixel is measured where the texel looks: lat-long pixels are ``sin(theta)`` times
-narrower in azimuth near the poles, and cube texels up to 3 times smaller near face corners. So
-a 3-pixel sun keeps its power (to ~0.1 %) wherever it is, at a cost close to the minimum.
+every target texel to the solid-angle-weighted *average* of the source over the texel. The cell
+of lat-long pixel ``(i, j)`` is ``theta in [i - 1/2, i + 1/2] pi/(H-1)`` (clipped to
+``[0, pi]``) by ``phi in [j, j + 1] 2 pi/W``, the region around its sample point. The source is
+split as ``min(L, c) + spikes``, ``c`` the level exceeded by only the brightest 0.2 % of texels:
+
+- the bounded part is averaged with a stratified grid of ``s_a x s_b`` sub-samples per target
+  texel (lat-long: equally spaced in ``cos(theta)`` and ``phi``, so of equal solid angle; cube:
+  equally spaced in face coordinates, weighted by solid angle). By default the grid is chosen
+  per texel and per axis so that sub-samples are at most half a *source* pixel apart along that
+  axis, measured where the texel looks (lat-long pixels are ``sin(theta)`` times narrower in
+  azimuth near the poles, cube texels up to 3 times smaller near face corners);
+- the spikes (a sun, a lamp) are *splatted*: each spike texel's exact share of :meth:`power`
+  is spread over its footprint (its bilinear hat) by many low-discrepancy points and added to
+  the target texels they land in, so it is kept to float rounding however small the sun and
+  however coarse the target, where point sampling would lose O((sample spacing / pixel)^2) of
+  it (0.4 % of a 3-pixel sun at two samples per pixel). Locally a splatted texel is off by the
+  counting error of its points, < 1 % even where texels are 4-13 times smaller than pixels.
+
+Measured on the real maps: lat-long -> cube map -> lat-long keeps the power to < 0.06 %.
 """
 
 from __future__ import annotations
@@ -60,20 +69,23 @@ __all__ = ["LAYOUTS", "EnvMap", "describe_bad_values"]
 
 LAYOUTS = ("latlong", "cubemap")
 
-# Sub-samples per source pixel (along each axis) of the automatic supersampling. The source
-# interpolant is piecewise bilinear; a point-sampled average of it errs where its kinks fall
-# between samples, by O((spacing / pixel)^2) of the local power. At 2 per pixel a 3-pixel sun
-# lost up to 0.4 % of its power, at 4 per pixel < 0.1 % (measured on the real maps, see
-# tests/test_envmap.py::test_latlong_cube_round_trip_keeps_power).
+# Sub-samples per source pixel (along each axis) of the automatic supersampling of the bounded
+# part of the source. A point-sampled average of a piecewise-bilinear interpolant errs where its
+# kinks fall between samples, by O((spacing / pixel)^2) of the local power: negligible once the
+# spikes are splatted (< 0.06 % of the total on the real maps), and 4 would cost 4x the time.
 _SAMPLES_PER_SOURCE_PIXEL = 2.0
 # Per-axis factors are rounded up to this ladder (fewer distinct groups to process) and capped:
 # the last entry bounds the work for a texel that covers a lat-long pole, where pixels vanish.
 _LADDER = torch.tensor([1, 2, 3, 4, 6, 8, 12, 16, 24, 32, 48, 64])
 # Texels brighter than all but this fraction of the map (at least 1) are "spikes", splatted
-# with exact power (see _resample); 0.2 % holds the sun of every real map we have.
+# with exact power (see _resample): a sun is a few pixels, and splatting 1000 texels is cheap.
 _SPIKE_FRACTION = 0.002
-# Splat grid: samples per target cell across one source pixel (capped to 4..32 per axis).
-_SPLAT_PER_CELL = 8.0
+_MAX_SPIKES = 256  # and at most this many, so that each can be splatted finely
+_SPLAT_BUDGET = 1 << 21  # samples for all spikes together (sets the splat grid's size)
+# Splat grid: samples per axis across the smallest target cell (at least 4 over a spike's
+# footprint, at most what _SPLAT_BUDGET allows). A target cell's share of a spike is counted in
+# samples, so this sets how far a splatted value can be off locally (power is exact regardless).
+_SPLAT_PER_CELL = 16.0
 # Number of direction samples processed at once: bounds temporary memory to ~100 MB.
 _CHUNK = 1 << 20
 # Tolerance on R^T R = I and det R = 1 for rotate().
@@ -188,6 +200,16 @@ class EnvMap:
 
     # -- lookups -----------------------------------------------------------------------------
 
+    def _source(self) -> _Source:
+        # The prepared lookup (the padded image or cube) is cached; the key changes when `data`
+        # is replaced or modified in place (torch counts in-place writes in `_version`).
+        key = (self.data.data_ptr(), self.data._version, self.data.shape, self.data.device)
+        cached = getattr(self, "_cache", None)
+        if cached is None or cached[0] != key:
+            cached = (key, _Source(self.data, self.layout))
+            self._cache = cached
+        return cached[1]
+
     def radiance(self, dirs: Any) -> Any:
         """Radiance arriving from directions (the map's own interpolation, see module docstring).
 
@@ -203,9 +225,10 @@ class EnvMap:
         d = as_tensor(dirs, dtype=torch.float32, device=self.device)
         if d.shape[-1:] != (3,):
             raise InputError("dirs", f"directions must be (..., 3), got {tuple(d.shape)}")
-        lookup = _Source(self.data, self.layout)
+        lookup = self._source()
         flat = d.reshape(-1, 3)  # (N, 3)
-        out = torch.cat([lookup(flat[k : k + _CHUNK]) for k in range(0, flat.shape[0], _CHUNK)])
+        parts = [lookup(flat[k : k + _CHUNK]) for k in range(0, flat.shape[0], _CHUNK)]
+        out = torch.cat(parts) if parts else flat.new_zeros(0, 3)
         out = out.reshape(*d.shape[:-1], 3)
         return out.cpu().numpy() if was_numpy else out
 
@@ -367,8 +390,8 @@ class _Source:
             d, t = d @ self.rot, t @ self.rot
         h, w = self.res
         if self.layout == "cubemap":
-            # texel of size 2/R in face coordinates seen from the centre; along the face axes it
-            # spans 2/R * sqrt(1 + v^2) / (1 + u^2 + v^2) (u-axis) and likewise for v
+            # a texel of size 2/R in face coordinates spans 2/R sqrt(1 + v^2) / (1 + u^2 + v^2)
+            # radians along the face's u axis and likewise along v: take the smaller (isotropic)
             _, u, v = cubemap.direction_to_face_uv(d)
             q = 1 + u * u + v * v
             return (2.0 / h) * torch.minimum(1 + u * u, 1 + v * v).sqrt() / q
@@ -392,8 +415,9 @@ def _latlong_bilinear(image: torch.Tensor, d: torch.Tensor) -> torch.Tensor:
 
     ``grid_sample`` with ``align_corners=True`` puts grid -1 and +1 on the first and last pixel
     centres: ``x = (gx + 1)/2 * W`` and ``y = (gy + 1)/2 * (H - 1)``, which with ``gx = 2u - 1``,
-    ``gy = 2v - 1`` is Mitsuba's ``u * W`` and ``v * (H - 1)`` (to float32 rounding, ~1e-7 of a
-    pixel per unit of u, the same as Mitsuba's own arithmetic). Returns ``(N, 3)``.
+    ``gy = 2v - 1`` is Mitsuba's ``u * W`` and ``v * (H - 1)`` up to float32 rounding (the
+    sample position moves by at most ~1e-7 W pixels, as in Mitsuba's own float32 arithmetic).
+    Returns ``(N, 3)``.
     """
     w = image.shape[-1] - 1
     d = torch.nn.functional.normalize(d.to(image.dtype), dim=-1)  # (N, 3)
@@ -432,7 +456,7 @@ class _Cells:
     """
 
     n: int
-    angle: float  # nominal (largest) angular size of a cell, radians
+    min_angle: float  # smallest angular extent of a cell (away from lat-long poles), radians
 
     def frames(self) -> tuple[torch.Tensor, ...]:
         raise NotImplementedError
@@ -457,7 +481,7 @@ class _CubeCells(_Cells):
     def __init__(self, res: int, *, device: Any = None):
         self.res, self.device = res, device
         self.n = 6 * res * res
-        self.angle = 2.0 / res
+        self.min_angle = 2.0 / res * math.sqrt(2) / 3  # along the diagonal at a face corner
         # per face: the direction at u = v = 0 and the directions u and v move along, read
         # off cubemap.face_uv_to_direction (linear in u, v) so the layout lives in one place
         face = torch.arange(6, device=device)
@@ -465,24 +489,31 @@ class _CubeCells(_Cells):
         self.centre = cubemap.face_uv_to_direction(face, zero, zero)  # (6, 3)
         self.u_axis = cubemap.face_uv_to_direction(face, one, zero) - self.centre
         self.v_axis = cubemap.face_uv_to_direction(face, zero, one) - self.centre
+        self.frame = torch.stack([self.u_axis, self.v_axis, self.centre], 1)  # (6, 3, 3)
 
     def _split(self, idx: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
         r = self.res
         return idx // (r * r), (idx // r) % r, idx % r  # face, row (v), column (u)
 
     def frames(self) -> tuple[torch.Tensor, ...]:
-        f, i, j = self._split(torch.arange(self.n, device=self.device))
-        h = 2.0 / self.res
-        u = ((j + 0.5) * h - 1).unsqueeze(-1)  # (n, 1) texel centres
-        v = ((i + 0.5) * h - 1).unsqueeze(-1)
-        p = self.centre[f] + u * self.u_axis[f] + v * self.v_axis[f]  # (n, 3) on the face plane
-        norm = p.norm(dim=-1, keepdim=True)
-        d = p / norm
-        # d(p/|p|)/du = (U - d (d.U)) / |p|: the tangent along rows / columns, and its length
-        ta = (self.v_axis[f] - d * (d * self.v_axis[f]).sum(-1, keepdim=True)) / norm
-        tb = (self.u_axis[f] - d * (d * self.u_axis[f]).sum(-1, keepdim=True)) / norm
-        ext_a, ext_b = ta.norm(dim=-1), tb.norm(dim=-1)
-        return d, ta / ext_a[:, None], tb / ext_b[:, None], ext_a * h, ext_b * h
+        r, h = self.res, 2.0 / self.res
+        c = (torch.arange(r, device=self.device) + 0.5) * h - 1  # (R,) texel centres
+        v = c.reshape(1, r, 1, 1)  # rows
+        u = c.reshape(1, 1, r, 1)  # columns
+        cen, ua, va = (x.reshape(6, 1, 1, 3) for x in (self.centre, self.u_axis, self.v_axis))
+        norm = (1 + u * u + v * v).sqrt()  # |p| of p = centre + u U + v V (orthonormal axes)
+        d = (cen + u * ua + v * va) / norm  # (6, R, R, 3)
+        # d(p/|p|)/du = (U - d (d.U)) / |p| with d.U = u/|p|: tangents along rows / columns
+        ta = (va - d * (v / norm)) / norm
+        tb = (ua - d * (u / norm)) / norm
+        ext_a, ext_b = ta.norm(dim=-1, keepdim=True), tb.norm(dim=-1, keepdim=True)
+        return (
+            d.reshape(-1, 3),
+            (ta / ext_a).reshape(-1, 3),
+            (tb / ext_b).reshape(-1, 3),
+            (ext_a * h).reshape(-1),
+            (ext_b * h).reshape(-1),
+        )
 
     def locate(self, d):
         f, u, v = cubemap.direction_to_face_uv(d)
@@ -501,13 +532,15 @@ class _CubeCells(_Cells):
         h = 2.0 / self.res
         ka = (torch.arange(sa, device=self.device) + 0.5) / sa  # (sa,) in [0, 1]
         kb = (torch.arange(sb, device=self.device) + 0.5) / sb
-        v = ((i[:, None] + ka) * h - 1)[:, :, None, None]  # (m, sa, 1, 1)
-        u = ((j[:, None] + kb) * h - 1)[:, None, :, None]  # (m, 1, sb, 1)
-        c, ua, va = (x[f][:, None, None, :] for x in (self.centre, self.u_axis, self.v_axis))
-        d = c + u * ua + v * va  # (m, sa, sb, 3), on the face plane
+        m = idx.numel()
+        v = ((i[:, None] + ka) * h - 1)[:, :, None].expand(m, sa, sb)  # (m, sa, sb)
+        u = ((j[:, None] + kb) * h - 1)[:, None, :].expand(m, sa, sb)
+        # p = u U + v V + centre, as (u, v, 1) times each cell's face matrix: one bmm
+        uv1 = torch.stack([u, v, torch.ones_like(u)], -1).reshape(m, sa * sb, 3)
+        d = torch.bmm(uv1, self.frame[f]).reshape(m, sa, sb, 3)  # on the face plane
         # solid angle density of the face plane, 1/(1 + u^2 + v^2)^(3/2): the sub-squares'
         # weights (exact to O((h/s)^2) of each, and only their ratios within a texel matter)
-        weight = (d * d).sum(-1) ** -1.5  # (m, sa, sb)
+        weight = (1 + u * u + v * v) ** -1.5  # (m, sa, sb)
         return d, weight
 
 
@@ -518,7 +551,7 @@ class _LatlongCells(_Cells):
         self.h, self.w, self.device = height, width, device
         self.n = height * width
         self.delta = math.pi / (height - 1)
-        self.angle = max(self.delta, 2 * math.pi / width)
+        self.min_angle = min(self.delta, 2 * math.pi / width)
 
     def _theta_range(self, i: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         lo = ((i.double() - 0.5) * self.delta).clamp(0, math.pi)
@@ -584,9 +617,15 @@ def _resample(
     source = _Source(smooth, env.layout, rot=rot)
     out = _cell_average(cells, source, supersample=supersample)
     if spike_idx.numel():
-        ppix = 2.0 / env.resolution[0] if env.layout == "cubemap" else _Source.pixel(env)
-        n = int(min(max(math.ceil(_SPLAT_PER_CELL * ppix / cells.angle), 4), 32))
-        power = _splat(env, spike_idx, spike_val, cells, rot=rot, n=n)  # (n_cells, 3) float64
+        # footprint of a spike: one cube texel, or a lat-long hat two pixels wide
+        foot = 2.0 / env.resolution[0] if env.layout == "cubemap" else 2 * _Source.pixel(env)
+        most = max(4, int(math.sqrt(_SPLAT_BUDGET / spike_idx.numel())))
+        n = int(min(max(math.ceil(_SPLAT_PER_CELL * foot / cells.min_angle), 4), most))
+        power = torch.zeros(cells.n, 3, dtype=torch.float64, device=env.device)
+        step = max(1, _CHUNK // (n * n))  # spikes per chunk
+        for a in range(0, spike_idx.numel(), step):
+            sl = slice(a, a + step)
+            power += _splat(env, spike_idx[sl], spike_val[sl], cells, rot=rot, n=n)
         out = out + (power / cells.measure().unsqueeze(-1)).float()
     return out
 
@@ -594,7 +633,7 @@ def _resample(
 def _split_spikes(data: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
     """``data = smooth + spikes``: returns smooth data, flat texel indices and excess values."""
     peak = data.amax(-1).reshape(-1)  # (n,) brightest channel per texel
-    k = int(min(max(_SPIKE_FRACTION * peak.numel(), 1), peak.numel() - 1))
+    k = int(min(max(_SPIKE_FRACTION * peak.numel(), 1), peak.numel() - 1, _MAX_SPIKES))
     level = torch.topk(peak, k + 1).values[-1]  # at most k texels are brighter than this
     smooth = data.clamp(max=float(level))
     idx = torch.nonzero(peak > level)[:, 0]
@@ -613,40 +652,43 @@ def _splat(
     """Power of texels ``idx`` (values ``val``, (m, 3)) of ``env`` deposited into ``cells``.
 
     A lat-long texel is spread over its bilinear hat (``+-1`` pixel in x and y, weighted by the
-    hat and ``sin(theta)``), a cube texel over its square (weighted by solid angle), on an
-    ``n x n`` grid; the weights of each texel are normalised to its exact share of power.
+    hat and ``sin(theta)``), a cube texel over its square (weighted by solid angle), by ``n^2``
+    points of the R2 low-discrepancy sequence; the weights of each texel are normalised to its
+    exact share of power. (A regular grid would put whole rows of samples on either side of a
+    target texel's edge, off by up to one row in count; the R2 points, which never line up
+    with an edge, keep a texel's count close to its area even when texels are small.)
     Returns ``(cells.n, 3)`` float64.
     """
     device = env.device
-    k = (torch.arange(n, device=device, dtype=torch.float64) + 0.5) / n  # (n,) in [0, 1]
+    g = 1.324717957244746  # the plastic number: R2 sequence (Roberts 2018)
+    k = torch.arange(n * n, device=device, dtype=torch.float64)
+    pa = torch.remainder(0.5 + k / g, 1.0)  # (N,) in [0, 1): down the rows
+    pb = torch.remainder(0.5 + k / (g * g), 1.0)  # across the columns
     if env.layout == "cubemap":
         res = env.resolution[0]
         fc = _CubeCells(res, device=device)
         f, i, j = fc._split(idx)
         h = 2.0 / res
-        v = ((i[:, None] + k) * h - 1)[:, :, None, None]  # (m, n, 1, 1)
-        u = ((j[:, None] + k) * h - 1)[:, None, :, None]  # (m, 1, n, 1)
-        c, ua, va = (x[f].double()[:, None, None, :] for x in (fc.centre, fc.u_axis, fc.v_axis))
-        d = c + u * ua + v * va  # (m, n, n, 3) on the face plane
-        weight = (d * d).sum(-1) ** -1.5  # solid angle density
+        v = (i.double()[:, None] + pa) * h - 1  # (m, N)
+        u = (j.double()[:, None] + pb) * h - 1
+        uv1 = torch.stack([u, v, torch.ones_like(u)], -1)  # (m, N, 3)
+        d = torch.bmm(uv1, fc.frame[f].double())  # (m, N, 3) on the face plane
+        weight = (1 + u * u + v * v) ** -1.5  # solid angle density
         share = fc.measure()[idx]  # (m,) texel solid angle
     else:
         h, w = env.resolution
         i, j = idx // w, idx % w
-        off = 2 * k - 1  # (n,) offsets in [-1, 1] pixels
-        y = i.double()[:, None] + off  # (m, n) rows of the hat's samples
-        x = j.double()[:, None] + off
-        theta = (y * (math.pi / (h - 1)))[:, :, None]  # (m, n, 1)
-        phi = ((x + 0.5) * (2 * math.pi / w))[:, None, :]  # (m, 1, n): column j at u=(j+.5)/W
-        inside = ((y >= 0) & (y <= h - 1)).double()[:, :, None]  # no hat beyond a pole
-        hat = 1 - off.abs()
-        weight = hat[:, None] * hat[None, :] * torch.sin(theta).abs() * inside  # (m, n, n)
+        y = i.double()[:, None] + (2 * pa - 1)  # (m, N) rows within the hat's +-1 pixel
+        x = j.double()[:, None] + (2 * pb - 1)
+        theta = y * (math.pi / (h - 1))
+        phi = (x + 0.5) * (2 * math.pi / w)  # column j looks along u = (j + 1/2)/W
+        hat = (1 - (2 * pa - 1).abs()) * (1 - (2 * pb - 1).abs())  # (N,)
+        inside = ((y >= 0) & (y <= h - 1)).double()  # no hat beyond a pole
         st = torch.sin(theta)
-        d = torch.stack(
-            [st * torch.sin(phi), torch.cos(theta).expand_as(st * phi), -st * torch.cos(phi)], -1
-        )  # (m, n, n, 3)
+        weight = hat * st.abs() * inside  # (m, N)
+        d = torch.stack([st * torch.sin(phi), torch.cos(theta), -st * torch.cos(phi)], -1)
         share = (_latlong_row_weights(h, device=device) * (2 * math.pi / w))[i]  # (m,)
-    weight = weight / weight.sum((1, 2), keepdim=True) * share[:, None, None]
+    weight = weight / weight.sum(1, keepdim=True) * share[:, None]
     if rot is not None:
         d = d @ rot.T.to(d.dtype)  # the old direction q is seen at R q in the rotated map
     target = cells.locate(torch.nn.functional.normalize(d.reshape(-1, 3), dim=-1).float())

@@ -120,12 +120,6 @@ def cross_pixels(kind: str, n: int) -> tuple[torch.Tensor, torch.Tensor]:
     -------
     rows, cols : (6, n, n) int64 pixel indices into the ``(H, W)`` image
     """
-    k = torch.arange(n, dtype=torch.float64)
-    c = (2 * k + 1) / n - 1  # texel-centre face coordinates
-    v, u = torch.meshgrid(c, c, indexing="ij")
-    face = torch.arange(6).reshape(6, 1, 1).expand(6, n, n)
-    # (6, n, n, 3) unnormalised directions; their major component is exactly +-1
-    p = cubemap.face_uv_to_direction(face, u.expand(6, n, n), v.expand(6, n, n))
     rows = torch.empty(6, n, n, dtype=torch.long)
     cols = torch.empty(6, n, n, dtype=torch.long)
     if kind == "strip":
@@ -133,17 +127,22 @@ def cross_pixels(kind: str, n: int) -> tuple[torch.Tensor, torch.Tensor]:
         for f in range(6):
             rows[f], cols[f] = i, j + f * n
         return rows, cols
+    k = torch.arange(n, dtype=torch.float64)
+    c = (2 * k + 1) / n - 1  # texel-centre face coordinates
+    v, u = torch.meshgrid(c, c, indexing="ij")  # (n, n): rows follow v (= t), columns u (= s)
     for f, name in enumerate(cubemap.FACE_NAMES):
-        brow, bcol, centre, right, down = CROSS_FACES[kind][name]
-        pf = p[f]
-        # the cross face of the same axis as GL face f (p . centre == 1 on that face)
-        assert bool(((pf @ torch.tensor(centre, dtype=torch.float64)) == 1).all())
-        a = pf @ torch.tensor(right, dtype=torch.float64)  # (n, n) face coordinates
-        b = pf @ torch.tensor(down, dtype=torch.float64)
-        col = ((a + 1) * n - 1) / 2  # pixel index whose centre is at a
-        row = ((b + 1) * n - 1) / 2
-        rows[f] = torch.round(row).long() + brow * n
-        cols[f] = torch.round(col).long() + bcol * n
+        brow, bcol, centre, right, down = (
+            torch.tensor(x, dtype=torch.float64) if isinstance(x, tuple) else x
+            for x in CROSS_FACES[kind][name]
+        )
+        # (n, n, 3) unnormalised directions of GL face f; their major component is exactly +-1
+        p = cubemap.face_uv_to_direction(torch.full((n, n), f), u, v)
+        # the cross face of the same axis as GL face f: p . centre == 1 on all of it
+        assert bool(((p @ centre) == 1).all())
+        a = p @ right  # (n, n) cross-face coordinates, exactly on pixel centres
+        b = p @ down
+        rows[f] = torch.round(((b + 1) * n - 1) / 2).long() + brow * n  # pixel whose centre is b
+        cols[f] = torch.round(((a + 1) * n - 1) / 2).long() + bcol * n
     return rows, cols
 
 
@@ -196,7 +195,6 @@ def load(path: str | Path, *, layout: str | None = None, sanitize: bool = False)
 
     h, w = img.shape[:2]
     kind = _file_layout(h, w, layout, name)
-    used = None
     if kind != "latlong":
         n = w // _GRID[kind][1]
         rows, cols = cross_pixels(kind, n)
