@@ -67,7 +67,7 @@ def test_latlong_matches_mitsuba(tmp_path):
     try:
         mi.set_variant("scalar_rgb")
     except Exception as e:  # pragma: no cover - depends on the mitsuba build
-        pytest.skip(f"mitsuba has no scalar_rgb variant: {e}")
+        pytest.skip(reason=f"mitsuba has no scalar_rgb variant: {e}")
     rng = np.random.default_rng(7)
     h, w = 12, 20  # deliberately not 2:1, to catch width/height mix-ups too
     data = rng.uniform(0.1, 2.0, (h, w, 3)).astype(np.float32)

@@ -25,21 +25,14 @@ GL layout
     :mod:`lobelight.cubemap`). A shader computes ``k`` from ``lam`` as :meth:`level_coords` does and
     fetches two levels with ``textureLod`` at integer lods.
 
-How the levels are built (exactly, at bounded cost)
-    * Sharp levels (resolution above ``sh_max_res``) are built in a cascade: each level is the
-      previous one convolved with the small Gaussian that takes its width to the next one
-      (variances add), after a 2 x 2 solid-angle-weighted downsample when the mip changes.
-      The increment is applied as four spatially varying 1-D Gaussian passes (columns, rows and
-      both diagonals) whose variances at each texel decompose the exact local metric of the
-      cube face (the sphere's metric in face coordinates); radiance times solid angle and solid
-      angle are filtered together, so the result is the exact kernel-weighted average to the
-      extent that the metric is constant over the small increment kernel.
-    * Wide levels (resolution ``<= sh_max_res``) are exact: the lighting is projected onto
-      spherical harmonics of high enough order and multiplied by the vMF's band factors
-      ``i_l(lam) / i_0(lam)`` (Funk-Hecke), then reconstructed at the level's texel centres.
-    * Every level stores the lighting convolved with a slightly sharper Gaussian than its
-      nominal ``lam_k``: the bilinear lookup adds on average ``h**2 / 6`` of variance per axis
-      (``h`` the texel size), which the stored sharpness leaves room for.
+How the levels are built
+    A cascade: each level is the previous one convolved with the narrow vMF that takes its width
+    to the next (widths tracked as vMF mean cosines, which multiply under convolution), after a
+    2 x 2 solid-angle-weighted downsample when the mip changes. Above ``dense_max_res`` the
+    increment is an exact windowed sum on each face's extended gnomonic plane (true directions,
+    exact solid angles, neighbouring faces resampled onto the border); at or below it, an exact
+    dense sum. Each level is stored slightly sharper than its nominal ``lam_k`` because a
+    bilinear lookup adds on average ``h**2 / 6`` of variance per axis (``h`` the texel size).
 """
 
 from __future__ import annotations
@@ -311,7 +304,7 @@ def _dense_increment(level: torch.Tensor, lam_inc: float, *, chunk: int = 2048) 
     """Exact convolution of a (small) cube map with a vMF of sharpness ``lam_inc``.
 
     Every output texel sums over every input texel with the exact kernel and solid angles:
-    ``(6 R^2)^2`` work, used only at resolutions where the separable passes are too coarse.
+    ``(6 R^2)^2`` work, used only at small resolutions where windows would span most of a face.
 
     Parameters
     ----------
