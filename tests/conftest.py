@@ -24,7 +24,7 @@ def shared_dir() -> Path | None:
     package also tests standalone: tests that need it skip with a reason.
     """
     env = os.environ.get("LOBELIGHT_SHARED")
-    for cand in ([Path(env)] if env else []) + [ROOT.parent / "shared"]:
+    for cand in ([Path(env)] if env else []) + [ROOT / "shared", ROOT.parent / "shared"]:
         if (cand / "data").is_dir():
             return cand
     return None

@@ -21,11 +21,13 @@ from lobelight.errors import InputError
 
 BASE = 64  # chain base resolution in tests: lam_max = (64 / 5)^2 = 164 (CPU time, see below)
 LAMS = [0.5, 1.0, 2.0, 5.0, 12.0, 30.0, 70.0, 150.0]
-# Measured worst case at BASE = 64: 6.1 % relative L2 error (studio_small_03, softbox edges),
-# 4.2 % on the built-in sky (lam = 2), 2.2 % on lebombo. The goal is 2 %; the gap is
-# recorded in docs/results.md. 7 % leaves room over the measured 6.1 % and still fails a wrong
-# level ladder, a missing solid-angle weight or a mis-oriented face (errors of 10-100 %).
-TOL = 0.07
+# Measured at BASE = 64 over the built-in sky and all eight real maps (docs/results.md): worst
+# 1.8 % for lam <= 70 and 2.7 % at lam = 150, within 10 % of the chain's lam_max, where the
+# Gaussian spans 2.6 texels and bilinear lookup is at its limit. The 2 % goal is asserted where
+# it is met; 3 % at the top still fails a wrong level ladder, a missing solid-angle weight, a
+# mis-oriented face or a cascade drift (errors of 5-100 %).
+TOL = 0.02
+TOL_TOP = 0.03
 
 
 def _brute(cube: torch.Tensor, mu: torch.Tensor, lam: float) -> torch.Tensor:
@@ -49,7 +51,7 @@ def _axes(cube: torch.Tensor, lam: float, n: int = 48) -> dict[str, torch.Tensor
     return {"uniform": uni, "sun": near}
 
 
-def _check_env(env, *, tol: float = TOL) -> float:
+def _check_env(env) -> float:
     fine = env.to_cubemap(4 * BASE)
     pf = prefilter(fine, base_res=BASE)
     worst = 0.0
@@ -59,6 +61,7 @@ def _check_env(env, *, tol: float = TOL) -> float:
             got = pf.integrate(mu.float(), torch.full((mu.shape[0],), lam)).double()
             err = float((got - ref).norm() / ref.norm())
             worst = max(worst, err)
+            tol = TOL if lam <= 100 else TOL_TOP
             assert err <= tol, (
                 f"{env.name}: lam={lam} {kind} axes: relative L2 error {err:.4f} > {tol}"
             )
@@ -115,3 +118,39 @@ def test_lookup_at_a_level_returns_that_level():
 def test_bad_parameters(kwargs, name):
     with pytest.raises(InputError, match=name):
         prefilter(torch.rand(6, 16, 16, 3), **{"base_res": 16, **kwargs})
+
+
+# Sharp lobes need the full 512 base (lam_max = 10486). Reference: the brute-force sum over a
+# 1024^2 cube map (the same map the chain is built from, box-downsampled). Measured: near the
+# sun at most 0.8 %; over 48 uniform axes up to 6.2 % (rooitou at lam = 1000), where one axis
+# lands 3-4 sigma from a sun 1e5 times brighter than the sky and the relative error of
+# bilinear interpolation in a Gaussian's tail dominates (over 2000 axes the same map is 0.5 %).
+SHARP_LAMS = [1000.0, 10000.0]
+SHARP_TOL = {"sun": 0.01, "uniform": 0.08}
+
+
+def _check_sharp(env) -> None:
+    fine = env.to_cubemap(1024)
+    pf = prefilter(fine, base_res=512)
+    d = cubemap.texel_directions(1024).reshape(-1, 3)
+    lo = (fine * cubemap.texel_solid_angles(1024)[..., None]).reshape(-1, 3)
+    for lam in SHARP_LAMS:
+        for kind, mu in _axes(fine, lam).items():
+            mu = mu.float()
+            # float32 is enough here: dots are exact to 6e-8, i.e. lam * 6e-8 < 1e-3 in the exponent
+            ref = torch.cat(
+                [torch.exp(lam * (mu[i : i + 8] @ d.T - 1)) @ lo for i in range(0, 48, 8)]
+            )
+            got = pf.integrate(mu, torch.full((mu.shape[0],), lam))
+            err = float((got - ref).norm() / ref.norm())
+            assert err <= SHARP_TOL[kind], f"{env.name}: lam={lam} {kind}: {err:.4f}"
+
+
+def test_builtin_sharp_lobes_at_base_512():
+    _check_sharp(builtin())
+
+
+@needs_shared
+@pytest.mark.parametrize("path", REAL_ENVMAPS, ids=lambda p: p.name)
+def test_real_maps_sharp_lobes_at_base_512(path):
+    _check_sharp(load(path))

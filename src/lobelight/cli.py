@@ -21,7 +21,8 @@ def _latlong_dirs(height: int):
 
     w = 2 * height
     u = (torch.arange(w, dtype=torch.float64) + 0.5) / w
-    v = (torch.arange(height, dtype=torch.float64) + 0.5) / height
+    # rows are corner-aligned as in Mitsuba's envmap (row 0 at the pole): v = i / (H - 1)
+    v = torch.arange(height, dtype=torch.float64) / (height - 1)
     vv, uu = torch.meshgrid(v, u, indexing="ij")
     th, ph = math.pi * vv, 2 * math.pi * uu
     # inverse of u = atan2(x, -z) / 2 pi, v = acos(y) / pi
