@@ -13,6 +13,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 import torch
+from hypothesis import assume
+from hypothesis import strategies as st
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -58,3 +60,23 @@ def device(request) -> str:
     if request.param == "cuda" and not torch.cuda.is_available():
         pytest.skip("no CUDA GPU on this machine")
     return request.param
+
+
+# Directions for tests. ``triple`` is a hypothesis strategy for a normal-ish 3-vector; ``unit``
+# normalises one (rejecting ~0); ``random_dirs`` draws seeded uniform directions.
+F64 = torch.float64
+coord = st.floats(-1.0, 1.0, allow_nan=False, allow_infinity=False)
+triple = st.tuples(coord, coord, coord)
+
+
+def unit(t) -> torch.Tensor:
+    v = torch.tensor(t, dtype=F64)
+    n = torch.linalg.vector_norm(v)
+    assume(n > 1e-3)
+    return v / n
+
+
+def random_dirs(n: int, dtype=F64, seed: int = 0) -> torch.Tensor:
+    g = torch.Generator().manual_seed(seed)
+    v = torch.randn(n, 3, generator=g, dtype=F64)
+    return torch.nn.functional.normalize(v, dim=-1).to(dtype)

@@ -12,32 +12,13 @@ import math
 import numpy as np
 import pytest
 import torch
-from hypothesis import assume, given, settings
+from hypothesis import given, settings
 from hypothesis import strategies as st
 from scipy import integrate, special
 
+from conftest import F64, random_dirs, triple, unit
 from lobelight import sphere as S
 from lobelight.errors import InputError
-
-F64 = torch.float64
-
-# A random direction as hypothesis sees it: a normal-ish triple, normalised (rejecting ~0).
-coord = st.floats(-1.0, 1.0, allow_nan=False, allow_infinity=False)
-triple = st.tuples(coord, coord, coord)
-
-
-def unit(t) -> torch.Tensor:
-    v = torch.tensor(t, dtype=F64)
-    n = torch.linalg.vector_norm(v)
-    assume(n > 1e-3)
-    return v / n
-
-
-def random_dirs(n: int, dtype=F64, seed: int = 0) -> torch.Tensor:
-    g = torch.Generator().manual_seed(seed)
-    v = torch.randn(n, 3, generator=g, dtype=F64)
-    return torch.nn.functional.normalize(v, dim=-1).to(dtype)
-
 
 # ---------------------------------------------------------------------------------------------
 # the 92 views

@@ -14,10 +14,10 @@ Level ladder
     in groups of ``phases`` per cube-map resolution: level ``k`` lives on mip ``m = k // phases``
     (resolution ``base_res >> m``) as phase ``j = k % phases``. ``lam_0`` puts the Gaussian's
     standard deviation at ``TEXELS_PER_SIGMA`` texels at the centre of a base face, the finest
-    width a bilinear lookup reproduces to about 1 %. Why phases: a plain mip chain quadruples
-    ``lam`` per level, and blending two Gaussians four times apart in ``lam`` misrepresents the
-    Gaussian in between by up to 29 % (relative L2) for a point-like light such as the sun; with
-    four phases (``rho = sqrt 2``) the blend error is under 1 %.
+    width a bilinear lookup (after the reconstruction prefilter) reproduces to under 1 %.
+    Why phases: a plain mip chain quadruples ``lam`` per level, and blending two Gaussians
+    four times apart in ``lam`` misrepresents the Gaussian in between by up to 29 % (relative
+    L2) for a point-like light such as the sun; with four phases (``rho = sqrt 2``) the blend error is under 1 %.
 
 GL layout
     Phase ``j`` over all mips is an ordinary mip-mapped cube map: ``gl_chains()[j][m]`` is the
@@ -205,6 +205,13 @@ class Prefiltered:
 # building
 
 
+def _downsample_to(cube: torch.Tensor, res: int) -> torch.Tensor:
+    """Solid-angle-weighted 2 x 2 downsamples of ``(6, R, R, C)`` until the faces are ``res``."""
+    while cube.shape[1] > res:
+        cube = cubemap.downsample(cube)
+    return cube
+
+
 def _inverse_langevin(a: float) -> float:
     """Sharpness whose vMF has mean cosine ``a`` in (0, 1)."""
     if a <= 0:
@@ -259,8 +266,7 @@ def prefilter(
         base = as_tensor(env, device=device, dtype=torch.float32)
         if tuple(base.shape) != (6, base_res, base_res, 3):
             if base.ndim == 4 and base.shape[0] == 6 and base.shape[1] > base_res:
-                while base.shape[1] > base_res:
-                    base = cubemap.downsample(base)
+                base = _downsample_to(base, base_res)
             else:
                 raise InputError(
                     "env",
@@ -294,10 +300,7 @@ def prefilter(
         if cur_res >= SEPARABLE_MIN_RES > res:
             # Re-seed the exact part of the cascade from the map itself, so the separable
             # passes' residual error (about 1 % near bright texels) does not flow into it.
-            cur, cur_res = base, base_res
-            while cur_res > res:
-                cur = cubemap.downsample(cur)
-                cur_res //= 2
+            cur, cur_res = _downsample_to(base, res), res
             cur_mc = mc(12 * (res / 2) ** 2)
         while cur_res > res:
             cur = cubemap.downsample(cur)
@@ -317,9 +320,7 @@ def prefilter(
     # Wide levels: exact band factors on a 64^2 copy of the map (no cascade error).
     wide = [k for k in range(n_levels) if levels[k] is None]
     if wide:
-        src = base
-        while src.shape[1] > 64:
-            src = cubemap.downsample(src)
+        src = _downsample_to(base, min(base_res, 64))
         got = _convolve.sh_levels(src, [float(lambdas[k]) for k in wide], [res_of[k] for k in wide])
         for k, lv in zip(wide, got, strict=True):
             levels[k] = lv
