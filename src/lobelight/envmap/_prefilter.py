@@ -17,7 +17,8 @@ Level ladder
     width a bilinear lookup (after the reconstruction prefilter) reproduces to under 1 %.
     Why phases: a plain mip chain quadruples ``lam`` per level, and blending two Gaussians
     four times apart in ``lam`` misrepresents the Gaussian in between by up to 29 % (relative
-    L2) for a point-like light such as the sun; with four phases (``rho = sqrt 2``) the blend error is under 1 %.
+    L2) for a point-like light such as the sun; with four phases (``rho = sqrt 2``) the blend
+    error is under 1 %.
 
 GL layout
     Phase ``j`` over all mips is an ordinary mip-mapped cube map: ``gl_chains()[j][m]`` is the
