@@ -21,6 +21,8 @@ is the average of the three texels that meet there, the value the GL spec recomm
 
 from __future__ import annotations
 
+from functools import lru_cache
+
 import torch
 
 from ._backend import as_tensor, dispatch
@@ -135,6 +137,25 @@ def _check_cube(cube: torch.Tensor, name: str = "cube") -> None:
         raise InputError(name, f"must be a (6, R, R, C) cube map, got shape {tuple(cube.shape)}")
 
 
+@lru_cache(maxsize=64)
+def _pad_plan(res: int, pad: int, device: torch.device) -> torch.Tensor:
+    """Flat texel index of every texel of the padded faces, ``(6 n^2,)`` int64 (n = res + 2 pad).
+
+    Depends on the resolution only, so it is computed once (the direction round trip in float64
+    costs far more than the gather it drives).
+    """
+    k = torch.arange(-pad, res + pad, device=device, dtype=torch.float64)
+    c = (2 * k + 1) / res - 1  # extended texel centres
+    v, u = torch.meshgrid(c, c, indexing="ij")
+    n = res + 2 * pad
+    face = torch.arange(6, device=device).reshape(6, 1, 1).expand(6, n, n)
+    d = face_uv_to_direction(face, u.expand(6, n, n), v.expand(6, n, n))
+    f2, u2, v2 = direction_to_face_uv(d)
+    j = ((u2 + 1) * 0.5 * res).floor().long().clamp(0, res - 1)
+    i = ((v2 + 1) * 0.5 * res).floor().long().clamp(0, res - 1)
+    return ((f2 * res + i) * res + j).reshape(-1)
+
+
 def pad_seamless(cube: torch.Tensor, pad: int = 1) -> torch.Tensor:
     """Add a border of ``pad`` texels taken from the neighbouring faces.
 
@@ -153,17 +174,9 @@ def pad_seamless(cube: torch.Tensor, pad: int = 1) -> torch.Tensor:
     """
     _check_cube(cube)
     res = cube.shape[1]
-    dev = cube.device
-    k = torch.arange(-pad, res + pad, device=dev, dtype=torch.float64)
-    c = (2 * k + 1) / res - 1  # extended texel centres
-    v, u = torch.meshgrid(c, c, indexing="ij")
     n = res + 2 * pad
-    face = torch.arange(6, device=dev).reshape(6, 1, 1).expand(6, n, n)
-    d = face_uv_to_direction(face, u.expand(6, n, n), v.expand(6, n, n))
-    f2, u2, v2 = direction_to_face_uv(d)
-    j = ((u2 + 1) * 0.5 * res).floor().long().clamp(0, res - 1)
-    i = ((v2 + 1) * 0.5 * res).floor().long().clamp(0, res - 1)
-    out = cube[f2, i, j]  # (6, n, n, C)
+    idx = _pad_plan(res, pad, cube.device)
+    out = cube.reshape(6 * res * res, -1)[idx].reshape(6, n, n, *cube.shape[3:])
     if pad >= 1:
         # Corner blocks of the border have no unique neighbour face: use the GL-recommended
         # average of the three texels that meet at the corner (own corner + two across edges).

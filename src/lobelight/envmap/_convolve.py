@@ -319,6 +319,36 @@ def anisotropic_increment(level: torch.Tensor, lam: float) -> torch.Tensor:
 # exact paths for coarse resolutions
 
 
+def _reach(
+    dirs: torch.Tensor, r0: int, c0: int, bs: int, w: int, cos_cut: float, margin: float
+) -> torch.Tensor:
+    """Offsets ``(di + w, dj + w)`` within ``w`` that some texel of a block needs, ``(n, 2)``.
+
+    A texel needs the offsets whose texel lies within the window angle (``cos_cut``) of it. For a
+    fixed offset the angle it spans shrinks monotonically away from the face centre, so over a
+    block it is smallest on the block's boundary: testing the boundary texels, with ``margin``
+    (radians) of slack for the sampling, finds every needed offset. The set is an ellipse
+    stretched toward the corners, about half the disk a worst-case radius would give.
+
+    Parameters
+    ----------
+    dirs : (3, n, n) texel directions of the padded grid;  ``r0, c0`` : block origin in it.
+    """
+    edge = torch.arange(bs, device=dirs.device)
+    last = torch.full_like(edge, bs - 1)
+    first = torch.zeros_like(edge)
+    br = torch.cat([first, last, edge, edge]) + r0  # boundary rows and columns, (4 bs,)
+    bc = torch.cat([edge, edge, first, last]) + c0
+    k = torch.arange(-w, w + 1, device=dirs.device)
+    di, dj = torch.meshgrid(k, k, indexing="ij")
+    di, dj = di.reshape(-1, 1), dj.reshape(-1, 1)  # ((2w+1)^2, 1)
+    own = dirs[:, br, bc]  # (3, 4 bs)
+    nb = dirs[:, br + di, bc + dj]  # (3, (2w+1)^2, 4 bs)
+    best = (own[:, None] * nb).sum(0).amax(1)  # ((2w+1)^2,)
+    keep = best > math.cos(min(math.pi, math.acos(max(-1.0, min(1.0, cos_cut))) + margin))
+    return torch.stack([di[keep, 0] + w, dj[keep, 0] + w], 1)
+
+
 def windowed_increment(level: torch.Tensor, lam_inc: float, *, blocks: int = 4) -> torch.Tensor:
     """Exact convolution of a cube map with a narrow vMF of sharpness ``lam_inc``.
 
@@ -369,6 +399,7 @@ def windowed_increment(level: torch.Tensor, lam_inc: float, *, blocks: int = 4) 
     f = torch.cat([(vals * om[..., None]).permute(3, 0, 1, 2), om.expand(1, 6, -1, -1)], 0)
     out = torch.empty(4, 6, res, res, device=dev, dtype=dt)
     cos_cut = math.cos(min(math.pi, WINDOW_SIGMAS * sigma))
+    margin = 2 / res  # a texel's largest angular size: the bound below checks block edges
     for bi in range(blocks):
         for bj in range(blocks):
             w = wins[bi][bj]
@@ -379,9 +410,7 @@ def windowed_increment(level: torch.Tensor, lam_inc: float, *, blocks: int = 4) 
             win = (slice(None), slice(None), rows, cols)
             dwin = dirs[win].unfold(2, bs, 1).unfold(3, bs, 1)
             fwin = f[win].unfold(2, bs, 1).unfold(3, bs, 1)
-            k = torch.arange(-w, w + 1, device=dev)
-            di, dj = torch.meshgrid(k, k, indexing="ij")
-            disk = (di * di + dj * dj <= w * w).nonzero()  # (n_off, 2) offsets + w
+            disk = _reach(dirs[:, 0], r0, c0, bs, w, cos_cut, margin)  # (n_off, 2) offsets + w
             acc = torch.zeros(4, 6, bs, bs, device=dev, dtype=dt)
             step = max(1, (1 << 22) // (24 * bs * bs))  # bounded memory: ~16 M values a chunk
             for o in range(0, disk.shape[0], step):

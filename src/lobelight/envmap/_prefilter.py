@@ -58,7 +58,7 @@ TEXELS_PER_SIGMA = 2.5
 #: Levels at least this fine get the bilinear reconstruction prefilter.
 SHARPEN_MIN_RES = 4
 #: Levels at this face resolution or coarser come straight from spherical harmonics.
-SH_MAX_RES = 16
+SH_MAX_RES = 32
 #: Cascade increments at this resolution or coarser are exact dense sums.
 DENSE_MAX_RES = 32
 #: Cascade increments at this resolution or finer use the separable anisotropic passes (their
