@@ -84,10 +84,12 @@ def _cmd_demo(args) -> dict:
 
 
 def _cmd_bench(args) -> dict:
-    from .bench import bench_prefilter
+    from .bench import bench_prefilter, bench_transport
 
     if args.what == "prefilter":
         return bench_prefilter(base_res=args.base_res, repeats=args.repeats, device=args.device)
+    if args.what == "transport":
+        return bench_transport(scene=args.scene, device=args.device)
     raise AssertionError(args.what)
 
 
@@ -121,7 +123,8 @@ def _parser() -> argparse.ArgumentParser:
 
     b = sub.add_parser("bench", help="benchmarks with machine-readable output")
     common(b)
-    b.add_argument("what", choices=["prefilter"], help="what to time")
+    b.add_argument("what", choices=["prefilter", "transport"], help="what to time")
+    b.add_argument("--scene", default="knot:3", help="scene for the transport benchmark")
     b.add_argument(
         "--base-res", type=int, default=512, help="face resolution of the input cube map"
     )

@@ -16,7 +16,7 @@ Three operators, each exact or controlled to well under the prefilter's 2 % budg
     :func:`_halo_plan`), so the passes see real texels across edges and corners. Radiance is
     weighted by exact texel solid angles and the result divided by the same passes applied to
     the solid angles, so the measure is right and a constant map stays constant.
-``dense_increment``  (``R <= 32``)
+``dense_increment``  (small maps; the tests' reference)
     The exact kernel between every pair of texels.
 ``sh_levels``  (the widest lobes)
     Exact Funk-Hecke band factors ``i_l(lam) / i_0(lam)`` applied to spherical-harmonic
@@ -327,7 +327,9 @@ def _reach(
     A texel needs the offsets whose texel lies within the window angle (``cos_cut``) of it. For a
     fixed offset the angle it spans shrinks monotonically away from the face centre, so over a
     block it is smallest on the block's boundary: testing the boundary texels, with ``margin``
-    (radians) of slack for the sampling, finds every needed offset. The set is an ellipse
+    (radians) of slack for the sampling, finds every needed offset (across face edges, where
+    the net continues with the neighbour's texels, tests/test_convolve.py checks the result
+    against the dense sum with bright texels on edges and corners). The set is an ellipse
     stretched toward the corners, about half the disk a worst-case radius would give.
 
     Parameters

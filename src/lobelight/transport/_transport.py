@@ -1,0 +1,441 @@
+"""Light-transport sampling per vertex and view (Green et al. 2006, section 4.1).
+
+For a vertex ``x`` with normal ``n`` and a view direction ``v`` (towards the viewer, global
+frame) the transport function splits into three parts (paper eq. 5):
+
+direct glossy
+    ``T_G(w) = f_s(w, v) V_x(w) max(n.w, 0)`` (RGB), with ``f_s`` the material's specular lobe and
+    ``V_x`` binary visibility of the environment, by ray casting. :meth:`Transport.direct`
+    evaluates it at any directions (a global cube map, or a dense local grid around a sharp
+    lobe: the BRDF part is analytic, only visibility needs rays).
+indirect glossy
+    Paths that leave ``x`` toward the object by importance sampling ``f_s`` for the view ``v``,
+    bounce off the object (full material: Lambert + specular, sampled as a mixture) and are
+    recorded at the direction in which they escape, until Russian roulette ends them. The
+    recorded throughputs, binned on a cube map and divided by the bin's solid angle, estimate
+    the transport density; integrated against the lighting they give the radiance these paths
+    carry to the viewer.
+diffuse
+    ``T_D`` as order-5 spherical-harmonic transfer vectors: ``(albedo / pi) int Y_lm(w) V_x(w)
+    max(n.w, 0) dw`` (self-shadowed), and optionally diffuse interreflection
+    (:func:`diffuse_interreflection`), iterating the transfer of the points rays hit.
+
+Views with ``n.v <= 0`` are below the horizon: their transport is 0 and they are flagged.
+Work runs over batches of vertices so that memory stays bounded for any mesh.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import torch
+
+from .. import cubemap, sh, sphere
+from ..errors import InputError
+from ..raycast import RayCaster
+from ..scene import Scene
+
+__all__ = ["Transport", "TransportBatch", "diffuse_interreflection", "sample"]
+
+#: Order of the diffuse spherical-harmonic transfer (25 coefficients).
+DIFFUSE_ORDER = 5
+
+
+@dataclass(eq=False)
+class TransportBatch:
+    """Tabulated transport of a batch of vertices for every view.
+
+    Attributes
+    ----------
+    vertices : (B,) int64 mesh vertex ids
+    views : (J, 3) view directions (global frame, towards the viewer)
+    below : (B, J) bool, view below the vertex's horizon (transport 0 there)
+    dirs : (D, 3) lighting directions of the tabulation (cube-map texel centres, GL layout)
+    solid_angle : (D,) their exact texel solid angles
+    visibility : (B, D) bool, environment visible from the vertex along ``dirs``
+    glossy : (B, J, D, 3) direct glossy transport ``f_s V cos`` at ``dirs``
+    indirect : (B, J, D_i, 3) or None, indirect glossy density on a cube map of ``indirect_res``
+    indirect_res : face resolution of ``indirect``
+    diffuse : (B, 25, 3) self-shadowed diffuse SH transfer (albedo included)
+    """
+
+    vertices: torch.Tensor
+    views: torch.Tensor
+    below: torch.Tensor
+    dirs: torch.Tensor
+    solid_angle: torch.Tensor
+    visibility: torch.Tensor
+    glossy: torch.Tensor
+    indirect: torch.Tensor | None
+    indirect_res: int
+    diffuse: torch.Tensor
+
+    def total(self) -> torch.Tensor:
+        """Glossy transport at ``dirs`` with the indirect part resampled onto them, (B, J, D, 3)."""
+        if self.indirect is None:
+            return self.glossy
+        res = round(math.sqrt(self.dirs.shape[0] / 6))
+        ind = self.indirect
+        if self.indirect_res != res:
+            # nearest bin: the density is piecewise constant over the coarser bins
+            f, u, v = cubemap.direction_to_face_uv(self.dirs)
+            col = ((u + 1) * self.indirect_res / 2).floor().long().clamp(0, self.indirect_res - 1)
+            row = ((v + 1) * self.indirect_res / 2).floor().long().clamp(0, self.indirect_res - 1)
+            ind = ind[:, :, (f * self.indirect_res + row) * self.indirect_res + col]
+        return self.glossy + ind
+
+
+class Transport:
+    """Transport sampling for one scene: visibility, direct and indirect glossy, SH diffuse.
+
+    Parameters
+    ----------
+    scene : Scene
+    device : torch device of the results (ray casting itself runs on the CPU)
+    """
+
+    def __init__(self, scene: Scene, *, device=None):
+        self.device = torch.device(device) if device is not None else scene.mesh.device
+        self.scene = scene.to(self.device)
+        self.mesh = self.scene.mesh
+        self.materials = self.scene.materials
+        self.caster = RayCaster(self.mesh)
+
+    # ---- visibility ---------------------------------------------------------------------------
+
+    def visibility(self, vidx: torch.Tensor, dirs: torch.Tensor) -> torch.Tensor:
+        """Whether the environment is visible from vertices along directions.
+
+        Only rays above the geometric horizon of the vertex normal are cast; the others are
+        reported invisible (their cosine factor is zero anyway).
+
+        Parameters
+        ----------
+        vidx : (B,) vertex ids;  dirs : (B, ..., 3) or (..., 3) unit directions (broadcast)
+
+        Returns
+        -------
+        (B, ...) bool
+        """
+        vidx = vidx.to(self.device)
+        b = vidx.shape[0]
+        extra = dirs.ndim - 2 if dirs.shape[0] == b and dirs.ndim >= 2 else dirs.ndim - 1
+        p = self.mesh.vertices[vidx].reshape(b, *([1] * extra), 3)
+        n = self.mesh.normals[vidx].reshape(b, *([1] * extra), 3)
+        d = dirs.to(self.device, p.dtype)
+        shape = torch.broadcast_shapes(p.shape, d.shape)[:-1]
+        d = d.expand(*shape, 3)
+        up = (d * n).sum(-1) > 0
+        out = torch.zeros(shape, dtype=torch.bool, device=self.device)
+        if bool(up.any()):
+            o = self.caster.spawn(p.expand(*shape, 3)[up], n.expand(*shape, 3)[up], d[up])
+            out[up] = ~self.caster.occluded(o, d[up])
+        return out
+
+    # ---- direct glossy ------------------------------------------------------------------------
+
+    def direct(
+        self,
+        vidx: torch.Tensor,
+        views: torch.Tensor,
+        dirs: torch.Tensor,
+        *,
+        visibility: torch.Tensor | None = None,
+    ) -> torch.Tensor:
+        """Direct glossy transport ``f_s(w, v) V(w) max(n.w, 0)`` at given directions.
+
+        Parameters
+        ----------
+        vidx : (B,) vertex ids;  views : (J, 3)
+        dirs : (D, 3) shared directions, or (B, J, K, 3) per vertex and view (e.g. a local grid
+            around the lobe's peak)
+        visibility : optional precomputed visibility, (B, D) or (B, J, K)
+
+        Returns
+        -------
+        (B, J, D or K, 3); 0 for views below the horizon
+        """
+        vidx = vidx.to(self.device)
+        b, j = vidx.shape[0], views.shape[0]
+        views = views.to(self.device, torch.float32)
+        n = self.mesh.normals[vidx]  # (B, 3)
+        spec = self.materials.specular
+        below = (views[None] * n[:, None]).sum(-1) <= 0  # (B, J)
+        if dirs.ndim == 2:
+            d = dirs.to(self.device, torch.float32)  # (D, 3)
+            vis = self.visibility(vidx, d) if visibility is None else visibility  # (B, D)
+            out = torch.zeros(b, j, d.shape[0], 3, device=self.device)
+            if spec is None:
+                return out
+            # evaluate only where the environment is visible (a third to a half of the sphere
+            # for most vertices): the BRDF evaluation is the cost here, not the rays
+            bi, di = vis.nonzero(as_tuple=True)  # (M,) each
+            s = spec.take(vidx[bi]).map_params(
+                lambda t, kind: t if t.ndim <= kind else t.unsqueeze(1)
+            )  # per-element parameters (M, 1, ...)
+            dd, nn = d[di][:, None], n[bi][:, None]  # (M, 1, 3)
+            f = s.eval(dd, views[None].expand(bi.shape[0], j, 3), nn)  # (M, J, 3)
+            f = f * (dd * nn).sum(-1, keepdim=True).clamp_min(0)
+            f = torch.where(below[bi][..., None], torch.zeros_like(f), f)
+            out.permute(0, 2, 1, 3)[bi, di] = f
+            return out
+        d = dirs.to(self.device, torch.float32)  # (B, J, K, 3)
+        vis = self.visibility(vidx, d) if visibility is None else visibility
+        k = d.shape[2]
+        out = torch.zeros(b, j, k, 3, device=self.device)
+        if spec is None:
+            return out
+        s = spec.take(vidx)  # per-vertex parameters (B, ...)
+        s = s.map_params(lambda t, kind: t if t.ndim <= kind else t.reshape(b, 1, 1, *t.shape[1:]))
+        nn = n[:, None, None]
+        wo = views[None, :, None]
+        f = s.eval(d, wo.expand(b, j, 1, 3), nn)  # (B, J, K, 3)
+        cos = (d * nn).sum(-1).clamp_min(0)
+        out = f * (cos * vis)[..., None]
+        return torch.where(below[..., None, None], torch.zeros_like(out), out)
+
+    # ---- indirect glossy ----------------------------------------------------------------------
+
+    def indirect(
+        self,
+        vidx: torch.Tensor,
+        views: torch.Tensor,
+        *,
+        paths: int = 64,
+        res: int = 16,
+        max_bounces: int = 8,
+        generator: torch.Generator | None = None,
+    ) -> torch.Tensor:
+        """Indirect glossy transport density by BRDF-importance-sampled path tracing.
+
+        Parameters
+        ----------
+        vidx : (B,) vertex ids;  views : (J, 3)
+        paths : paths per vertex and view
+        res : face resolution of the cube map the escape directions are binned on
+        max_bounces : hard cap on bounces off the object (Russian roulette ends most paths
+            earlier; the cap bounds the loop)
+
+        Returns
+        -------
+        (B, J, 6 res^2, 3): sum of escaped throughputs per bin / (paths * bin solid angle), so
+        that ``sum_bins T * L * solid_angle`` estimates the radiance these paths carry
+        """
+        dev = self.device
+        vidx = vidx.to(dev)
+        b, j = vidx.shape[0], views.shape[0]
+        views = views.to(dev, torch.float32)
+        n_bins = 6 * res * res
+        acc = torch.zeros(b * j * n_bins, 3, device=dev)
+        spec = self.materials.specular
+        if spec is None:
+            return acc.reshape(b, j, n_bins, 3)
+        g = generator
+
+        def rand(*shape):
+            return torch.rand(*shape, generator=g, device="cpu").to(dev)
+
+        # path state, flattened over (B, J, paths)
+        m = b * j * paths
+        slot = torch.arange(m, device=dev) // paths  # (m,) which (vertex, view)
+        vert = vidx.repeat_interleave(j * paths)  # (m,)
+        wo = views.repeat_interleave(paths, 0).repeat(b, 1)  # (m, 3)
+        p = self.mesh.vertices[vert]
+        n = self.mesh.normals[vert]
+        above = (wo * n).sum(-1) > 0
+        # first bounce: the specular lobe at x only (the diffuse part is the SH term's)
+        wi, weight, _ = spec.take(vert).sample(wo, n, rand(m, 2))
+        thr = weight * above[:, None]
+        alive = (thr.amax(-1) > 0).nonzero().squeeze(-1)
+        p, n, wi, thr, slot = p[alive], n[alive], wi[alive], thr[alive], slot[alive]
+        first = True
+        for bounce in range(max_bounces + 1):
+            if slot.numel() == 0:
+                break
+            o = self.caster.spawn(p, n, wi)
+            tri, _, bary = self.caster.first_hit(o, wi)
+            esc = tri < 0
+            if not first and bool(esc.any()):
+                # escaped after at least one bounce off the object: record at its direction
+                f, u, v = cubemap.direction_to_face_uv(wi[esc])
+                col = ((u + 1) * res / 2).floor().long().clamp(0, res - 1)
+                row = ((v + 1) * res / 2).floor().long().clamp(0, res - 1)
+                acc.index_add_(0, slot[esc] * n_bins + (f * res + row) * res + col, thr[esc])
+            first = False
+            keep = ~esc
+            if bounce == max_bounces or not bool(keep.any()):
+                break
+            tri, bary = tri[keep], bary[keep]
+            wo_y = -wi[keep]
+            thr, slot = thr[keep], slot[keep]
+            corners = self.mesh.faces[tri]  # (h, 3)
+            w = bary[..., None]
+            p = (self.mesh.vertices[corners] * w).sum(1)
+            ns = torch.nn.functional.normalize((self.mesh.normals[corners] * w).sum(1), dim=-1)
+            # shade with the normal on the side the ray arrived from (thin or open meshes)
+            ns = torch.where(((ns * wo_y).sum(-1) < 0)[:, None], -ns, ns)
+            mat = self.materials.interpolate(corners, bary).brdf()
+            wi_new, weight, _ = mat.sample(wo_y, ns, rand(len(tri), 3))
+            thr = thr * weight
+            # Russian roulette after the second bounce, survival by the throughput's maximum
+            if bounce >= 1:
+                q = thr.amax(-1).clamp(0.05, 0.95)
+                survive = rand(len(q)) < q
+                thr = thr / q[:, None]
+                thr = torch.where(survive[:, None], thr, torch.zeros_like(thr))
+            live = (thr.amax(-1) > 0).nonzero().squeeze(-1)
+            p, n, wi, thr, slot = p[live], ns[live], wi_new[live], thr[live], slot[live]
+        om = cubemap.texel_solid_angles(res, device=dev).reshape(-1)
+        return acc.reshape(b, j, n_bins, 3) / (paths * om[None, None, :, None])
+
+    # ---- diffuse --------------------------------------------------------------------------
+
+    def diffuse(
+        self,
+        vidx: torch.Tensor,
+        dirs: torch.Tensor,
+        solid_angle: torch.Tensor,
+        *,
+        visibility: torch.Tensor | None = None,
+        order: int = DIFFUSE_ORDER,
+    ) -> torch.Tensor:
+        """Self-shadowed diffuse SH transfer ``(albedo / pi) sum_w Y(w) V(w) cos(w) Omega(w)``.
+
+        Parameters
+        ----------
+        vidx : (B,);  dirs : (D, 3) quadrature directions;  solid_angle : (D,) their weights
+        visibility : optional (B, D) precomputed visibility
+
+        Returns
+        -------
+        (B, order^2, 3)
+        """
+        vidx = vidx.to(self.device)
+        d = dirs.to(self.device, torch.float32)
+        vis = self.visibility(vidx, d) if visibility is None else visibility
+        n = self.mesh.normals[vidx]
+        cos = (n @ d.T).clamp_min(0)  # (B, D)
+        w = cos * vis * solid_angle.to(self.device)[None]
+        y = sh.basis(d, order)  # (D, order^2)
+        geo = w @ y  # (B, order^2)
+        return geo[..., None] * (self.materials.diffuse[vidx] / math.pi)[:, None, :]
+
+
+def sample(
+    scene: Scene,
+    vertices=None,
+    views=None,
+    *,
+    res: int = 32,
+    indirect: bool = True,
+    indirect_res: int = 16,
+    paths: int = 64,
+    seed: int = 0,
+    device=None,
+    transport: Transport | None = None,
+) -> TransportBatch:
+    """Tabulate the transport of some vertices for every view on a cube map of directions.
+
+    Parameters
+    ----------
+    scene : Scene
+    vertices : (B,) vertex ids (default all: mind the memory, B x J x 6 res^2 x 3 floats)
+    views : (J, 3) view directions (default the 92 geodesic views)
+    res : face resolution of the direction cube map for direct glossy and diffuse
+    indirect : also path-trace indirect glossy (``paths`` per vertex and view) on a cube map of
+        ``indirect_res``
+    seed : random seed of the path tracer (results are deterministic for a seed)
+
+    Returns
+    -------
+    TransportBatch
+    """
+    tr = transport if transport is not None else Transport(scene, device=device)
+    dev = tr.device
+    if vertices is None:
+        vertices = torch.arange(tr.mesh.n_vertices)
+    vidx = torch.as_tensor(vertices, dtype=torch.int64, device=dev).reshape(-1)
+    if vidx.numel() and (int(vidx.min()) < 0 or int(vidx.max()) >= tr.mesh.n_vertices):
+        raise InputError("vertices", f"ids must be in [0, {tr.mesh.n_vertices})")
+    if views is None:
+        views = sphere.geodesic_views(device=dev)
+    views = torch.as_tensor(views, dtype=torch.float32, device=dev).reshape(-1, 3)
+    if res < 1 or indirect_res < 1 or paths < 1:
+        raise InputError("res", "resolutions and path counts must be positive")
+    dirs = cubemap.texel_directions(res, device=dev).reshape(-1, 3)
+    om = cubemap.texel_solid_angles(res, device=dev).reshape(-1)
+    vis = tr.visibility(vidx, dirs)  # (B, D)
+    glossy = tr.direct(vidx, views, dirs, visibility=vis)
+    below = (views[None] * tr.mesh.normals[vidx][:, None]).sum(-1) <= 0
+    ind = None
+    if indirect:
+        gen = torch.Generator().manual_seed(int(seed))
+        ind = tr.indirect(vidx, views, paths=paths, res=indirect_res, generator=gen)
+    diffuse = tr.diffuse(vidx, dirs, om, visibility=vis)
+    return TransportBatch(
+        vertices=vidx,
+        views=views,
+        below=below,
+        dirs=dirs,
+        solid_angle=om,
+        visibility=vis,
+        glossy=glossy,
+        indirect=ind,
+        indirect_res=indirect_res,
+        diffuse=diffuse,
+    )
+
+
+def diffuse_interreflection(
+    transport: Transport,
+    shadowed: torch.Tensor,
+    *,
+    bounces: int = 1,
+    res: int = 8,
+    batch: int = 4096,
+) -> torch.Tensor:
+    """Add diffuse interreflection to self-shadowed SH transfer vectors (Sloan et al. 2002).
+
+    Bounce ``k + 1``: ``T_x = T0_x + (albedo_x / pi) sum_w T_y(w) cos(w) Omega(w)`` over the
+    directions ``w`` (a cube map of ``res``) whose ray from ``x`` hits the object at ``y(w)``;
+    ``T_y`` is the barycentric blend of the previous bounce's vectors at the hit triangle's
+    corners. The hit records are cast once and reused for every bounce.
+
+    Parameters
+    ----------
+    shadowed : (V, n, 3) self-shadowed transfer of every vertex (:meth:`Transport.diffuse`)
+
+    Returns
+    -------
+    (V, n, 3) transfer with ``bounces`` bounces of interreflection
+    """
+    mesh, dev = transport.mesh, transport.device
+    v = mesh.n_vertices
+    if shadowed.shape[0] != v:
+        raise InputError("shadowed", f"needs all {v} vertices, got {shadowed.shape[0]}")
+    d = cubemap.texel_directions(res, device=dev).reshape(-1, 3)
+    om = cubemap.texel_solid_angles(res, device=dev).reshape(-1)
+    records = []
+    for s in range(0, v, batch):
+        vidx = torch.arange(s, min(v, s + batch), device=dev)
+        p, n = mesh.vertices[vidx][:, None], mesh.normals[vidx][:, None]
+        cos = (n * d[None]).sum(-1)  # (b, D)
+        up = cos > 0
+        bi, di = up.nonzero(as_tuple=True)
+        o = transport.caster.spawn(p[bi, 0], n[bi, 0], d[di])
+        tri, _, bary = transport.caster.first_hit(o, d[di])
+        hit = tri >= 0
+        w = cos[bi[hit], di[hit]] * om[di[hit]]
+        records.append((vidx[bi[hit]], mesh.faces[tri[hit]], bary[hit], w))
+    rho = transport.materials.diffuse / math.pi  # (V, 3)
+    cur = shadowed
+    for _ in range(bounces):
+        nxt = shadowed.clone()
+        for vx, corners, bary, w in records:
+            ty = (cur[corners] * bary[..., None, None]).sum(1)  # (h, n, 3)
+            add = torch.zeros_like(shadowed)
+            add.index_add_(0, vx, ty * w[:, None, None])
+            nxt += add * rho[:, None, :]
+        cur = nxt
+    return cur
