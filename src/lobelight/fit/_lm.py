@@ -1,0 +1,189 @@
+"""Batched Levenberg-Marquardt for eq. (6): one small damped Gauss-Newton system per (vertex, view).
+
+Each view's unknowns are ``3 N`` numbers, per Gaussian a tangent-plane step ``(a, b)`` of its
+mean in units of its width and a step ``z`` of its log-sharpness, taken around the current
+estimate (so the Jacobian is exact at the expansion point)::
+
+    mu' = normalise(mu + sigma (a t + b s)),   lam' = lam exp(z),   sigma = lam^(-1/2)
+
+Residuals of a view ``v`` (their squares sum to that view's share of the objective):
+
+- data: ``sqrt(Omega_s / E) (sum_k w_kc G_k(omega_s) - T_c(omega_s))`` for every sample and
+  channel, ``E`` the vertex's transport energy (so ``D`` is a relative error). The weights ``w``
+  are solved exactly for the current means and widths (variable projection) and held fixed in
+  the Jacobian (Kaufman's simplification, which keeps Gauss-Newton's convergence).
+- ``M``: ``sqrt(beta / J) (normalise(avg_r mu_k^r) - mu_k)`` per Gaussian (3 residuals);
+- ``V``: ``sqrt(gamma / J) (avg_r sigma_k^r - sigma_k) / avg_r sigma_k^r``;
+- ``S``: ``sqrt(delta / J) max(-<dmu_x, dmu_s>, 0)^(3/2)`` per pair of Gaussians and processed
+  neighbour vertex.
+
+``M`` and ``V`` couple the views: a view's mean enters its own residual and its neighbours'
+averages. The gradient has both parts (without the second, the iteration settles where each
+view is best given its neighbours, which is not the objective's minimum); the Hessian keeps its
+per-view blocks only (block-Jacobi Gauss-Newton), so all views of all vertices step at once.
+Each vertex keeps a damping factor: a step that does not lower the vertex's whole objective is
+rejected and its damping raised, as in Marquardt's rule. With ``3 N <= 9`` unknowns per view
+the systems are solved in one batched call, so an iteration costs about three evaluations of
+the mixture at the samples.
+"""
+
+from __future__ import annotations
+
+import torch
+
+from .. import sg, sphere
+from ._data import FitData
+from ._objective import Weights, _neighbour_mean, _pair_diffs, solve_weights
+
+__all__ = ["levenberg_marquardt"]
+
+
+def _view_cost(data, w, mu, lam, inv_e, mbar, sbar, c, nbr_mu, nbr_mask):
+    """Per-view cost (B, J) with the neighbours' averages ``mbar``, ``sbar`` held fixed."""
+    g = sg.evaluate(data.dirs[:, :, None], mu[:, :, :, None], lam[..., None])  # (B, J, N, S)
+    r = torch.einsum("bjns,bjnc->bjsc", g, w) - data.values
+    cost = (data.weights[..., None] * r * r).sum((-1, -2)) * inv_e[:, None]
+    cost = cost + c["M"] ** 2 * ((mbar - mu) ** 2).sum((-1, -2))
+    sigma = lam.rsqrt()
+    cost = cost + c["V"] ** 2 * (((sbar - sigma) / sbar) ** 2).sum(-1)
+    if nbr_mu is not None and mu.shape[-2] > 1:
+        dot = (_pair_diffs(mu)[:, None] * _pair_diffs(nbr_mu)).sum(-1)  # (B, Q, J, P)
+        pen = (-dot).clamp_min(0) ** 3 * nbr_mask[:, :, None, None]
+        cost = cost + c["S"] ** 2 * pen.sum((1, 3))
+    return cost
+
+
+def levenberg_marquardt(
+    data: FitData,
+    mu: torch.Tensor,
+    lam: torch.Tensor,
+    nbr_views: torch.Tensor,
+    weights: Weights,
+    *,
+    nbr_mu: torch.Tensor | None = None,
+    nbr_mask: torch.Tensor | None = None,
+    lam_range=(0.5, 3e4),
+    iters: int = 20,
+) -> tuple[torch.Tensor, torch.Tensor]:
+    """Refine means (B, J, N, 3) and sharpness (B, J, N); returns the refined pair."""
+    b, j, n = lam.shape
+    dt = mu.dtype
+    inv_e = 1 / data.energy().sum(1).clamp_min(1e-30)  # (B,)
+    c = {
+        "M": (weights.beta / j) ** 0.5,
+        "V": (weights.gamma / j) ** 0.5,
+        "S": (weights.delta / j) ** 0.5,
+    }
+    damp = torch.full((b, 1), 1e-3, dtype=dt, device=mu.device)
+    valid = (nbr_views >= 0).to(dt)  # (J, 6)
+    inv_r = 1 / valid.sum(1)  # (J,) 1 / number of neighbours of each view
+
+    def to_neighbours(x: torch.Tensor) -> torch.Tensor:
+        """sum over u in nbr(v) of x_u / R_u (views' neighbourhoods are symmetric), (B, J, ...)."""
+        xr = x * inv_r.reshape(1, -1, *([1] * (x.ndim - 2)))
+        g = xr[:, nbr_views.clamp_min(0)]  # (B, J, 6, ...)
+        return (g * valid.reshape(1, *valid.shape, *([1] * (x.ndim - 2)))).sum(2)
+
+    def total_cost(mu_, lam_):
+        w_ = solve_weights(data, mu_, lam_)
+        mb = torch.nn.functional.normalize(_neighbour_mean(mu_, nbr_views), dim=-1)
+        sb = _neighbour_mean(lam_.rsqrt(), nbr_views)
+        return _view_cost(data, w_, mu_, lam_, inv_e, mb, sb, c, nbr_mu, mask).sum(1)
+
+    sq = (data.weights * inv_e[:, None, None]).sqrt()  # (B, J, S) residual scale
+    eye = torch.eye(3 * n, dtype=dt, device=mu.device)
+    mask = None if nbr_mask is None else nbr_mask.to(dt)
+    mu, lam = mu.clone(), lam.clone()
+    for _ in range(iters):
+        w = solve_weights(data, mu, lam)  # (B, J, N, 3)
+        mbar = torch.nn.functional.normalize(_neighbour_mean(mu, nbr_views), dim=-1)
+        sigma = lam.rsqrt()  # (B, J, N)
+        sbar = _neighbour_mean(sigma, nbr_views)
+        t, s, _ = sphere.frame(mu)  # (B, J, N, 3) each
+        om = data.dirs[:, :, None]  # (B, J, 1, S, 3)
+        g = sg.evaluate(om, mu[:, :, :, None], lam[..., None])  # (B, J, N, S)
+        gl = g * lam[..., None]
+        dg = torch.stack(
+            [
+                gl * sigma[..., None] * (t[:, :, :, None] * om).sum(-1),
+                gl * sigma[..., None] * (s[:, :, :, None] * om).sum(-1),
+                gl * ((mu[:, :, :, None] * om).sum(-1) - 1),
+            ],
+            -1,
+        )  # (B, J, N, S, 3): d G_k / d (a, b, z)_k
+        dgs = dg * sq[:, :, None, :, None]
+        r = torch.einsum("bjns,bjnc->bjsc", g, w) - data.values  # (B, J, S, C)
+        ww = torch.einsum("bjkc,bjlc->bjkl", w, w)  # (B, J, N, N)
+        h = torch.einsum("bjksp,bjlsq->bjkplq", dgs, dgs) * ww[:, :, :, None, :, None]
+        grad = torch.einsum("bjksp,bjkc,bjsc->bjkp", dgs, w, r * sq[..., None])
+        h = h.reshape(b, j, 3 * n, 3 * n)
+        grad = grad.reshape(b, j, 3 * n)
+        # M: residual c_M (mbar - mu); d/d(a, b) = -c_M sigma (t, s); V: c_V (sbar - sigma) /
+        # sbar, d/dz = c_V sigma / (2 sbar) (sigma = exp(-z/2) relative to the expansion point)
+        rm = c["M"] * (mbar - mu)  # (B, J, N, 3)
+        jm = -c["M"] * sigma[..., None, None] * torch.stack([t, s], -2)  # (B, J, N, 2, 3)
+        gm = torch.einsum("bjnpx,bjnx->bjnp", jm, rm)  # (B, J, N, 2)
+        hm = (c["M"] * sigma) ** 2  # (B, J, N): t and s are orthonormal
+        rv = c["V"] * (sbar - sigma) / sbar
+        jv = c["V"] * sigma / (2 * sbar)
+        # the same residuals of the neighbours u, through their averages: d mbar_u / d mu_v
+        # ~ 1 / R_u (normalisation's effect dropped), d sbar_u / d z_v = -sigma_v / (2 R_u)
+        back_m = to_neighbours(rm)  # (B, J, N, 3)
+        gm_n = (
+            c["M"]
+            * sigma[..., None]
+            * torch.stack([(t * back_m).sum(-1), (s * back_m).sum(-1)], -1)
+        )
+        back_v = to_neighbours(rv / sbar)  # (B, J, N)
+        gv_n = -c["V"] * sigma / 2 * back_v
+        hn = to_neighbours(torch.ones_like(sigma))  # sum of 1 / R_u over neighbours
+        hm = hm + hm * hn * inv_r.mean()
+        diag_add = torch.stack([hm, hm, jv * jv], -1).reshape(b, j, 3 * n)
+        grad_add = torch.stack(
+            [gm[..., 0] + gm_n[..., 0], gm[..., 1] + gm_n[..., 1], jv * rv + gv_n], -1
+        ).reshape(b, j, 3 * n)
+        h = h + torch.diag_embed(diag_add)
+        grad = grad + grad_add
+        if nbr_mu is not None and n > 1:
+            h, grad = _add_spatial(h, grad, mu, sigma, t, s, nbr_mu, mask, c["S"])
+        hd = h.diagonal(dim1=-2, dim2=-1)
+        lhs = h + torch.diag_embed(damp[..., None] * hd + 1e-12) + 1e-12 * eye
+        step = -torch.linalg.solve(lhs, grad).reshape(b, j, n, 3)
+        step = step.clamp(-3, 3)  # at most 3 widths / a factor e^3 in sharpness per iteration
+        mu1 = torch.nn.functional.normalize(
+            mu + sigma[..., None] * (step[..., :1] * t + step[..., 1:2] * s), dim=-1
+        )
+        lam1 = (lam * torch.exp(step[..., 2])).clamp(*lam_range)
+        cost0 = total_cost(mu, lam)
+        cost1 = total_cost(mu1, lam1)
+        ok = (cost1 <= cost0)[:, None]  # (B, 1): whole vertices step or stay
+        mu = torch.where(ok[..., None, None], mu1, mu)
+        lam = torch.where(ok[..., None], lam1, lam)
+        damp = torch.where(ok, damp / 3, damp * 4).clamp(1e-9, 1e9)
+    return mu, lam
+
+
+def _add_spatial(h, grad, mu, sigma, t, s, nbr_mu, mask, c_s):
+    """Gauss-Newton terms of ``S`` residuals ``c (max(-dot, 0))^(3/2)`` per pair and neighbour."""
+    n = mu.shape[-2]
+    i1, i2 = torch.triu_indices(n, n, offset=1, device=mu.device)
+    ds = _pair_diffs(nbr_mu)  # (B, Q, J, P, 3)
+    dx = _pair_diffs(mu)[:, None]  # (B, 1, J, P, 3)
+    neg = (-(dx * ds).sum(-1)).clamp_min(0) * mask[:, :, None, None]  # (B, Q, J, P)
+    res = c_s * neg**1.5
+    dres = -1.5 * c_s * neg**0.5  # d res / d dot
+    # d dot / d (a, b) of Gaussian k1 is sigma_k1 (t, s).ds, of k2 minus that
+    jac = torch.zeros(*neg.shape, n, 3, dtype=mu.dtype, device=mu.device)  # (B, Q, J, P, N, 3)
+    for idx, sign in ((i1, 1.0), (i2, -1.0)):
+        tt = t[:, :, idx][:, None]  # (B, 1, J, P, 3)
+        ss = s[:, :, idx][:, None]
+        sg_ = sigma[:, :, idx][:, None]  # (B, 1, J, P)
+        da = sign * sg_ * (tt * ds).sum(-1)
+        db = sign * sg_ * (ss * ds).sum(-1)
+        onehot = torch.nn.functional.one_hot(idx, n).to(mu.dtype)  # (P, N)
+        jac[..., 0] += (dres * da)[..., None] * onehot
+        jac[..., 1] += (dres * db)[..., None] * onehot
+    jac = jac.reshape(*neg.shape, 3 * n)
+    h = h + torch.einsum("bqjpx,bqjpy->bjxy", jac, jac)
+    grad = grad + torch.einsum("bqjpx,bqjp->bjx", jac, res)
+    return h, grad
