@@ -90,6 +90,14 @@ def _cmd_bench(args) -> dict:
         return bench_prefilter(base_res=args.base_res, repeats=args.repeats, device=args.device)
     if args.what == "transport":
         return bench_transport(scene=args.scene, device=args.device)
+    if args.what == "lobe-tables":
+        from .cosine import bench_tables
+
+        return bench_tables(device=args.device)
+    if args.what == "brdf-fit":
+        from .sgbrdf import bench_fit
+
+        return bench_fit(material=args.material, device=args.device)
     raise AssertionError(args.what)
 
 
@@ -123,7 +131,14 @@ def _parser() -> argparse.ArgumentParser:
 
     b = sub.add_parser("bench", help="benchmarks with machine-readable output")
     common(b)
-    b.add_argument("what", choices=["prefilter", "transport"], help="what to time")
+    b.add_argument(
+        "what",
+        choices=["prefilter", "transport", "lobe-tables", "brdf-fit"],
+        help="what to time",
+    )
+    b.add_argument(
+        "--material", default="ward", help="material of brdf-fit (ward, ward_aniso, ...)"
+    )
     b.add_argument("--scene", default="knot:3", help="scene for the transport benchmark")
     b.add_argument(
         "--base-res", type=int, default=512, help="face resolution of the input cube map"

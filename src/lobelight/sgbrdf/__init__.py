@@ -1,0 +1,90 @@
+"""BRDFs as spherical-Gaussian mixtures fitted by EM, rendered with prefiltered lighting.
+
+The second method of DESIGN.md (papers/gmm-spherical-gaussians-em.txt): for a set of fixed view
+directions ``o_j`` in the tangent frame, ``rho(i, o_j) (n.i)`` is fitted once per material as a
+mixture of ``N`` (8) spherical Gaussians; at render time each pixel interpolates the lobes for
+its view, rotates them to the world and integrates each against the environment in one lookup.
+No visibility is precomputed, so scenes may change freely.
+
+EM for von Mises-Fisher mixtures (:mod:`._em`), batched over independent problems
+    - :func:`em_fit` ``(dirs (..., S, 3), weights (..., S) | None, *, n_lobes, init, max_iter,
+      tol, kappa_solver, prior, prior_strength) -> VMFMixture`` (``mu (..., N, 3)``,
+      ``kappa (..., N)``, ``alpha (..., N)``, ``loglik``, ``iterations``)
+    - :func:`init_paper` the paper's initial guess;  :func:`kappa_from_gap` the concentration
+      from ``1 - r`` (exact or Banerjee's approximation);  :func:`sample_mixture` exact draws
+
+Fitting materials (:mod:`._fit`)
+    - :func:`fit` ``(brdf, *, n_lobes=8, layout=None, n_views=16, samples=4096,
+      coherent=True, ...) -> SGBRDF``; ``SGBRDF.params`` is the ``(M, N, 7)`` texture
+      ``(w_rgb, mu_xyz, kappa)`` indexed by (view, lobe); ``SGBRDF.lobes(o)`` interpolates.
+    - view sets: :func:`elevation_views` (isotropic), :func:`geodesic_tangent_views`
+    - coherence: :func:`view_jump`, :func:`match_components`, :func:`view_transport`
+    - accuracy: :func:`mixture_error`, :func:`fit_error`, :func:`interpolation_error`
+    - :func:`bench_fit` ``(material="ward", device="cpu") -> dict`` (timing, for the CLI)
+
+Rendering (:mod:`._render`)
+    - :func:`shade` ``(model, lighting, normals, views, *, tangents=None) -> (..., 3)`` with
+      ``lighting`` a :class:`lobelight.envmap.Prefiltered` (exact, default choice) or a
+      :class:`MipChain` from :func:`mip_chain` (the paper's eq. 10)
+    - :func:`render_sphere` ``(model, lighting, *, width, height, camera, background) ->
+      (image, mask)``; :func:`sphere_hits` the rays and surface frames it shades
+"""
+
+from ._em import (
+    KAPPA_MAX,
+    KAPPA_MIN,
+    VMFMixture,
+    em_fit,
+    init_paper,
+    kappa_from_gap,
+    log_vmf_normalization,
+    sample_mixture,
+    vmf_log_pdf,
+)
+from ._fit import (
+    SGBRDF,
+    bench_fit,
+    brdf_samples,
+    elevation_views,
+    fit,
+    fit_error,
+    geodesic_tangent_views,
+    interpolation_error,
+    is_isotropic,
+    match_components,
+    mixture_error,
+    view_jump,
+    view_transport,
+)
+from ._render import COVERAGE, MipChain, mip_chain, render_sphere, shade, sphere_hits
+
+__all__ = [
+    "COVERAGE",
+    "KAPPA_MAX",
+    "KAPPA_MIN",
+    "SGBRDF",
+    "MipChain",
+    "VMFMixture",
+    "bench_fit",
+    "brdf_samples",
+    "elevation_views",
+    "em_fit",
+    "fit",
+    "fit_error",
+    "geodesic_tangent_views",
+    "init_paper",
+    "interpolation_error",
+    "is_isotropic",
+    "kappa_from_gap",
+    "log_vmf_normalization",
+    "match_components",
+    "mip_chain",
+    "mixture_error",
+    "render_sphere",
+    "sample_mixture",
+    "shade",
+    "sphere_hits",
+    "view_jump",
+    "view_transport",
+    "vmf_log_pdf",
+]
