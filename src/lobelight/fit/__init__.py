@@ -3,9 +3,12 @@
 - :func:`gather` samples each vertex's glossy transport where it lives (:class:`FitData`).
 - :func:`fit_batch` minimises eq. (6), ``alpha D + beta M + gamma V + delta S``, for a batch of
   vertices over all views at once (:class:`Gaussians`, :class:`Weights`).
+- :func:`fit_mesh` fits a whole mesh by flood-fill wavefronts, with a relaxation pass against
+  flipped Gaussians (:class:`MeshFit`).
 """
 
 from ._data import FitData, gather, lobe_estimate
+from ._floodfill import MeshFit, count_flips, fit_mesh, wavefronts
 from ._objective import Weights, flip_count
 from ._optimize import LAM_RANGE, Gaussians, fit_batch, initial_guess
 
@@ -13,10 +16,14 @@ __all__ = [
     "LAM_RANGE",
     "FitData",
     "Gaussians",
+    "MeshFit",
     "Weights",
+    "count_flips",
     "fit_batch",
+    "fit_mesh",
     "flip_count",
     "gather",
     "initial_guess",
     "lobe_estimate",
+    "wavefronts",
 ]

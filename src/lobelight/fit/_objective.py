@@ -60,7 +60,7 @@ def mixture(data: FitData, w: torch.Tensor, mu: torch.Tensor, lam: torch.Tensor)
 
 
 def solve_weights(
-    data: FitData, mu: torch.Tensor, lam: torch.Tensor, *, ridge: float = 1e-9
+    data: FitData, mu: torch.Tensor, lam: torch.Tensor, *, ridge: float = 1e-5
 ) -> torch.Tensor:
     """Least-squares RGB weights given means and sharpness (variable projection), ``(B, J, N, 3)``.
 
