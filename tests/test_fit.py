@@ -160,3 +160,23 @@ def test_gather_resolves_a_sharp_phong_lobe():
     # a Phong lobe is close to, but not exactly, a Gaussian (its cosine factor and horizon
     # cut): the relative L2 error of one Gaussian is a few per cent
     assert float(terms["D"].max()) < 0.02
+
+
+def test_weights_of_coincident_lobes_are_finite():
+    # regression: two Gaussians that coincide (same mean and sharpness, e.g. N = 2 on a single
+    # lobe) made the float32 normal equations exactly singular and stopped a knot fit
+    from lobelight.fit._objective import solve_weights
+
+    g = torch.Generator().manual_seed(0)
+    d = torch.nn.functional.normalize(torch.randn(1, 1, 50, 3, generator=g), dim=-1)
+    data = FitData(
+        d,
+        torch.ones(1, 1, 50),
+        torch.rand(1, 1, 50, 3, generator=g),
+        torch.zeros(1, 1, dtype=torch.bool),
+    )
+    mu = torch.tensor([0, 1.0, 0]).expand(1, 1, 2, 3).contiguous()
+    w = solve_weights(data, mu, torch.full((1, 1, 2), 5.0))
+    assert bool(torch.isfinite(w).all())
+    # the ridge splits the weight evenly between the two copies
+    torch.testing.assert_close(w[0, 0, 0], w[0, 0, 1])

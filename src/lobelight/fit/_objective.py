@@ -60,7 +60,7 @@ def mixture(data: FitData, w: torch.Tensor, mu: torch.Tensor, lam: torch.Tensor)
 
 
 def solve_weights(
-    data: FitData, mu: torch.Tensor, lam: torch.Tensor, *, ridge: float = 1e-5
+    data: FitData, mu: torch.Tensor, lam: torch.Tensor, *, ridge: float = 1e-9
 ) -> torch.Tensor:
     """Least-squares RGB weights given means and sharpness (variable projection), ``(B, J, N, 3)``.
 
@@ -73,14 +73,17 @@ def solve_weights(
     a = torch.einsum("bjks,bjls->bjkl", gw, g)  # (B, J, N, N)
     rhs = torch.einsum("bjks,bjsc->bjkc", gw, data.values)  # (B, J, N, 3)
     n = a.shape[-1]
-    eye = torch.eye(n, dtype=a.dtype, device=a.device)
-    scale = a.diagonal(dim1=-2, dim2=-1).mean(-1)[..., None, None]  # (B, J, 1, 1)
+    # float64 for the N x N solve: two coincident lobes make the system singular up to the
+    # ridge, which float32 cannot represent next to the diagonal
+    a64 = a.double()
+    eye = torch.eye(n, dtype=a64.dtype, device=a.device)
+    scale = a64.diagonal(dim1=-2, dim2=-1).mean(-1)[..., None, None]  # (B, J, 1, 1)
     # views below the horizon, and lobes that sit where no sample is (all G underflow), get
     # weight 0 from an identity system: solving the singular one would poison the gradients
     bad = data.below[..., None, None] | (scale < 1e-30)
-    a = torch.where(bad, eye, a + ridge * scale * eye)
+    a64 = torch.where(bad, eye, a64 + ridge * scale * eye)
     rhs = torch.where(bad, torch.zeros_like(rhs), rhs)
-    return torch.linalg.solve(a, rhs).clamp_min(0)
+    return torch.linalg.solve(a64, rhs.double()).to(rhs.dtype).clamp_min(0)
 
 
 def data_term(data: FitData, w, mu, lam) -> torch.Tensor:
