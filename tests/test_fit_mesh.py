@@ -12,7 +12,7 @@ from lobelight.scene import _shapes
 def test_wavefronts_cover_every_vertex_once_and_grow_from_processed_neighbours():
     v1, f1 = _shapes.icosphere(2)
     v2, f2 = _shapes.icosphere(1)
-    v = np.concatenate([v1, v2 + [3.0, 0, 0]])  # two components
+    v = np.concatenate([v1, v2 + np.array([3.0, 0.0, 0.0])])  # two components
     f = np.concatenate([f1, f2 + len(v1)])
     mesh = scene.mesh_from_arrays(v, f)
     layers = fit.wavefronts(mesh)
