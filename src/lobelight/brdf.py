@@ -592,7 +592,20 @@ def _mean_color(c: torch.Tensor) -> torch.Tensor:
     return c if c.ndim == 0 else c.mean(-1)
 
 
-class Phong(BRDF):
+class _ExponentLobe(BRDF):
+    """Shared parameters of the cosine-power lobes: a colour ``specular`` and an ``exponent``."""
+
+    def __init__(self, specular: Any, exponent: Any):
+        super().__init__()
+        self._set("specular", specular, _COLOR, lo=0.0, hi=1.0)
+        self._set("exponent", exponent, _SCALAR, lo=0.0)
+        self._check_shapes()
+
+    def _albedo_guess(self, wo):
+        return _mean_color(self._get("specular", wo)) + torch.zeros_like(wo[..., 2])
+
+
+class Phong(_ExponentLobe):
     """Modified Phong (Lafortune & Willems 1994): ``ks (e + 2)/(2 pi) pos(r.wi)^e``.
 
     Parameters
@@ -602,12 +615,6 @@ class Phong(BRDF):
     """
 
     type_name = "phong"
-
-    def __init__(self, specular: Any, exponent: Any):
-        super().__init__()
-        self._set("specular", specular, _COLOR, lo=0.0, hi=1.0)
-        self._set("exponent", exponent, _SCALAR, lo=0.0)
-        self._check_shapes()
 
     @staticmethod
     def _mirror(wo: torch.Tensor) -> torch.Tensor:
@@ -629,16 +636,13 @@ class Phong(BRDF):
         )
         return _sample_cospow(r, e[..., 0], u0[..., 0], u1[..., 0])
 
-    def _albedo_guess(self, wo):
-        return _mean_color(self._get("specular", wo)) + torch.zeros_like(wo[..., 2])
-
 
 def _blinn_norm(e: torch.Tensor) -> torch.Tensor:
     """``(e + 2)(e + 4) / (8 pi (2^(-e/2) + e))``: Blinn-Phong albedo at normal incidence = 1."""
     return (e + 2) * (e + 4) / (8 * _PI * (torch.exp2(-e / 2) + e))
 
 
-class BlinnPhong(BRDF):
+class BlinnPhong(_ExponentLobe):
     """Normalised Blinn-Phong ``ks c(e) pos(n.h)^e`` with the exact normalisation ``c(e)``.
 
     ``c(e) = (e + 2)(e + 4) / (8 pi (2^(-e/2) + e))`` makes the albedo at normal incidence
@@ -651,12 +655,6 @@ class BlinnPhong(BRDF):
     """
 
     type_name = "blinn_phong"
-
-    def __init__(self, specular: Any, exponent: Any):
-        super().__init__()
-        self._set("specular", specular, _COLOR, lo=0.0, hi=1.0)
-        self._set("exponent", exponent, _SCALAR, lo=0.0)
-        self._check_shapes()
 
     @staticmethod
     def _zhat(like: torch.Tensor) -> torch.Tensor:
@@ -683,9 +681,6 @@ class BlinnPhong(BRDF):
         )
         h = _sample_cospow(z, e[..., 0], u0[..., 0], u1[..., 0])
         return _reflect(wo.expand_as(h), h)
-
-    def _albedo_guess(self, wo):
-        return _mean_color(self._get("specular", wo)) + torch.zeros_like(wo[..., 2])
 
 
 class Ward(BRDF):
