@@ -31,17 +31,38 @@ from __future__ import annotations
 
 import torch
 
-from .. import sg, sphere
+from .. import sphere
 from ._data import FitData
 from ._objective import Weights, _neighbour_mean, _pair_diffs, solve_weights
 
 __all__ = ["levenberg_marquardt"]
 
 
-def _view_cost(data, w, mu, lam, inv_e, mbar, sbar, c, nbr_mu, nbr_mask):
+def _gauss(dirs64: torch.Tensor, mu: torch.Tensor, lam: torch.Tensor):
+    """``G_k(omega_s)`` and ``mu_k . omega_s - 1``, both (B, J, N, S), by one batched matmul.
+
+    The dot products are taken in float64 (``dirs64`` is the float64 copy of the sample
+    directions): ``lam (mu.w - 1)`` for ``lam = 3e4`` needs ``1 - mu.w`` to better than float32's
+    6e-8, which the matmul form (unlike a half-chord) would otherwise lose.
+    """
+    b, j, n, _ = mu.shape
+    s = dirs64.shape[2]
+    dot = torch.bmm(mu.reshape(b * j, n, 3).double(), dirs64.reshape(b * j, s, 3).transpose(1, 2))
+    cm1 = (dot - 1).reshape(b, j, n, s)
+    g = torch.exp(lam.double()[..., None] * cm1)
+    return g.to(mu.dtype), cm1.to(mu.dtype)
+
+
+def _mix(g: torch.Tensor, w: torch.Tensor) -> torch.Tensor:
+    """``sum_k w_kc G_k(omega_s)``: (B, J, N, S), (B, J, N, 3) -> (B, J, S, 3)."""
+    b, j, n, s = g.shape
+    out = torch.bmm(g.reshape(b * j, n, s).transpose(1, 2), w.reshape(b * j, n, 3))
+    return out.reshape(b, j, s, 3)
+
+
+def _view_cost(data, g, w, mu, lam, inv_e, mbar, sbar, c, nbr_mu, nbr_mask):
     """Per-view cost (B, J) with the neighbours' averages ``mbar``, ``sbar`` held fixed."""
-    g = sg.evaluate(data.dirs[:, :, None], mu[:, :, :, None], lam[..., None])  # (B, J, N, S)
-    r = torch.einsum("bjns,bjnc->bjsc", g, w) - data.values
+    r = _mix(g, w) - data.values
     cost = (data.weights[..., None] * r * r).sum((-1, -2)) * inv_e[:, None]
     cost = cost + c["M"] ** 2 * ((mbar - mu) ** 2).sum((-1, -2))
     sigma = lam.rsqrt()
@@ -84,40 +105,44 @@ def levenberg_marquardt(
         g = xr[:, nbr_views.clamp_min(0)]  # (B, J, 6, ...)
         return (g * valid.reshape(1, *valid.shape, *([1] * (x.ndim - 2)))).sum(2)
 
-    def total_cost(mu_, lam_):
-        w_ = solve_weights(data, mu_, lam_)
+    dirs64 = data.dirs.double()
+
+    def evaluate(mu_, lam_):
+        """G, mu.w - 1, the solved weights and the vertex's whole objective."""
+        g_, cm1_ = _gauss(dirs64, mu_, lam_)
+        w_ = solve_weights(data, mu_, lam_, g=g_)
         mb = torch.nn.functional.normalize(_neighbour_mean(mu_, nbr_views), dim=-1)
         sb = _neighbour_mean(lam_.rsqrt(), nbr_views)
-        return _view_cost(data, w_, mu_, lam_, inv_e, mb, sb, c, nbr_mu, mask).sum(1)
+        cost = _view_cost(data, g_, w_, mu_, lam_, inv_e, mb, sb, c, nbr_mu, mask).sum(1)
+        return g_, cm1_, w_, cost
 
     sq = (data.weights * inv_e[:, None, None]).sqrt()  # (B, J, S) residual scale
     eye = torch.eye(3 * n, dtype=dt, device=mu.device)
     mask = None if nbr_mask is None else nbr_mask.to(dt)
     mu, lam = mu.clone(), lam.clone()
+    g, cm1, w, cost0 = evaluate(mu, lam)
     for _ in range(iters):
-        w = solve_weights(data, mu, lam)  # (B, J, N, 3)
         mbar = torch.nn.functional.normalize(_neighbour_mean(mu, nbr_views), dim=-1)
         sigma = lam.rsqrt()  # (B, J, N)
         sbar = _neighbour_mean(sigma, nbr_views)
         t, s, _ = sphere.frame(mu)  # (B, J, N, 3) each
-        om = data.dirs[:, :, None]  # (B, J, 1, S, 3)
-        g = sg.evaluate(om, mu[:, :, :, None], lam[..., None])  # (B, J, N, S)
+        # tangent components of the sample directions, by matmul: (B, J, N, S) each
+        bj = b * j
+        dflat = data.dirs.reshape(bj, -1, 3).transpose(1, 2)  # (BJ, 3, S)
+        tw = torch.bmm(t.reshape(bj, n, 3), dflat).reshape(g.shape)
+        sw = torch.bmm(s.reshape(bj, n, 3), dflat).reshape(g.shape)
         gl = g * lam[..., None]
         dg = torch.stack(
-            [
-                gl * sigma[..., None] * (t[:, :, :, None] * om).sum(-1),
-                gl * sigma[..., None] * (s[:, :, :, None] * om).sum(-1),
-                gl * ((mu[:, :, :, None] * om).sum(-1) - 1),
-            ],
-            -1,
+            [gl * sigma[..., None] * tw, gl * sigma[..., None] * sw, gl * cm1], -1
         )  # (B, J, N, S, 3): d G_k / d (a, b, z)_k
         dgs = dg * sq[:, :, None, :, None]
-        r = torch.einsum("bjns,bjnc->bjsc", g, w) - data.values  # (B, J, S, C)
-        ww = torch.einsum("bjkc,bjlc->bjkl", w, w)  # (B, J, N, N)
-        h = torch.einsum("bjksp,bjlsq->bjkplq", dgs, dgs) * ww[:, :, :, None, :, None]
-        grad = torch.einsum("bjksp,bjkc,bjsc->bjkp", dgs, w, r * sq[..., None])
-        h = h.reshape(b, j, 3 * n, 3 * n)
-        grad = grad.reshape(b, j, 3 * n)
+        r = (_mix(g, w) - data.values) * sq[..., None]  # (B, J, S, C) scaled residuals
+        ww = torch.bmm(w.reshape(bj, n, 3), w.reshape(bj, n, 3).transpose(1, 2))  # (BJ, N, N)
+        a = dgs.permute(0, 1, 3, 2, 4).reshape(bj, -1, 3 * n)  # (BJ, S, 3N)
+        h = torch.bmm(a.transpose(1, 2), a).reshape(bj, n, 3, n, 3)
+        h = (h * ww.reshape(bj, n, 1, n, 1)).reshape(b, j, 3 * n, 3 * n)
+        e = torch.bmm(w.reshape(bj, n, 3), r.reshape(bj, -1, 3).transpose(1, 2))  # (BJ, N, S)
+        grad = (dgs * e.reshape(b, j, n, -1, 1)).sum(3).reshape(b, j, 3 * n)
         # M: residual c_M (mbar - mu); d/d(a, b) = -c_M sigma (t, s); V: c_V (sbar - sigma) /
         # sbar, d/dz = c_V sigma / (2 sbar) (sigma = exp(-z/2) relative to the expansion point)
         rm = c["M"] * (mbar - mu)  # (B, J, N, 3)
@@ -154,11 +179,14 @@ def levenberg_marquardt(
             mu + sigma[..., None] * (step[..., :1] * t + step[..., 1:2] * s), dim=-1
         )
         lam1 = (lam * torch.exp(step[..., 2])).clamp(*lam_range)
-        cost0 = total_cost(mu, lam)
-        cost1 = total_cost(mu1, lam1)
+        g1, cm11, w1, cost1 = evaluate(mu1, lam1)
         ok = (cost1 <= cost0)[:, None]  # (B, 1): whole vertices step or stay
         mu = torch.where(ok[..., None, None], mu1, mu)
         lam = torch.where(ok[..., None], lam1, lam)
+        g = torch.where(ok[..., None, None], g1, g)
+        cm1 = torch.where(ok[..., None, None], cm11, cm1)
+        w = torch.where(ok[..., None, None], w1, w)
+        cost0 = torch.where(ok[:, 0], cost1, cost0)
         damp = torch.where(ok, damp / 3, damp * 4).clamp(1e-9, 1e9)
     return mu, lam
 

@@ -60,7 +60,12 @@ def mixture(data: FitData, w: torch.Tensor, mu: torch.Tensor, lam: torch.Tensor)
 
 
 def solve_weights(
-    data: FitData, mu: torch.Tensor, lam: torch.Tensor, *, ridge: float = 1e-9
+    data: FitData,
+    mu: torch.Tensor,
+    lam: torch.Tensor,
+    *,
+    ridge: float = 1e-9,
+    g: torch.Tensor | None = None,
 ) -> torch.Tensor:
     """Least-squares RGB weights given means and sharpness (variable projection), ``(B, J, N, 3)``.
 
@@ -68,7 +73,8 @@ def solve_weights(
     negative solutions are clamped to 0 (exact for N = 1, where the optimum is never negative
     for non-negative data), and views below the horizon get 0.
     """
-    g = sg.evaluate(data.dirs[:, :, None], mu[:, :, :, None], lam[..., None])  # (B, J, N, S)
+    if g is None:  # (B, J, N, S); callers that have it pass it
+        g = sg.evaluate(data.dirs[:, :, None], mu[:, :, :, None], lam[..., None])
     gw = g * data.weights[:, :, None]
     a = torch.einsum("bjks,bjls->bjkl", gw, g)  # (B, J, N, N)
     rhs = torch.einsum("bjks,bjsc->bjkc", gw, data.values)  # (B, J, N, 3)
