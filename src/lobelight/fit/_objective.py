@@ -89,7 +89,14 @@ def solve_weights(
     bad = data.below[..., None, None] | (scale < 1e-30)
     a64 = torch.where(bad, eye, a64 + ridge * scale * eye)
     rhs = torch.where(bad, torch.zeros_like(rhs), rhs)
-    return torch.linalg.solve(a64, rhs.double()).to(rhs.dtype).clamp_min(0)
+    w = torch.linalg.solve(a64, rhs.double()).to(rhs.dtype).clamp_min(0)
+    # A lobe far sharper than the samples around it has a tiny <G, G> and would get an
+    # unbounded weight that still fits the samples; no lobe may carry more light than the
+    # data holds (twice the data's integral, per channel), which makes such lobes fit badly
+    # so the solver moves them back to where the samples resolve them.
+    light = (data.weights[..., None] * data.values.clamp_min(0)).sum(2)  # (B, J, 3)
+    cap = 2 * light[:, :, None] / sg.integral(lam.double()).to(w.dtype)[..., None]
+    return torch.minimum(w, cap)
 
 
 def data_term(data: FitData, w, mu, lam) -> torch.Tensor:

@@ -1,0 +1,253 @@
+"""The model file: a fitted object in one file, checked on load, never unpickled.
+
+Layout: a NumPy ``.npz`` archive (a zip of ``.npy`` arrays, read with ``allow_pickle=False``)
+holding
+
+``meta``            UTF-8 JSON (as uint8): ``format`` ("lobelight-model"), ``version``, counts,
+                    storage options, materials (:meth:`lobelight.scene.Materials.to_dict`) and
+                    provenance (scene name, fit settings, timings, software versions)
+``vertices``        (V, 3) float32;  ``faces`` (F, 3) int32;  ``normals`` (V, 3) float32
+``views``           (J, 3) float32, the view directions the Gaussians belong to
+``keep``            (V, J) bool, which (vertex, view) records are stored
+``gaussians``       (K, N, 7) float32 or float16: the paper's 7 floats per Gaussian, RGB weight,
+                    mean, sigma, for the K kept records in row-major (vertex, view) order
+                    (half-float files store the weight times the Gaussian's integral instead
+                    of its peak: ``meta["weights"] == "integral"``)
+``diffuse``         (V, n, 3) SH diffuse transfer
+
+Beyond the paper's 92 x 7 x V x N floats: ``float16`` halves it, and records are dropped
+where they cannot matter. A view's Gaussians enter rendering only through the spherical
+triangles of views it belongs to, whose other corners are its geodesic neighbours; if a view
+and all its neighbours have zero weight, every triangle it is in interpolates to zero weight,
+so its means and widths are never seen. Those records are dropped (on load they come back with
+zero weight). Writes go to a temporary name and are renamed into place, so a file is either
+whole or absent.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import zipfile
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+
+from . import __version__, sphere
+from .envmap import sg_integral
+from .errors import InputError
+from .fit import Gaussians, MeshFit
+from .scene import Materials, Mesh
+
+__all__ = ["FORMAT", "VERSION", "Model", "load", "save"]
+
+FORMAT = "lobelight-model"
+VERSION = 1
+_ARRAYS = ("meta", "vertices", "faces", "normals", "views", "keep", "gaussians", "diffuse")
+
+
+@dataclass(eq=False)
+class Model:
+    """A loaded model: mesh, views, Gaussians per vertex and view, SH diffuse, materials."""
+
+    mesh: Mesh
+    views: torch.Tensor
+    gaussians: Gaussians
+    diffuse: torch.Tensor
+    materials: Materials
+    provenance: dict[str, Any] = field(default_factory=dict)
+
+
+def _kept(w: torch.Tensor, views: torch.Tensor) -> torch.Tensor:
+    """(V, J) records that rendering can see: weight at the view or at a neighbouring view."""
+    live = w.amax((-1, -2)) > 0  # (V, J)
+    j = views.shape[0]
+    if j != 92:  # not the geodesic set: keep everything
+        return torch.ones_like(live)
+    nbr = sphere.geodesic_neighbor_table(device=w.device)
+    near = live[:, nbr.clamp_min(0)] & (nbr >= 0)  # (V, J, 6)
+    return live | near.any(-1)
+
+
+def save(
+    path,
+    mesh: Mesh,
+    materials: Materials,
+    fit: MeshFit,
+    *,
+    float16: bool = False,
+    drop: bool = True,
+    provenance: dict[str, Any] | None = None,
+) -> dict[str, Any]:
+    """Write a model file atomically; returns sizes (bytes, records kept).
+
+    Parameters
+    ----------
+    float16 : store the Gaussians (and SH) as half floats
+    drop : leave out records no rendering can see (module docstring)
+    """
+    p = Path(path)
+    if not p.parent.is_dir():
+        raise InputError(str(p), f"the directory {str(p.parent)!r} does not exist")
+    g = fit.gaussians
+    v, j, n = g.lam.shape
+    keep = _kept(g.w, fit.views) if drop else torch.ones(v, j, dtype=torch.bool)
+    w = g.w
+    if float16:
+        # peak weights of sharp lobes reach 1e5 and more; their integrals w 2 pi / lam (the
+        # light the lobe carries, at most the albedo) fit half floats with full relative
+        # precision, so half-float files store those
+        w = w * sg_integral(g.lam.double()).to(w.dtype)[..., None]
+    rec = torch.cat([w, g.mu, g.lam.clamp_min(1e-12).rsqrt()[..., None]], -1)  # (V, J, N, 7)
+    kept = rec[keep.to(rec.device)]  # (K, N, 7)
+    dt = np.float16 if float16 else np.float32
+    if float16 and float(rec[..., :3].abs().max()) > 65504:
+        raise InputError("float16", "Gaussian integrals exceed the half-float range")
+    meta = {
+        "format": FORMAT,
+        "version": VERSION,
+        "n_vertices": v,
+        "n_views": j,
+        "n_gaussians": n,
+        "sh_order": round(fit.diffuse.shape[1] ** 0.5),
+        "float16": bool(float16),
+        "weights": "integral" if float16 else "peak",
+        "materials": materials.to_dict(),
+        "provenance": {"lobelight": __version__, **(provenance or {})},
+    }
+    arrays = {
+        "meta": np.frombuffer(json.dumps(meta).encode(), dtype=np.uint8),
+        "vertices": mesh.vertices.detach().cpu().numpy().astype(np.float32),
+        "faces": mesh.faces.cpu().numpy().astype(np.int32),
+        "normals": mesh.normals.detach().cpu().numpy().astype(np.float32),
+        "views": fit.views.detach().cpu().numpy().astype(np.float32),
+        "keep": keep.cpu().numpy(),
+        "gaussians": kept.detach().cpu().numpy().astype(dt),
+        "diffuse": fit.diffuse.detach().cpu().numpy().astype(dt),
+    }
+    tmp = p.with_name(p.name + ".tmp")
+    try:
+        with open(tmp, "wb") as f:
+            np.savez_compressed(f, **arrays)
+        os.replace(tmp, p)
+    finally:
+        if tmp.exists():
+            tmp.unlink()
+    return {
+        "bytes": p.stat().st_size,
+        "records": int(keep.sum()),
+        "records_total": v * j,
+        "floats_paper": 92 * 7 * v * n,
+    }
+
+
+def _need(cond: bool, name: str, problem: str) -> None:
+    if not cond:
+        raise InputError(name, problem)
+
+
+def load(path, *, device=None) -> Model:
+    """Read and check a model file.
+
+    Raises
+    ------
+    InputError
+        naming the file: missing, not a model file, unknown version, missing or malformed
+        arrays, non-finite values, inconsistent shapes.
+    """
+    p = Path(path)
+    name = str(p)
+    if not p.is_file():
+        raise InputError(name, "no such file")
+    try:
+        with np.load(p, allow_pickle=False) as z:
+            missing = [k for k in _ARRAYS if k not in z.files]
+            _need(not missing, name, f"not a lobelight model file (missing {missing})")
+            a = {k: z[k] for k in _ARRAYS}
+    except InputError:
+        raise
+    except (zipfile.BadZipFile, ValueError, OSError, EOFError, KeyError) as exc:
+        raise InputError(name, f"cannot read model file: {type(exc).__name__}: {exc}") from None
+    try:
+        meta = json.loads(bytes(a["meta"].astype(np.uint8)).decode())
+    except (ValueError, UnicodeDecodeError) as exc:
+        raise InputError(name, f"corrupt metadata: {exc}") from None
+    _need(isinstance(meta, dict) and meta.get("format") == FORMAT, name, "not a lobelight model")
+    _need(
+        meta.get("version") == VERSION,
+        name,
+        f"model format version {meta.get('version')!r}; this lobelight reads version {VERSION}",
+    )
+    try:
+        v, j, n = int(meta["n_vertices"]), int(meta["n_views"]), int(meta["n_gaussians"])
+    except (KeyError, TypeError, ValueError):
+        raise InputError(name, "metadata lacks the vertex, view or Gaussian counts") from None
+    shapes = {
+        "vertices": (v, 3),
+        "normals": (v, 3),
+        "views": (j, 3),
+        "keep": (v, j),
+    }
+    for k, shape in shapes.items():
+        _need(a[k].shape == shape, name, f"{k} has shape {a[k].shape}, expected {shape}")
+    _need(a["keep"].dtype == np.bool_, name, "keep must be boolean")
+    kept = int(a["keep"].sum())
+    _need(
+        a["gaussians"].shape == (kept, n, 7),
+        name,
+        f"gaussians has shape {a['gaussians'].shape}, expected {(kept, n, 7)}",
+    )
+    _need(a["faces"].ndim == 2 and a["faces"].shape[1] == 3, name, "faces must be (F, 3)")
+    _need(
+        a["diffuse"].ndim == 3 and a["diffuse"].shape[0] == v and a["diffuse"].shape[2] == 3,
+        name,
+        f"diffuse has shape {a['diffuse'].shape}",
+    )
+    for k in ("vertices", "normals", "views", "gaussians", "diffuse"):
+        _need(np.issubdtype(a[k].dtype, np.floating), name, f"{k} must be floating point")
+        _need(bool(np.isfinite(a[k]).all()), name, f"{k} has NaN or Inf values")
+    f = a["faces"]
+    _need(f.size == 0 or (f.min() >= 0 and f.max() < v), name, "face index out of range")
+    rec = torch.zeros(v, j, n, 7)
+    rec[..., 3:6] = torch.tensor([0.0, 1.0, 0.0])  # dropped records: zero weight
+    rec[..., 6] = 1.0
+    rec[torch.from_numpy(a["keep"])] = torch.from_numpy(a["gaussians"].astype(np.float32))
+    sigma = rec[..., 6]
+    _need(bool((sigma > 0).all()), name, "sigma must be positive")
+    _need(bool((rec[..., :3] >= 0).all()), name, "Gaussian weights must be non-negative")
+    mu = torch.nn.functional.normalize(rec[..., 3:6], dim=-1)
+    lam = sigma.pow(-2)
+    w = rec[..., :3].contiguous()
+    if meta.get("weights", "peak") == "integral":
+        w = w / sg_integral(lam.double()).to(w.dtype)[..., None]
+    g = Gaussians(w, mu, lam)
+    mesh = Mesh(
+        vertices=torch.from_numpy(a["vertices"].astype(np.float32)),
+        faces=torch.from_numpy(f.astype(np.int64)),
+        normals=torch.from_numpy(a["normals"].astype(np.float32)),
+        name=str(meta.get("provenance", {}).get("scene", p.stem)),
+    )
+    try:
+        mats = Materials.from_dict(meta["materials"], v)
+    except (KeyError, TypeError) as exc:
+        raise InputError(name, f"bad materials entry: {exc}") from None
+    except InputError as exc:
+        raise InputError(name, f"bad materials entry: {exc}") from None
+    model = Model(
+        mesh,
+        torch.from_numpy(a["views"].astype(np.float32)),
+        g,
+        torch.from_numpy(a["diffuse"].astype(np.float32)),
+        mats,
+        dict(meta.get("provenance", {})),
+    )
+    if device is not None:
+        model.mesh = model.mesh.to(device)
+        model.views = model.views.to(device)
+        model.gaussians = Gaussians(g.w.to(device), g.mu.to(device), g.lam.to(device))
+        model.diffuse = model.diffuse.to(device)
+        model.materials = model.materials.to(device)
+    return model

@@ -1,0 +1,103 @@
+"""The model file: round trips, storage options, and bad files (never unpickled)."""
+
+from __future__ import annotations
+
+import io
+import json
+import zipfile
+
+import numpy as np
+import pytest
+import torch
+
+from lobelight import fit, model, scene
+from lobelight.errors import InputError
+
+
+@pytest.fixture(scope="module")
+def fitted():
+    sc = scene.builtin("sphere", subdivisions=1, model="ggx", roughness=0.2)
+    return sc, fit.fit_mesh(sc, n=1)
+
+
+def test_round_trip_float32_is_exact_where_rendering_can_see(tmp_path, fitted):
+    sc, mf = fitted
+    info = model.save(tmp_path / "m.npz", sc.mesh, sc.materials, mf, provenance={"scene": "s"})
+    m = model.load(tmp_path / "m.npz")
+    g, h = mf.gaussians, m.gaussians
+    keep = torch.from_numpy(np.load(tmp_path / "m.npz")["keep"])
+    assert info["records"] == int(keep.sum()) < info["records_total"]  # some views dropped
+    torch.testing.assert_close(h.w[keep], g.w[keep], rtol=0, atol=0)
+    torch.testing.assert_close(h.mu[keep], g.mu[keep], rtol=1e-6, atol=1e-6)
+    torch.testing.assert_close(h.lam[keep], g.lam[keep], rtol=1e-5, atol=0)
+    # dropped records: zero weight, and so are all their neighbouring views (never visible)
+    assert bool((g.w[~keep] == 0).all()) and bool((h.w[~keep] == 0).all())
+    torch.testing.assert_close(m.diffuse, mf.diffuse)
+    torch.testing.assert_close(m.mesh.vertices, sc.mesh.vertices)
+    assert m.materials.model == "ggx" and m.provenance["scene"] == "s"
+
+
+def test_float16_halves_storage_within_half_precision(tmp_path, fitted):
+    sc, mf = fitted
+    a = model.save(tmp_path / "a.npz", sc.mesh, sc.materials, mf, drop=False)
+    b = model.save(tmp_path / "b.npz", sc.mesh, sc.materials, mf, float16=True)
+    assert b["bytes"] < 0.75 * a["bytes"]
+    m = model.load(tmp_path / "b.npz")
+    keep = m.gaussians.w.amax((-1, -2)) > 0
+    # half floats: 11-bit mantissa, relative error <= 2^-11 = 4.9e-4 per stored number; the
+    # peak weight is the stored integral over the Gaussian's integral, whose sigma is stored
+    # too (lam = sigma^-2 doubles sigma's error): up to ~1.5e-3 together
+    torch.testing.assert_close(m.gaussians.w[keep], mf.gaussians.w[keep], rtol=2e-3, atol=1e-6)
+    sig_a = m.gaussians.lam[keep].rsqrt()
+    sig_b = mf.gaussians.lam[keep].rsqrt()
+    torch.testing.assert_close(sig_a, sig_b, rtol=1e-3, atol=0)
+
+
+def _rewrite(src, dst, **changes):
+    with np.load(src, allow_pickle=False) as z:
+        arrays = {k: z[k] for k in z.files}
+    arrays.update(changes)
+    np.savez(dst, **arrays)
+
+
+def test_bad_model_files(tmp_path, fitted):
+    sc, mf = fitted
+    good = tmp_path / "good.npz"
+    model.save(good, sc.mesh, sc.materials, mf)
+    with pytest.raises(InputError, match="no such file"):
+        model.load(tmp_path / "missing.npz")
+    trunc = tmp_path / "trunc.npz"
+    trunc.write_bytes(good.read_bytes()[:300])
+    with pytest.raises(InputError, match=r"trunc\.npz"):
+        model.load(trunc)
+    other = tmp_path / "other.npz"
+    np.savez(other, x=np.zeros(3))
+    with pytest.raises(InputError, match="not a lobelight model file"):
+        model.load(other)
+    meta = json.loads(bytes(np.load(good)["meta"]).decode())
+    meta["version"] = 99
+    _rewrite(good, tmp_path / "v.npz", meta=np.frombuffer(json.dumps(meta).encode(), np.uint8))
+    with pytest.raises(InputError, match="version 99"):
+        model.load(tmp_path / "v.npz")
+    gs = np.load(good)["gaussians"].copy()
+    gs[0, 0, 6] = np.nan
+    _rewrite(good, tmp_path / "nan.npz", gaussians=gs)
+    with pytest.raises(InputError, match="NaN"):
+        model.load(tmp_path / "nan.npz")
+    _rewrite(good, tmp_path / "shape.npz", gaussians=gs[:-1])
+    with pytest.raises(InputError, match="gaussians has shape"):
+        model.load(tmp_path / "shape.npz")
+    # an object array would need pickle: refused by the reader, reported as a bad file
+    with zipfile.ZipFile(tmp_path / "obj.npz", "w") as zf, np.load(good) as z:
+        for k in z.files:
+            buf = io.BytesIO()
+            np.save(
+                buf, z[k] if k != "faces" else np.array([object()], dtype=object), allow_pickle=True
+            )
+            zf.writestr(k + ".npy", buf.getvalue())
+    with pytest.raises(InputError, match=r"obj\.npz"):
+        model.load(tmp_path / "obj.npz")
+    # an interrupted save leaves nothing behind
+    with pytest.raises(InputError, match="does not exist"):
+        model.save(tmp_path / "nodir" / "m.npz", sc.mesh, sc.materials, mf)
+    assert not list(tmp_path.glob("*.tmp"))
