@@ -414,7 +414,7 @@ def _mitsuba():
     try:
         mi.set_variant("scalar_rgb")
     except (ImportError, AttributeError, ValueError) as exc:
-        pytest.skip(f"mitsuba scalar_rgb variant unavailable: {exc}")
+        pytest.skip(reason=f"Mitsuba's scalar_rgb variant cannot be set here: {exc}")
     return mi
 
 

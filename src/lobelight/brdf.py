@@ -1131,19 +1131,7 @@ class Sum(BRDF):
             raise InputError("components", "a Sum needs at least one BRDF")
         self.components: tuple[BRDF, ...] = tuple(flat)
         # per-element parameters of all components must broadcast together
-        seen: list[tuple[str, tuple[int, ...]]] = []
-        for j, c in enumerate(self.components):
-            for name, shape in c._batch_shapes():
-                name = f"components[{j}].{name}"
-                for other, oshape in seen:
-                    try:
-                        torch.broadcast_shapes(shape, oshape)
-                    except RuntimeError:
-                        raise InputError(
-                            name,
-                            f"per-element shape {shape} does not broadcast with {other}'s {oshape}",
-                        ) from None
-                seen.append((name, shape))
+        self._check_shapes()
 
     def _batch_shapes(self) -> list[tuple[str, tuple[int, ...]]]:
         return [

@@ -68,15 +68,26 @@ class RayCaster:
         ----------
         origins, dirs : (..., 3) (broadcast); origins already offset (see :meth:`spawn`)
         """
+        shape, o, d = self._flat(origins, dirs)
+        out = self._query(self._rt.intersects_any, o, d, torch.bool)
+        return out.reshape(shape).to(origins.device)
+
+    @staticmethod
+    def _flat(origins: torch.Tensor, dirs: torch.Tensor):
+        """Broadcast batch shape and the rays flattened to (R, 3) each."""
         shape = torch.broadcast_shapes(origins.shape, dirs.shape)[:-1]
         o = origins.expand(*shape, 3).reshape(-1, 3)
-        d = dirs.expand(*shape, 3).reshape(-1, 3)
-        out = torch.empty(o.shape[0], dtype=torch.bool)
+        return shape, o, dirs.expand(*shape, 3).reshape(-1, 3)
+
+    def _query(self, fn, o: torch.Tensor, d: torch.Tensor, dtype: torch.dtype) -> torch.Tensor:
+        """``fn(origins, dirs)`` of trimesh's Embree intersector in batches of ``self.batch``
+        rays (float64 numpy on the CPU, as Embree takes them), (R,) on the CPU."""
+        out = torch.empty(o.shape[0], dtype=dtype)
         for i in range(0, o.shape[0], self.batch):
             on = o[i : i + self.batch].detach().cpu().numpy().astype(np.float64)
             dn = d[i : i + self.batch].detach().cpu().numpy().astype(np.float64)
-            out[i : i + self.batch] = torch.from_numpy(self._rt.intersects_any(on, dn))
-        return out.reshape(shape).to(origins.device)
+            out[i : i + self.batch] = torch.from_numpy(fn(on, dn))
+        return out
 
     def first_hit(
         self, origins: torch.Tensor, dirs: torch.Tensor
@@ -93,14 +104,8 @@ class RayCaster:
         t : (...) float distance along the ray (inf on a miss)
         bary : (..., 3) barycentric weights of the triangle's three vertices at the hit
         """
-        shape = torch.broadcast_shapes(origins.shape, dirs.shape)[:-1]
-        o = origins.expand(*shape, 3).reshape(-1, 3)
-        d = dirs.expand(*shape, 3).reshape(-1, 3)
-        tri = torch.empty(o.shape[0], dtype=torch.int64)
-        for i in range(0, o.shape[0], self.batch):
-            on = o[i : i + self.batch].detach().cpu().numpy().astype(np.float64)
-            dn = d[i : i + self.batch].detach().cpu().numpy().astype(np.float64)
-            tri[i : i + self.batch] = torch.from_numpy(self._rt.intersects_first(on, dn))
+        shape, o, d = self._flat(origins, dirs)
+        tri = self._query(self._rt.intersects_first, o, d, torch.int64)
         t, bary = self._hit_geometry(o.detach().cpu().to(torch.float64), d.cpu().double(), tri)
         dev, dt = origins.device, origins.dtype
         return (

@@ -184,6 +184,8 @@ def fit_mesh(
     chunks = [f[s : s + batch].to(dev) for f in layers for s in range(0, f.numel(), batch)]
 
     def fit_chunk(vidx: torch.Tensor, *, all_neighbours: bool) -> None:
+        # the relaxation pass samples the transport again rather than keeping it: all of it
+        # (V x J x ~700 samples x 7 floats, 17 GB for 10K vertices) would not fit in memory
         ind = None
         if indirect_paths > 0:
             ind = tr.indirect(vidx, views, paths=indirect_paths, res=16, generator=gen)
@@ -195,14 +197,10 @@ def fit_mesh(
         init = None
         if all_neighbours:  # relaxation starts from the current fit
             init = Gaussians(w[vidx], mu[vidx], lam[vidx])
-        elif n > 1 and bool(mask.any()):
+        elif n > 1 and bool(mask[:, 0].all()):
             # start from a processed neighbour's Gaussians: the same correspondence of lobes
-            first = torch.where(mask[:, 0:1], ids[:, 0:1], vidx[:, None])[:, 0]
-            has = mask[:, 0]
-            g0 = None
-            if bool(has.all()):
-                g0 = Gaussians(w[first], mu[first], lam[first])
-            init = g0
+            first = ids[:, 0]
+            init = Gaussians(w[first], mu[first], lam[first])
         g, terms = fit_batch(
             data,
             n,
