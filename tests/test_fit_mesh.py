@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import numpy as np
+import pytest
 import torch
 
 from lobelight import fit, scene, sg
@@ -53,3 +54,50 @@ def test_fit_mesh_sphere_one_gaussian():
     # lobe carries is now at most twice the data's (albedo <= 1 here)
     carried = g.w * sg.integral(g.lam)[..., None]
     assert float(carried.max()) <= 2.0
+
+
+class _Kill(Exception):
+    """Stands for Ctrl-C or a killed process in the middle of a bake."""
+
+
+def _killer(stage_at: str, after: int, log: list):
+    def progress(stage, done, total):
+        log.append((stage, done))
+        if stage == stage_at and done == after:
+            raise _Kill
+
+    return progress
+
+
+def _same(a, b) -> None:
+    for x, y in (
+        (a.gaussians.w, b.gaussians.w),
+        (a.gaussians.mu, b.gaussians.mu),
+        (a.gaussians.lam, b.gaussians.lam),
+        (a.diffuse, b.diffuse),
+    ):
+        torch.testing.assert_close(x, y, rtol=0, atol=0)
+    assert (a.flips_before, a.flips_after) == (b.flips_before, b.flips_after)
+
+
+@pytest.mark.parametrize("n, stage", [(1, "fit"), (2, "relax")])
+def test_killed_fit_resumes_to_the_same_model(tmp_path, n, stage):
+    # 12 vertices in chunks of 2: several chunks per pass, in seconds
+    sc = scene.builtin("sphere", subdivisions=0, model="phong", exponent=200.0)
+    kw = dict(n=n, batch=2, checkpoint_every=0)
+    clean = fit.fit_mesh(sc, n=n, batch=2)
+    ck = tmp_path / "bake.ckpt.npz"
+    log: list = []
+    with pytest.raises(_Kill):
+        fit.fit_mesh(sc, **kw, checkpoint=ck, progress=_killer(stage, 2, log))
+    assert ck.exists() and not list(tmp_path.glob("*.tmp"))
+    log.clear()
+    done = fit.fit_mesh(sc, **kw, checkpoint=ck, progress=_killer("none", 0, log))
+    # it went on from the chunk after the last one finished, nothing earlier ran again
+    assert log[0] == (stage, 3)
+    _same(done, clean)
+    if n == 1:
+        # a checkpoint of other settings (another seed) is not used: the fit starts over
+        log.clear()
+        fit.fit_mesh(sc, **kw, seed=1, checkpoint=ck, progress=_killer("none", 0, log))
+        assert log[0] == ("fit", 1)

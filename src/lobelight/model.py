@@ -51,7 +51,15 @@ _ARRAYS = ("meta", "vertices", "faces", "normals", "views", "keep", "gaussians",
 
 @dataclass(eq=False)
 class Model:
-    """A loaded model: mesh, views, Gaussians per vertex and view, SH diffuse, materials."""
+    """A fitted object: mesh, views, Gaussians per vertex and view, SH diffuse, materials.
+
+    Attributes
+    ----------
+    mesh : Mesh (V vertices);  views : (J, 3) view directions (the 92 geodesic views)
+    gaussians : w (V, J, N, 3), mu (V, J, N, 3), lam (V, J, N)
+    diffuse : (V, n, 3) SH diffuse transfer (order-5: n = 25)
+    materials : per-vertex materials;  provenance : scene, settings, timings, versions
+    """
 
     mesh: Mesh
     views: torch.Tensor
@@ -59,6 +67,80 @@ class Model:
     diffuse: torch.Tensor
     materials: Materials
     provenance: dict[str, Any] = field(default_factory=dict)
+
+    @property
+    def n_lobes(self) -> int:
+        return int(self.gaussians.lam.shape[-1])
+
+    @property
+    def device(self) -> torch.device:
+        return self.gaussians.w.device
+
+    def transport(self, vertex_ids, view_dirs) -> Gaussians:
+        """The Gaussians of vertices at arbitrary views, interpolated between stored views.
+
+        The paper's rule (section 5): barycentric weights of the geodesic triangle holding the
+        view (:func:`lobelight.sphere.locate_views`) blend the RGB weights and sigma linearly
+        and the means linearly then renormalised; corresponding lobes blend with each other.
+
+        Parameters
+        ----------
+        vertex_ids : (...) int vertex indices;  view_dirs : (..., 3) world-frame directions
+            towards the viewer (need not be unit)
+
+        Returns
+        -------
+        Gaussians with w (..., N, 3), mu (..., N, 3), lam (..., N)
+        """
+        if self.views.shape[0] != 92:
+            raise InputError("model", "view interpolation needs the 92 geodesic views")
+        dev = self.device
+        vid = torch.as_tensor(vertex_ids, device=dev).long()
+        vd = torch.as_tensor(view_dirs, device=dev, dtype=torch.float32)
+        if vd.shape[-1] != 3 or vd.shape[:-1] != vid.shape:
+            want = (*vid.shape, 3)
+            raise InputError("view_dirs", f"expected shape {want}, got {tuple(vd.shape)}")
+        if vid.numel() and (int(vid.min()) < 0 or int(vid.max()) >= self.mesh.n_vertices):
+            raise InputError("vertex_ids", f"out of range 0..{self.mesh.n_vertices - 1}")
+        idx, bary = sphere.locate_views(vd)  # (..., 3), (..., 3)
+        g = self.gaussians
+        rows = vid[..., None].expand_as(idx)
+        b = bary[..., None, None]  # (..., 3, 1, 1)
+        w = (g.w[rows, idx] * b).sum(-3)  # (..., N, 3)
+        mu = torch.nn.functional.normalize((g.mu[rows, idx] * b).sum(-3), dim=-1)
+        sigma = (g.lam[rows, idx].rsqrt() * bary[..., None]).sum(-2)  # (..., N)
+        return Gaussians(w, mu, sigma.pow(-2))
+
+    def evaluate(self, vertex_ids, view_dirs, dirs) -> torch.Tensor:
+        """The interpolated glossy transport function ``sum_k w_k G(d; mu_k, lam_k)``.
+
+        Parameters
+        ----------
+        vertex_ids : (...);  view_dirs : (..., 3);  dirs : (..., D, 3) unit light directions
+
+        Returns
+        -------
+        (..., D, 3)
+        """
+        g = self.transport(vertex_ids, view_dirs)
+        d = torch.as_tensor(dirs, device=self.device, dtype=torch.float32)
+        cos = d @ g.mu.transpose(-1, -2)  # (..., D, N)
+        gk = torch.exp(g.lam[..., None, :] * (cos - 1))  # (..., D, N)
+        return gk @ g.w  # (..., D, 3)
+
+    def save(self, path, *, float16: bool = False, drop: bool = True) -> dict[str, Any]:
+        """Write the model to ``path`` (see :func:`save`); returns sizes."""
+        return _write(
+            path,
+            self.mesh,
+            self.materials,
+            self.gaussians,
+            self.views,
+            self.diffuse,
+            float16=float16,
+            drop=drop,
+            provenance=self.provenance,
+        )
 
 
 def _kept(w: torch.Tensor, views: torch.Tensor) -> torch.Tensor:
@@ -89,12 +171,36 @@ def save(
     float16 : store the Gaussians (and SH) as half floats
     drop : leave out records no rendering can see (module docstring)
     """
+    return _write(
+        path,
+        mesh,
+        materials,
+        fit.gaussians,
+        fit.views,
+        fit.diffuse,
+        float16=float16,
+        drop=drop,
+        provenance=provenance,
+    )
+
+
+def _write(
+    path,
+    mesh: Mesh,
+    materials: Materials,
+    g: Gaussians,
+    views: torch.Tensor,
+    diffuse: torch.Tensor,
+    *,
+    float16: bool,
+    drop: bool,
+    provenance: dict[str, Any] | None,
+) -> dict[str, Any]:
     p = Path(path)
     if not p.parent.is_dir():
         raise InputError(str(p), f"the directory {str(p.parent)!r} does not exist")
-    g = fit.gaussians
     v, j, n = g.lam.shape
-    keep = _kept(g.w, fit.views) if drop else torch.ones(v, j, dtype=torch.bool)
+    keep = _kept(g.w, views) if drop else torch.ones(v, j, dtype=torch.bool)
     w = g.w
     if float16:
         # peak weights of sharp lobes reach 1e5 and more; their integrals w 2 pi / lam (the
@@ -112,7 +218,7 @@ def save(
         "n_vertices": v,
         "n_views": j,
         "n_gaussians": n,
-        "sh_order": round(fit.diffuse.shape[1] ** 0.5),
+        "sh_order": round(diffuse.shape[1] ** 0.5),
         "float16": bool(float16),
         "weights": "integral" if float16 else "peak",
         "materials": materials.to_dict(),
@@ -123,10 +229,10 @@ def save(
         "vertices": mesh.vertices.detach().cpu().numpy().astype(np.float32),
         "faces": mesh.faces.cpu().numpy().astype(np.int32),
         "normals": mesh.normals.detach().cpu().numpy().astype(np.float32),
-        "views": fit.views.detach().cpu().numpy().astype(np.float32),
+        "views": views.detach().cpu().numpy().astype(np.float32),
         "keep": keep.cpu().numpy(),
         "gaussians": kept.detach().cpu().numpy().astype(dt),
-        "diffuse": fit.diffuse.detach().cpu().numpy().astype(dt),
+        "diffuse": diffuse.detach().cpu().numpy().astype(dt),
     }
     tmp = p.with_name(p.name + ".tmp")
     try:

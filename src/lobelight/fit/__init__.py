@@ -4,11 +4,13 @@
 - :func:`fit_batch` minimises eq. (6), ``alpha D + beta M + gamma V + delta S``, for a batch of
   vertices over all views at once (:class:`Gaussians`, :class:`Weights`).
 - :func:`fit_mesh` fits a whole mesh by flood-fill wavefronts, with a relaxation pass against
-  flipped Gaussians (:class:`MeshFit`).
+  flipped Gaussians (:class:`MeshFit`), resumable from a checkpoint file.
+- :func:`fit_model` ``(scene, n_lobes=1, *, device, ...) -> lobelight.model.Model`` does it all.
 """
 
 from ._data import FitData, gather, lobe_estimate
 from ._floodfill import MeshFit, count_flips, fit_mesh, wavefronts
+from ._model import fit_model
 from ._objective import Weights, flip_count
 from ._optimize import LAM_RANGE, Gaussians, fit_batch, initial_guess
 
@@ -21,6 +23,7 @@ __all__ = [
     "count_flips",
     "fit_batch",
     "fit_mesh",
+    "fit_model",
     "flip_count",
     "gather",
     "initial_guess",

@@ -13,10 +13,15 @@ number of flipped neighbour pairs is reported before and after.
 
 from __future__ import annotations
 
+import hashlib
+import json
+import os
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
+from pathlib import Path
 
+import numpy as np
 import torch
 
 from .. import cubemap, sphere
@@ -148,6 +153,8 @@ def fit_mesh(
     device=None,
     progress: Callable[[str, int, int], None] | None = None,
     seed: int = 0,
+    checkpoint: str | os.PathLike | None = None,
+    checkpoint_every: float = 30.0,
 ) -> MeshFit:
     """Fit N Gaussians per view to every vertex's glossy transport, and its SH diffuse transfer.
 
@@ -158,6 +165,11 @@ def fit_mesh(
     indirect_paths : paths per vertex and view for indirect glossy (0: direct glossy only)
     relax : run the relaxation pass (for n >= 2; nothing to relax for n = 1)
     progress : called as ``progress(stage, done, total)`` after each chunk
+    checkpoint : a file to save the state to (atomically, at most every ``checkpoint_every``
+        seconds and at the end of each stage); a run that finds a checkpoint of the same scene
+        and settings resumes from it and gives the same result as an uninterrupted run (the
+        indirect paths of each chunk are seeded by the chunk, not by the order of the run);
+        the caller removes it once the finished model is written
 
     Returns
     -------
@@ -178,16 +190,30 @@ def fit_mesh(
     done = torch.zeros(v, dtype=torch.bool, device=dev)
     ddirs = cubemap.texel_directions(16, device=dev).reshape(-1, 3)
     dom = cubemap.texel_solid_angles(16, device=dev).reshape(-1)
-    gen = torch.Generator().manual_seed(seed)
     t0 = time.perf_counter()
     layers = wavefronts(mesh)
     chunks = [f[s : s + batch].to(dev) for f in layers for s in range(0, f.numel(), batch)]
+    state = {"mu": mu, "lam": lam, "w": w, "derr": derr, "diffuse": diffuse, "done": done}
+    key = _settings_key(scene, n, views, weights, batch, indirect_paths, relax, seed)
+    ckpt = Path(checkpoint) if checkpoint is not None else None
+    start = _resume(ckpt, key, state) if ckpt is not None else ("fit", 0, 0)
+    last_save = time.perf_counter()
+    before = int(start[2])
 
-    def fit_chunk(vidx: torch.Tensor, *, all_neighbours: bool) -> None:
+    def save_state(stage: str, nxt: int, *, force: bool = False) -> None:
+        nonlocal last_save
+        if ckpt is None or (not force and time.perf_counter() - last_save < checkpoint_every):
+            return
+        _save_checkpoint(ckpt, key, stage, nxt, state, before)
+        last_save = time.perf_counter()
+
+    def fit_chunk(i: int, vidx: torch.Tensor, *, all_neighbours: bool) -> None:
         # the relaxation pass samples the transport again rather than keeping it: all of it
         # (V x J x ~700 samples x 7 floats, 17 GB for 10K vertices) would not fit in memory
         ind = None
         if indirect_paths > 0:
+            # seeded by chunk and pass, so a resumed run draws the same paths
+            gen = torch.Generator().manual_seed(seed * 1_000_003 + 2 * i + int(all_neighbours))
             ind = tr.indirect(vidx, views, paths=indirect_paths, res=16, generator=gen)
         data = gather(tr, vidx, views, indirect=ind)
         ids, mask = _processed_neighbours(
@@ -216,17 +242,22 @@ def fit_mesh(
             diffuse[vidx] = tr.diffuse(vidx, ddirs, dom)
             done[vidx] = True
 
-    for i, vidx in enumerate(chunks):
-        fit_chunk(vidx, all_neighbours=False)
+    begin = start[1] if start[0] == "fit" else len(chunks)
+    for i in range(begin, len(chunks)):
+        fit_chunk(i, chunks[i], all_neighbours=False)
+        save_state("fit", i + 1, force=i + 1 == len(chunks))
         if progress is not None:
             progress("fit", i + 1, len(chunks))
     t1 = time.perf_counter()
     g = Gaussians(w, mu, lam)
-    before = count_flips(mesh, g)
+    if start[0] == "fit":
+        before = count_flips(mesh, g)
     after = before
     if relax and n > 1:
-        for i, vidx in enumerate(chunks):
-            fit_chunk(vidx, all_neighbours=True)
+        begin = start[1] if start[0] == "relax" else 0
+        for i in range(begin, len(chunks)):
+            fit_chunk(i, chunks[i], all_neighbours=True)
+            save_state("relax", i + 1, force=False)
             if progress is not None:
                 progress("relax", i + 1, len(chunks))
         g = Gaussians(w, mu, lam)
@@ -241,3 +272,49 @@ def fit_mesh(
         flips_after=after,
         seconds={"fit": t1 - t0, "relax": t2 - t1},
     )
+
+
+# --------------------------------------------------------------------------------------------
+# checkpoints: plain arrays in an npz (no pickle), written to a temporary name and renamed
+
+
+def _settings_key(scene, n, views, weights, batch, indirect_paths, relax, seed) -> str:
+    """A digest of everything the fit's result depends on: geometry, materials and settings."""
+    h = hashlib.sha256()
+    for t in (scene.mesh.vertices, scene.mesh.faces, views):
+        h.update(t.detach().cpu().contiguous().numpy().tobytes())
+    h.update(json.dumps(scene.materials.to_dict(), sort_keys=True).encode())
+    h.update(repr((n, weights, batch, indirect_paths, relax, seed)).encode())
+    return h.hexdigest()
+
+
+def _save_checkpoint(
+    path: Path, key: str, stage: str, nxt: int, state: dict, flips_before: int
+) -> None:
+    arrays = {k: v.detach().cpu().numpy() for k, v in state.items()}
+    meta = {"key": key, "stage": stage, "next": nxt, "flips_before": flips_before}
+    arrays["meta"] = np.frombuffer(json.dumps(meta).encode(), dtype=np.uint8)
+    tmp = path.with_name(path.name + ".tmp")
+    with open(tmp, "wb") as f:
+        np.savez(f, **arrays)
+    os.replace(tmp, path)
+
+
+def _resume(path: Path, key: str, state: dict) -> tuple:
+    """Load a matching checkpoint into ``state``; returns ``(stage, next chunk, flips)``."""
+    if not path.is_file():
+        return ("fit", 0, 0)
+    try:
+        with np.load(path, allow_pickle=False) as z:
+            meta = json.loads(bytes(z["meta"]).decode())
+            if meta.get("key") != key:
+                return ("fit", 0, 0)  # another scene or other settings: start over
+            loaded = {k: torch.from_numpy(z[k]) for k in state}
+    except (OSError, ValueError, KeyError, EOFError):
+        return ("fit", 0, 0)  # unreadable (e.g. cut short): start over
+    for k, v in loaded.items():
+        if v.shape != state[k].shape:
+            return ("fit", 0, 0)
+    for k, v in loaded.items():
+        state[k].copy_(v.to(state[k].device, state[k].dtype))
+    return (str(meta["stage"]), int(meta["next"]), int(meta.get("flips_before", 0)))

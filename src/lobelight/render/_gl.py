@@ -1,0 +1,286 @@
+"""The OpenGL renderer (moderngl): headless through EGL, or into a window's context.
+
+Everything per frame stays on the GPU (the paper's bottleneck was repacking the three nearest
+views' data on the CPU every frame): the Gaussians of every (vertex, view) live in a float
+texture, the 180 geodesic triangles' great-circle planes in another, and the vertex shader finds
+each vertex's view triangle itself. Per frame the CPU uploads only the camera, the lighting
+rotation and the rotated lighting's 25 SH coefficients.
+
+Prefiltered levels: each level's six faces, each with the one-texel seamless border of
+:func:`lobelight.cubemap.pad_seamless`, are packed into one atlas texture; hardware bilinear
+filtering inside a padded face equals GL's seamless cube-map filtering (the same corner rule)
+and matches :func:`lobelight.cubemap.sample` exactly. A Gaussian between two levels costs two
+bilinear fetches, blended by the L2 rule of :meth:`lobelight.envmap.Prefiltered.level_coords`
+(a trilinear ``textureLod`` would blend mips linearly in level, which is less accurate).
+"""
+
+from __future__ import annotations
+
+from functools import cache
+from importlib import resources
+
+import numpy as np
+import torch
+
+from .. import cubemap, sphere
+from ..camera import Camera
+from ..errors import InputError
+from ._lighting import Lighting
+
+__all__ = ["GLRenderer", "create_context", "gl_available", "load_shader"]
+
+#: Texture width used to wrap long 1-D arrays into 2-D textures.
+TEX_WIDTH = 4096
+#: Resolution of the background's cube map.
+BACKGROUND_RES = 512
+_GL_TEXTURE_CUBE_MAP_SEAMLESS = 0x884F
+
+
+@cache
+def load_shader(name: str) -> str:
+    """The text of a package shader file (``render/shaders/NAME.glsl``)."""
+    return resources.files("lobelight.render").joinpath("shaders", f"{name}.glsl").read_text()
+
+
+def _program(ctx, name: str, defines: dict[str, int] | None = None):
+    head = "#version 330\n" + "".join(f"#define {k} {v}\n" for k, v in (defines or {}).items())
+    src = load_shader(name)
+    return ctx.program(
+        vertex_shader=head + "#define VERTEX_SHADER\n" + src,
+        fragment_shader=head + "#define FRAGMENT_SHADER\n" + src,
+    )
+
+
+def create_context():
+    """A headless OpenGL 3.3+ context: EGL (Mesa llvmpipe here, the NVIDIA driver on GPUs)."""
+    try:
+        import moderngl
+    except ImportError:
+        raise InputError(
+            "moderngl", "is not installed: pip install 'lobelight[gl]' (or use backend='torch')"
+        ) from None
+    try:
+        return moderngl.create_standalone_context(backend="egl", require=330)
+    except Exception as egl_error:
+        try:
+            return moderngl.create_standalone_context(require=330)
+        except Exception:
+            raise InputError(
+                "OpenGL", f"no headless OpenGL 3.3 context (EGL: {egl_error}); use backend='torch'"
+            ) from None
+
+
+def gl_available() -> bool:
+    """Whether a headless context can be made here."""
+    try:
+        create_context().release()
+        return True
+    except InputError:
+        return False
+
+
+def _wrap(rows: np.ndarray, width: int = TEX_WIDTH) -> tuple[np.ndarray, int]:
+    """Wrap ``(T, 4)`` texels into a ``(H, W, 4)`` image (zero-padded); returns it and W."""
+    t = rows.shape[0]
+    while -(-t // width) > 16384:  # GL's usual maximum texture height
+        width *= 2
+    h = max(1, -(-t // width))
+    out = np.zeros((h * width, 4), np.float32)
+    out[:t] = rows
+    return out.reshape(h, width, 4), width
+
+
+def _atlas(lighting: Lighting) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """All prefiltered levels' padded faces in one image: ``(H, W, 3)``, row and res per level."""
+    pf = lighting.prefiltered
+    base = pf.base_res
+    width = 6 * (base + 2)
+    pads = [cubemap.pad_seamless(lv).cpu().numpy() for lv in pf.levels]  # (6, P, P, 3)
+    height = sum(p.shape[1] for p in pads)
+    atlas = np.zeros((height, width, 3), np.float32)
+    y = 0
+    rows, res = [], []
+    for p in pads:
+        size = p.shape[1]
+        for f in range(6):  # six faces side by side: a loop over faces, not texels
+            atlas[y : y + size, f * size : (f + 1) * size] = p[f]
+        rows.append(y)
+        res.append(size - 2)
+        y += size
+    return atlas, np.asarray(rows, np.float32), np.asarray(res, np.float32)
+
+
+class GLRenderer:
+    """Shader implementation behind :class:`lobelight.render.Renderer` (``backend="gl"``)."""
+
+    def __init__(self, model, lighting: Lighting, width: int, height: int, *, ctx=None):
+        import moderngl
+
+        self.ctx = ctx if ctx is not None else create_context()
+        self.own_ctx = ctx is None
+        self.width, self.height = int(width), int(height)
+        ctx = self.ctx
+        ctx.enable_direct(_GL_TEXTURE_CUBE_MAP_SEAMLESS)
+        n_lobes = model.n_lobes
+        n_sh = int(model.diffuse.shape[1])
+        if n_sh != lighting.sh.shape[0]:
+            raise InputError(
+                "lighting", f"has {lighting.sh.shape[0]} SH coefficients, the model {n_sh}"
+            )
+        pf = lighting.prefiltered
+        self.n_levels = len(pf.levels)
+        self.prog = _program(ctx, "prt", {"NL": n_lobes, "N_SH": n_sh, "MAX_LEVELS": self.n_levels})
+        self.bg_prog = _program(ctx, "background")
+        self.tm_prog = _program(ctx, "tonemap")
+
+        # Gaussians: record (v, j, k) -> texels 2r, 2r + 1 with r = (v J + j) N + k
+        g = model.gaussians
+        sigma = g.lam.rsqrt()[..., None]
+        a = torch.cat([g.w, sigma], -1).reshape(-1, 4)  # (V J N, 4)
+        m = torch.cat([g.mu, torch.zeros_like(sigma)], -1).reshape(-1, 4)
+        rec = torch.stack([a, m], 1).reshape(-1, 4).detach().cpu().numpy()
+        img, tw = _wrap(rec)
+        dimg, tw2 = _wrap(
+            torch.cat([model.diffuse, torch.zeros_like(model.diffuse[..., :1])], -1)
+            .reshape(-1, 4)
+            .detach()
+            .cpu()
+            .numpy(),
+            tw,
+        )
+        if tw2 != tw:  # both share one width uniform; wrap again at the larger width
+            img, tw = _wrap(rec, tw2)
+        self.gauss_tex = self._data_texture(img)
+        self.diff_tex = self._data_texture(dimg)
+        planes, faces = sphere._face_planes(torch.float32, torch.device("cpu"))
+        pl = torch.cat([planes.T.reshape(180, 3, 3), faces.reshape(180, 3, 1).float()], -1)
+        self.planes_tex = self._data_texture(pl.reshape(1, 540, 4).numpy())
+        atlas, rows, res = _atlas(lighting)
+        self.atlas = ctx.texture((atlas.shape[1], atlas.shape[0]), 3, atlas.tobytes(), dtype="f4")
+        self.atlas.filter = (moderngl.LINEAR, moderngl.LINEAR)
+        self.atlas.repeat_x = self.atlas.repeat_y = False
+        cube = lighting.env.to_cubemap(BACKGROUND_RES).detach().cpu().numpy().astype(np.float32)
+        self.env_cube = ctx.texture_cube((BACKGROUND_RES,) * 2, 3, cube.tobytes(), dtype="f4")
+        self.env_cube.filter = (moderngl.LINEAR, moderngl.LINEAR)
+
+        p = self.prog
+        p["tex_width"].value = tw
+        p["atlas_size"].value = (float(atlas.shape[1]), float(atlas.shape[0]))
+        p["level_y"].write(rows.tobytes())
+        p["level_res"].write(res.tobytes())
+        p["n_levels"].value = self.n_levels
+        p["lam0"].value = float(pf.lambdas[0])
+        p["log_rho"].value = float(torch.log(pf.lambdas[0] / pf.lambdas[1]))
+        for name, unit in (("gauss_tex", 0), ("diff_tex", 1), ("planes_tex", 2), ("atlas", 3)):
+            p[name].value = unit
+        self.bg_prog["env"].value = 4
+        self.lighting = lighting
+
+        verts = model.mesh.vertices.detach().cpu().numpy().astype(np.float32)
+        faces_np = model.mesh.faces.cpu().numpy().astype(np.uint32)
+        self.vbo = ctx.buffer(verts.tobytes())
+        self.ibo = ctx.buffer(faces_np.tobytes())
+        self.vao = ctx.vertex_array(p, [(self.vbo, "3f", "in_pos")], self.ibo, 4)
+        quad = np.array([-1, -1, 1, -1, -1, 1, 1, 1], np.float32)
+        self.quad = ctx.buffer(quad.tobytes())
+        self.bg_vao = ctx.vertex_array(self.bg_prog, [(self.quad, "2f", "in_xy")])
+        self.tm_vao = ctx.vertex_array(self.tm_prog, [(self.quad, "2f", "in_xy")])
+        self.color = ctx.renderbuffer((self.width, self.height), 4, dtype="f4")
+        self.depth = ctx.depth_renderbuffer((self.width, self.height))
+        self.fbo = ctx.framebuffer([self.color], self.depth)
+        center = model.mesh.vertices.mean(0)
+        self.center = center.detach().cpu().numpy()
+        self.radius = float((model.mesh.vertices - center).norm(dim=-1).max())
+
+    def _data_texture(self, img: np.ndarray):
+        import moderngl
+
+        t = self.ctx.texture(
+            (img.shape[1], img.shape[0]), 4, img.astype(np.float32).tobytes(), dtype="f4"
+        )
+        t.filter = (moderngl.NEAREST, moderngl.NEAREST)
+        return t
+
+    def _camera_uniforms(self, prog, camera: Camera) -> None:
+        f = camera.frame(dtype=torch.float64).numpy()
+        tx, ty = camera._tan_half(self.width, self.height)
+        prog["cam_left"].value = tuple(f[0])
+        prog["cam_up"].value = tuple(f[1])
+        prog["cam_dir"].value = tuple(f[2])
+        prog["tan_half"].value = (tx, ty)
+
+    def draw(
+        self,
+        camera: Camera,
+        rot: torch.Tensor,
+        *,
+        diffuse: bool = True,
+        glossy: bool = True,
+        background: bool = True,
+        fbo=None,
+    ) -> None:
+        """Render a frame into ``fbo`` (default the renderer's float framebuffer)."""
+        import moderngl
+
+        ctx = self.ctx
+        fbo = fbo or self.fbo
+        fbo.use()
+        ctx.viewport = (0, 0, self.width, self.height)
+        fbo.clear(0.0, 0.0, 0.0, 0.0, depth=1.0)
+        r = rot.detach().cpu().numpy().astype(np.float32)
+        rt_bytes = r.tobytes()  # row-major R is column-major R^T: the shaders' rot_t
+        if background:
+            ctx.disable(moderngl.DEPTH_TEST)
+            self._camera_uniforms(self.bg_prog, camera)
+            self.bg_prog["rot_t"].write(rt_bytes)
+            self.env_cube.use(4)
+            self.bg_vao.render(moderngl.TRIANGLE_STRIP)
+        ctx.enable(moderngl.DEPTH_TEST)
+        p = self.prog
+        self._camera_uniforms(p, camera)
+        eye = np.asarray(camera.origin, np.float64)
+        dist = float(np.linalg.norm(eye - self.center))
+        near = max(dist - 1.01 * self.radius, 1e-3 * self.radius)
+        p["depth_range"].value = (near, dist + 1.01 * self.radius)
+        p["eye"].value = tuple(float(x) for x in eye)
+        p["rot_t"].write(rt_bytes)
+        p["sh_light"].write(
+            self.lighting.sh_rotated(rot).cpu().numpy().astype(np.float32).tobytes()
+        )
+        p["parts"].value = (float(diffuse), float(glossy))
+        self.gauss_tex.use(0)
+        self.diff_tex.use(1)
+        self.planes_tex.use(2)
+        self.atlas.use(3)
+        self.vao.render(moderngl.TRIANGLES)
+
+    def read(self) -> tuple[torch.Tensor, torch.Tensor]:
+        """The float framebuffer as ``(H, W, 3)`` radiance and ``(H, W)`` object mask."""
+        raw = self.fbo.read(components=4, dtype="f4")
+        img = np.frombuffer(raw, np.float32).reshape(self.height, self.width, 4)[::-1]
+        img = torch.from_numpy(img.copy())
+        return img[..., :3].contiguous(), img[..., 3] > 0.5
+
+    def release(self) -> None:
+        for o in (
+            self.vao,
+            self.bg_vao,
+            self.tm_vao,
+            self.vbo,
+            self.ibo,
+            self.quad,
+            self.fbo,
+            self.color,
+            self.depth,
+            self.gauss_tex,
+            self.diff_tex,
+            self.planes_tex,
+            self.atlas,
+            self.env_cube,
+            self.prog,
+            self.bg_prog,
+            self.tm_prog,
+        ):
+            o.release()
+        if self.own_ctx:
+            self.ctx.release()

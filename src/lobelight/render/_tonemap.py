@@ -1,0 +1,94 @@
+"""Display transforms and image files: linear radiance in, 8-bit sRGB or float files out."""
+
+from __future__ import annotations
+
+import math
+import os
+import tempfile
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from ..errors import InputError
+
+__all__ = ["auto_exposure", "save_image", "tonemap"]
+
+CURVES = ("srgb", "aces")
+
+
+def _np(img) -> np.ndarray:
+    if isinstance(img, torch.Tensor):
+        img = img.detach().cpu().numpy()
+    return np.asarray(img, dtype=np.float32)
+
+
+def auto_exposure(img, mask=None, *, key: float = 0.18) -> float:
+    """Exposure (stops) mapping the log-average luminance of ``img`` (or its masked pixels) to
+    ``key`` (Reinhard's photographic key; 0.18 is mid grey)."""
+    x = _np(img)
+    lum = 0.2126 * x[..., 0] + 0.7152 * x[..., 1] + 0.0722 * x[..., 2]
+    if mask is not None:
+        lum = lum[_np(mask) > 0.5]
+    lum = lum[np.isfinite(lum)]
+    if lum.size == 0:
+        return 0.0
+    avg = float(np.exp(np.mean(np.log(np.maximum(lum, 1e-6)))))
+    return math.log2(key / max(avg, 1e-9))
+
+
+def tonemap(img, *, exposure: float = 0.0, curve: str = "srgb") -> np.ndarray:
+    """``(H, W, 3)`` linear radiance to ``(H, W, 3)`` uint8 sRGB.
+
+    Parameters
+    ----------
+    exposure : stops (the image is scaled by ``2**exposure``)
+    curve : ``"srgb"`` (clip, then the sRGB transfer function) or ``"aces"`` (Narkowicz's fit
+        of the ACES filmic curve, then sRGB), as ``shaders/tonemap.glsl``
+    """
+    if curve not in CURVES:
+        raise InputError("curve", f"must be one of {CURVES}, got {curve!r}")
+    x = np.clip(_np(img) * np.float32(2.0**exposure), 0, None)
+    if curve == "aces":
+        x = np.clip(x * (2.51 * x + 0.03) / (x * (2.43 * x + 0.59) + 0.14), 0, 1)
+    x = np.clip(x, 0, 1)
+    s = np.where(x <= 0.0031308, 12.92 * x, 1.055 * np.power(x, 1 / 2.4) - 0.055)
+    return (np.clip(s, 0, 1) * 255 + 0.5).astype(np.uint8)
+
+
+def save_image(path, img, *, exposure: float = 0.0, curve: str = "srgb") -> Path:
+    """Write ``(H, W, 3)`` radiance: ``.png`` tone-mapped, ``.exr``/``.hdr`` linear; atomically."""
+    p = Path(path)
+    ext = p.suffix.lower()
+    if ext not in (".png", ".exr", ".hdr"):
+        kind = ext or "(none)"
+        raise InputError(str(p), f"unsupported image type {kind!r}: use .png, .exr, .hdr")
+    if not p.parent.is_dir():
+        raise InputError(str(p), f"the directory {str(p.parent)!r} does not exist")
+    x = _np(img)
+    if x.ndim != 3 or x.shape[-1] != 3:
+        raise InputError("image", f"expected (H, W, 3), got {x.shape}")
+    fd, tmp = tempfile.mkstemp(dir=p.parent, prefix=f".{p.name}.", suffix=f".tmp{ext}")
+    os.close(fd)
+    try:
+        if ext == ".png":
+            from PIL import Image
+
+            Image.fromarray(tonemap(x, exposure=exposure, curve=curve)).save(tmp, format="PNG")
+        elif ext == ".hdr":
+            import cv2
+
+            ok, enc = cv2.imencode(".hdr", np.ascontiguousarray(x[..., ::-1]))
+            if not ok:
+                raise InputError(str(p), "OpenCV could not encode the image")
+            Path(tmp).write_bytes(enc.tobytes())
+        else:
+            import OpenEXR
+
+            header = {"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage}
+            OpenEXR.File(header, {"RGB": np.ascontiguousarray(x)}).write(tmp)
+        os.replace(tmp, p)
+    finally:
+        if os.path.exists(tmp):
+            os.unlink(tmp)
+    return p
