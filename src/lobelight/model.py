@@ -29,6 +29,7 @@ from __future__ import annotations
 import json
 import os
 import zipfile
+import zlib
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -269,19 +270,43 @@ def load(path, *, device=None) -> Model:
     if not p.is_file():
         raise InputError(name, "no such file")
     try:
-        with np.load(p, allow_pickle=False) as z:
+        z = np.load(p, allow_pickle=False)
+        # a bare .npy file loads as an array: not an archive of arrays
+        _need(isinstance(z, np.lib.npyio.NpzFile), name, "not a lobelight model file (not npz)")
+        with z:
             missing = [k for k in _ARRAYS if k not in z.files]
             _need(not missing, name, f"not a lobelight model file (missing {missing})")
             a = {k: z[k] for k in _ARRAYS}
     except InputError:
         raise
-    except (zipfile.BadZipFile, ValueError, OSError, EOFError, KeyError) as exc:
+    except (
+        zipfile.BadZipFile,
+        zlib.error,
+        ValueError,
+        OSError,
+        EOFError,
+        KeyError,
+        NotImplementedError,  # an unknown zip compression method
+        RuntimeError,  # an encrypted zip member
+        MemoryError,
+    ) as exc:
         raise InputError(name, f"cannot read model file: {type(exc).__name__}: {exc}") from None
+    for k, arr in a.items():
+        # a member without the .npy header comes back as raw bytes
+        _need(isinstance(arr, np.ndarray), name, f"{k} is not an array")
+    _need(a["meta"].dtype == np.uint8 and a["meta"].ndim == 1, name, "meta must be UTF-8 bytes")
     try:
-        meta = json.loads(bytes(a["meta"].astype(np.uint8)).decode())
+        meta = json.loads(bytes(a["meta"]).decode())
     except (ValueError, UnicodeDecodeError) as exc:
         raise InputError(name, f"corrupt metadata: {exc}") from None
     _need(isinstance(meta, dict) and meta.get("format") == FORMAT, name, "not a lobelight model")
+    prov = meta.get("provenance", {})
+    _need(isinstance(prov, dict), name, "provenance must be a mapping")
+    _need(
+        meta.get("weights", "peak") in ("peak", "integral"),
+        name,
+        f"unknown weights encoding {meta.get('weights')!r}",
+    )
     _need(
         meta.get("version") == VERSION,
         name,
@@ -289,8 +314,12 @@ def load(path, *, device=None) -> Model:
     )
     try:
         v, j, n = int(meta["n_vertices"]), int(meta["n_views"]), int(meta["n_gaussians"])
-    except (KeyError, TypeError, ValueError):
+    except (KeyError, TypeError, ValueError, OverflowError):
         raise InputError(name, "metadata lacks the vertex, view or Gaussian counts") from None
+    # bounds before anything is allocated from these counts
+    _need(1 <= n <= 8, name, f"n_gaussians must be 1..8, got {n}")
+    _need(1 <= j <= 4096, name, f"n_views must be 1..4096, got {j}")
+    _need(3 <= v <= 1 << 26, name, f"n_vertices must be 3..{1 << 26}, got {v}")
     shapes = {
         "vertices": (v, 3),
         "normals": (v, 3),
@@ -316,7 +345,29 @@ def load(path, *, device=None) -> Model:
         _need(np.issubdtype(a[k].dtype, np.floating), name, f"{k} must be floating point")
         _need(bool(np.isfinite(a[k]).all()), name, f"{k} has NaN or Inf values")
     f = a["faces"]
-    _need(f.size == 0 or (f.min() >= 0 and f.max() < v), name, "face index out of range")
+    _need(np.issubdtype(f.dtype, np.integer), name, "faces must be integers")
+    _need(f.shape[0] > 0, name, "has no faces")
+    _need(f.min() >= 0 and f.max() < v, name, "face index out of range")
+    _need(float(np.ptp(a["vertices"], axis=0).max()) > 0, name, "all vertices coincide (no extent)")
+    for k in ("normals", "views"):
+        _need(bool((np.linalg.norm(a[k], axis=-1) > 1e-6).all()), name, f"{k} has zero vectors")
+    _need(
+        a["diffuse"].shape[1] == int(meta.get("sh_order", 5)) ** 2
+        if isinstance(meta.get("sh_order", 5), int)
+        else False,
+        name,
+        f"diffuse has {a['diffuse'].shape[1]} SH coefficients, sh_order {meta.get('sh_order')!r}",
+    )
+    g7 = a["gaussians"]
+    if g7.size:
+        _need(
+            bool((np.linalg.norm(g7[..., 3:6].astype(np.float64), axis=-1) > 1e-6).all()),
+            name,
+            "a Gaussian mean is a zero vector",
+        )
+        sig = g7[..., 6].astype(np.float64)
+        # sigma >= 1e-6: lam = sigma^-2 must be a finite float32
+        _need(bool((sig >= 1e-6).all()), name, "sigma must be at least 1e-6")
     rec = torch.zeros(v, j, n, 7)
     rec[..., 3:6] = torch.tensor([0.0, 1.0, 0.0])  # dropped records: zero weight
     rec[..., 6] = 1.0
@@ -334,7 +385,7 @@ def load(path, *, device=None) -> Model:
         vertices=torch.from_numpy(a["vertices"].astype(np.float32)),
         faces=torch.from_numpy(f.astype(np.int64)),
         normals=torch.from_numpy(a["normals"].astype(np.float32)),
-        name=str(meta.get("provenance", {}).get("scene", p.stem)),
+        name=str(prov.get("scene", p.stem)),
     )
     try:
         mats = Materials.from_dict(meta["materials"], v)
@@ -348,7 +399,7 @@ def load(path, *, device=None) -> Model:
         g,
         torch.from_numpy(a["diffuse"].astype(np.float32)),
         mats,
-        dict(meta.get("provenance", {})),
+        dict(prov),
     )
     if device is not None:
         model.mesh = model.mesh.to(device)

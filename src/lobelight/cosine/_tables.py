@@ -76,6 +76,7 @@ import math
 import os
 import time
 import zipfile
+import zlib
 from pathlib import Path
 from typing import Any
 
@@ -706,18 +707,34 @@ def save_tables(tables: LobeTables, path: str | os.PathLike) -> Path:
     return path
 
 
+# what a damaged .npz raises from zipfile, zlib and numpy's .npy reader: a bad zip structure,
+# an unknown compression method or flags (NotImplementedError, RuntimeError), corrupt deflate
+# data, a short member, an impossible header (ValueError, MemoryError for absurd shapes)
+_UNREADABLE = (
+    OSError, ValueError, EOFError, KeyError, zipfile.BadZipFile, zipfile.LargeZipFile,
+    NotImplementedError, RuntimeError, zlib.error, MemoryError, OverflowError,
+)  # fmt: skip
+
+
 def _read(path: Path) -> dict[str, np.ndarray]:
     """All arrays of a tables file; any unreadable container is an InputError naming it."""
     try:
-        with np.load(path, allow_pickle=False) as z:
+        z = np.load(path, allow_pickle=False)
+        if not isinstance(z, np.lib.npyio.NpzFile):  # a bare .npy file loads as one array
+            raise InputError(path, "not a lobe-table file (a single .npy array); delete it")
+        with z:
             missing = [k for k in _KEYS if k not in z.files]
             if missing:
                 raise InputError(path, f"corrupt lobe-table file: missing {missing}; delete it")
-            return {k: z[k] for k in _KEYS}
+            arrays = {k: z[k] for k in _KEYS}
     except InputError:
         raise
-    except (OSError, ValueError, EOFError, KeyError, zipfile.BadZipFile) as exc:
-        raise InputError(path, f"corrupt lobe-table file ({exc}); delete it to rebuild") from exc
+    except _UNREADABLE as exc:
+        raise InputError(path, f"corrupt lobe-table file ({exc!r}); delete it to rebuild") from exc
+    for k, a in arrays.items():  # NpzFile hands back a member without the .npy magic as bytes
+        if not isinstance(a, np.ndarray):
+            raise InputError(path, f"corrupt lobe-table file: {k} is not an array; delete it")
+    return arrays
 
 
 def _header(arrays: dict[str, np.ndarray], path: Path) -> tuple[int, dict]:
@@ -726,7 +743,7 @@ def _header(arrays: dict[str, np.ndarray], path: Path) -> tuple[int, dict]:
         params = json.loads(str(arrays["params"]))
         if not isinstance(params, dict):
             raise ValueError("params is not a JSON object")
-    except (TypeError, ValueError) as exc:
+    except (TypeError, ValueError, OverflowError) as exc:  # OverflowError: int(inf)
         raise InputError(path, f"corrupt lobe-table header ({exc}); delete it") from exc
     return version, params
 
@@ -735,11 +752,11 @@ def _from_arrays(arrays: dict[str, np.ndarray], params: dict, path: Path) -> Lob
     try:
         p = TableParams(**params)
         info = json.loads(str(arrays["info"]))
-    except (TypeError, ValueError) as exc:
+        n = p.n_exponent  # grid sizes from the parameters: inf or NaN in them fail here
+        want = (n * (n + 1) // 2, p.n_angle, 3)
+    except (TypeError, ValueError, OverflowError) as exc:  # InputError is a ValueError
         raise InputError(path, f"corrupt lobe-table parameters ({exc}); delete it") from exc
     prod, cap = arrays["product"], arrays["cap"]
-    n = p.n_exponent
-    want = (n * (n + 1) // 2, p.n_angle, 3)
     if prod.dtype != np.float32 or prod.shape != want:
         raise InputError(path, f"corrupt lobe table: product {prod.shape}, expected {want}")
     if cap.dtype != np.float32 or cap.shape != (p.cap_nodes,):

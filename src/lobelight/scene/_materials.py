@@ -100,19 +100,41 @@ class Materials:
 
     @classmethod
     def from_dict(cls, d: Mapping[str, Any], n_vertices: int) -> Materials:
-        diffuse = _colour(d.get("diffuse"), "diffuse").expand(n_vertices, 3).contiguous()
+        """Inverse of :meth:`to_dict`: ``diffuse`` one RGB triple or ``(n_vertices, 3)``.
+
+        Raises
+        ------
+        InputError
+            naming the entry that is not a mapping, not colours, or not a BRDF.
+        """
+        if not isinstance(d, Mapping):
+            raise InputError("materials", f"must be a mapping, got {type(d).__name__}")
+        diffuse = _colour(d.get("diffuse"), "diffuse")
+        if diffuse.shape not in ((3,), (n_vertices, 3)):
+            raise InputError(
+                "diffuse", f"must be (3,) or ({n_vertices}, 3), got {tuple(diffuse.shape)}"
+            )
         spec = d.get("specular")
-        return cls(diffuse, None if spec is None else _brdf.from_dict(spec))
+        try:
+            spec_brdf = None if spec is None else _brdf.from_dict(spec)
+        except InputError as exc:
+            raise InputError(f"specular.{exc.what}", exc.problem) from None
+        except (KeyError, TypeError, ValueError, OverflowError) as exc:  # keys or values amiss
+            raise InputError("specular", f"not a BRDF description ({exc!r:.80})") from None
+        return cls(diffuse.expand(n_vertices, 3).contiguous(), spec_brdf)
 
 
 def _colour(value: Any, name: str) -> torch.Tensor:
-    t = torch.as_tensor(value if value is not None else [0.0, 0.0, 0.0], dtype=torch.float32)
+    try:
+        t = torch.as_tensor(value if value is not None else [0.0, 0.0, 0.0], dtype=torch.float32)
+    except (TypeError, ValueError, RuntimeError, OverflowError):  # strings, ragged lists, 1e400
+        raise InputError(name, f"must be an RGB triple of numbers, got {value!r:.60}") from None
     if t.ndim == 0:
         t = t.expand(3)
     if t.shape[-1] != 3:
         raise InputError(name, f"must be an RGB triple, got shape {tuple(t.shape)}")
     if not bool(torch.isfinite(t).all()) or float(t.min()) < 0 or float(t.max()) > 1:
-        raise InputError(name, f"colour values must be in [0, 1], got {t.tolist()}")
+        raise InputError(name, f"colour values must be in [0, 1], got {t.tolist()!s:.80}")
     return t
 
 
@@ -121,6 +143,9 @@ def _split_spec(spec: Mapping[str, Any], name: str) -> tuple[torch.Tensor, str, 
         raise InputError(name, f"a material must be a table of values, got {type(spec).__name__}")
     spec = dict(spec)
     diffuse = _colour(spec.pop("diffuse", None), f"{name}.diffuse")
+    if diffuse.ndim != 1:
+        shape = tuple(diffuse.shape)
+        raise InputError(f"{name}.diffuse", f"must be one RGB triple, got shape {shape}")
     model = str(spec.pop("model", "none")).lower()
     if model != "none" and model not in SPECULAR_MODELS:
         raise InputError(f"{name}.model", f"unknown model {model!r}; use one of {SPECULAR_MODELS}")
@@ -134,6 +159,8 @@ def _make(model: str, params: Mapping[str, Any], name: str) -> _brdf.BRDF:
         return _brdf.from_dict({"type": model, **params})
     except InputError as exc:
         raise InputError(f"{name}.{exc.what}", exc.problem) from None
+    except OverflowError as exc:  # an integer beyond the float range, e.g. exponent = 1e400
+        raise InputError(name, f"a parameter is out of range ({exc})") from None
 
 
 def uniform(spec: Mapping[str, Any], n_vertices: int, *, name: str = "material") -> Materials:

@@ -17,6 +17,9 @@ __all__ = ["MAX_MESH_BYTES", "Mesh", "load_mesh", "mesh_from_arrays"]
 #: Largest mesh file we read: beyond this a dense per-vertex transport is not what anyone wants,
 #: and trimesh would hold several copies of it in memory while parsing.
 MAX_MESH_BYTES = 2 * 1024**3
+#: Largest coordinate magnitude accepted: products of two coordinates (cross products for
+#: normals and areas, in float32 on the GPU) stay far below float32's 3.4e38.
+MAX_COORDINATE = 1e18
 #: Formats trimesh reads for us (by suffix).
 MESH_SUFFIXES = (".obj", ".ply", ".stl", ".glb", ".gltf", ".off")
 
@@ -132,8 +135,8 @@ def mesh_from_arrays(
     Raises
     ------
     InputError
-        naming ``name`` when there are no faces, NaN/Inf positions, out-of-range indices, or
-        nothing with area is left.
+        naming ``name`` when there are no faces, NaN/Inf positions or coordinates beyond
+        :data:`MAX_COORDINATE`, out-of-range indices, or nothing with area is left.
     """
     v = np.asarray(vertices, dtype=np.float64)
     f = np.asarray(faces)
@@ -145,11 +148,13 @@ def mesh_from_arrays(
         raise InputError(name, "face indices must be integers")
     if not np.isfinite(v).all():
         raise InputError(name, f"{int((~np.isfinite(v)).any(1).sum())} vertices are NaN or Inf")
+    if np.abs(v).max(initial=0.0) > MAX_COORDINATE:
+        raise InputError(name, f"vertex coordinates beyond +-{MAX_COORDINATE:g}")
     if f.min() < 0 or f.max() >= len(v):
         raise InputError(name, f"face index out of range [0, {len(v)})")
     f = f.astype(np.int64)
     diag = float(np.linalg.norm(v.max(0) - v.min(0)))
-    if not diag > 0:
+    if not diag > 1 / MAX_COORDINATE:  # also: an extent that float32 vertices would lose
         raise InputError(name, "all vertices coincide: the mesh has no extent")
     if weld:
         # merge on a grid of 1e-6 diag: positions that round to the same cell become one vertex
@@ -212,7 +217,10 @@ def load_mesh(path, *, device=None) -> Mesh:
     f = getattr(loaded, "faces", None)
     if v is None or f is None or len(f) == 0:
         raise InputError(str(p), "file holds no triangles")
-    return mesh_from_arrays(np.asarray(v), np.asarray(f), name=p.name, device=device)
+    try:
+        return mesh_from_arrays(np.asarray(v), np.asarray(f), name=p.name, device=device)
+    except InputError as exc:  # name the whole path, as every other error here does
+        raise InputError(str(p), exc.problem) from None
 
 
 def triangle_areas(mesh: Mesh) -> torch.Tensor:

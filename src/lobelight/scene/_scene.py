@@ -196,7 +196,10 @@ def builtin(name: str = "knot", **options: Any) -> Scene:
 
 
 def _read_description(p: Path) -> dict[str, Any]:
-    text_bytes = p.read_bytes()
+    try:
+        text_bytes = p.read_bytes()
+    except OSError as exc:  # a directory, no permission
+        raise InputError(str(p), f"cannot read the file ({exc.strerror or exc})") from None
     try:
         if p.suffix.lower() == ".json":
             data = json.loads(text_bytes.decode("utf-8"))
@@ -221,10 +224,18 @@ def _camera(d: Any, where: str) -> Camera:
         raise InputError(where, "camera must be a table with origin, target, up, fov")
     try:
         return Camera.look_at(**dict(d))
-    except TypeError as exc:
+    except (TypeError, ValueError, RuntimeError, OverflowError) as exc:  # keys, non-numbers
         raise InputError(where, f"bad camera: {exc}") from None
     except InputError as exc:
         raise InputError(f"{where}.{exc.what}", exc.problem) from None
+
+
+def _entry_path(p: Path, s: str, d: dict[str, Any], key: str) -> Path:
+    """The file named by entry ``key`` of the scene file ``p`` (named ``s``), relative to it."""
+    value = d[key]
+    if not isinstance(value, str) or not value or "\x00" in value:
+        raise InputError(f"{s}: {key}", f"must be a file name, got {value!r:.60}")
+    return (p.parent / value).resolve()
 
 
 def _default_camera(mesh: Mesh) -> Camera:
@@ -272,28 +283,43 @@ def load(path_or_name, *, device=None) -> Scene:
     d = _read_description(p)
     if "mesh" not in d:
         raise InputError(s, "scene file needs a 'mesh' entry")
-    mesh_path = (p.parent / str(d["mesh"])).resolve()
-    mesh = load_mesh(mesh_path)
+    if not isinstance(d.get("name", ""), str):
+        raise InputError(f"{s}: name", f"must be a string, got {d['name']!r:.60}")
+    mesh_path = _entry_path(p, s, d, "mesh")
+    try:
+        mesh = load_mesh(mesh_path)
+    except InputError as exc:  # name the scene file as well as the mesh file
+        raise InputError(f"{s}: mesh {exc.what}", exc.problem) from None
     if "material" in d and "gradient" in d:
         raise InputError(s, "give either [material] or [gradient], not both")
-    if "gradient" in d:
-        g = d["gradient"]
-        if not isinstance(g, Mapping) or "from" not in g or "to" not in g:
-            raise InputError(f"{s}: gradient", "needs 'from' and 'to' materials (and 'axis')")
-        axis = torch.as_tensor(g.get("axis", [0.0, 1.0, 0.0]), dtype=torch.float32)
-        if axis.shape != (3,) or float(axis.norm()) == 0:
-            raise InputError(f"{s}: gradient.axis", "must be a non-zero 3-vector")
-        h = mesh.vertices @ (axis / axis.norm())
-        t = (h - h.min()) / (h.max() - h.min()).clamp_min(1e-12)
-        mats = gradient(g["from"], g["to"], t)
-    else:
-        mats = uniform(d.get("material", {"diffuse": [0.5, 0.5, 0.5]}), mesh.n_vertices)
-    env = str(d.get("environment", "builtin"))
+    try:
+        mats = _materials(d, mesh)
+    except InputError as exc:
+        raise InputError(f"{s}: {exc.what}", exc.problem) from None
+    env = d.get("environment", "builtin")
     if env != "builtin":
-        env_path = (p.parent / env).resolve()
+        env_path = _entry_path(p, s, d, "environment")
         if not env_path.is_file():
             raise InputError(f"{s}: environment", f"no such file {env_path}")
         env = str(env_path)
     cam = _camera(d["camera"], f"{s}: camera") if "camera" in d else _default_camera(mesh)
-    sc = Scene(mesh, mats, env, cam, str(d.get("name", p.stem)))
+    sc = Scene(mesh, mats, env, cam, d.get("name", p.stem))
     return sc.to(device) if device is not None else sc
+
+
+def _materials(d: dict[str, Any], mesh: Mesh) -> Materials:
+    """The scene file's ``[material]`` or ``[gradient]`` on ``mesh``."""
+    if "gradient" not in d:
+        return uniform(d.get("material", {"diffuse": [0.5, 0.5, 0.5]}), mesh.n_vertices)
+    g = d["gradient"]
+    if not isinstance(g, Mapping) or "from" not in g or "to" not in g:
+        raise InputError("gradient", "needs 'from' and 'to' materials (and 'axis')")
+    try:
+        axis = torch.as_tensor(g.get("axis", [0.0, 1.0, 0.0]), dtype=torch.float64)
+    except (TypeError, ValueError, RuntimeError, OverflowError):
+        axis = torch.zeros(0)
+    if axis.shape != (3,) or not bool(torch.isfinite(axis).all()) or float(axis.norm()) == 0:
+        raise InputError("gradient.axis", f"must be a non-zero 3-vector, got {g.get('axis')!r:.60}")
+    h = mesh.vertices @ (axis / axis.norm()).to(mesh.vertices)
+    t = (h - h.min()) / (h.max() - h.min()).clamp_min(1e-12)
+    return gradient(g["from"], g["to"], t)

@@ -1,0 +1,715 @@
+"""Fuzzing the file loaders: mutated files give one InputError naming the file, or load cleanly.
+
+Every loader of user files (model, scene, mesh, environment map, cosine lobe tables) is fed
+thousands of mutated versions of a small valid file: byte flips, truncations, insertions and
+deletions anywhere (biased towards the headers at both ends, where containers keep their
+structure), and structured mutations that keep the container valid but break what it holds
+(arrays of the wrong shape or dtype, NaN, negative widths, out-of-range indices, JSON values of
+the wrong type, unknown keys, missing files). The only acceptable outcomes are an
+:class:`~lobelight.errors.InputError` whose message names the file, or a successful load whose
+result is sane (finite numbers, indices in range) - never another exception type, and never a
+hang (each load runs under an alarm).
+
+Hypothesis runs with ``derandomize=True`` and no example database, so CI sees the same inputs
+every time; the example counts keep the whole file within about a minute on a 2-core machine.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import copy
+import io
+import json
+import math
+import signal
+import time
+from pathlib import Path
+
+import cv2
+import numpy as np
+import OpenEXR
+import pytest
+import torch
+import trimesh
+from hypothesis import HealthCheck, Phase, given, settings
+from hypothesis import strategies as st
+
+from lobelight import cosine, envmap, model, scene
+from lobelight.errors import InputError
+from lobelight.fit import Gaussians, MeshFit
+
+# one load may take this long before it counts as a hang (loads here take milliseconds)
+LOAD_SECONDS = 10.0
+
+
+def fuzz(n: int):
+    """Deterministic hypothesis settings for ``n`` examples (no database, no deadline).
+
+    No shrinking: a failing example is already a handful of mutations of a small file, and
+    shrinking a loader fuzz can take minutes; the first failure is reported as generated.
+    """
+    return settings(
+        max_examples=n,
+        deadline=None,
+        derandomize=True,
+        database=None,
+        phases=(Phase.explicit, Phase.generate),
+        report_multiple_bugs=False,
+        suppress_health_check=[
+            HealthCheck.function_scoped_fixture,  # files are rewritten at each example
+            HealthCheck.too_slow,
+            HealthCheck.data_too_large,
+        ],
+    )
+
+
+class Hang(BaseException):
+    """A load ran past :data:`LOAD_SECONDS` (not an Exception: loaders' handlers let it pass)."""
+
+
+@contextlib.contextmanager
+def _time_limit(seconds: float):
+    def on_alarm(signum, frame):
+        raise Hang(f"load took more than {seconds} s")
+
+    alarm = hasattr(signal, "setitimer")  # POSIX; elsewhere only the elapsed time is checked
+    if alarm:
+        old = signal.signal(signal.SIGALRM, on_alarm)
+        signal.setitimer(signal.ITIMER_REAL, seconds)
+    t0 = time.perf_counter()
+    try:
+        yield
+    finally:
+        if alarm:
+            signal.setitimer(signal.ITIMER_REAL, 0)
+            signal.signal(signal.SIGALRM, old)
+    # a hang inside C code is not interrupted by the alarm, but is still caught here
+    assert time.perf_counter() - t0 < seconds, "load hung"
+
+
+def load_or_input_error(loader, path: Path, *names: str):
+    """``loader(path)``, or None when it raises InputError naming the file (or one of ``names``).
+
+    Any other exception propagates and fails the test.
+    """
+    with _time_limit(LOAD_SECONDS):
+        try:
+            return loader(path)
+        except InputError as exc:
+            msg = str(exc)
+            assert any(n in msg for n in (str(path), *names)), f"message names no file: {msg}"
+            assert "\n" not in msg, f"not a one-line error: {msg!r}"
+            return None
+
+
+# --------------------------------------------------------------------------------------------
+# byte mutations
+
+_BYTE_OPS = ("flip", "set", "truncate", "delete", "insert", "zero", "dup")
+# positions: near the start (magic numbers, headers), near the end (zip central directory,
+# trailers), or anywhere; taken modulo the length, so negative ones count from the end
+_POS = st.one_of(st.integers(0, 127), st.integers(-512, -1), st.integers(0, 1 << 30))
+byte_ops = st.lists(
+    st.tuples(st.sampled_from(_BYTE_OPS), _POS, st.integers(0, 255)), min_size=1, max_size=4
+)
+
+
+def mutate_bytes(data: bytes, ops) -> bytes:
+    """Apply byte-level mutations (see :data:`byte_ops`) to ``data``."""
+    b = bytearray(data)
+    for kind, pos, val in ops:
+        if not b:
+            break
+        i = pos % len(b)
+        if kind == "flip":
+            b[i] ^= 1 << (val % 8)
+        elif kind == "set":
+            b[i] = val
+        elif kind == "truncate":
+            del b[i:]
+        elif kind == "delete":
+            del b[i : i + 1 + val % 16]
+        elif kind == "insert":
+            b[i:i] = bytes([val]) * (1 + val % 8)
+        elif kind == "zero":
+            k = min(len(b) - i, 1 + val % 32)
+            b[i : i + k] = bytes(k)
+        else:  # dup: repeat a chunk in place
+            b[i:i] = b[i : i + 1 + val % 64]
+    return bytes(b)
+
+
+# random JSON-like values: every type a parser can hand to a loader, including NaN and huge ints
+_json_scalars = st.one_of(
+    st.none(),
+    st.booleans(),
+    st.integers(-(2**70), 2**70),
+    st.sampled_from([0, 1, -1, 2, 3, 12, 10**400, -(10**400)]),
+    st.floats(allow_nan=True, allow_infinity=True),
+    st.text(max_size=8),
+)
+json_values = st.recursive(
+    _json_scalars,
+    lambda c: st.lists(c, max_size=4) | st.dictionaries(st.text(max_size=6), c, max_size=4),
+    max_leaves=8,
+)
+
+
+def _paths(d, prefix=()):
+    """Every key path into nested dicts and lists (lists only to depth 1 element)."""
+    out = []
+    items = d.items() if isinstance(d, dict) else enumerate(d) if isinstance(d, list) else ()
+    for k, v in items:
+        out.append((*prefix, k))
+        out.extend(_paths(v, (*prefix, k)))
+    return out
+
+
+def mutate_json(doc, ops):
+    """Apply ``(op, path index, value)`` mutations to a deep copy of a JSON document."""
+    doc = copy.deepcopy(doc)
+    for op, which, value in ops:
+        value = copy.deepcopy(value)  # sampled values are shared objects: never alias them
+        paths = _paths(doc)
+        if not paths:
+            break
+        path = paths[which % len(paths)]
+        parent = doc
+        for k in path[:-1]:
+            parent = parent[k]
+        key = path[-1]
+        if op == "delete":
+            del parent[key]
+        elif op == "replace":
+            parent[key] = value
+        elif op == "add" and isinstance(parent, dict):
+            parent[str(value)[:8] + "_x"] = value
+        elif op == "wrap":
+            parent[key] = [parent[key]]
+    return doc
+
+
+_JSON_OPS = ["delete", "replace", "replace", "add", "wrap"]
+json_ops = st.lists(
+    st.tuples(st.sampled_from(_JSON_OPS), st.integers(0, 999), json_values), min_size=1, max_size=3
+)
+
+
+def _finite(t) -> bool:
+    return bool(torch.isfinite(torch.as_tensor(t)).all())
+
+
+# --------------------------------------------------------------------------------------------
+# model files
+
+
+def _tiny_fit(v: int, j: int, n: int) -> MeshFit:
+    g = torch.Generator().manual_seed(1)
+    w = torch.rand(v, j, n, 3, generator=g)
+    w[:, : j // 2] = 0  # some records dropped
+    mu = torch.nn.functional.normalize(torch.randn(v, j, n, 3, generator=g), dim=-1)
+    lam = torch.rand(v, j, n, generator=g) * 100 + 1
+    diffuse = torch.rand(v, 9, 3, generator=g)
+    views = torch.nn.functional.normalize(torch.randn(j, 3, generator=g), dim=-1)
+    return MeshFit(Gaussians(w, mu, lam), diffuse, views, torch.zeros(v))
+
+
+@pytest.fixture(scope="module")
+def model_files(tmp_path_factory):
+    """Small valid model files: float32 (uncompressed-size friendly) and float16."""
+    d = tmp_path_factory.mktemp("model")
+    sc = scene.builtin("sphere", subdivisions=0, model="ggx", roughness=0.2)
+    mf = _tiny_fit(sc.mesh.n_vertices, 4, 2)
+    out = _Files()
+    for half in (False, True):
+        p = d / f"m{int(half)}.npz"
+        model.save(p, sc.mesh, sc.materials, mf, float16=half, provenance={"scene": "s"})
+        assert model.load(p).mesh.n_vertices == sc.mesh.n_vertices
+        with np.load(p, allow_pickle=False) as z:
+            arrays = {k: z[k] for k in z.files}
+        out[half] = (p.read_bytes(), arrays)
+    return out
+
+
+class _Files(dict):
+    """Fixture data, with a short repr for hypothesis' failure reports."""
+
+    def __repr__(self) -> str:
+        return f"<{len(self)} files>"
+
+
+def _check_model(m) -> None:
+    g = m.gaussians
+    assert _finite(g.w) and _finite(g.mu) and _finite(g.lam) and _finite(m.diffuse)
+    assert bool((g.lam > 0).all()) and bool((g.w >= 0).all())
+    assert _finite(m.mesh.vertices) and _finite(m.mesh.normals)
+    f = m.mesh.faces
+    assert f.numel() == 0 or (int(f.min()) >= 0 and int(f.max()) < m.mesh.n_vertices)
+    assert m.materials.n_vertices == m.mesh.n_vertices
+
+
+def _load_model(path: Path) -> None:
+    m = load_or_input_error(model.load, path)
+    if m is not None:
+        _check_model(m)
+
+
+def _npz_bytes(arrays: dict, compressed: bool = False) -> bytes:
+    buf = io.BytesIO()
+    (np.savez_compressed if compressed else np.savez)(buf, **arrays)
+    return buf.getvalue()
+
+
+@fuzz(600)
+@given(half=st.booleans(), ops=byte_ops)
+def test_fuzz_model_bytes(tmp_path, model_files, half, ops):
+    data, _ = model_files[half]
+    p = tmp_path / "m.npz"
+    p.write_bytes(mutate_bytes(data, ops))
+    _load_model(p)
+
+
+_DTYPES = [
+    np.int8, np.uint8, np.int32, np.int64, np.float16, np.float32, np.float64,
+    np.complex64, np.bool_, "<U3", "S2", "<M8[s]", [("a", "<f4"), ("b", "<i2")],
+]  # fmt: skip
+_ARRAY_OPS = ("shape", "dtype", "bad_value", "scalar", "missing", "transpose", "empty")
+_BAD_VALUES = [np.nan, np.inf, -np.inf, -1.0, 0.0, -1e30, 1e30, 1e-30, 65504.0, 2**31 - 1, 12]
+
+
+@st.composite
+def array_mutation(draw, keys):
+    key = draw(st.sampled_from(keys))
+    op = draw(st.sampled_from(_ARRAY_OPS))
+    shape = tuple(draw(st.lists(st.integers(0, 5), max_size=3)))
+    dtype = draw(st.sampled_from(range(len(_DTYPES))))
+    value = draw(st.sampled_from(_BAD_VALUES))
+    where = draw(st.integers(0, 1 << 20))
+    return key, op, shape, dtype, value, where
+
+
+def apply_array_mutation(arrays: dict, mutation) -> dict:
+    key, op, shape, dtype, value, where = mutation
+    arrays = dict(arrays)
+    a = arrays[key]
+    if op == "shape":
+        arrays[key] = np.zeros(shape, a.dtype)
+    elif op == "dtype":
+        dt = np.dtype(_DTYPES[dtype])
+        try:
+            arrays[key] = np.zeros(a.shape, dt) if dt.fields or dt.kind == "M" else a.astype(dt)
+        except (TypeError, ValueError):  # text that is no number
+            arrays[key] = np.zeros(a.shape, dt)
+    elif op == "bad_value":
+        b = a.copy()
+        if b.size:
+            flat = b.reshape(-1)
+            with np.errstate(all="ignore"):
+                try:
+                    flat[where % flat.size] = value
+                except (ValueError, OverflowError):  # NaN or -1 into integers: wrap around
+                    flat[where % flat.size] = np.array(value).astype(b.dtype)
+        arrays[key] = b
+    elif op == "scalar":
+        arrays[key] = np.array(value)
+    elif op == "missing":
+        del arrays[key]
+    elif op == "transpose":
+        arrays[key] = a.T.copy()
+    else:
+        arrays[key] = a[:0] if a.ndim else np.zeros(0, a.dtype)
+    return arrays
+
+
+_MODEL_KEYS = ("vertices", "faces", "normals", "views", "keep", "gaussians", "diffuse", "meta")
+
+
+@fuzz(500)
+@given(half=st.booleans(), muts=st.lists(array_mutation(_MODEL_KEYS), min_size=1, max_size=2))
+def test_fuzz_model_arrays(tmp_path, model_files, half, muts):
+    _, arrays = model_files[half]
+    for mut in muts:
+        if mut[0] in arrays:
+            arrays = apply_array_mutation(arrays, mut)
+    p = tmp_path / "m.npz"
+    p.write_bytes(_npz_bytes(arrays))
+    _load_model(p)
+
+
+@st.composite
+def meta_mutation(draw):
+    kind = draw(st.sampled_from(["json", "json", "json", "raw", "version", "top"]))
+    if kind == "json":
+        return kind, draw(json_ops)
+    if kind == "raw":  # the JSON text itself damaged
+        return kind, draw(byte_ops)
+    if kind == "version":
+        return kind, draw(st.tuples(json_values, json_values))
+    return kind, draw(json_values)  # something other than an object at the top
+
+
+@fuzz(500)
+@given(half=st.booleans(), mut=meta_mutation())
+def test_fuzz_model_meta(tmp_path, model_files, half, mut):
+    _, arrays = model_files[half]
+    meta = json.loads(bytes(arrays["meta"]).decode())
+    kind, arg = mut
+    if kind == "json":
+        text = json.dumps(mutate_json(meta, arg)).encode()
+    elif kind == "raw":
+        text = mutate_bytes(json.dumps(meta).encode(), arg)
+    elif kind == "version":
+        text = json.dumps({**meta, "format": arg[0], "version": arg[1]}).encode()
+    else:
+        text = json.dumps(arg).encode()
+    arrays = {**arrays, "meta": np.frombuffer(text, dtype=np.uint8)}
+    p = tmp_path / "m.npz"
+    p.write_bytes(_npz_bytes(arrays))
+    _load_model(p)
+
+
+# --------------------------------------------------------------------------------------------
+# meshes
+
+
+def _mesh_texts() -> dict[str, bytes]:
+    m = trimesh.creation.icosphere(0)
+    out = {}
+    for ext in ("obj", "off", "ply", "stl"):
+        out[ext] = (
+            m.export(file_type=ext, encoding="ascii") if ext == "ply" else m.export(file_type=ext)
+        )
+    out["stl_ascii"] = trimesh.exchange.stl.export_stl_ascii(m)
+    out["ply_binary"] = m.export(file_type="ply")
+    return {k: v.encode() if isinstance(v, str) else bytes(v) for k, v in out.items()}
+
+
+MESHES = _mesh_texts()
+_SUFFIX = {"stl_ascii": "stl", "ply_binary": "ply"}
+_TOKENS = [
+    "nan", "inf", "-inf", "1e39", "1e308", "-1e308", "-1", "0", "1", "2", "3", "12", "99999",
+    "2147483648", "-2147483649", "1e999", "abc", "", "1.5", "0x10", "\x00", "3 4", "-0",
+]  # fmt: skip
+
+
+def mutate_text(data: bytes, ops) -> bytes:
+    """Token- and line-level mutations of a text file: numbers replaced by bad ones, lines
+    deleted, duplicated or swapped."""
+    lines = data.split(b"\n")
+    for kind, pos, val in ops:
+        if not lines:
+            break
+        i = pos % len(lines)
+        if kind == "token":
+            toks = lines[i].split(b" ")
+            toks[val % len(toks)] = _TOKENS[val % len(_TOKENS)].encode()
+            lines[i] = b" ".join(toks)
+        elif kind == "delete":
+            del lines[i]
+        elif kind == "dup":
+            lines.insert(i, lines[i])
+        elif kind == "swap":
+            j = val % len(lines)
+            lines[i], lines[j] = lines[j], lines[i]
+        else:  # truncate
+            del lines[i:]
+    return b"\n".join(lines)
+
+
+text_ops = st.lists(
+    st.tuples(
+        st.sampled_from(["token", "token", "token", "delete", "dup", "swap", "truncate"]),
+        st.integers(0, 1 << 16),
+        st.integers(0, 1 << 16),
+    ),
+    min_size=1,
+    max_size=4,
+)
+
+
+def _check_mesh(m) -> None:
+    assert m.n_faces > 0 and _finite(m.vertices) and _finite(m.normals)
+    assert int(m.faces.min()) >= 0 and int(m.faces.max()) < m.n_vertices
+    assert math.isfinite(m.scale) and m.scale > 0
+
+
+@fuzz(500)
+@given(
+    kind=st.sampled_from(["obj", "off", "ply", "stl_ascii"]),
+    ops=text_ops,
+    also_bytes=st.one_of(st.none(), byte_ops),
+)
+def test_fuzz_mesh_text(tmp_path, kind, ops, also_bytes):
+    data = mutate_text(MESHES[kind], ops)
+    if also_bytes is not None:
+        data = mutate_bytes(data, also_bytes)
+    p = tmp_path / f"m.{_SUFFIX.get(kind, kind)}"
+    p.write_bytes(data)
+    m = load_or_input_error(scene.load_mesh, p)
+    if m is not None:
+        _check_mesh(m)
+
+
+@fuzz(500)
+@given(kind=st.sampled_from(["ply_binary", "stl", "obj", "off"]), ops=byte_ops)
+def test_fuzz_mesh_bytes(tmp_path, kind, ops):
+    p = tmp_path / f"m.{_SUFFIX.get(kind, kind)}"
+    p.write_bytes(mutate_bytes(MESHES[kind], ops))
+    m = load_or_input_error(scene.load_mesh, p)
+    if m is not None:
+        _check_mesh(m)
+
+
+# --------------------------------------------------------------------------------------------
+# scene files
+
+_SCENE = {
+    "name": "ball",
+    "mesh": "ball.obj",
+    "environment": "builtin",
+    "material": {"diffuse": [0.5] * 3, "model": "ggx", "specular": [0.8] * 3, "alpha": 0.1},
+    "camera": {"origin": [0, 0, 4], "target": [0, 0, 0], "up": [0, 1, 0], "fov": 40},
+}  # fmt: skip
+_SCENE_GRADIENT = {
+    "mesh": "ball.obj",
+    "gradient": {
+        "axis": [0, 1, 0],
+        "from": {"diffuse": [0.8, 0.7, 0.1]},
+        "to": {"diffuse": [0.1] * 3, "model": "phong", "specular": [0.3] * 3, "exponent": 20},
+    },
+}  # fmt: skip
+# values a scene file's author might plausibly get wrong
+_SCENE_VALUES = st.one_of(
+    json_values,
+    st.sampled_from(
+        [
+            "missing.obj", "", ".", "..", "/", "ball.obj\x00", "other.json", "env.hdr", "folder",
+            "glass",
+            "GGX", "none", -1, -0.5, 0, 1e308, float("nan"), float("inf"), 1e-300, 2**64,
+            [1, 2], [0.5, 0.5, 0.5, 0.5], [[0.5, 0.5, 0.5]] * 3, {"diffuse": 2},
+        ]
+    ),
+)  # fmt: skip
+
+
+def _toml_value(v) -> str:
+    if isinstance(v, bool):
+        return "true" if v else "false"
+    if isinstance(v, int):
+        return str(v)
+    if isinstance(v, float):
+        if math.isnan(v):
+            return "nan"
+        return ("inf" if v > 0 else "-inf") if math.isinf(v) else repr(v)
+    if isinstance(v, str):
+        return json.dumps(v)
+    if isinstance(v, list):
+        return "[" + ", ".join(_toml_value(x) for x in v if x is not None) + "]"
+    if isinstance(v, dict):
+        items = (f"{json.dumps(k)} = {_toml_value(x)}" for k, x in v.items() if x is not None)
+        return "{" + ", ".join(items) + "}"
+    raise TypeError(type(v))
+
+
+def to_toml(d: dict) -> str:
+    """A TOML rendering of a JSON document (None dropped, tables inline)."""
+    return "".join(f"{json.dumps(k)} = {_toml_value(v)}\n" for k, v in d.items() if v is not None)
+
+
+@pytest.fixture(scope="module")
+def scene_dir(tmp_path_factory):
+    d = tmp_path_factory.mktemp("scene")
+    # every file a mutated scene may name exists or not from the start, so examples replay
+    (d / "ball.obj").write_bytes(MESHES["obj"])
+    (d / "env.hdr").write_bytes(_hdr_bytes(_img(4, 8)))
+    (d / "other.json").write_text(json.dumps(_SCENE))
+    (d / "folder").mkdir()
+    return d
+
+
+@fuzz(500)
+@given(
+    base=st.sampled_from([_SCENE, _SCENE_GRADIENT]),
+    ops=st.lists(
+        st.tuples(
+            st.sampled_from(["delete", "replace", "replace", "replace", "add", "wrap"]),
+            st.integers(0, 999),
+            _SCENE_VALUES,
+        ),
+        min_size=1,
+        max_size=3,
+    ),
+    fmt=st.sampled_from(["json", "toml"]),
+)
+def test_fuzz_scene_structured(scene_dir, base, ops, fmt):
+    doc = mutate_json(base, ops)
+    p = scene_dir / f"scene.{fmt}"
+    p.write_text(json.dumps(doc) if fmt == "json" else to_toml(doc), encoding="utf-8")
+    sc = load_or_input_error(scene.load, p, str(scene_dir))
+    if sc is not None:
+        _check_mesh(sc.mesh)
+        assert _finite(sc.materials.diffuse) and isinstance(sc.name, str)
+        spec = sc.materials.specular
+        if spec is not None:
+            assert all(_finite(v) for v in spec.params.values())
+
+
+@fuzz(250)
+@given(fmt=st.sampled_from(["json", "toml"]), base=st.sampled_from([_SCENE, _SCENE_GRADIENT]),
+       ops=byte_ops, garbage=st.booleans(), noise=st.binary(max_size=64))  # fmt: skip
+def test_fuzz_scene_bytes(scene_dir, fmt, base, ops, garbage, noise):
+    text = (json.dumps(base) if fmt == "json" else to_toml(base)).encode()
+    p = scene_dir / f"scene.{fmt}"
+    p.write_bytes(noise if garbage else mutate_bytes(text, ops))
+    sc = load_or_input_error(scene.load, p, str(scene_dir))
+    if sc is not None:
+        _check_mesh(sc.mesh)
+
+
+# --------------------------------------------------------------------------------------------
+# environment maps
+
+
+def _img(h: int, w: int, seed: int = 0) -> np.ndarray:
+    return np.random.default_rng(seed).uniform(0.01, 20.0, (h, w, 3)).astype(np.float32)
+
+
+def _hdr_bytes(img: np.ndarray) -> bytes:
+    ok, enc = cv2.imencode(".hdr", np.ascontiguousarray(img[..., ::-1]))
+    assert ok
+    return enc.tobytes()
+
+
+def _exr_bytes(tmp: Path, img: np.ndarray, compression=OpenEXR.ZIP_COMPRESSION) -> bytes:
+    p = tmp / "x.exr"
+    OpenEXR.File({"compression": compression, "type": OpenEXR.scanlineimage}, {"RGB": img}).write(
+        str(p)
+    )
+    return p.read_bytes()
+
+
+@pytest.fixture(scope="module")
+def env_files(tmp_path_factory):
+    d = tmp_path_factory.mktemp("env")
+    lat, cross = _img(8, 16), _img(16, 12, 1)
+    return _Files(
+        hdr=[_hdr_bytes(lat), _hdr_bytes(cross), _hdr_bytes(_img(4, 8, 2))],  # RLE and flat
+        exr=[
+            _exr_bytes(d, lat),
+            _exr_bytes(d, cross, OpenEXR.NO_COMPRESSION),
+            _exr_bytes(d, lat, OpenEXR.PIZ_COMPRESSION),
+        ],
+    )
+
+
+def _check_env(env) -> None:
+    assert _finite(env.data) and bool((env.data >= 0).all())
+
+
+@fuzz(600)
+@given(which=st.integers(0, 2), ops=byte_ops, layout=st.sampled_from([None, None, "latlong"]))
+def test_fuzz_envmap_hdr_bytes(tmp_path, env_files, which, ops, layout):
+    p = tmp_path / "e.hdr"
+    p.write_bytes(mutate_bytes(env_files["hdr"][which], ops))
+    env = load_or_input_error(lambda q: envmap.load(q, layout=layout), p)
+    if env is not None:
+        _check_env(env)
+
+
+@fuzz(600)
+@given(which=st.integers(0, 2), ops=byte_ops)
+def test_fuzz_envmap_exr_bytes(tmp_path, env_files, which, ops):
+    p = tmp_path / "e.exr"
+    p.write_bytes(mutate_bytes(env_files["exr"][which], ops))
+    env = load_or_input_error(envmap.load, p)
+    if env is not None:
+        _check_env(env)
+
+
+@fuzz(120)
+@given(
+    h=st.integers(1, 9),
+    w=st.integers(1, 20),
+    bad=st.lists(
+        st.tuples(st.integers(0, 1 << 16), st.sampled_from([np.nan, np.inf, -np.inf, -1.0, 1e38])),
+        max_size=3,
+    ),
+    ext=st.sampled_from(["hdr", "exr"]),
+    sanitize=st.booleans(),
+)
+def test_fuzz_envmap_pixels_and_aspect(tmp_path, h, w, bad, ext, sanitize):
+    img = _img(h, w)
+    flat = img.reshape(-1)
+    for pos, v in bad:
+        flat[pos % flat.size] = v
+    p = tmp_path / f"e.{ext}"
+    p.write_bytes(_hdr_bytes(img) if ext == "hdr" else _exr_bytes(tmp_path, img))
+    env = load_or_input_error(lambda q: envmap.load(q, sanitize=sanitize), p)
+    if env is not None:
+        _check_env(env)
+
+
+# --------------------------------------------------------------------------------------------
+# cosine lobe tables
+
+TINY_TABLES = cosine.TableParams(
+    per_decade=1, e_max=10.0, angle_uniform=4, angle_grading=0.0, angle_pi_grading=0.0,
+    cap_nodes=4, quad_nodes=4,
+)  # fmt: skip
+
+
+@pytest.fixture(scope="module")
+def table_file(tmp_path_factory):
+    p = tmp_path_factory.mktemp("tables") / "t.npz"
+    cosine.save_tables(cosine.build_tables(TINY_TABLES), p)
+    with np.load(p, allow_pickle=False) as z:
+        arrays = {k: z[k] for k in z.files}
+    return _Files(data=p.read_bytes(), arrays=arrays)
+
+
+def _load_tables(path: Path) -> None:
+    t = load_or_input_error(cosine.load_tables, path)
+    if t is not None:
+        assert _finite(t.product_table) and _finite(t.cap_table)
+
+
+@fuzz(500)
+@given(ops=byte_ops)
+def test_fuzz_tables_bytes(tmp_path, table_file, ops):
+    p = tmp_path / "t.npz"
+    p.write_bytes(mutate_bytes(table_file["data"], ops))
+    _load_tables(p)
+
+
+@st.composite
+def table_mutation(draw):
+    kind = draw(st.sampled_from(["array", "array", "params", "params", "info"]))
+    if kind == "array":
+        return kind, draw(array_mutation(("format_version", "params", "info", "product", "cap")))
+    if kind == "params":
+        key = draw(st.sampled_from([*TINY_TABLES.to_dict(), "extra"]))
+        value = draw(
+            st.one_of(
+                json_values,
+                st.sampled_from([0, -1, 1e300, 1e308, 10**400, 2**63, 0.5, 1e-300, "16"]),
+            )
+        )
+        return kind, (key, value)
+    return kind, draw(json_values)
+
+
+@fuzz(200)
+@given(mut=table_mutation())
+def test_fuzz_tables_structured(tmp_path, table_file, mut):
+    arrays = dict(table_file["arrays"])
+    kind, arg = mut
+    if kind == "array":
+        arrays = apply_array_mutation(arrays, arg)
+    elif kind == "params":
+        params = {**TINY_TABLES.to_dict(), arg[0]: arg[1]}
+        arrays["params"] = np.array(json.dumps(params))
+    else:
+        arrays["info"] = np.array(json.dumps(arg))
+    p = tmp_path / "t.npz"
+    p.write_bytes(_npz_bytes(arrays))
+    _load_tables(p)
