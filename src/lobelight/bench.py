@@ -12,7 +12,14 @@ import time
 
 import torch
 
-__all__ = ["bench_prefilter", "bench_transport", "machine"]
+__all__ = [
+    "bench_fit",
+    "bench_prefilter",
+    "bench_render",
+    "bench_transport",
+    "machine",
+    "synthetic_model",
+]
 
 
 def machine(device: str) -> dict:
@@ -133,3 +140,128 @@ def bench_transport(
         "transport_functions_per_second": functions / t_direct,
         "machine": machine(device),
     }
+
+
+def bench_fit(*, scene: str = "knot:3", n_lobes: int = 1, device: str = "cpu") -> dict:
+    """Transport and fit of a whole model (the issue's 10K-vertex, 92-view, N = 1 benchmark).
+
+    ``knot:3`` has 12,769 vertices; seconds are also given per 10K vertices.
+    """
+    from .fit import fit_model
+    from .scene import load
+
+    sc = load(scene)
+    t0 = time.perf_counter()
+    m = fit_model(sc, n_lobes, device=device)
+    _sync(device)
+    total = time.perf_counter() - t0
+    v = sc.mesh.n_vertices
+    return {
+        "benchmark": "fit",
+        "scene": scene,
+        "vertices": v,
+        "views": int(m.views.shape[0]),
+        "n_lobes": n_lobes,
+        "seconds": total,
+        "seconds_per_10k_vertices": total * 1e4 / v,
+        "relative_l2_error_mean": m.provenance["relative_l2_error_mean"],
+        "goal_seconds": 300.0 if device == "cpu" else 10.0,
+        "machine": machine(device),
+    }
+
+
+def synthetic_model(vertices: int, n_lobes: int):
+    """A sphere of about ``vertices`` vertices with analytic Gaussians (a mirror-direction lobe
+    and broad ones about the normal): rendering cost does not depend on fitted values."""
+    import trimesh
+
+    from . import sphere as sph
+    from .fit import Gaussians
+    from .model import Model
+    from .scene import mesh_from_arrays, uniform
+
+    # trimesh's UV sphere has about 4 rows^2 vertices for count = (rows + 2, 2 rows)
+    rows = max(3, round((vertices / 4) ** 0.5))
+    tm = trimesh.creation.uv_sphere(radius=1.0, count=[rows + 2, 2 * rows])
+    mesh = mesh_from_arrays(tm.vertices, tm.faces, name=f"sphere{len(tm.vertices)}")
+    n = mesh.normals
+    views = sph.geodesic_views()
+    cos = n @ views.T
+    refl = torch.nn.functional.normalize(2 * cos[..., None] * n[:, None] - views[None], dim=-1)
+    mus = [refl] + [n[:, None].expand_as(refl)] * (n_lobes - 1)
+    mu = torch.stack(mus, 2)
+    lam = torch.tensor([300.0, 5.0, 2.0][:n_lobes]).expand(*cos.shape, n_lobes).clone()
+    w = (cos > 0).float()[..., None, None] * torch.full((n_lobes, 3), 0.3) * lam[..., None] / 6.3
+    diffuse = torch.zeros(n.shape[0], 25, 3)
+    diffuse[:, 0] = 0.2
+    mats = uniform({"diffuse": [0.5, 0.5, 0.5]}, mesh.n_vertices)
+    return Model(mesh, views, Gaussians(w.contiguous(), mu, lam), diffuse, mats, {})
+
+
+def bench_render(
+    *,
+    vertices: tuple[int, ...] = (10_000, 50_000),
+    lobes: tuple[int, ...] = (1, 3),
+    sizes: tuple[int, ...] = (512, 1024),
+    backend: str = "gl",
+    frames: int = 10,
+    base_res: int = 256,
+) -> dict:
+    """Frames per second of the renderer (GL: drawn and finished, read-back excluded; also
+    with read-back) for each model size, lobe count and square image size."""
+    from .camera import Camera
+    from .envmap import builtin
+    from .render import Lighting, Renderer
+
+    light = Lighting(builtin(), base_res=base_res)
+    cam = Camera.look_at((0.0, 0.8, 3.2), (0.0, 0.0, 0.0), fov=45.0)
+    rows = []
+    for v in vertices:
+        for n in lobes:
+            model = synthetic_model(v, n)
+            for s in sizes:
+                ren = Renderer(model, light, s, s, backend=backend)
+                ren.render(cam, 10.0)  # warm-up: shader compilation, uploads
+                t = time.perf_counter()
+                for i in range(frames):
+                    if backend == "gl":
+                        ren._gl.draw(cam, _rot(i))
+                        ren._gl.ctx.finish()
+                    else:
+                        ren.render(cam, float(i))
+                draw = (time.perf_counter() - t) / frames
+                t = time.perf_counter()
+                for i in range(max(1, frames // 2)):
+                    ren.render(cam, float(i))
+                full = (time.perf_counter() - t) / max(1, frames // 2)
+                ren.close()
+                rows.append(
+                    {
+                        "vertices": model.mesh.n_vertices,
+                        "n_lobes": n,
+                        "size": s,
+                        "fps": 1 / draw,
+                        "ms_per_frame": 1e3 * draw,
+                        "fps_with_readback": 1 / full,
+                    }
+                )
+    info = {}
+    if backend == "gl":
+        from .render._gl import create_context
+
+        ctx = create_context()
+        info = {"gl_renderer": ctx.info["GL_RENDERER"], "gl_version": ctx.info["GL_VERSION"]}
+        ctx.release()
+    return {
+        "benchmark": "render",
+        "backend": backend,
+        "rows": rows,
+        "goals": {"cpu_512_fps": 5.0, "h100_50k_1024_fps": 1000.0},
+        "machine": {**machine("cpu"), **info},
+    }
+
+
+def _rot(i: int):
+    from .render import as_rotation
+
+    return as_rotation(float(i))

@@ -188,6 +188,7 @@ def render(
     seed: int = 0,
     batch_spp: int | None = None,
     return_stderr: bool = False,
+    jitter: bool = True,
 ):
     """Render an image by path tracing.
 
@@ -197,6 +198,8 @@ def render(
     width, height : pixels;  spp : samples per pixel (box filter over the pixel)
     max_depth : Mitsuba's convention (2 = direct lighting only, -1 = unbounded)
     return_stderr : also return the per-pixel standard error of the mean
+    jitter : spread each pixel's samples over the pixel (box filter); False traces every
+        sample through the pixel centre, as a rasteriser shades (for pixel-exact comparisons)
 
     Returns
     -------
@@ -219,6 +222,8 @@ def render(
     while done < spp:
         k = min(bs, spp - done)
         off = torch.rand(k, height, width, 2, generator=gen).to(dev)
+        if not jitter:
+            off = torch.full_like(off, 0.5)
         o, d = camera.rays(width, height, offsets=off, device=dev)
         o, d = o.reshape(-1, 3), d.reshape(-1, 3)
         tri, _, bary = caster.first_hit(o, d)

@@ -155,6 +155,7 @@ def fit_mesh(
     seed: int = 0,
     checkpoint: str | os.PathLike | None = None,
     checkpoint_every: float = 30.0,
+    shadows: bool = True,
 ) -> MeshFit:
     """Fit N Gaussians per view to every vertex's glossy transport, and its SH diffuse transfer.
 
@@ -170,13 +171,15 @@ def fit_mesh(
         and settings resumes from it and gives the same result as an uninterrupted run (the
         indirect paths of each chunk are seeded by the chunk, not by the order of the run);
         the caller removes it once the finished model is written
+    shadows : False fits transport without visibility (a baseline: prefiltered environment
+        mapping)
 
     Returns
     -------
     MeshFit
     """
     weights = Weights() if weights is None else weights
-    tr = Transport(scene, device=device)
+    tr = Transport(scene, device=device, shadows=shadows)
     dev = tr.device
     mesh = tr.mesh
     views = sphere.geodesic_views(device=dev) if views is None else views.to(dev)
@@ -194,7 +197,7 @@ def fit_mesh(
     layers = wavefronts(mesh)
     chunks = [f[s : s + batch].to(dev) for f in layers for s in range(0, f.numel(), batch)]
     state = {"mu": mu, "lam": lam, "w": w, "derr": derr, "diffuse": diffuse, "done": done}
-    key = _settings_key(scene, n, views, weights, batch, indirect_paths, relax, seed)
+    key = _settings_key(scene, n, views, weights, batch, (indirect_paths, shadows), relax, seed)
     ckpt = Path(checkpoint) if checkpoint is not None else None
     start = _resume(ckpt, key, state) if ckpt is not None else ("fit", 0, 0)
     last_save = time.perf_counter()

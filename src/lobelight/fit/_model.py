@@ -30,6 +30,7 @@ def fit_model(
     progress: Callable[[str, int, int], None] | None = None,
     seed: int = 0,
     checkpoint: str | os.PathLike | None = None,
+    shadows: bool = True,
 ):
     """Fit the glossy transport of every vertex with ``n_lobes`` Gaussians per view, and its
     SH diffuse transfer (:func:`fit_mesh`), and wrap the result as a model.
@@ -56,6 +57,7 @@ def fit_model(
         progress=progress,
         seed=seed,
         checkpoint=checkpoint,
+        shadows=shadows,
     )
     seconds = {**mf.seconds, "total": time.perf_counter() - t0}
     live = mf.gaussians.w.amax((-1, -2, -3)) > 0  # vertices with any glossy weight
@@ -63,10 +65,13 @@ def fit_model(
     w = weights or Weights()
     prov = {
         "scene": scene.name,
+        "camera": scene.camera.to_dict(),
+        "environment": scene.environment,
         "n_lobes": n_lobes,
         "weights": {"alpha": w.alpha, "beta": w.beta, "gamma": w.gamma, "delta": w.delta},
         "indirect_paths": indirect_paths,
         "relax": relax,
+        "shadows": shadows,
         "seed": seed,
         "relative_l2_error_mean": float(err.clamp_min(0).sqrt().mean()) if err.numel() else 0.0,
         "flips_before": mf.flips_before,

@@ -185,7 +185,8 @@ class GLRenderer:
         self.quad = ctx.buffer(quad.tobytes())
         self.bg_vao = ctx.vertex_array(self.bg_prog, [(self.quad, "2f", "in_xy")])
         self.tm_vao = ctx.vertex_array(self.tm_prog, [(self.quad, "2f", "in_xy")])
-        self.color = ctx.renderbuffer((self.width, self.height), 4, dtype="f4")
+        # a texture (not a renderbuffer) so that the window's tone-mapping pass can read it
+        self.color = ctx.texture((self.width, self.height), 4, dtype="f4")
         self.depth = ctx.depth_renderbuffer((self.width, self.height))
         self.fbo = ctx.framebuffer([self.color], self.depth)
         center = model.mesh.vertices.mean(0)
@@ -253,6 +254,18 @@ class GLRenderer:
         self.planes_tex.use(2)
         self.atlas.use(3)
         self.vao.render(moderngl.TRIANGLES)
+
+    def present(self, screen, *, exposure: float = 0.0, curve: str = "srgb") -> None:
+        """Tone-map the last frame onto ``screen`` (a window's framebuffer)."""
+        import moderngl
+
+        screen.use()
+        self.ctx.disable(moderngl.DEPTH_TEST)
+        self.color.use(5)
+        self.tm_prog["image"].value = 5
+        self.tm_prog["scale"].value = float(2.0**exposure)
+        self.tm_prog["curve"].value = 1 if curve == "aces" else 0
+        self.tm_vao.render(moderngl.TRIANGLE_STRIP)
 
     def read(self) -> tuple[torch.Tensor, torch.Tensor]:
         """The float framebuffer as ``(H, W, 3)`` radiance and ``(H, W)`` object mask."""

@@ -95,8 +95,12 @@ class Transport:
     device : torch device of the results (ray casting itself runs on the CPU)
     """
 
-    def __init__(self, scene: Scene, *, device=None):
+    def __init__(self, scene: Scene, *, device=None, shadows: bool = True):
         self.device = torch.device(device) if device is not None else scene.mesh.device
+        # shadows=False drops visibility (every direction above the horizon sees the
+        # environment): the transport of plain prefiltered environment mapping, the paper's
+        # Figure 6 baseline
+        self.shadows = bool(shadows)
         self.scene = scene.to(self.device)
         self.mesh = self.scene.mesh
         self.materials = self.scene.materials
@@ -127,6 +131,8 @@ class Transport:
         shape = torch.broadcast_shapes(p.shape, d.shape)[:-1]
         d = d.expand(*shape, 3)
         up = (d * n).sum(-1) > 0
+        if not self.shadows:
+            return up
         out = torch.zeros(shape, dtype=torch.bool, device=self.device)
         if bool(up.any()):
             o = self.caster.spawn(p.expand(*shape, 3)[up], n.expand(*shape, 3)[up], d[up])

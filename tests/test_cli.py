@@ -1,0 +1,117 @@
+"""The command line end to end on a small built-in scene: bake -> info -> render -> compare."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+from PIL import Image
+
+from lobelight.cli import main
+
+
+def run(capsys, *argv) -> tuple[int, dict]:
+    code = main([*map(str, argv), "--json"])
+    out = capsys.readouterr().out
+    return code, (json.loads(out) if code == 0 else {})
+
+
+def test_bake_info_render_compare(tmp_path, capsys):
+    model = tmp_path / "s.npz"
+    code, bake = run(capsys, "bake", "sphere:1", "-o", model)
+    assert code == 0 and model.is_file()
+    assert not list(tmp_path.glob("*.ckpt*"))  # the checkpoint is gone once the model is whole
+    assert {"model", "vertices", "bytes", "relative_l2_error_mean", "seconds"} <= set(bake)
+    assert bake["vertices"] == 42 and bake["bytes"] == model.stat().st_size
+
+    code, info = run(capsys, "info", model)
+    assert code == 0 and info["vertices"] == 42 and info["views"] == 92
+    assert info["n_lobes"] == 1 and info["provenance"]["scene"] == "sphere1"
+
+    png = tmp_path / "r.png"
+    code, r = run(
+        capsys, "render", model, "-o", png, "--width", 40, "--height", 30, "--base-res", 32
+    )
+    assert code == 0 and r["output"] == str(png)
+    img = np.asarray(Image.open(png))
+    assert img.shape == (30, 40, 3) and img.std() > 5  # a picture, not a flat fill
+    exr = tmp_path / "r.exr"
+    code, _ = run(
+        capsys,
+        "render",
+        model,
+        "-o",
+        exr,
+        "--width",
+        40,
+        "--height",
+        30,
+        "--base-res",
+        32,
+        "--backend",
+        "torch",
+        "--rotate",
+        45,
+    )
+    assert code == 0 and exr.stat().st_size > 0
+
+    out = tmp_path / "cmp"
+    code, c = run(
+        capsys,
+        "compare",
+        "sphere:1",
+        "--model",
+        model,
+        "--width",
+        32,
+        "--height",
+        24,
+        "--spp",
+        4,
+        "--baselines",
+        "linear",
+        "--base-res",
+        32,
+        "--out",
+        out,
+    )
+    assert code == 0
+    assert {"table", "reference_noise", "images", "seconds", "object_pixels"} <= set(c)
+    methods = {(row["method"], row["component"]) for row in c["table"]}
+    assert methods == {
+        ("ours", "full"),
+        ("ours", "glossy"),
+        ("linear", "full"),
+        ("linear", "glossy"),
+    }
+    for row in c["table"]:
+        assert np.isfinite(row["psnr"]) and row["rel_l2"] >= 0
+    saved = json.loads((out / "compare.json").read_text())
+    assert saved["table"] == c["table"]
+    for p in c["images"].values():
+        assert Image.open(p).size == (32, 24)
+
+
+@pytest.mark.parametrize(
+    "argv, what",
+    [
+        (["bake", "no/such/mesh.ply"], "no/such/mesh.ply"),
+        (["info", "missing.npz"], "missing.npz"),
+        (["render", "missing.npz"], "missing.npz"),
+        (["view", "missing.npz"], "view"),
+    ],
+)
+def test_bad_input_exits_2_with_one_line(capsys, argv, what):
+    assert main(argv) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and what in err[0] and err[0].startswith("lobelight: error:")
+
+
+def test_render_rejects_a_bad_camera(tmp_path, capsys):
+    from lobelight import fit, scene
+
+    m = fit.fit_model(scene.builtin("sphere", subdivisions=0), 1)
+    m.save(tmp_path / "m.npz")
+    assert main(["render", str(tmp_path / "m.npz"), "--camera", "1,2:3"]) == 2
+    assert "--camera" in capsys.readouterr().err
