@@ -19,9 +19,37 @@ Tables (:mod:`._tables`)
     :func:`fit_product` and :func:`fit_cap_exponent` are the direct fits the tables store;
     :func:`build_tables`, :func:`save_tables`, :func:`load_tables` and :func:`bench_tables`
     complete the set.
+
+Direct lighting with soft shadows (issue 7; method note ``docs/cosine-lobes.md``)
+    :class:`SphereLight` (centre, radius, RGB radiance) is one cap lobe per point
+    (:func:`light_lobes`; its scale makes the lobe's integral the cap's solid angle, the paper's
+    scale 1 is off by -6.9..+4 %); :func:`brdf_lobes` turns Lambert, Phong and Lafortune
+    (spatially varying, and their Sums) into lobe sums of ``f_r cos``; :func:`sphere_set` fits
+    ``n`` spheres to a closed mesh (volume k-means, radii by a coverage/fit objective);
+    :func:`shadow_leaves` builds the paper's hierarchical visibility masks (quad-tree over the
+    square facing the light, aggressive or conservative leaves) and :func:`shade_points`
+    shades a set of points in the paper's order, reflectance x lighting then visibility with
+    the eq. (39) weights (calibrated once by :func:`calibrate_weights`, stored in
+    ``_weights.py``), culling products below the threshold ``t``; it returns radiance and
+    products per point (the paper's Figure 16). :func:`direct_mc` is the independent Monte
+    Carlo reference; :func:`default_scene` and :func:`gbuffer` the paper's kind of scene.
+    :func:`score` (lobes vs Monte Carlo, table vs adaptive quadrature), :func:`bench_lobes`
+    (the paper's two timed configurations) and :func:`lobes_demo` (an animation to PNGs/GIF)
+    are the CLI's entry points.
 """
 
+from ._bench import bench_lobes
+from ._brdf_lobes import brdf_lobes
+from ._calibrate import calibrate_weights, write_weights
+from ._demo import lobes_demo
+from ._light import SphereLight, cap_lobe, light_lobes
 from ._lobe import evaluate, from_vector, integral, product_integral, product_peak
+from ._lobeset import Lobes
+from ._reference import direct_mc
+from ._scene import LobeScene, default_scene, gbuffer
+from ._score import score, table_error
+from ._shade import ShadeResult, shade_points
+from ._spheres import SphereSet, sphere_set, winding_number
 from ._tables import (
     FORMAT_VERSION,
     LobeTables,
@@ -38,25 +66,47 @@ from ._tables import (
     product,
     save_tables,
 )
+from ._visibility import shadow_leaves
 
 __all__ = [
     "FORMAT_VERSION",
+    "LobeScene",
     "LobeTables",
+    "Lobes",
+    "ShadeResult",
+    "SphereLight",
+    "SphereSet",
     "TableParams",
+    "bench_lobes",
     "bench_tables",
+    "brdf_lobes",
     "build_tables",
     "cache_dir",
+    "calibrate_weights",
     "cap_exponent",
+    "cap_lobe",
     "default_path",
+    "default_scene",
+    "direct_mc",
     "evaluate",
     "fit_cap_exponent",
     "fit_product",
     "from_vector",
+    "gbuffer",
     "get_tables",
     "integral",
+    "light_lobes",
     "load_tables",
+    "lobes_demo",
     "product",
     "product_integral",
     "product_peak",
     "save_tables",
+    "score",
+    "shade_points",
+    "shadow_leaves",
+    "sphere_set",
+    "table_error",
+    "winding_number",
+    "write_weights",
 ]

@@ -1,0 +1,156 @@
+"""Benchmark of cosine-lobe shading: the paper's two timed configurations (its Figs. 14, 17).
+
+* ``unoccluded``: 65,536 points (a 256 x 256 grid on the plane), one spherical light, no
+  occluder, a spatially varying material (``Lambert + Phong``, albedo and exponent varying per
+  point; the paper's Figure 14 uses a spatially varying Lafortune model): 13.73 fps in the
+  paper.
+* ``occluded``: 16,384 points (a 128 x 128 grid on the plane around the occluder's shadow),
+  64 occluder spheres (a torus), one light, a diffuse material, visibility depth 5,
+  aggressive masks, threshold 1e-3: 4.75-15.9 fps in the paper (depending on the shadow's
+  size).
+
+A frame is everything that depends on the scene's state: reflectance, light and visibility
+lobes, masks, products and integration (``shade_points``), not the G-buffer. Reported: best
+and median milliseconds per frame over ``repeats`` after one warm-up frame, fps from the best,
+products and leaves per point, for 1 torch thread and for the process's thread count.
+"""
+
+from __future__ import annotations
+
+import time
+from typing import Any
+
+import torch
+
+from .. import brdf as _brdf
+from ._scene import default_scene
+from ._shade import shade_points
+from ._tables import get_tables
+
+__all__ = ["bench_lobes"]
+
+GOALS_FPS = {"unoccluded": 60.0, "occluded": 30.0}
+PAPER_FPS = {"unoccluded": 13.73, "occluded": [4.75, 15.9]}
+
+
+def _grid(n: int, half: float, centre=(0.0, 0.0)) -> torch.Tensor:
+    s = torch.linspace(-half, half, n)
+    x, z = torch.meshgrid(s + centre[0], s + centre[1], indexing="ij")
+    return torch.stack([x, torch.zeros_like(x), z], -1).reshape(-1, 3)
+
+
+def _configs(device: Any):
+    scene = default_scene()
+    cam = torch.tensor(scene.camera.origin)
+    light = scene.lights[0]
+    # 65,536 points, spatially varying Lambert + Phong
+    p1 = _grid(256, 3.5)
+    u = (p1[:, 0] + 3.5) / 7
+    v = (p1[:, 2] + 3.5) / 7
+    albedo = torch.stack([0.2 + 0.6 * u, 0.3 + 0.4 * v, 0.6 - 0.4 * u], -1)
+    m1 = _brdf.Sum(
+        _brdf.Lambert(albedo),
+        _brdf.Phong((0.1 + 0.3 * v).unsqueeze(-1).expand(-1, 3).contiguous(), 5.0 + 200.0 * u),
+    )
+    # 16,384 points around the torus's shadow (the light is up and to the side)
+    lc = torch.tensor(light.centre)
+    foot = -lc[[0, 2]] * 0.75 / (lc[1] - 0.75)  # shadow centre of the torus's centre
+    p2 = _grid(128, 1.9, (float(foot[0]), float(foot[1])))
+    m2 = _brdf.Lambert(torch.tensor([0.75, 0.75, 0.72]))
+    up = torch.tensor([0.0, 1.0, 0.0])
+    out = {}
+    for name, pts, model, spheres in (
+        ("unoccluded", p1, m1, None),
+        ("occluded", p2, m2, scene.world_spheres()),
+    ):
+        wo = torch.nn.functional.normalize(cam - pts, dim=-1)
+        out[name] = {
+            "points": pts.to(device),
+            "normals": up.expand_as(pts).contiguous().to(device),
+            "wo": wo.to(device),
+            "brdf": model.to(device),
+            "spheres": None if spheres is None else spheres.to(device),
+        }
+    return out, [light]
+
+
+def _sync(device: Any) -> None:
+    if str(device).startswith("cuda"):
+        torch.cuda.synchronize(device)
+
+
+def bench_lobes(*, device: str = "cpu", repeats: int = 3, threads: tuple = (1, None)) -> dict:
+    """Time both configurations (module docstring); JSON-serialisable dict.
+
+    Parameters
+    ----------
+    device : torch device
+    repeats : timed frames per configuration and thread count (after one warm-up)
+    threads : torch CPU thread counts to try (None: the process's setting); ignored on a GPU
+
+    Returns
+    -------
+    dict with per configuration: points, occluders, depth, ``ms_best``, ``ms_median``, ``fps``
+    (from the best frame), products and leaves per point (mean, max), the goal and the
+    paper's fps, per thread count under ``runs`` and the best run's numbers at the top level;
+    and ``machine``
+    """
+    from ..bench import machine
+
+    dev = torch.device(device)
+    get_tables(device=dev)
+    cfgs, lights = _configs(dev)
+    thread_opts = threads if dev.type == "cpu" else (None,)
+    result: dict = {"benchmark": "cosine_lobes", "machine": machine(str(device))}
+    for name, c in cfgs.items():
+        runs = []
+        for th in thread_opts:
+            kw = dict(
+                spheres=c["spheres"],
+                depth=5,
+                mode="aggressive",
+                threshold=1e-3,
+                threads=th,
+                device=dev,
+            )
+            res = shade_points(c["points"], c["normals"], c["wo"], c["brdf"], lights, **kw)
+            _sync(device)
+            times = []
+            for _ in range(max(1, int(repeats))):
+                t0 = time.perf_counter()
+                res = shade_points(c["points"], c["normals"], c["wo"], c["brdf"], lights, **kw)
+                _sync(device)
+                times.append(time.perf_counter() - t0)
+            times.sort()
+            runs.append(
+                {
+                    "threads": th if th is not None else torch.get_num_threads(),
+                    "ms_best": 1e3 * times[0],
+                    "ms_median": 1e3 * times[len(times) // 2],
+                    "fps": 1.0 / times[0],
+                    "fps_median": 1.0 / times[len(times) // 2],
+                }
+            )
+        best = max(runs, key=lambda r: r["fps"])
+        result[name] = {
+            "points": int(c["points"].shape[0]),
+            "lights": 1,
+            "occluders": 0 if c["spheres"] is None else int(c["spheres"].shape[0]),
+            "depth": 5 if c["spheres"] is not None else None,
+            **{k: best[k] for k in ("threads", "ms_best", "ms_median", "fps", "fps_median")},
+            "products_per_point_mean": float(res.products.float().mean()),
+            "products_per_point_max": int(res.products.max()),
+            "leaves_per_point_mean": float(res.leaves.float().mean()),
+            "shadowed_points": int((res.leaves > 0).sum()),
+            "goal_fps": GOALS_FPS[name],
+            "meets_goal": best["fps"] >= GOALS_FPS[name],
+            "paper_fps": PAPER_FPS[name],
+            "runs": runs,
+        }
+    return result
+
+
+if __name__ == "__main__":  # pragma: no cover
+    import json
+
+    print(json.dumps(bench_lobes(), indent=1))

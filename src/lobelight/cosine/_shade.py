@@ -1,0 +1,294 @@
+"""Direct lighting of a set of points with cosine lobes (paper sections 4.3 and 5.4).
+
+Per point, reflectance ``f_r cos`` (lobes ``i``, :mod:`._brdf_lobes`), lighting (one cap lobe
+per spherical light ``j``, :mod:`._light`) and visibility (``1 - sum_k w_k c_k`` per light,
+:mod:`._visibility`) are lobe sums. The rendering equation is expanded in the paper's order
+(its 5.4): reflectance x lighting first, ``m_ij = f_i L_j`` (one table product each), then each
+product that survives the threshold by the light's shadow lobes::
+
+    L_o = sum_ij [ ∫ m_ij - sum_k w_k ∫ m_ij c_k ]
+
+A product whose integral (largest colour channel) is below the threshold ``t`` is dropped from
+the sum, and a dropped ``m_ij`` is not multiplied further (the paper's culling, its 4.3). The
+result is clamped at 0 (a lobe sum can overshoot a shadow's darkness a little). The number of
+table products each point needed is returned too (the paper's Figure 16 false colours).
+
+Points are processed in chunks (bounded memory); nothing loops over points, lobes or leaves.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import math
+from dataclasses import dataclass
+from typing import Any
+
+import torch
+
+from .. import brdf as _brdf
+from ..errors import InputError
+from ._brdf_lobes import brdf_lobes
+from ._light import SphereLight, cap_lobe, light_geometry, light_lobes
+from ._lobeset import Lobes, multiply, product_integral
+from ._tables import LobeTables, _cpu_threads, get_tables
+from ._visibility import MODES, interp_coefficients, leaf_weights, shadow_leaves
+
+__all__ = ["ShadeResult", "shade_points"]
+
+
+@dataclass
+class ShadeResult:
+    """Output of :func:`shade_points`.
+
+    Attributes
+    ----------
+    radiance : (P, 3) outgoing radiance towards ``wo``
+    products : (P,) int64 table products computed per point (cosine, lighting, visibility)
+    leaves : (P,) int64 shadow leaves per point (all lights)
+    """
+
+    radiance: torch.Tensor
+    products: torch.Tensor
+    leaves: torch.Tensor
+
+
+def _check_points(name: str, x: torch.Tensor, P: int | None = None) -> None:
+    if x.ndim != 2 or x.shape[-1] != 3 or (P is not None and x.shape[0] != P):
+        want = f"({P}, 3)" if P is not None else "(P, 3)"
+        raise InputError(name, f"must be {want}, got {tuple(x.shape)}")
+    if not bool(torch.isfinite(x).all()):
+        raise InputError(name, "must be finite (NaN or Inf found)")
+
+
+def default_weights(mode: str, depth: int) -> torch.Tensor:
+    """The stored eq. (39) weights of ``(mode, depth)``: ``(depth + 1, 12)`` float32."""
+    from ._weights import WEIGHTS
+
+    key = f"{mode}:{int(depth)}"
+    if key not in WEIGHTS:
+        raise InputError(
+            "depth", f"no calibrated weights for {key}; have {sorted(WEIGHTS)} (calibrate_weights)"
+        )
+    return torch.tensor(WEIGHTS[key], dtype=torch.float32)
+
+
+def shade_points(
+    points: Any,
+    normals: Any,
+    wo: Any,
+    brdf: _brdf.BRDF,
+    lights: SphereLight | list[SphereLight],
+    *,
+    spheres: Any = None,
+    exclude: Any = None,
+    depth: int = 5,
+    mode: str = "aggressive",
+    threshold: float = 1e-3,
+    margin: float = 1.0,
+    weights: torch.Tensor | None = None,
+    cosine: str = "product",
+    preserve_integral: bool = True,
+    tables: LobeTables | None = None,
+    chunk: int = 16384,
+    threads: int | None = None,
+    device: Any = None,
+) -> ShadeResult:
+    """Outgoing direct radiance of ``P`` points lit by spherical lights, shadowed by spheres.
+
+    Parameters
+    ----------
+    points, normals, wo : (P, 3) positions, unit shading normals, unit directions to the viewer
+    brdf : Lambert, Phong, Lafortune or a Sum of them; per-point parameters (P,) / (P, 3)
+    lights : one :class:`~._light.SphereLight` or a list
+    spheres : optional (N, 4) occluder spheres ``(x, y, z, radius)`` (e.g. :func:`sphere_set`)
+    exclude : optional (P,) int64 sphere index each point ignores (its own sphere; -1: none)
+    depth : maximal depth of the visibility masks;  mode : "aggressive" or "conservative"
+    threshold : the paper's ``t``: products with a smaller integral are dropped (0: keep all)
+    margin : visibility square half-angle / light cap half-angle (1: the paper's)
+    weights : (depth + 1, 12) eq. (39) weights (default: the stored calibration)
+    cosine, preserve_integral : see :func:`~._brdf_lobes.brdf_lobes`; ``preserve_integral``
+        also applies to the lighting and visibility products
+    tables : lobe tables (default :func:`get_tables` on ``device``)
+    chunk : points per batch (memory: ~ a few kB per point and shadow leaf)
+    threads : torch CPU threads while shading (None: as set). One thread is often faster on a
+        shared 2-core machine (see ``bench_lobes``).
+    device : where to compute (default: the device of ``points``)
+
+    Returns
+    -------
+    :class:`ShadeResult`
+    """
+    pts = torch.as_tensor(points)
+    dev = torch.device(device) if device is not None else pts.device
+    pts = pts.to(device=dev, dtype=torch.float32)
+    nrm = torch.as_tensor(normals).to(device=dev, dtype=torch.float32)
+    view = torch.as_tensor(wo).to(device=dev, dtype=torch.float32)
+    P = pts.shape[0] if pts.ndim == 2 else -1
+    _check_points("points", pts)
+    _check_points("normals", nrm, P)
+    _check_points("wo", view, P)
+    lights = [lights] if isinstance(lights, SphereLight) else list(lights)
+    if not lights or not all(isinstance(lt, SphereLight) for lt in lights):
+        raise InputError("lights", "must be a SphereLight or a non-empty list of them")
+    if mode not in MODES:
+        raise InputError("mode", f"must be one of {MODES}, got {mode!r}")
+    if not (threshold >= 0):
+        raise InputError("threshold", f"must be >= 0, got {threshold!r}")
+    sph = None
+    if spheres is not None:
+        sph = torch.as_tensor(spheres).to(device=dev, dtype=torch.float32)
+        from ._visibility import _check_spheres
+
+        _check_spheres(sph)
+        if sph.shape[0] == 0:
+            sph = None
+    ex = None
+    if exclude is not None:
+        ex = torch.as_tensor(exclude).to(device=dev, dtype=torch.long).reshape(-1)
+        if ex.shape[0] != P:
+            raise InputError("exclude", f"must be ({P},), got {tuple(ex.shape)}")
+    if sph is not None:
+        w = default_weights(mode, depth) if weights is None else torch.as_tensor(weights)
+        if w.shape != (depth + 1, 12):
+            raise InputError("weights", f"must be ({depth + 1}, 12), got {tuple(w.shape)}")
+        w = w.to(device=dev, dtype=torch.float32)
+    else:
+        w = None
+    tables = tables if tables is not None else get_tables(device=dev)
+    model = brdf.to(dev)
+    outs, prods, nleaves = [], [], []
+    ctx = _cpu_threads(threads) if dev.type == "cpu" else contextlib.nullcontext()
+    with ctx, torch.no_grad():
+        for s in range(0, P, chunk):
+            sl = slice(s, s + chunk)
+            m = (
+                model.take(torch.arange(s, min(s + chunk, P), device=dev))
+                if _per_point(model)
+                else model
+            )
+            r = _shade_chunk(
+                pts[sl],
+                nrm[sl],
+                view[sl],
+                m,
+                lights,
+                sph,
+                None if ex is None else ex[sl],
+                w,
+                tables,
+                depth=depth,
+                mode=mode,
+                threshold=threshold,
+                margin=margin,
+                cosine=cosine,
+                preserve=preserve_integral,
+            )
+            outs.append(r[0])
+            prods.append(r[1])
+            nleaves.append(r[2])
+    return ShadeResult(torch.cat(outs), torch.cat(prods), torch.cat(nleaves))
+
+
+def _per_point(model: _brdf.BRDF) -> bool:
+    """Whether any parameter has a per-point dimension (then chunks take their slice)."""
+    kinds = getattr(model, "_kind", {})
+    for name, t in model.params.items():
+        kind = kinds.get(name)
+        if kind is None:  # a Sum: look at its components
+            return any(_per_point(c) for c in getattr(model, "components", ()))
+        if t.ndim > kind:
+            return True
+    return False
+
+
+def _shade_chunk(
+    x,
+    n,
+    wo,
+    model,
+    lights,
+    spheres,
+    exclude,
+    weights,
+    tables,
+    *,
+    depth,
+    mode,
+    threshold,
+    margin,
+    cosine,
+    preserve,
+    features: bool = False,
+    leaf_scale: str = "cap",
+):
+    """One chunk: radiance (P, 3), products (P,), leaves (P,) [, calibration features]."""
+    P = x.shape[0]
+    dev = x.device
+    f = brdf_lobes(model, n, wo, tables=tables, cosine=cosine, preserve_integral=preserve)
+    n_cos = 0 if cosine != "product" else _count_cosine_products(model)
+    light = light_lobes(x, lights, tables=tables)  # (P, J)
+    I, J = f.exponent.shape[1], light.exponent.shape[1]
+    fa = Lobes(f.axis.unsqueeze(2), f.exponent.unsqueeze(2), f.scale.unsqueeze(2))
+    la = Lobes(light.axis.unsqueeze(1), light.exponent.unsqueeze(1), light.scale.unsqueeze(1))
+    if spheres is None:  # nothing multiplies m_ij again: its integral is all that is needed
+        m = None
+        mint = product_integral(tables, fa, la, preserve_integral=preserve)  # (P, I, J, 3)
+    else:
+        m = multiply(tables, fa, la, preserve_integral=preserve)  # (P, I, J)
+        mint = m.integral()  # (P, I, J, 3)
+    keep = mint.amax(-1) >= threshold  # (P, I, J)
+    radiance = (mint * keep.unsqueeze(-1)).sum((1, 2))  # (P, 3)
+    products = torch.full((P,), n_cos + I * J, dtype=torch.long, device=dev)
+    nleaves = torch.zeros(P, dtype=torch.long, device=dev)
+    feats = []
+    if spheres is not None:
+        axis, dist_l, theta = light_geometry(x, lights)  # (P, J, 3), (P, J), (P, J)
+        for j in range(J):  # lights: a small fixed count
+            lv = shadow_leaves(
+                x,
+                axis[:, j],
+                theta[:, j],
+                dist_l[:, j],
+                spheres,
+                depth=depth,
+                mode=mode,
+                margin=margin,
+                exclude=exclude,
+            )
+            if lv.point.numel() == 0:
+                continue
+            nleaves += torch.bincount(lv.point, minlength=P)
+            # the leaf's lobe: the paper's bounding-cap exponent; its integral is the cell's
+            # own solid angle (leaf_scale="cell") or the bounding cap's ("cap")
+            e_k, s_k = cap_lobe(lv.axis, lv.theta, tables=tables)
+            if leaf_scale == "cell":
+                s_k = lv.omega * (e_k + 1) / (2 * math.pi)
+            # (leaf, reflectance lobe) pairs whose m_ij survived the threshold
+            ok = keep[lv.point, :, j]  # (L, I)
+            leaf, i = ok.nonzero(as_tuple=True)  # (Q,)
+            if leaf.numel() == 0:
+                continue
+            pt = lv.point[leaf]
+            mj = Lobes(m.axis[pt, i, j], m.exponent[pt, i, j], m.scale[pt, i, j])
+            ck = Lobes(lv.axis[leaf], e_k[leaf], s_k[leaf].unsqueeze(-1))
+            val = product_integral(tables, mj, ck, preserve_integral=preserve)  # (Q, 3)
+            products += torch.bincount(pt, minlength=P)
+            val = val * (val.amax(-1, keepdim=True) >= threshold)
+            if features:
+                i0, i1, lam = interp_coefficients(lv.dist[pt])
+                feats.append((pt, lv.depth[leaf], i0, i1, lam, val))
+            else:
+                wk = leaf_weights(weights, lv.depth[leaf], lv.dist[pt])  # (Q,)
+                radiance = radiance.index_add(0, pt, -wk.unsqueeze(-1) * val)
+    radiance = radiance.clamp_min(0)
+    if features:
+        return radiance, products, nleaves, feats
+    return radiance, products, nleaves
+
+
+def _count_cosine_products(model: _brdf.BRDF) -> int:
+    if isinstance(model, _brdf.Sum):
+        return sum(_count_cosine_products(c) for c in model.components)
+    if isinstance(model, _brdf.Lafortune):
+        return model.n_lobes
+    return 0 if isinstance(model, _brdf.Lambert) else 1

@@ -1,0 +1,297 @@
+"""Visibility as cosine lobes: the paper's hierarchical visibility mask (its section 5.3).
+
+For a point ``x`` and a spherical light seen as the cap ``(h, theta)``, a square ``S_unit`` of
+side 1 is placed facing the light at the distance ``dist = 0.5 / tan(margin theta)`` from
+``x``, so that it surrounds the cap's cone (``margin = 1`` is the paper's). A point ``(u, v)``
+of the square, ``|u|, |v| <= 1/2``, is the direction ``normalise(h + 2 span (u t + v b))``
+with ``span = 1 / (2 dist)`` and ``(t, b)`` a frame around ``h``: a gnomonic projection, which
+maps straight lines to great circles.
+
+Occluders are spheres. Those that cannot block the square are clipped (behind the light, not
+overlapping the square's cone, containing ``x``, or the point's own sphere), the rest are
+"splatted": each quad-tree cell is tested against the cone ``(o, phi)`` that a sphere
+subtends from ``x``, ``phi = asin(radius / distance)``.
+
+* **covered**: all four corners of the cell lie in one occluder's cone. This test is exact:
+  the cell is a geodesic quadrilateral (gnomonic projection) and a cap with ``phi < pi/2`` is
+  geodesically convex, so it holds the cell iff it holds its corners. Covered cells are
+  shadow leaves (the paper's green leaves), frozen at their depth.
+* **touched**: the cell's bounding cap (centre direction, radius the largest corner angle)
+  meets an occluder's cone (conservative). Touched, uncovered cells are subdivided into four
+  (red); at the maximal depth they are dropped (``mode="aggressive"``, the paper's choice) or
+  kept as shadow leaves (``"conservative"``). A cell covered only by the union of several
+  cones, and by none alone, is subdivided too.
+
+Each shadow leaf becomes one cap lobe around the centre of its bounding cap (the paper's
+bounding sphere of the leaf, Figure 11), with the integral-preserving scale of
+:func:`~._light.cap_lobe`. Nearby lobes overlap and a lobe is not a cap, so visibility is
+``V = 1 - sum_k w(depth_k, dist) c_k`` (eq. 39) with weights per leaf depth and per ``dist``,
+linearly interpolated in ``dist`` between the paper's nodes ``{0.25, 0.5, 1, 2, ..., 10}``.
+
+The weights are calibrated once, as the paper describes, on a single scene (a plane, an
+object made of spheres, one light at distances that cover the ``dist`` nodes), and stored in
+:mod:`._weights`. The paper sets them by hand, level by level ("first level weight ... perfect
+dark in the umbra; each successive level ... to avoid shadow sharpness"); here
+:func:`~._calibrate.calibrate_weights` does the same thing by least squares: the rendered
+radiance is linear in the weights, so all weights of a ``(mode, max depth)`` are fitted at once
+against Monte Carlo radiance on that scene (non-negative, lightly regularised towards their
+neighbours in ``dist``).
+
+Everything is vectorised over flat lists of (cell, occluder) pairs; only the ``depth + 1``
+levels of the tree are a Python loop. The work per level is proportional to the number of
+cells that an occluder's outline crosses (penumbra), not to ``4^depth``.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import NamedTuple
+
+import torch
+
+from ..errors import InputError
+from ..sphere import frame
+
+__all__ = ["DIST_NODES", "MODES", "Leaves", "leaf_weights", "shadow_leaves"]
+
+#: The paper's distances at which the weights are set (eq. 39 and Figure 12).
+DIST_NODES = (0.25, 0.5, 1.0, 2.0, 3.0, 4.0, 5.0, 6.0, 7.0, 8.0, 9.0, 10.0)
+MODES = ("aggressive", "conservative")
+_MAX_SQUARE_ANGLE = 1.35  # radians: past ~77 degrees the gnomonic square degenerates
+
+
+class Leaves(NamedTuple):
+    """Shadow leaves of all points for one light, as flat lists.
+
+    Attributes
+    ----------
+    point : (L,) int64 index of the shaded point
+    depth : (L,) int64 depth of the leaf (0: the whole square)
+    axis : (L, 3) unit direction of the centre of the leaf's bounding cap
+    theta : (L,) half-angle of the bounding cap
+    dist : (P,) the paper's ``dist`` of each point's square
+    omega : (L,) solid angle of the leaf's cell (exact, :func:`cell_solid_angle`)
+    """
+
+    point: torch.Tensor
+    depth: torch.Tensor
+    axis: torch.Tensor
+    theta: torch.Tensor
+    dist: torch.Tensor
+    omega: torch.Tensor
+
+
+def _check_spheres(spheres: torch.Tensor) -> None:
+    if spheres.ndim != 2 or spheres.shape[-1] != 4:
+        raise InputError(
+            "spheres", f"must be (N, 4) rows (x, y, z, radius), got {tuple(spheres.shape)}"
+        )
+    if not bool(torch.isfinite(spheres).all()):
+        raise InputError("spheres", "must be finite (NaN or Inf found)")
+    if not bool((spheres[:, 3] > 0).all()):
+        raise InputError("spheres", "radii must be > 0")
+
+
+def _corner_dirs(cu, cv, h, k):
+    """Unit local directions (..., 4, 3) of a cell's corners and (..., 3) of its centre."""
+    su = torch.tensor([-1.0, 1.0, -1.0, 1.0], dtype=cu.dtype, device=cu.device)
+    sv = torch.tensor([-1.0, -1.0, 1.0, 1.0], dtype=cu.dtype, device=cu.device)
+    x = k.unsqueeze(-1) * (cu.unsqueeze(-1) + su * h.unsqueeze(-1))  # (..., 4)
+    y = k.unsqueeze(-1) * (cv.unsqueeze(-1) + sv * h.unsqueeze(-1))
+    corners = torch.stack([x, y, torch.ones_like(x)], -1)
+    corners = corners / torch.linalg.vector_norm(corners, dim=-1, keepdim=True)
+    centre = torch.stack([k * cu, k * cv, torch.ones_like(cu)], -1)
+    centre = centre / torch.linalg.vector_norm(centre, dim=-1, keepdim=True)
+    return corners, centre
+
+
+def shadow_leaves(
+    points: torch.Tensor,
+    light_axis: torch.Tensor,
+    light_theta: torch.Tensor,
+    light_dist: torch.Tensor,
+    spheres: torch.Tensor,
+    *,
+    depth: int = 5,
+    mode: str = "aggressive",
+    margin: float = 1.0,
+    exclude: torch.Tensor | None = None,
+) -> Leaves:
+    """Build the visibility masks of ``P`` points for one light and return their shadow leaves.
+
+    Parameters
+    ----------
+    points : (P, 3)
+    light_axis : (P, 3) unit directions to the light's centre
+    light_theta : (P,) the light's cap half-angles;  light_dist : (P,) distances to its centre
+    spheres : (N, 4) occluders ``(x, y, z, radius)``
+    depth : maximal depth of the quad-tree (the paper: 4-5; leaves of depth ``depth`` are
+        ``2^-depth`` of the square's side)
+    mode : "aggressive" (drop partly covered cells at the maximal depth) or "conservative"
+    margin : the square surrounds the cone of half-angle ``margin * theta``
+    exclude : optional (P,) int64 index of a sphere each point must ignore (its own; -1: none)
+
+    Returns
+    -------
+    :class:`Leaves`
+    """
+    if mode not in MODES:
+        raise InputError("mode", f"must be one of {MODES}, got {mode!r}")
+    if not 0 <= int(depth) <= 8:
+        raise InputError("depth", f"must be in 0..8, got {depth!r}")
+    if not margin > 0:
+        raise InputError("margin", f"must be > 0, got {margin!r}")
+    dev, dt = points.device, points.dtype
+    P = points.shape[0]
+    square = (margin * light_theta).clamp(max=_MAX_SQUARE_ANGLE)
+    span = torch.tan(square)  # (P,) half-width of the square, in tangent units
+    k = 2 * span  # square coordinates (u, v) -> tangent-plane coordinates k (u, v)
+    dist = 0.5 / span
+    empty = Leaves(
+        torch.zeros(0, dtype=torch.long, device=dev),
+        torch.zeros(0, dtype=torch.long, device=dev),
+        torch.zeros(0, 3, dtype=dt, device=dev),
+        torch.zeros(0, dtype=dt, device=dev),
+        dist,
+        torch.zeros(0, dtype=dt, device=dev),
+    )
+    N = spheres.shape[0]
+    if N == 0 or P == 0:
+        return empty
+    t, b, a = frame(light_axis)
+    # ---- clipping: dense (P, N) test, then a flat list of (point, occluder) pairs
+    d = spheres[:, :3].unsqueeze(0) - points.unsqueeze(1)  # (P, N, 3)
+    dn = torch.linalg.vector_norm(d, dim=-1)
+    rad = spheres[:, 3].unsqueeze(0)
+    along = (d * a.unsqueeze(1)).sum(-1)  # (P, N) distance along the light's axis
+    cos_g = along / dn.clamp_min(1e-30)  # angle between the light and the occluder's centre
+    sin_phi = (rad / dn.clamp_min(1e-30)).clamp(max=1.0)
+    phi = torch.asin(sin_phi)
+    reach = phi + torch.atan(span * math.sqrt(2)).unsqueeze(1)  # the square's corner angle
+    keep = (dn > rad) & (along - rad < light_dist.unsqueeze(1))
+    keep &= cos_g > torch.cos(reach.clamp(max=math.pi))
+    if exclude is not None:
+        ids = torch.arange(N, device=dev)
+        keep &= ids.unsqueeze(0) != exclude.unsqueeze(1)
+    pp, pn = keep.nonzero(as_tuple=True)  # (Q,) pairs
+    if pp.numel() == 0:
+        return empty
+    dl = d[pp, pn] / dn[pp, pn].unsqueeze(-1)  # (Q, 3) unit direction to the occluder
+    o = torch.stack([(dl * t[pp]).sum(-1), (dl * b[pp]).sum(-1), (dl * a[pp]).sum(-1)], -1)
+    cos_phi = torch.sqrt((1 - sin_phi[pp, pn] ** 2).clamp_min(0))  # (Q,)
+    # per pair: the occluder's unit direction in the light frame and its cone, (Q, 5)
+    pq = torch.cat([o, cos_phi.unsqueeze(-1), phi[pp, pn].unsqueeze(-1)], -1)
+    # ---- the quad-tree, level by level over the flat lists
+    cell_pt = torch.arange(P, device=dev)  # (C,) point of each live cell
+    cu = torch.zeros(P, dtype=dt, device=dev)
+    cv = torch.zeros(P, dtype=dt, device=dev)
+    pair_cell = pp  # (Q,) live cell of each pair (at level 0 the cell id is the point id)
+    leaves_pt, leaves_depth, leaves_u, leaves_v = [], [], [], []
+    sgn_u = torch.tensor([-1.0, 1.0, -1.0, 1.0], dtype=dt, device=dev)
+    sgn_v = torch.tensor([-1.0, -1.0, 1.0, 1.0], dtype=dt, device=dev)
+    for level in range(int(depth) + 1):
+        C = cell_pt.numel()
+        h = torch.full((C,), 0.5 / 2**level, dtype=dt, device=dev)
+        kc = k[cell_pt]
+        # tangent-plane coordinates of the cell's centre (x0, y0) and corners (x0 +- dx,
+        # y0 +- dx); a direction is (x, y, 1) / norm, so its dot with an occluder's unit
+        # direction o is linear in (x, y): no (pairs, 4, 3) tensors are formed
+        x0, y0, dx = kc * cu, kc * cv, kc * h  # (C,)
+        cxs = x0.unsqueeze(-1) + dx.unsqueeze(-1) * sgn_u  # (C, 4)
+        cys = y0.unsqueeze(-1) + dx.unsqueeze(-1) * sgn_v
+        inv_c = torch.rsqrt(1 + cxs * cxs + cys * cys)  # (C, 4) 1 / |corner|
+        inv_m = torch.rsqrt(1 + x0 * x0 + y0 * y0)  # (C,) 1 / |centre|
+        cos_r = (cxs * x0.unsqueeze(-1) + cys * y0.unsqueeze(-1) + 1) * inv_c
+        radius = torch.acos((cos_r * inv_m.unsqueeze(-1)).clamp(-1, 1)).amax(-1)  # (C,)
+        # one gather of the per-cell values each pair needs: (Q, 9)
+        cell = torch.cat([torch.stack([x0, y0, dx, inv_m, radius], -1), inv_c], -1)[pair_cell]
+        ox, oy, oz, cos_phi, phi_q = pq.unbind(-1)  # (Q,) occluder direction and cone
+        base = cell[:, 0] * ox + cell[:, 1] * oy + oz  # (Q,) centre . o, unnormalised
+        ddx, ddy = cell[:, 2] * ox, cell[:, 2] * oy
+        dots = base.unsqueeze(-1) + ddx.unsqueeze(-1) * sgn_u + ddy.unsqueeze(-1) * sgn_v
+        inside = (dots * cell[:, 5:]).amin(-1) >= cos_phi  # (Q,) all four corners in the cone
+        gamma = torch.acos((base * cell[:, 3]).clamp(-1, 1))
+        touch = gamma < phi_q + cell[:, 4]
+        covered = torch.zeros(C, dtype=torch.bool, device=dev)
+        covered[pair_cell[inside]] = True
+        partial_pair = touch & ~inside & ~covered[pair_cell]
+        partial = torch.zeros(C, dtype=torch.bool, device=dev)
+        partial[pair_cell[partial_pair]] = True
+        partial &= ~covered
+        last = level == int(depth)
+        leaf = covered | (
+            partial if (last and mode == "conservative") else torch.zeros_like(covered)
+        )
+        if bool(leaf.any()):
+            leaves_pt.append(cell_pt[leaf])
+            leaves_depth.append(torch.full((int(leaf.sum()),), level, dtype=torch.long, device=dev))
+            leaves_u.append(cu[leaf])
+            leaves_v.append(cv[leaf])
+        if last or not bool(partial.any()):
+            break
+        # ---- subdivide the partly covered cells; carry their touching pairs to the children
+        rank = torch.cumsum(partial.long(), 0) - 1  # (C,) new index of a subdivided cell
+        parents = partial.nonzero(as_tuple=True)[0]  # (C',)
+        q = torch.tensor([[-1.0, -1.0], [1.0, -1.0], [-1.0, 1.0], [1.0, 1.0]], dtype=dt, device=dev)
+        hh = 0.25 / 2**level  # child half-size
+        cu = (cu[parents].unsqueeze(1) + hh * q[:, 0]).reshape(-1)  # (4 C',)
+        cv = (cv[parents].unsqueeze(1) + hh * q[:, 1]).reshape(-1)
+        cell_pt = cell_pt[parents].repeat_interleave(4)
+        keep_pair = partial_pair & partial[pair_cell]
+        pc = rank[pair_cell[keep_pair]]  # (Q',) parent's new index
+        pair_cell = (4 * pc.unsqueeze(1) + torch.arange(4, device=dev)).reshape(-1)  # (4 Q',)
+        pq = pq[keep_pair].repeat_interleave(4, 0)  # (4 Q', 5)
+    if not leaves_pt:
+        return empty
+    lp = torch.cat(leaves_pt)
+    ld = torch.cat(leaves_depth)
+    lu, lv = torch.cat(leaves_u), torch.cat(leaves_v)
+    h = 0.5 / 2 ** ld.to(dt)
+    corners, centre = _corner_dirs(lu, lv, h, k[lp])
+    theta = torch.acos((corners * centre.unsqueeze(1)).sum(-1).clamp(-1, 1)).amax(-1)
+    axis = centre[:, :1] * t[lp] + centre[:, 1:2] * b[lp] + centre[:, 2:] * a[lp]  # (L, 3) world
+    kl = k[lp]
+    omega = cell_solid_angle(kl * (lu - h), kl * (lu + h), kl * (lv - h), kl * (lv + h))
+    return Leaves(lp, ld, axis, theta, dist, omega)
+
+
+def cell_solid_angle(x1, x2, y1, y2):
+    """Solid angle of the rectangle ``[x1, x2] x [y1, y2]`` of the plane at unit distance.
+
+    ``F(x2, y2) - F(x1, y2) - F(x2, y1) + F(x1, y1)`` with ``F(x, y) = atan(x y / sqrt(1 + x^2
+    + y^2))``, the solid angle of ``[0, x] x [0, y]`` (signed). All (...,).
+    """
+
+    def f(x, y):
+        return torch.atan(x * y / torch.sqrt(1 + x * x + y * y))
+
+    return f(x2, y2) - f(x1, y2) - f(x2, y1) + f(x1, y1)
+
+
+def leaf_weights(weights: torch.Tensor, depth: torch.Tensor, dist: torch.Tensor) -> torch.Tensor:
+    """``w(depth, dist)``: per-depth weights linearly interpolated in ``dist`` (clamped).
+
+    Parameters
+    ----------
+    weights : (D + 1, len(DIST_NODES)) table of one (mode, max depth)
+    depth : (L,) int64;  dist : (L,)
+
+    Returns
+    -------
+    (L,)
+    """
+    nodes = torch.tensor(DIST_NODES, dtype=dist.dtype, device=dist.device)
+    x = dist.clamp(nodes[0], nodes[-1])
+    i = (torch.searchsorted(nodes, x.contiguous(), right=True) - 1).clamp(0, len(DIST_NODES) - 2)
+    lam = (x - nodes[i]) / (nodes[i + 1] - nodes[i])
+    w = weights.to(device=dist.device, dtype=dist.dtype)
+    return (1 - lam) * w[depth, i] + lam * w[depth, i + 1]
+
+
+def interp_coefficients(dist: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """Node indices ``i``, ``i + 1`` and ``lam`` of :func:`leaf_weights` (for calibration)."""
+    nodes = torch.tensor(DIST_NODES, dtype=dist.dtype, device=dist.device)
+    x = dist.clamp(nodes[0], nodes[-1])
+    i = (torch.searchsorted(nodes, x.contiguous(), right=True) - 1).clamp(0, len(DIST_NODES) - 2)
+    lam = (x - nodes[i]) / (nodes[i + 1] - nodes[i])
+    return i, i + 1, lam
