@@ -78,6 +78,7 @@ def test_bake_info_render_compare(tmp_path, capsys):
     )
     assert code == 0
     assert {"table", "reference_noise", "images", "seconds", "object_pixels"} <= set(c)
+    assert all({"psnr", "psnr_display", "rel_l2"} <= set(row) for row in c["table"])
     methods = {(row["method"], row["component"]) for row in c["table"]}
     assert methods == {
         ("ours", "full"),

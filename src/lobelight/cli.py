@@ -338,7 +338,8 @@ def _cmd_demo(args) -> dict:
     )
     total = time.perf_counter() - t0
     rows = "\n".join(
-        f"| {r['method']} | {r['component']} | {r['psnr']:.2f} | {r['rel_l2']:.4f} |"
+        f"| {r['method']} | {r['component']} | {r['psnr']:.2f} | {r['psnr_display']:.2f} "
+        f"| {r['rel_l2']:.4f} |"
         for r in cmp["table"]
     )
     sky, turned = Path(stills["sky"]).name, Path(stills["sky-turned-120"]).name
@@ -361,8 +362,8 @@ Model file: `model.lobelight.npz`, {info["bytes"] / 1e6:.2f} MB.
 Against the Monte Carlo reference (direct lighting, pixel centres, object pixels;
 `compare/` holds the images and `compare.json`):
 
-| method | component | PSNR (dB) | relative L2 |
-|---|---|---|---|
+| method | component | PSNR, linear (dB) | PSNR, displayed (dB) | relative L2 |
+|---|---|---|---|---|
 {rows}
 
 Reference noise (mean standard error / mean): {cmp["reference_noise"]["full"]:.3f}.

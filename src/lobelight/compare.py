@@ -17,10 +17,12 @@ the object's pixels (the background is the environment in all of them):
 ``reference``       :func:`lobelight.reference.render`, direct lighting (``max_depth = 2``),
                     through the pixel centres
 
-PSNR is ``10 log10(peak^2 / MSE)`` on linear radiance with ``peak`` the reference's largest
-object-pixel value (per image), and the relative L2 error is ``|a - b| / |b|`` over object
-pixels. The glossy component is compared against a reference of the same scene with its
-diffuse albedo set to zero.
+Two PSNRs, both over object pixels: ``psnr`` is ``10 log10(peak^2 / MSE)`` on linear radiance
+with ``peak`` the reference's largest object-pixel value (a sun's reflection makes that peak
+huge and the figure generous), and ``psnr_display`` is the same on the displayed images (the
+reference's auto exposure, clipped to [0, 1], sRGB-encoded, peak 1): what a viewer compares.
+The relative L2 error is ``|a - b| / |b|`` on linear radiance over object pixels. The glossy
+component is compared against a reference of the same scene with its diffuse albedo set to zero.
 """
 
 from __future__ import annotations
@@ -42,7 +44,7 @@ from .render import Lighting, Renderer, as_rotation, auto_exposure, save_image
 from .render._gl import gl_available
 from .transport import Transport
 
-__all__ = ["compare", "psnr", "relative_l2"]
+__all__ = ["compare", "psnr", "psnr_display", "relative_l2"]
 
 
 def psnr(img: torch.Tensor, ref: torch.Tensor, mask: torch.Tensor) -> float:
@@ -51,6 +53,17 @@ def psnr(img: torch.Tensor, ref: torch.Tensor, mask: torch.Tensor) -> float:
     mse = float(((a - b) ** 2).mean())
     peak = float(b.max())
     return math.inf if mse == 0 else 10 * math.log10(peak * peak / mse)
+
+
+def psnr_display(img: torch.Tensor, ref: torch.Tensor, mask: torch.Tensor, exposure: float):
+    """PSNR in dB of the displayed images (sRGB in [0, 1] after ``exposure``) over ``mask``."""
+
+    def show(x):
+        x = (x.double() * 2.0**exposure).clamp(0, 1)
+        return torch.where(x <= 0.0031308, 12.92 * x, 1.055 * x.pow(1 / 2.4) - 0.055)
+
+    mse = float(((show(img[mask]) - show(ref[mask])) ** 2).mean())
+    return math.inf if mse == 0 else 10 * math.log10(1.0 / mse)
 
 
 def relative_l2(img: torch.Tensor, ref: torch.Tensor, mask: torch.Tensor) -> float:
@@ -182,6 +195,7 @@ def compare(
     images = {"ours": full.cpu(), "ours_glossy": glossy.cpu(), "ours_diffuse": diffuse.cpu()}
     images.update(reference=ref_full.cpu(), reference_glossy=ref_glossy.cpu())
     rows = []
+    exposure = auto_exposure(ref_full, mask)
 
     def score(method: str, component: str, img: torch.Tensor) -> None:
         ref = ref_full if component == "full" else ref_glossy
@@ -190,6 +204,7 @@ def compare(
                 "method": method,
                 "component": component,
                 "psnr": psnr(img.cpu(), ref.cpu(), mask),
+                "psnr_display": psnr_display(img.cpu(), ref.cpu(), mask, exposure),
                 "rel_l2": relative_l2(img.cpu(), ref.cpu(), mask),
             }
         )
