@@ -238,7 +238,9 @@ def _cmd_compare_brdf(args) -> dict:
 
     return {
         "command": "compare-brdf",
-        **compare_brdf(args.out, env=args.env, size=args.size, device=args.device),
+        **compare_brdf(
+            args.out, env=args.env, size=args.size, ref_spp=args.ref_spp, device=args.device
+        ),
     }
 
 
@@ -494,7 +496,8 @@ def _parser() -> argparse.ArgumentParser:
     )
     cb.add_argument("--out", default="lobelight-compare-brdf")
     cb.add_argument("--env", help=".hdr/.exr environment")
-    cb.add_argument("--size", type=int, default=256)
+    cb.add_argument("--size", type=int, default=128, help="image size (the sphere fills it)")
+    cb.add_argument("--ref-spp", type=int, default=4096, help="reference samples per pixel")
 
     f = cmd("figure5", _cmd_figure5, "the paper's Figure 5: Gaussians vs Haar vs SH")
     f.add_argument("--out", default="lobelight-figure5")

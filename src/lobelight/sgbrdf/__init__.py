@@ -20,6 +20,8 @@ Fitting materials (:mod:`._fit`)
     - view sets: :func:`elevation_views` (isotropic), :func:`geodesic_tangent_views`
     - coherence: :func:`view_jump`, :func:`match_components`, :func:`view_transport`
     - accuracy: :func:`mixture_error`, :func:`fit_error`, :func:`interpolation_error`
+    - :func:`fit_many` ``(brdfs, **fit options) -> list[SGBRDF]``: several materials in one
+      batched EM (materials sharing a view layout share the sweep)
     - :func:`bench_fit` ``(material="ward", device="cpu") -> dict`` (timing, for the CLI)
 
 Rendering (:mod:`._render`)
@@ -28,8 +30,21 @@ Rendering (:mod:`._render`)
       :class:`MipChain` from :func:`mip_chain` (the paper's eq. 10)
     - :func:`render_sphere` ``(model, lighting, *, width, height, camera, background) ->
       (image, mask)``; :func:`sphere_hits` the rays and surface frames it shades
+
+Baselines and the paper's comparison (docs/sgbrdf.md)
+    - :func:`shade_fis` ``(brdf, chain, normals, views, *, tangents, samples=40) -> (..., 3)``
+      filtered importance sampling (Colbert & Křivánek 2007) on a :class:`MipChain`;
+      :func:`hammersley` its point set
+    - :func:`shade_wang09` ``(ward, lighting, normals, views) -> (..., 3)`` the single warped
+      SG lobe of Wang et al. 2009; :func:`wang09_lobe` the lobe itself
+    - :func:`shade_reference` ``(brdf, env, normals, views, *, tangents, spp, seed) ->
+      (mean, stderr)`` Monte Carlo with MIS of BRDF and environment sampling
+    - :func:`compare_brdf` ``(out, *, env, size, alphas, aniso, device, ref_spp, seed) ->
+      dict`` PSNR / relative L2 / fps of every method per material, image grid and
+      ``compare-brdf.json`` (keys in its docstring); :func:`default_envmap`
 """
 
+from ._compare import METHODS, compare_brdf, default_envmap
 from ._em import (
     KAPPA_MAX,
     KAPPA_MIN,
@@ -41,6 +56,7 @@ from ._em import (
     sample_mixture,
     vmf_log_pdf,
 )
+from ._fis import FIS_SAMPLES, hammersley, shade_fis
 from ._fit import (
     SGBRDF,
     bench_fit,
@@ -48,6 +64,7 @@ from ._fit import (
     elevation_views,
     fit,
     fit_error,
+    fit_many,
     geodesic_tangent_views,
     interpolation_error,
     is_isotropic,
@@ -56,22 +73,30 @@ from ._fit import (
     view_jump,
     view_transport,
 )
+from ._reference import shade_reference
 from ._render import COVERAGE, MipChain, mip_chain, render_sphere, shade, sphere_hits
+from ._wang09 import shade_wang09, wang09_lobe
 
 __all__ = [
     "COVERAGE",
+    "FIS_SAMPLES",
     "KAPPA_MAX",
     "KAPPA_MIN",
+    "METHODS",
     "SGBRDF",
     "MipChain",
     "VMFMixture",
     "bench_fit",
     "brdf_samples",
+    "compare_brdf",
+    "default_envmap",
     "elevation_views",
     "em_fit",
     "fit",
     "fit_error",
+    "fit_many",
     "geodesic_tangent_views",
+    "hammersley",
     "init_paper",
     "interpolation_error",
     "is_isotropic",
@@ -83,8 +108,12 @@ __all__ = [
     "render_sphere",
     "sample_mixture",
     "shade",
+    "shade_fis",
+    "shade_reference",
+    "shade_wang09",
     "sphere_hits",
     "view_jump",
     "view_transport",
     "vmf_log_pdf",
+    "wang09_lobe",
 ]

@@ -85,6 +85,7 @@ __all__ = [
     "elevation_views",
     "fit",
     "fit_error",
+    "fit_many",
     "geodesic_tangent_views",
     "interpolation_error",
     "is_isotropic",
@@ -413,22 +414,91 @@ def fit(
     -------
     SGBRDF
     """
-    if not isinstance(brdf, BRDF):
-        raise InputError("brdf", f"must be a lobelight.brdf.BRDF, got {type(brdf).__name__}")
-    per_element = [name for name, shape in brdf._batch_shapes() if shape]
-    if per_element:
-        raise InputError(
-            f"brdf.{per_element[0]}", "must be a single value (fit one material at a time)"
-        )
+    return fit_many(
+        [brdf],
+        n_lobes=n_lobes,
+        layout=layout,
+        n_views=n_views,
+        samples=samples,
+        coherent=coherent,
+        prior_strength=prior_strength,
+        max_iter=max_iter,
+        tol=tol,
+        kappa_solver=kappa_solver,
+        device=device,
+        _name="brdf",
+    )[0]
+
+
+def fit_many(
+    brdfs: Any,
+    /,
+    *,
+    n_lobes: int = 8,
+    layout: str | None = None,
+    n_views: int = N_ELEVATIONS,
+    samples: int = SAMPLES,
+    coherent: bool = True,
+    prior_strength: float = PRIOR_STRENGTH,
+    max_iter: int = MAX_ITER,
+    tol: float = TOL,
+    kappa_solver: str = "exact",
+    device: Any = "cpu",
+    _name: str = "brdfs",
+) -> list[SGBRDF]:
+    """Fit several materials at once: :func:`fit` of each, with the EM of all materials that
+    share a view layout run as one batch (one sweep over the views for all of them).
+
+    Parameters
+    ----------
+    brdfs : sequence of materials with scalar parameters
+    n_lobes, layout, n_views, samples, coherent, prior_strength, max_iter, tol,
+        kappa_solver, device : as for :func:`fit` (``layout`` None picks per material)
+
+    Returns
+    -------
+    list of SGBRDF, one per material in order; each equals ``fit`` of that material (EM stops
+    per problem, so batching does not change a result)
+    """
+    if isinstance(brdfs, BRDF) or not isinstance(brdfs, (list, tuple)) or not brdfs:
+        raise InputError(_name, "must be a non-empty list of lobelight.brdf.BRDF materials")
+    names = [_name if _name == "brdf" else f"{_name}[{i}]" for i in range(len(brdfs))]
+    for nm, brdf in zip(names, brdfs, strict=True):
+        if not isinstance(brdf, BRDF):
+            raise InputError(nm, f"must be a lobelight.brdf.BRDF, got {type(brdf).__name__}")
+        per_element = [name for name, shape in brdf._batch_shapes() if shape]
+        if per_element:
+            raise InputError(
+                f"{nm}.{per_element[0]}", "must be a single value (fit one material at a time)"
+            )
     n = _check_int(n_lobes, "n_lobes", minimum=1)
-    if layout is None:
-        layout = "elevation" if is_isotropic(brdf) else "geodesic"
-    if layout not in ("elevation", "geodesic"):
-        raise InputError("layout", f"must be 'elevation' or 'geodesic', got {layout!r}")
-    if layout == "elevation" and not is_isotropic(brdf):
-        raise InputError("layout", "the elevation layout needs an isotropic material")
+    layouts = []
+    for brdf in brdfs:
+        lay = layout if layout is not None else ("elevation" if is_isotropic(brdf) else "geodesic")
+        if lay not in ("elevation", "geodesic"):
+            raise InputError("layout", f"must be 'elevation' or 'geodesic', got {lay!r}")
+        if lay == "elevation" and not is_isotropic(brdf):
+            raise InputError("layout", "the elevation layout needs an isotropic material")
+        layouts.append(lay)
     dev = torch.device(device)
-    brdf = brdf.to(dev)
+    out: list[SGBRDF | None] = [None] * len(brdfs)
+    em_kw = {"n_lobes": n, "max_iter": max_iter, "tol": tol, "kappa_solver": kappa_solver}
+    for lay in ("elevation", "geodesic"):
+        idx = [i for i, la in enumerate(layouts) if la == lay]
+        if not idx:
+            continue
+        group = [brdfs[i].to(dev) for i in idx]
+        for i, model in zip(
+            idx,
+            _fit_group(group, lay, n_views, samples, coherent, prior_strength, em_kw, dev),
+            strict=True,
+        ):
+            out[i] = model
+    return out  # type: ignore[return-value]
+
+
+def _fit_group(brdfs, layout, n_views, samples, coherent, prior_strength, em_kw, dev):
+    """Materials sharing one view layout, fitted as one batch ``(U views, B materials)``."""
     if layout == "elevation":
         views = elevation_views(n_views, device=dev)
         used = torch.ones(views.shape[0], dtype=torch.bool, device=dev)
@@ -438,36 +508,41 @@ def fit(
         used = _geodesic_used()[0].to(dev)
         fit_views = _fold(views, FOLD_Z)
     sel = used.nonzero().squeeze(-1)  # (U,)
-    dirs, values, pdf = brdf_samples(brdf, fit_views[sel], samples=samples)  # (U, S, ...)
-    albedo_u = values.mean(1)  # (U, 3)
-    w = values.mean(-1).clamp_min(0)  # (U, S) EM weights
-    em_kw = {"n_lobes": n, "max_iter": max_iter, "tol": tol, "kappa_solver": kappa_solver}
+    per = [brdf_samples(b, fit_views[sel], samples=samples) for b in brdfs]  # B x (U, S, ...)
+    dirs, values, pdf = (torch.stack(x, 1) for x in zip(*per, strict=True))  # (U, B, S, ...)
+    albedo_u = values.mean(2)  # (U, B, 3)
+    w = values.mean(-1).clamp_min(0)  # (U, B, S) EM weights
     if coherent:
         parent, depth = _sweep_order(fit_views[sel], layout, sel)
         res = _sweep(dirs, w, pdf, fit_views[sel], parent, depth, em_kw, prior_strength)
     else:
         r = em_fit(dirs, w, **em_kw)
         res = (r.mu, r.kappa, r.alpha, r.loglik, r.iterations)
-    mu_u, kappa_u, alpha_u, ll_u, it_u = res
-    weight_u = albedo_u.unsqueeze(1) * (alpha_u * log_vmf_normalization(kappa_u).exp()).unsqueeze(
+    mu_u, kappa_u, alpha_u, ll_u, it_u = res  # (U, B, N, ...)
+    weight_u = albedo_u.unsqueeze(2) * (alpha_u * log_vmf_normalization(kappa_u).exp()).unsqueeze(
         -1
-    )  # (U, N, 3)
+    )  # (U, B, N, 3)
     # every view: unused ones copy the nearest fitted view's lobes with weight 0
     near = (fit_views @ fit_views[sel].T).argmax(-1)  # (M,) index into sel
-    params = torch.cat([weight_u, mu_u, kappa_u.unsqueeze(-1)], -1)[near]  # (M, N, 7)
-    params[~used, :, 0:3] = 0
-    albedo = albedo_u[near] * used.unsqueeze(-1)
-    return SGBRDF(
-        params=params.to(torch.float32).contiguous(),
-        views=views,
-        fit_views=fit_views,
-        layout=layout,
-        albedo=albedo,
-        used=used,
-        material=brdf.to_dict(),
-        loglik=ll_u[near],
-        iterations=it_u[near],
-    )
+    params_all = torch.cat([weight_u, mu_u, kappa_u.unsqueeze(-1)], -1)[near]  # (M, B, N, 7)
+    models = []
+    for j, brdf in enumerate(brdfs):
+        params = params_all[:, j].clone()
+        params[~used, :, 0:3] = 0
+        models.append(
+            SGBRDF(
+                params=params.to(torch.float32).contiguous(),
+                views=views,
+                fit_views=fit_views,
+                layout=layout,
+                albedo=albedo_u[near, j] * used.unsqueeze(-1),
+                used=used,
+                material=brdf.to_dict(),
+                loglik=ll_u[near, j],
+                iterations=it_u[near, j],
+            )
+        )
+    return models
 
 
 def _sweep_order(fit_views: torch.Tensor, layout: str, sel: torch.Tensor):
@@ -504,12 +579,12 @@ def _sweep_order(fit_views: torch.Tensor, layout: str, sel: torch.Tensor):
 
 def _sample_error(x, w, pdf, mu, kappa, alpha) -> torch.Tensor:
     """In-sample relative L2 error of ``A sum_k alpha_k g_k`` against ``f cos = w pdf`` (grey),
-    ``A = mean(w)``, from the fit's own importance samples: ``x (P, S, 3)``, ``w, pdf (P, S)``,
-    mixture ``(P, N, ...)`` -> ``(P,)``. Used to choose between candidate fits of a view."""
+    ``A = mean(w)``, from the fit's own importance samples: ``x (..., S, 3)``, ``w, pdf (...,
+    S)``, mixture ``(..., N, ...)`` -> ``(...)``. Used to choose between candidate fits."""
     x, w, q = x.double(), w.double(), pdf.double()
-    logp = vmf_log_pdf(x.unsqueeze(2), mu.double().unsqueeze(1), kappa.double().unsqueeze(1))
-    mix = (alpha.double().unsqueeze(1) * logp.exp()).sum(-1) * w.mean(-1, keepdim=True)  # (P, S)
-    f = w * q
+    logp = vmf_log_pdf(x.unsqueeze(-2), mu.double().unsqueeze(-3), kappa.double().unsqueeze(-2))
+    mix = (alpha.double().unsqueeze(-2) * logp.exp()).sum(-1) * w.mean(-1, keepdim=True)
+    f = w * q  # (..., S)
     inv = torch.where(q > 0, 1 / q.clamp_min(1e-300), torch.zeros_like(q))
     return torch.sqrt(((mix - f) ** 2 * inv).sum(-1) / (f * f * inv).sum(-1).clamp_min(1e-300))
 
@@ -523,6 +598,9 @@ def _sweep(dirs, w, pdf, fit_views, parent, depth, em_kw, prior_strength):
     taken, its lobes relabelled to match the transported parent's (:func:`match_components`).
     The sweep continues from whichever was taken, so one labelling runs through all views and
     no view fits its samples worse than its independent fit.
+
+    Shapes: the view index is the first axis (``dirs (U, [B,] S, 3)``, ``w, pdf (U, [B,] S)``,
+    ``fit_views (U, 3)``); an optional second axis ``B`` batches materials that share the views.
     """
     indep = em_fit(dirs, w, **em_kw)
     err_ind = _sample_error(dirs, w, pdf, indep.mu, indep.kappa, indep.alpha)  # (U,)
@@ -532,22 +610,23 @@ def _sweep(dirs, w, pdf, fit_views, parent, depth, em_kw, prior_strength):
         sel = (depth == d).nonzero().squeeze(-1)
         par = parent[sel]
         rot = view_transport(fit_views[par], fit_views[sel])  # (m, 3, 3)
-        mu0 = (rot.unsqueeze(1) @ mu[par].unsqueeze(-1)).squeeze(-1)  # (m, N, 3)
+        rot = rot.reshape(rot.shape[0], *[1] * (mu.ndim - 2), 3, 3)  # (m, [B,] 1, 3, 3)
+        mu0 = (rot @ mu[par].unsqueeze(-1)).squeeze(-1)  # (m, [B,] N, 3)
         start = (mu0, kappa[par], alpha[par])
         prior = start if prior_strength > 0 else None
         r = em_fit(
             dirs[sel], w[sel], init=start, prior=prior, prior_strength=prior_strength, **em_kw
         )
-        err = _sample_error(dirs[sel], w[sel], pdf[sel], r.mu, r.kappa, r.alpha)  # (m,)
+        err = _sample_error(dirs[sel], w[sel], pdf[sel], r.mu, r.kappa, r.alpha)  # (m, [B])
         perm = match_components(
             mu0, kappa[par], alpha[par], indep.mu[sel], indep.kappa[sel], indep.alpha[sel]
-        )  # (m, N)
-        take = (err_ind[sel] < err * (1 + CONTINUATION_MARGIN)).view(-1, 1)  # (m, 1)
-        mu_i = indep.mu[sel].gather(1, perm.unsqueeze(-1).expand(-1, -1, 3))
+        )  # (m, [B,] N)
+        take = (err_ind[sel] < err * (1 + CONTINUATION_MARGIN)).unsqueeze(-1)  # (m, [B,] 1)
+        mu_i = indep.mu[sel].gather(-2, perm.unsqueeze(-1).expand(*perm.shape, 3))
         mu[sel] = torch.where(take.unsqueeze(-1), mu_i, r.mu)
-        kappa[sel] = torch.where(take, indep.kappa[sel].gather(1, perm), r.kappa)
-        alpha[sel] = torch.where(take, indep.alpha[sel].gather(1, perm), r.alpha)
-        ll[sel] = torch.where(take[:, 0], indep.loglik[sel], r.loglik)
+        kappa[sel] = torch.where(take, indep.kappa[sel].gather(-1, perm), r.kappa)
+        alpha[sel] = torch.where(take, indep.alpha[sel].gather(-1, perm), r.alpha)
+        ll[sel] = torch.where(take[..., 0], indep.loglik[sel], r.loglik)
         iters[sel] = iters[sel] + r.iterations
     return mu, kappa, alpha, ll, iters
 

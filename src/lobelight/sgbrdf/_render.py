@@ -69,16 +69,19 @@ class MipChain:
     def device(self) -> torch.device:
         return self.levels[0].device
 
+    def texel_solid_angle(self, dirs: Any) -> torch.Tensor:
+        """Solid angle of a base-level texel at ``dirs (..., 3)``: ``(...)`` float64 (the paper's
+        ``Omega_p = d(i) / (w h)`` for a cube map, ``(2 / R)^2 / (1 + u^2 + v^2)^(3/2)``)."""
+        _, u, v = cubemap.direction_to_face_uv(as_tensor(dirs, device=self.device))
+        res = self.levels[0].shape[1]
+        return (2.0 / res) ** 2 / (1 + u.double() ** 2 + v.double() ** 2) ** 1.5
+
     def level(self, mu: Any, lam: Any) -> torch.Tensor:
         """Fractional mip level of eq. (10), clamped to the chain: ``(...)`` float64."""
         mu = as_tensor(mu, device=self.device)
         lam = as_tensor(lam, device=self.device).to(torch.float64)
-        _, u, v = cubemap.direction_to_face_uv(mu)
-        res = self.levels[0].shape[1]
-        r2 = 1 + u.double() ** 2 + v.double() ** 2
-        omega_p = (2.0 / res) ** 2 / r2**1.5  # base texel solid angle at mu
         omega_s = -2 * math.pi * math.log(1 - self.coverage) / lam.clamp_min(1e-12)
-        lvl = 0.5 * torch.log2(omega_s / omega_p)
+        lvl = 0.5 * torch.log2(omega_s / self.texel_solid_angle(mu))
         return lvl.clamp(0, len(self.levels) - 1)
 
     def lookup(self, mu: Any, lam: Any) -> torch.Tensor:
@@ -88,6 +91,24 @@ class MipChain:
         shape = torch.broadcast_shapes(mu.shape[:-1], lam.shape)
         mu = mu.expand(*shape, 3).reshape(-1, 3)
         lvl = self.level(mu, lam.expand(shape).reshape(-1))  # (Q,)
+        return self.lookup_level(mu, lvl).reshape(*shape, 3)
+
+    def lookup_level(self, dirs: Any, level: Any) -> torch.Tensor:
+        """Trilinear lookup at given fractional levels (what ``textureLod`` does on a GPU).
+
+        Parameters
+        ----------
+        dirs : (..., 3) directions;  level : (...) fractional mip levels (clamped to the chain)
+
+        Returns
+        -------
+        (..., 3) float32
+        """
+        dirs = as_tensor(dirs, device=self.device)
+        level = as_tensor(level, device=self.device)
+        shape = torch.broadcast_shapes(dirs.shape[:-1], level.shape)
+        mu = dirs.expand(*shape, 3).reshape(-1, 3)  # (Q, 3)
+        lvl = level.expand(shape).reshape(-1).to(torch.float64).clamp(0, len(self.levels) - 1)
         k0 = lvl.floor().long().clamp(max=len(self.levels) - 1)
         t = (lvl - k0).to(self.levels[0].dtype).unsqueeze(-1)
         out = torch.zeros(mu.shape[0], 3, device=self.device, dtype=self.levels[0].dtype)
