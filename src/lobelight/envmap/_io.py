@@ -464,6 +464,9 @@ def save(env: EnvMap, path: str | Path, *, cross: str = "vcross", half: bool = F
         else:
             header = {"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage}
             OpenEXR.File(header, {"RGB": arr}).write(tmp)
+        mask = os.umask(0)  # mkstemp makes owner-only files: the usual permissions instead
+        os.umask(mask)
+        os.chmod(tmp, 0o666 & ~mask)
         os.replace(tmp, p)
     except InputError:
         _remove(tmp)

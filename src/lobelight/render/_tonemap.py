@@ -87,6 +87,10 @@ def save_image(path, img, *, exposure: float = 0.0, curve: str = "srgb") -> Path
 
             header = {"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage}
             OpenEXR.File(header, {"RGB": np.ascontiguousarray(x)}).write(tmp)
+        # mkstemp makes owner-only files: give the image the usual permissions
+        mask = os.umask(0)
+        os.umask(mask)
+        os.chmod(tmp, 0o666 & ~mask)
         os.replace(tmp, p)
     finally:
         if os.path.exists(tmp):
