@@ -25,7 +25,7 @@ import torch
 from .._backend import as_tensor
 from ..brdf import BRDF
 from ..errors import InputError
-from ._render import MipChain
+from ._render import MipChain, normals_and_views
 
 __all__ = ["FIS_SAMPLES", "hammersley", "shade_fis"]
 
@@ -79,12 +79,7 @@ def shade_fis(
     if not isinstance(chain, MipChain):
         raise InputError("chain", f"must be a MipChain (mip_chain), got {type(chain).__name__}")
     dev = chain.device
-    n = as_tensor(normals, device=dev).to(torch.float32)
-    o = as_tensor(views, device=dev).to(torch.float32)
-    for name, v in (("normals", n), ("views", o)):
-        if v.ndim < 1 or v.shape[-1] != 3:
-            raise InputError(name, f"must be a (..., 3) array of directions, got {tuple(v.shape)}")
-    n, o = torch.broadcast_tensors(n, o)
+    n, o = normals_and_views(normals, views, dev)
     t = None
     if tangents is not None:
         t = as_tensor(tangents, device=dev).to(torch.float32).expand_as(n).reshape(-1, 3)

@@ -23,6 +23,7 @@ from .._backend import as_tensor
 from ..brdf import BRDF
 from ..errors import InputError
 from ..reference import EnvSampler
+from ._render import normals_and_views
 
 __all__ = ["shade_reference"]
 
@@ -68,12 +69,7 @@ def shade_reference(
     if not isinstance(spp, int) or isinstance(spp, bool) or spp < 2:
         raise InputError("spp", f"must be an integer >= 2, got {spp!r}")
     dev = env.device
-    n = as_tensor(normals, device=dev).to(torch.float32)
-    o = as_tensor(views, device=dev).to(torch.float32)
-    for name, v in (("normals", n), ("views", o)):
-        if v.ndim < 1 or v.shape[-1] != 3:
-            raise InputError(name, f"must be a (..., 3) array of directions, got {tuple(v.shape)}")
-    n, o = torch.broadcast_tensors(n, o)
+    n, o = normals_and_views(normals, views, dev)
     shape = n.shape[:-1]
     n, o = n.reshape(-1, 3), o.reshape(-1, 3)  # (P, 3)
     t = None

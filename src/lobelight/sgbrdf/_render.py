@@ -127,6 +127,18 @@ class MipChain:
         return self.lookup(mu, lam) * z.unsqueeze(-1)
 
 
+def normals_and_views(normals: Any, views: Any, device) -> tuple[torch.Tensor, torch.Tensor]:
+    """Shading normals and view directions as float32 ``(..., 3)`` tensors on ``device``,
+    checked and broadcast against each other."""
+    n = as_tensor(normals, device=device).to(torch.float32)
+    o = as_tensor(views, device=device).to(torch.float32)
+    for name, v in (("normals", n), ("views", o)):
+        if v.ndim < 1 or v.shape[-1] != 3:
+            raise InputError(name, f"must be a (..., 3) array of directions, got {tuple(v.shape)}")
+    n, o = torch.broadcast_tensors(n, o)
+    return n, o
+
+
 def mip_chain(env: Any, /, *, base_res: int = 256, coverage: float = COVERAGE) -> MipChain:
     """Build the box-filtered mip chain of an environment for :class:`MipChain` lookups.
 
