@@ -80,3 +80,25 @@ def random_dirs(n: int, dtype=F64, seed: int = 0) -> torch.Tensor:
     g = torch.Generator().manual_seed(seed)
     v = torch.randn(n, 3, generator=g, dtype=F64)
     return torch.nn.functional.normalize(v, dim=-1).to(dtype)
+
+
+def smooth_env():
+    """A smooth, strictly positive lat-long environment (64 x 128): low-frequency colour
+    gradients, so that lookups and sampled estimates converge fast."""
+    import math
+
+    from lobelight.envmap import EnvMap
+
+    h = 64
+    th = (torch.arange(h) + 0.5) / h * math.pi
+    ph = (torch.arange(2 * h) + 0.5) / (2 * h) * 2 * math.pi
+    t, p = torch.meshgrid(th, ph, indexing="ij")
+    img = torch.stack(
+        [
+            1 + 0.8 * torch.cos(t) + 0.3 * torch.sin(3 * p) * torch.sin(t),
+            1 + 0.5 * torch.sin(t) * torch.cos(p),
+            1.5 + torch.cos(2 * t),
+        ],
+        -1,
+    ).clamp_min(0.05)
+    return EnvMap(img, layout="latlong", name="smooth")

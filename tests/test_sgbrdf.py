@@ -14,6 +14,7 @@ import re
 import pytest
 import torch
 
+from conftest import smooth_env
 from lobelight import brdf, cubemap, sphere
 from lobelight.camera import Camera
 from lobelight.envmap import EnvMap, prefilter
@@ -322,24 +323,8 @@ def test_render_constant_environment_gives_albedo(fits):
     assert abs(float(img3[7, 7, 0]) - float(m.albedo[0, 0])) < 1e-3
 
 
-def _smooth_env() -> EnvMap:
-    h = 64
-    th = (torch.arange(h) + 0.5) / h * math.pi
-    ph = (torch.arange(2 * h) + 0.5) / (2 * h) * 2 * math.pi
-    t, p = torch.meshgrid(th, ph, indexing="ij")
-    img = torch.stack(
-        [
-            1 + 0.8 * torch.cos(t) + 0.3 * torch.sin(3 * p) * torch.sin(t),
-            1 + 0.5 * torch.sin(t) * torch.cos(p),
-            1.5 + torch.cos(2 * t),
-        ],
-        -1,
-    ).clamp_min(0.05)
-    return EnvMap(img, layout="latlong", name="smooth")
-
-
 def test_lookups_against_quadrature():
-    env = _smooth_env()
+    env = smooth_env()
     pf, mc = prefilter(env, base_res=32), mip_chain(env, base_res=32)
     res = 128  # reference: the same map on a finer cube, summed texel by texel
     dirs = cubemap.texel_directions(res).reshape(-1, 3)
@@ -368,7 +353,7 @@ def test_shade_anisotropic_tangent_matters(aniso):
     # An anisotropic material under a map with a gradient: turning the tangent by 90 degrees
     # about the normal changes the shading, and turning it by 180 does not (Ward is symmetric).
     _, m = aniso
-    pf = prefilter(_smooth_env(), base_res=16)
+    pf = prefilter(smooth_env(), base_res=16)
     n = torch.tensor([[0.0, 1.0, 0.0]])
     o = torch.nn.functional.normalize(torch.tensor([[0.3, 1.0, 0.2]]), dim=-1)
     t0 = shade(m, pf, n, o, tangents=torch.tensor([[1.0, 0.0, 0.0]]))

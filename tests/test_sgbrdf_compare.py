@@ -17,6 +17,7 @@ import numpy as np
 import pytest
 import torch
 
+from conftest import smooth_env
 from lobelight import brdf
 from lobelight.envmap import EnvMap, prefilter
 from lobelight.errors import InputError
@@ -45,22 +46,6 @@ def _one_thread():
 
 def _constant_env() -> EnvMap:
     return EnvMap(torch.full((16, 32, 3), 1.0), layout="latlong", name="constant")
-
-
-def _smooth_env() -> EnvMap:
-    h = 64
-    th = (torch.arange(h) + 0.5) / h * math.pi
-    ph = (torch.arange(2 * h) + 0.5) / (2 * h) * 2 * math.pi
-    t, p = torch.meshgrid(th, ph, indexing="ij")
-    img = torch.stack(
-        [
-            1 + 0.8 * torch.cos(t) + 0.3 * torch.sin(3 * p) * torch.sin(t),
-            1 + 0.5 * torch.sin(t) * torch.cos(p),
-            1.5 + torch.cos(2 * t),
-        ],
-        -1,
-    ).clamp_min(0.05)
-    return EnvMap(img, layout="latlong", name="smooth")
 
 
 def _points(count: int, seed: int = 0, max_deg: float = 70.0):
@@ -104,7 +89,7 @@ def test_reference_constant_env_and_honest_stderr():
     # On a varying map, two seeds differ by their stated errors: |z| < 3 for >= 95 % of points
     # (a normal z exceeds 3 in 0.3 % of cases; 4 replicates make the error estimate itself
     # noisy, a t(3)-like spread that exceeds 3 in ~6 %; an error understated 2x fails this).
-    env = _smooth_env()
+    env = smooth_env()
     n, o, t = _points(300, seed=3)
     m1, s1 = shade_reference(b, env, n, o, tangents=t, spp=256, seed=1)
     m2, s2 = shade_reference(b, env, n, o, tangents=t, spp=256, seed=2)
@@ -129,7 +114,7 @@ def test_hammersley_points():
 
 
 def test_mip_chain_lookup_level_matches_eq10():
-    mc = mip_chain(_smooth_env(), base_res=16)
+    mc = mip_chain(smooth_env(), base_res=16)
     mu = torch.nn.functional.normalize(torch.randn(50, 3, generator=torch.Generator()), dim=-1)
     lam = torch.full((50,), 30.0)
     assert torch.allclose(mc.lookup(mu, lam), mc.lookup_level(mu, mc.level(mu, lam)))
@@ -140,8 +125,8 @@ def test_mip_chain_lookup_level_matches_eq10():
     )
 
 
-def test_fis_converges_to_reference_on_smooth_env():
-    env = _smooth_env()
+def test_fis_converges_to_reference_onsmooth_env():
+    env = smooth_env()
     chain = mip_chain(env, base_res=32)
     n, o, t = _points(24, seed=5)
     for b in (brdf.Ward(1.0, 0.1), brdf.Ward(1.0, 0.05, 0.3)):
@@ -222,7 +207,7 @@ def test_fit_many_equals_fit_per_material():
 
 def _spot_env() -> EnvMap:
     """A dim gradient with one bright, small light: what makes the methods differ."""
-    img = _smooth_env().data[::2, ::2].clone() * 0.2  # (32, 64, 3)
+    img = smooth_env().data[::2, ::2].clone() * 0.2  # (32, 64, 3)
     img[8:10, 20:22] = 200.0
     return EnvMap(img, layout="latlong", name="spot")
 

@@ -129,6 +129,16 @@ class Model:
         gk = torch.exp(g.lam[..., None, :] * (cos - 1))  # (..., D, N)
         return gk @ g.w  # (..., D, 3)
 
+    def to(self, device) -> Model:
+        """The model with every tensor on ``device`` (in place; returns it)."""
+        g = self.gaussians
+        self.mesh = self.mesh.to(device)
+        self.views = self.views.to(device)
+        self.gaussians = Gaussians(g.w.to(device), g.mu.to(device), g.lam.to(device))
+        self.diffuse = self.diffuse.to(device)
+        self.materials = self.materials.to(device)
+        return self
+
     def save(self, path, *, float16: bool = False, drop: bool = True) -> dict[str, Any]:
         """Write the model to ``path`` (see :func:`save`); returns sizes."""
         return _write(
@@ -401,10 +411,4 @@ def load(path, *, device=None) -> Model:
         mats,
         dict(prov),
     )
-    if device is not None:
-        model.mesh = model.mesh.to(device)
-        model.views = model.views.to(device)
-        model.gaussians = Gaussians(g.w.to(device), g.mu.to(device), g.lam.to(device))
-        model.diffuse = model.diffuse.to(device)
-        model.materials = model.materials.to(device)
-    return model
+    return model.to(device) if device is not None else model

@@ -5,6 +5,7 @@ from __future__ import annotations
 from ..camera import Camera
 from ..envmap import EnvMap
 from ..errors import InputError
+from ..raycast import RayCaster
 from ._lighting import Lighting, as_rotation
 from ._torch import render_torch
 
@@ -44,7 +45,7 @@ class Renderer:
         if not (1 <= int(width) <= 16384 and 1 <= int(height) <= 16384):
             raise InputError("resolution", f"must be 1..16384 pixels, got {width}x{height}")
         if device is not None:
-            model = _model_to(model, device)
+            model = model.to(device)
         self.model = model
         if isinstance(env, Lighting):
             self.lighting = env
@@ -61,6 +62,7 @@ class Renderer:
         self.width, self.height = int(width), int(height)
         self.backend = backend
         self._gl = None
+        self._caster = None  # the torch path's BVH, built on first use and kept
         if backend == "gl":
             from ._gl import GLRenderer
 
@@ -102,6 +104,7 @@ class Renderer:
                 diffuse=diffuse,
                 glossy=glossy,
                 background=background,
+                caster=self._ray_caster(),
             )
         return (img, mask) if return_mask else img
 
@@ -115,8 +118,14 @@ class Renderer:
             self.height,
             rot=as_rotation(light_rotation),
             pixels=pixels,
+            caster=self._ray_caster(),
             **parts,
         )
+
+    def _ray_caster(self) -> RayCaster:
+        if self._caster is None:
+            self._caster = RayCaster(self.model.mesh, offset=0.0)
+        return self._caster
 
     def close(self) -> None:
         if self._gl is not None:
@@ -128,14 +137,3 @@ class Renderer:
 
     def __exit__(self, *exc) -> None:
         self.close()
-
-
-def _model_to(model, device):
-    from ..fit import Gaussians
-
-    g = model.gaussians
-    model.mesh = model.mesh.to(device)
-    model.views = model.views.to(device)
-    model.gaussians = Gaussians(g.w.to(device), g.mu.to(device), g.lam.to(device))
-    model.diffuse = model.diffuse.to(device)
-    return model

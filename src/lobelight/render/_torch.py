@@ -109,12 +109,14 @@ def render_torch(
     glossy: bool = True,
     background: bool = True,
     pixels: torch.Tensor | None = None,
+    caster: RayCaster | None = None,
 ) -> tuple[torch.Tensor, torch.Tensor]:
     """Render by ray casting and the two stages.
 
     Parameters
     ----------
     pixels : optional (P, 2) int (row, column): shade only these
+    caster : the mesh's ray caster, to reuse its BVH across frames (built here when None)
 
     Returns
     -------
@@ -127,7 +129,7 @@ def render_torch(
         o, d = o[px[:, 0], px[:, 1]], d[px[:, 0], px[:, 1]]
     shape = d.shape[:-1]
     o, d = o.reshape(-1, 3), d.reshape(-1, 3)
-    caster = RayCaster(model.mesh, offset=0.0)
+    caster = RayCaster(model.mesh, offset=0.0) if caster is None else caster
     tri, _, bary = caster.first_hit(o, d)
     hit = tri >= 0
     vd = vertex_stage(model, lighting, camera.origin, rot)
