@@ -393,9 +393,7 @@ MODEL_CASES = {
 }  # fmt: skip
 
 
-@pytest.mark.parametrize(
-    "case", [pytest.param(k, id=k) for k in MODEL_CASES]
-)
+@pytest.mark.parametrize("case", [pytest.param(k, id=k) for k in MODEL_CASES])
 def test_model_pinned_bad_files(tmp_path, model_file, case):
     make, _ = MODEL_CASES[case]
     p = tmp_path / "m.npz"

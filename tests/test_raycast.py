@@ -52,3 +52,22 @@ def test_visibility_and_hits_match_brute_force():
     torch.testing.assert_close(p, o[h] + t[h, None] * d[h], rtol=0, atol=1e-4)
     assert bool((bary[h] >= -1e-5).all())
     assert bool((hit_tri[~h] == -1).all()) and bool(torch.isinf(t[~h]).all())
+
+
+def test_threaded_queries_equal_one_thread():
+    # the rays are split across a thread pool (embreex releases the GIL); the pieces must come
+    # back in order: compare with one thread ray by ray (a shuffled join would disagree)
+    sc = scene.builtin("knot")
+    mesh = sc.mesh
+    n_rays = 200_000  # > threads x MIN_RAYS_PER_THREAD, so the pool is used
+    g = torch.Generator().manual_seed(3)
+    vid = torch.randint(0, mesh.n_vertices, (n_rays,), generator=g)
+    d = random_dirs(n_rays, dtype=torch.float32, seed=3)
+    n = mesh.normals[vid]
+    d = torch.where(((d * n).sum(-1) < 0)[:, None], -d, d)
+    one, four = RayCaster(mesh, threads=1), RayCaster(mesh, threads=4)
+    o = one.spawn(mesh.vertices[vid], n, d)
+    occ = one.occluded(o, d)
+    assert 0.05 < occ.float().mean() < 0.95  # a mix, so an order error would show
+    assert torch.equal(occ, four.occluded(o, d))
+    assert torch.equal(one.first_hit(o, d)[0], four.first_hit(o, d)[0])

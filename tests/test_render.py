@@ -166,6 +166,25 @@ def test_rotating_the_light_equals_rendering_a_rotated_map(model2, small_env, li
     assert float(((i0[ma] - ib[ma]).norm(dim=-1) / ib[ma].norm(dim=-1)).mean()) > 0.1
 
 
+@pytest.mark.parametrize("order", [1, 3, 5, 8])
+def test_fast_sh_rotation_equals_sh_rotate(order):
+    # the per-frame rotation (monomials at the rule's nodes) against the library's rotation
+    # matrix; both are exact, so only float64 rounding separates them
+    from scipy.spatial.transform import Rotation
+
+    from lobelight import sh
+    from lobelight.render._lighting import ShRotator
+
+    c = torch.randn(
+        order * order, 3, dtype=torch.float64, generator=torch.Generator().manual_seed(order)
+    )
+    rot = ShRotator(c)
+    for k in range(4):
+        r = torch.tensor(Rotation.random(random_state=k).as_matrix())
+        ref = sh.rotate(c, r)
+        assert float((torch.from_numpy(rot(r)) - ref).abs().max()) < 1e-10 * float(ref.abs().max())
+
+
 def test_bad_inputs(model2, lighting):
     with pytest.raises(InputError, match="backend"):
         render.Renderer(model2, lighting, 8, 8, backend="vulkan")

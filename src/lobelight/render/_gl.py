@@ -2,9 +2,9 @@
 
 Everything per frame stays on the GPU (the paper's bottleneck was repacking the three nearest
 views' data on the CPU every frame): the Gaussians of every (vertex, view) live in a float
-texture, the 180 geodesic triangles' great-circle planes in another, and the vertex shader finds
-each vertex's view triangle itself. Per frame the CPU uploads only the camera, the lighting
-rotation and the rotated lighting's 25 SH coefficients.
+texture, the 180 geodesic triangles' great-circle planes in a uniform block, and the vertex
+shader finds each vertex's view triangle itself. Per frame the CPU uploads only the camera, the
+lighting rotation and the rotated lighting's 25 SH coefficients.
 
 Prefiltered levels: each level's six faces, each with the one-texel seamless border of
 :func:`lobelight.cubemap.pad_seamless`, are packed into one atlas texture; hardware bilinear
@@ -27,7 +27,14 @@ from ..camera import Camera
 from ..errors import InputError
 from ._lighting import Lighting
 
-__all__ = ["GLRenderer", "create_context", "gl_available", "load_shader"]
+__all__ = [
+    "GLRenderer",
+    "create_context",
+    "gl_available",
+    "load_shader",
+    "set_uniforms",
+    "upload_prefiltered",
+]
 
 #: Texture width used to wrap long 1-D arrays into 2-D textures.
 TEX_WIDTH = 4096
@@ -42,12 +49,15 @@ def load_shader(name: str) -> str:
     return resources.files("lobelight.render").joinpath("shaders", f"{name}.glsl").read_text()
 
 
-def _program(ctx, name: str, defines: dict[str, int] | None = None):
+def _program(ctx, name: str, defines: dict[str, int] | None = None, include: tuple = ()):
+    """A program from one shader file holding both stages; ``include`` names shader files whose
+    text goes before the fragment stage (shared functions, e.g. ``"prefiltered"``)."""
     head = "#version 330\n" + "".join(f"#define {k} {v}\n" for k, v in (defines or {}).items())
     src = load_shader(name)
+    lib = "".join(load_shader(i) + "\n" for i in include)
     return ctx.program(
         vertex_shader=head + "#define VERTEX_SHADER\n" + src,
-        fragment_shader=head + "#define FRAGMENT_SHADER\n" + src,
+        fragment_shader=head + "#define FRAGMENT_SHADER\n" + lib + src,
     )
 
 
@@ -110,6 +120,36 @@ def _atlas(lighting: Lighting) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     return atlas, np.asarray(rows, np.float32), np.asarray(res, np.float32)
 
 
+def upload_prefiltered(ctx, lighting: Lighting):
+    """The prefiltered chain as one atlas texture, and the uniforms ``prefiltered.glsl`` reads
+    (bind the texture to the unit of its ``atlas`` sampler)."""
+    import moderngl
+
+    atlas, rows, res = _atlas(lighting)
+    tex = ctx.texture((atlas.shape[1], atlas.shape[0]), 3, atlas.tobytes(), dtype="f4")
+    tex.filter = (moderngl.LINEAR, moderngl.LINEAR)
+    tex.repeat_x = tex.repeat_y = False
+    pf = lighting.prefiltered
+    uniforms = {
+        "atlas_size": (float(atlas.shape[1]), float(atlas.shape[0])),
+        "level_y": rows,
+        "level_res": res,
+        "n_levels": len(pf.levels),
+        "lam0": float(pf.lambdas[0]),
+        "log_rho": float(torch.log(pf.lambdas[0] / pf.lambdas[1])),
+    }
+    return tex, uniforms
+
+
+def set_uniforms(prog, values: dict) -> None:
+    """Set a program's uniforms: numpy arrays are written as bytes, the rest by value."""
+    for k, v in values.items():
+        if isinstance(v, np.ndarray):
+            prog[k].write(v.astype(np.float32).tobytes())
+        else:
+            prog[k].value = v
+
+
 class GLRenderer:
     """Shader implementation behind :class:`lobelight.render.Renderer` (``backend="gl"``)."""
 
@@ -129,7 +169,12 @@ class GLRenderer:
             )
         pf = lighting.prefiltered
         self.n_levels = len(pf.levels)
-        self.prog = _program(ctx, "prt", {"NL": n_lobes, "N_SH": n_sh, "MAX_LEVELS": self.n_levels})
+        self.prog = _program(
+            ctx,
+            "prt",
+            {"NL": n_lobes, "N_SH": n_sh, "MAX_LEVELS": self.n_levels},
+            include=("prefiltered",),
+        )
         self.bg_prog = _program(ctx, "background")
         self.tm_prog = _program(ctx, "tonemap")
 
@@ -154,24 +199,17 @@ class GLRenderer:
         self.diff_tex = self._data_texture(dimg)
         planes, faces = sphere._face_planes(torch.float32, torch.device("cpu"))
         pl = torch.cat([planes.T.reshape(180, 3, 3), faces.reshape(180, 3, 1).float()], -1)
-        self.planes_tex = self._data_texture(pl.reshape(1, 540, 4).numpy())
-        atlas, rows, res = _atlas(lighting)
-        self.atlas = ctx.texture((atlas.shape[1], atlas.shape[0]), 3, atlas.tobytes(), dtype="f4")
-        self.atlas.filter = (moderngl.LINEAR, moderngl.LINEAR)
-        self.atlas.repeat_x = self.atlas.repeat_y = False
+        self.planes_ubo = ctx.buffer(pl.reshape(540, 4).numpy().astype(np.float32).tobytes())
+        self.atlas, atlas_uniforms = upload_prefiltered(ctx, lighting)
         cube = lighting.env.to_cubemap(BACKGROUND_RES).detach().cpu().numpy().astype(np.float32)
         self.env_cube = ctx.texture_cube((BACKGROUND_RES,) * 2, 3, cube.tobytes(), dtype="f4")
         self.env_cube.filter = (moderngl.LINEAR, moderngl.LINEAR)
 
         p = self.prog
         p["tex_width"].value = tw
-        p["atlas_size"].value = (float(atlas.shape[1]), float(atlas.shape[0]))
-        p["level_y"].write(rows.tobytes())
-        p["level_res"].write(res.tobytes())
-        p["n_levels"].value = self.n_levels
-        p["lam0"].value = float(pf.lambdas[0])
-        p["log_rho"].value = float(torch.log(pf.lambdas[0] / pf.lambdas[1]))
-        for name, unit in (("gauss_tex", 0), ("diff_tex", 1), ("planes_tex", 2), ("atlas", 3)):
+        set_uniforms(p, atlas_uniforms)
+        p["Planes"].binding = 0
+        for name, unit in (("gauss_tex", 0), ("diff_tex", 1), ("atlas", 3)):
             p[name].value = unit
         self.bg_prog["env"].value = 4
         self.lighting = lighting
@@ -251,7 +289,7 @@ class GLRenderer:
         p["parts"].value = (float(diffuse), float(glossy))
         self.gauss_tex.use(0)
         self.diff_tex.use(1)
-        self.planes_tex.use(2)
+        self.planes_ubo.bind_to_uniform_block(0)
         self.atlas.use(3)
         self.vao.render(moderngl.TRIANGLES)
 
@@ -287,7 +325,7 @@ class GLRenderer:
             self.depth,
             self.gauss_tex,
             self.diff_tex,
-            self.planes_tex,
+            self.planes_ubo,
             self.atlas,
             self.env_cube,
             self.prog,

@@ -9,8 +9,11 @@ in vec3 in_pos;
 
 uniform sampler2D gauss_tex;   // RGBA32F, 2 texels per record (w.rgb, sigma), (mu.xyz, 0)
 uniform sampler2D diff_tex;    // RGBA32F, N_SH texels per vertex: transfer RGB
-uniform sampler2D planes_tex;  // RGBA32F, 540 x 1: 3 great-circle normals per geodesic
-                               // triangle, .w = the view index of the opposite corner
+// 3 great-circle normals per geodesic triangle, .w = the view index of the opposite corner.
+// A uniform block, not a texture: every vertex reads the same entry at the same time, which
+// the constant cache broadcasts (as a texture, the 540 fetches per vertex were the frame's
+// cost on an H100: 6 ms for 50K vertices)
+layout(std140) uniform Planes { vec4 planes[540]; };
 uniform int tex_width;         // width of gauss_tex and diff_tex
 uniform vec3 sh_light[N_SH];   // the rotated lighting's SH coefficients
 uniform vec3 eye;
@@ -36,9 +39,9 @@ void main() {
     vec3 bdet = vec3(0.0);
     ivec3 views = ivec3(0);
     for (int f = 0; f < 180; ++f) {
-        vec4 p0 = texelFetch(planes_tex, ivec2(3 * f, 0), 0);
-        vec4 p1 = texelFetch(planes_tex, ivec2(3 * f + 1, 0), 0);
-        vec4 p2 = texelFetch(planes_tex, ivec2(3 * f + 2, 0), 0);
+        vec4 p0 = planes[3 * f];
+        vec4 p1 = planes[3 * f + 1];
+        vec4 p2 = planes[3 * f + 2];
         vec3 det = vec3(dot(p0.xyz, d), dot(p1.xyz, d), dot(p2.xyz, d));
         float m = min(det.x, min(det.y, det.z));
         if (m > best) {
@@ -88,58 +91,11 @@ in vec3 v_mu[NL];
 in float v_sigma[NL];
 in vec3 v_diffuse;
 
-uniform sampler2D atlas;          // every prefiltered level's six faces with seamless borders
-uniform vec2 atlas_size;
-uniform float level_y[MAX_LEVELS]; // row of each level in the atlas
-uniform float level_res[MAX_LEVELS];
-uniform int n_levels;
-uniform float lam0;               // sharpness of level 0
-uniform float log_rho;            // log of the sharpness ratio between levels
+// the prefiltered lookups (integrate, level_lookup) come from prefiltered.glsl
 uniform mat3 rot_t;               // R^T: the rotated lighting seen by mu is the original at R^T mu
 uniform vec2 parts;               // (diffuse on, glossy on)
 
 out vec4 frag;
-
-// Bilinear lookup of level k at direction d: the GL major-axis face rule, then hardware
-// bilinear filtering inside the face's padded tile (its one-texel border holds the
-// neighbouring faces' texels, so this equals a seamless cube-map lookup)
-vec3 level_lookup(int k, vec3 d) {
-    vec3 a = abs(d);
-    int face;
-    float sc, tc, ma;
-    if (a.x >= a.y && a.x >= a.z) {
-        face = d.x >= 0.0 ? 0 : 1; ma = a.x; sc = d.x >= 0.0 ? -d.z : d.z; tc = -d.y;
-    } else if (a.y >= a.z) {
-        face = d.y >= 0.0 ? 2 : 3; ma = a.y; sc = d.x; tc = d.y >= 0.0 ? d.z : -d.z;
-    } else {
-        face = d.z >= 0.0 ? 4 : 5; ma = a.z; sc = d.z >= 0.0 ? d.x : -d.x; tc = -d.y;
-    }
-    float res = level_res[k];
-    vec2 uv = vec2(sc, tc) / max(ma, 1e-30);
-    vec2 x = clamp((uv + 1.0) * 0.5 * res + 0.5, 0.5, res + 0.5);  // padded texel index
-    vec2 tcoord = vec2(float(face) * (res + 2.0) + x.x + 0.5, level_y[k] + x.y + 0.5);
-    return texture(atlas, tcoord / atlas_size).rgb;
-}
-
-// int G(w; mu, lam) L(w) dw: the two levels around lam, blended with the weight that minimises
-// the L2 distance of the blended kernel to the requested one (Prefiltered.level_coords, "l2")
-vec3 integrate(vec3 mu, float lam) {
-    float kf = log(lam0 / lam) / log_rho;
-    int kmax = n_levels - 1;
-    int k0 = clamp(int(floor(kf)), 0, kmax - 1);
-    // the blend weight is scale-free: measure variances in units of level k0's
-    float s = exp(-float(k0) * log_rho) * lam0 / lam;
-    float sa = 1.0, sb = exp(log_rho);
-    float num = 1.0 / (s + sb) - 1.0 / (s + sa) - 1.0 / (sa + sb) + 1.0 / (2.0 * sa);
-    float den = 1.0 / (2.0 * sa) - 2.0 / (sa + sb) + 1.0 / (2.0 * sb);
-    float t = num / den;
-    if (kf < 0.0) t = 0.0;
-    if (kf > float(kmax)) t = 1.0;
-    t = clamp(t, 0.0, 1.0);
-    vec3 l = (1.0 - t) * level_lookup(k0, mu) + t * level_lookup(k0 + 1, mu);
-    float z = 6.283185307179586 / lam * (1.0 - exp(-2.0 * lam));
-    return l * z;
-}
 
 void main() {
     vec3 c = parts.x * v_diffuse;
