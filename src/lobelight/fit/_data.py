@@ -103,6 +103,7 @@ def gather(
     n_theta: int = 12,
     indirect: torch.Tensor | None = None,
     indirect_res: int = 16,
+    lobe: tuple[torch.Tensor, torch.Tensor] | None = None,
 ) -> FitData:
     """Sample the glossy transport of vertices for views where the fit needs it.
 
@@ -113,6 +114,7 @@ def gather(
     n_theta : local cap grid size (``n_theta x 2 n_theta`` points)
     indirect : optional (B, J, 6 indirect_res^2, 3) indirect glossy density (from
         :meth:`Transport.indirect`), added at every sample by nearest bin
+    lobe : :func:`lobe_estimate` of these vertices and views, if the caller has it
 
     Returns
     -------
@@ -124,7 +126,7 @@ def gather(
     b, j = vidx.shape[0], views.shape[0]
     n = tr.mesh.normals[vidx]
     below = (views[None] * n[:, None]).sum(-1) <= 0  # (B, J)
-    axis, lam = lobe_estimate(tr, vidx, views)
+    axis, lam = lobe_estimate(tr, vidx, views) if lobe is None else lobe
     # cap where the (4x wider) lobe is above 1e-6 of its peak; very broad lobes cover the sphere
     lam_cap = (lam / 4).clamp_min(1e-3)
     ldirs, lw = sphere.local_grid(axis, lam_cap, n_theta=n_theta)  # (B, J, K, 3), (B, J, K)

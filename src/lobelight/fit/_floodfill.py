@@ -25,9 +25,10 @@ import numpy as np
 import torch
 
 from .. import cubemap, sphere
+from ..errors import InputError
 from ..scene import Mesh, Scene
 from ..transport import DIFFUSE_ORDER, Transport
-from ._data import gather
+from ._data import gather, lobe_estimate
 from ._objective import Weights, flip_count
 from ._optimize import Gaussians, fit_batch
 
@@ -122,6 +123,18 @@ def count_flips(mesh: Mesh, g: Gaussians) -> int:
     return total
 
 
+def default_batch(device, n: int) -> int:
+    """Vertices per chunk: 64 on the CPU (larger chunks gain nothing there); on a GPU as many
+    as fit in half its free memory (about 61.8K samples per vertex, each ~90 bytes plus ~100 per
+    Gaussian, with 1.5x for temporaries), 64 to 2048 in steps of 64."""
+    dev = torch.device(device)
+    if dev.type != "cuda":
+        return 64
+    free, _ = torch.cuda.mem_get_info(dev)
+    per_vertex = 1.5 * 92 * 672 * (90 + 100 * n)
+    return int(min(2048, max(64, (0.5 * free / per_vertex) // 64 * 64)))
+
+
 def _processed_neighbours(
     mesh: Mesh, vidx: torch.Tensor, done: torch.Tensor
 ) -> tuple[torch.Tensor, torch.Tensor]:
@@ -147,7 +160,7 @@ def fit_mesh(
     n: int = 1,
     views: torch.Tensor | None = None,
     weights: Weights | None = None,
-    batch: int = 64,
+    batch: int | None = None,
     indirect_paths: int = 0,
     relax: bool = True,
     device=None,
@@ -162,7 +175,10 @@ def fit_mesh(
     Parameters
     ----------
     scene : Scene;  n : Gaussians per view (1-3);  views : (J, 3), default the 92 geodesic views
-    batch : vertices per chunk of a wavefront (memory: batch x J x ~700 samples x 3 floats)
+    batch : vertices fitted at once (default :func:`default_batch`: 64 on the CPU, as many as
+        half the free memory holds on a GPU); memory about ``batch x J x 700 x (90 + 100 n)``
+        bytes. With ``n = 1`` there is no spatial term, vertices do not depend on each other
+        and chunks run across wavefronts; with ``n >= 2`` a chunk stays inside one wavefront
     indirect_paths : paths per vertex and view for indirect glossy (0: direct glossy only)
     relax : run the relaxation pass (for n >= 2; nothing to relax for n = 1)
     progress : called as ``progress(stage, done, total)`` after each chunk
@@ -181,6 +197,9 @@ def fit_mesh(
     weights = Weights() if weights is None else weights
     tr = Transport(scene, device=device, shadows=shadows)
     dev = tr.device
+    batch = default_batch(dev, n) if batch is None else int(batch)
+    if batch < 1:
+        raise InputError("batch", f"must be a positive number of vertices, got {batch}")
     mesh = tr.mesh
     views = sphere.geodesic_views(device=dev) if views is None else views.to(dev)
     nbr_views = sphere.geodesic_neighbor_table(device=dev)
@@ -191,12 +210,28 @@ def fit_mesh(
     derr = torch.zeros(v, device=dev)
     diffuse = torch.zeros(v, DIFFUSE_ORDER**2, 3, device=dev)
     done = torch.zeros(v, dtype=torch.bool, device=dev)
+    # vertices whose material has a glossy lobe (BRDF samples carry weight; known once a
+    # vertex is processed): the others have no glossy transport at all, are given zero weights
+    # without a fit, and are nobody's neighbour in the spatial term (their means are arbitrary)
+    glossy = torch.zeros(v, dtype=torch.bool, device=dev)
     ddirs = cubemap.texel_directions(16, device=dev).reshape(-1, 3)
     dom = cubemap.texel_solid_angles(16, device=dev).reshape(-1)
     t0 = time.perf_counter()
     layers = wavefronts(mesh)
-    chunks = [f[s : s + batch].to(dev) for f in layers for s in range(0, f.numel(), batch)]
-    state = {"mu": mu, "lam": lam, "w": w, "derr": derr, "diffuse": diffuse, "done": done}
+    if n == 1:  # no spatial term: any vertices may share a chunk
+        order = torch.cat(layers)
+        chunks = [order[s : s + batch].to(dev) for s in range(0, v, batch)]
+    else:
+        chunks = [f[s : s + batch].to(dev) for f in layers for s in range(0, f.numel(), batch)]
+    state = {
+        "mu": mu,
+        "lam": lam,
+        "w": w,
+        "derr": derr,
+        "diffuse": diffuse,
+        "done": done,
+        "glossy": glossy,
+    }
     key = _settings_key(scene, n, views, weights, batch, (indirect_paths, shadows), relax, seed)
     ckpt = Path(checkpoint) if checkpoint is not None else None
     start = _resume(ckpt, key, state) if ckpt is not None else ("fit", 0, 0)
@@ -211,6 +246,21 @@ def fit_mesh(
         last_save = time.perf_counter()
 
     def fit_chunk(i: int, vidx: torch.Tensor, *, all_neighbours: bool) -> None:
+        lobe = None
+        if not all_neighbours:
+            diffuse[vidx] = tr.diffuse(vidx, ddirs, dom)
+            done[vidx] = True
+            axis, lam_est = lobe_estimate(tr, vidx, views)
+            gl = (lam_est > 0).any(1)
+            glossy[vidx] = gl
+            rest = ~gl
+            if bool(rest.any()):  # no glossy transport: zero weights, means at the lobe axis
+                mu[vidx[rest]] = axis[rest][:, :, None].expand(-1, -1, n, -1)
+                lam[vidx[rest]], w[vidx[rest]], derr[vidx[rest]] = 1.0, 0.0, 0.0
+            lobe = (axis[gl], lam_est[gl])
+        vidx = vidx[glossy[vidx]]
+        if vidx.numel() == 0:
+            return
         # the relaxation pass samples the transport again rather than keeping it: all of it
         # (V x J x ~700 samples x 7 floats, 17 GB for 10K vertices) would not fit in memory
         ind = None
@@ -218,10 +268,8 @@ def fit_mesh(
             # seeded by chunk and pass, so a resumed run draws the same paths
             gen = torch.Generator().manual_seed(seed * 1_000_003 + 2 * i + int(all_neighbours))
             ind = tr.indirect(vidx, views, paths=indirect_paths, res=16, generator=gen)
-        data = gather(tr, vidx, views, indirect=ind)
-        ids, mask = _processed_neighbours(
-            mesh, vidx, torch.ones_like(done) if all_neighbours else done
-        )
+        data = gather(tr, vidx, views, indirect=ind, lobe=lobe)
+        ids, mask = _processed_neighbours(mesh, vidx, glossy if all_neighbours else done & glossy)
         nbr_mu = mu[ids] if n > 1 else None  # (B, Q, J, N, 3)
         init = None
         if all_neighbours:  # relaxation starts from the current fit
@@ -241,9 +289,6 @@ def fit_mesh(
         )
         mu[vidx], lam[vidx], w[vidx] = g.mu, g.lam, g.w
         derr[vidx] = terms["D"]
-        if not all_neighbours:
-            diffuse[vidx] = tr.diffuse(vidx, ddirs, dom)
-            done[vidx] = True
 
     begin = start[1] if start[0] == "fit" else len(chunks)
     for i in range(begin, len(chunks)):

@@ -33,38 +33,32 @@ import torch
 
 from .. import sphere
 from ._data import FitData
-from ._objective import Weights, _neighbour_mean, _pair_diffs, solve_weights
+from ._objective import Weights, _neighbour_mean, _pair_diffs, light_of, solve_gram
 
 __all__ = ["levenberg_marquardt"]
 
 
 def _gauss(dirs64: torch.Tensor, mu: torch.Tensor, lam: torch.Tensor):
-    """``G_k(omega_s)`` and ``mu_k . omega_s - 1``, both (B, J, N, S), by one batched matmul.
+    """``G_k(omega_s)`` and ``mu_k . omega_s - 1``, both (B, J, N, S) in ``mu``'s dtype, by one
+    batched matmul.
 
     The dot products are taken in float64 (``dirs64`` is the float64 copy of the sample
     directions): ``lam (mu.w - 1)`` for ``lam = 3e4`` needs ``1 - mu.w`` to better than float32's
-    6e-8, which the matmul form (unlike a half-chord) would otherwise lose.
+    6e-8, which the matmul form (unlike a half-chord) would otherwise lose. The exponent, once
+    formed, is exact enough in float32 (relative error 6e-8 of an argument down to -100 moves
+    G by < 1e-5 relative), and float32 ``exp`` is several times cheaper.
     """
     b, j, n, _ = mu.shape
     s = dirs64.shape[2]
     dot = torch.bmm(mu.reshape(b * j, n, 3).double(), dirs64.reshape(b * j, s, 3).transpose(1, 2))
     cm1 = (dot - 1).reshape(b, j, n, s)
-    g = torch.exp(lam.double()[..., None] * cm1)
-    return g.to(mu.dtype), cm1.to(mu.dtype)
+    g = torch.exp((lam.double()[..., None] * cm1).to(mu.dtype))
+    return g, cm1.to(mu.dtype)
 
 
-def _mix(g: torch.Tensor, w: torch.Tensor) -> torch.Tensor:
-    """``sum_k w_kc G_k(omega_s)``: (B, J, N, S), (B, J, N, 3) -> (B, J, S, 3)."""
-    b, j, n, s = g.shape
-    out = torch.bmm(g.reshape(b * j, n, s).transpose(1, 2), w.reshape(b * j, n, 3))
-    return out.reshape(b, j, s, 3)
-
-
-def _view_cost(data, g, w, mu, lam, inv_e, mbar, sbar, c, nbr_mu, nbr_mask):
-    """Per-view cost (B, J) with the neighbours' averages ``mbar``, ``sbar`` held fixed."""
-    r = _mix(g, w) - data.values
-    cost = (data.weights[..., None] * r * r).sum((-1, -2)) * inv_e[:, None]
-    cost = cost + c["M"] ** 2 * ((mbar - mu) ** 2).sum((-1, -2))
+def _reg_cost(mu, lam, mbar, sbar, c, nbr_mu, nbr_mask):
+    """Per-view cost of ``M``, ``V`` and ``S`` (B, J), the neighbours' averages held fixed."""
+    cost = c["M"] ** 2 * ((mbar - mu) ** 2).sum((-1, -2))
     sigma = lam.rsqrt()
     cost = cost + c["V"] ** 2 * (((sbar - sigma) / sbar) ** 2).sum(-1)
     if nbr_mu is not None and mu.shape[-2] > 1:
@@ -106,43 +100,65 @@ def levenberg_marquardt(
         return (g * valid.reshape(1, *valid.shape, *([1] * (x.ndim - 2)))).sum(2)
 
     dirs64 = data.dirs.double()
+    bj, n_s = b * j, data.dirs.shape[2]
+    w64 = data.weights.double()[:, :, None]  # (B, J, 1, S)
+    vals64 = data.values.double().reshape(bj, n_s, 3)
+    # the data term from the normal equations: sum_s W_s |sum_k w_k G_k - T|^2
+    # = int |T|^2 - 2 w.b + w^T A w per view (in float64, where the cancellation is harmless),
+    # so no iteration evaluates the mixture and its residual at every sample
+    t2 = (data.weights[..., None].double() * data.values.double() ** 2).sum((-1, -2))  # (B, J)
+    light = light_of(data)
 
     def evaluate(mu_, lam_):
-        """G, mu.w - 1, the solved weights and the vertex's whole objective."""
+        """G, mu.w - 1 (float32), the solved weights and the vertex's whole objective."""
         g_, cm1_ = _gauss(dirs64, mu_, lam_)
-        w_ = solve_weights(data, mu_, lam_, g=g_)
+        g64 = g_.double()
+        gw = (g64 * w64).reshape(bj, n, n_s)
+        a_ = torch.bmm(gw, g64.reshape(bj, n, n_s).transpose(1, 2)).reshape(b, j, n, n)
+        rhs = torch.bmm(gw, vals64).reshape(b, j, n, 3)
+        w_ = solve_gram(a_, rhs, lam_, data.below, light)  # (B, J, N, 3) float64
+        quad = torch.einsum("bjkc,bjkl,bjlc->bj", w_, a_, w_)
+        d_cost = (t2 - 2 * (w_ * rhs).sum((-1, -2)) + quad).clamp_min(0) * inv_e[:, None]
         mb = torch.nn.functional.normalize(_neighbour_mean(mu_, nbr_views), dim=-1)
         sb = _neighbour_mean(lam_.rsqrt(), nbr_views)
-        cost = _view_cost(data, g_, w_, mu_, lam_, inv_e, mb, sb, c, nbr_mu, mask).sum(1)
-        return g_, cm1_, w_, cost
+        cost = d_cost + _reg_cost(mu_, lam_, mb, sb, c, nbr_mu, mask)
+        return g_, cm1_, w_.to(dt), cost.sum(1)
 
     sq = (data.weights * inv_e[:, None, None]).sqrt()  # (B, J, S) residual scale
+    sq_n = sq[:, :, None]  # (B, J, 1, S)
+    dflat = data.dirs.reshape(bj, -1, 3).transpose(1, 2)  # (BJ, 3, S)
+    vals_t = data.values.reshape(bj, n_s, 3).transpose(1, 2)  # (BJ, 3, S)
     eye = torch.eye(3 * n, dtype=dt, device=mu.device)
     mask = None if nbr_mask is None else nbr_mask.to(dt)
     mu, lam = mu.clone(), lam.clone()
     g, cm1, w, cost0 = evaluate(mu, lam)
+    jac = torch.empty(b, j, n, 3, n_s, dtype=dt, device=mu.device)  # reused every iteration
     for _ in range(iters):
         mbar = torch.nn.functional.normalize(_neighbour_mean(mu, nbr_views), dim=-1)
         sigma = lam.rsqrt()  # (B, J, N)
         sbar = _neighbour_mean(sigma, nbr_views)
         t, s, _ = sphere.frame(mu)  # (B, J, N, 3) each
         # tangent components of the sample directions, by matmul: (B, J, N, S) each
-        bj = b * j
-        dflat = data.dirs.reshape(bj, -1, 3).transpose(1, 2)  # (BJ, 3, S)
         tw = torch.bmm(t.reshape(bj, n, 3), dflat).reshape(g.shape)
         sw = torch.bmm(s.reshape(bj, n, 3), dflat).reshape(g.shape)
-        gl = g * lam[..., None]
-        dg = torch.stack(
-            [gl * sigma[..., None] * tw, gl * sigma[..., None] * sw, gl * cm1], -1
-        )  # (B, J, N, S, 3): d G_k / d (a, b, z)_k
-        dgs = dg * sq[:, :, None, :, None]
-        r = (_mix(g, w) - data.values) * sq[..., None]  # (B, J, S, C) scaled residuals
+        # scaled Jacobian rows d G_k / d (a, b, z)_k * sqrt(W_s / E), written in place:
+        # dG/da = G lam sigma (t.w), dG/db = G lam sigma (s.w), dG/dz = G lam (mu.w - 1)
+        gs = g * sq_n
+        q = gs * (lam * sigma)[..., None]
+        torch.mul(q, tw, out=jac[:, :, :, 0])
+        torch.mul(q, sw, out=jac[:, :, :, 1])
+        torch.mul(gs, cm1 * lam[..., None], out=jac[:, :, :, 2])
+        jr = jac.reshape(bj, 3 * n, n_s)
         ww = torch.bmm(w.reshape(bj, n, 3), w.reshape(bj, n, 3).transpose(1, 2))  # (BJ, N, N)
-        a = dgs.permute(0, 1, 3, 2, 4).reshape(bj, -1, 3 * n)  # (BJ, S, 3N)
-        h = torch.bmm(a.transpose(1, 2), a).reshape(bj, n, 3, n, 3)
+        h = torch.bmm(jr, jr.transpose(1, 2)).reshape(bj, n, 3, n, 3)
         h = (h * ww.reshape(bj, n, 1, n, 1)).reshape(b, j, 3 * n, 3 * n)
-        e = torch.bmm(w.reshape(bj, n, 3), r.reshape(bj, -1, 3).transpose(1, 2))  # (BJ, N, S)
-        grad = (dgs * e.reshape(b, j, n, -1, 1)).sum(3).reshape(b, j, 3 * n)
+        # e_k = sum_c w_kc r_c with r the scaled residual: sqrt(W/E) (sum_l ww_kl G_l - w_k.T)
+        e = torch.baddbmm(
+            torch.bmm(ww, g.reshape(bj, n, n_s)), w.reshape(bj, n, 3), vals_t, alpha=-1
+        )
+        e = e.reshape(b, j, n, n_s) * sq_n  # (B, J, N, S)
+        grad = torch.bmm(jr.reshape(bj * n, 3, n_s), e.reshape(bj * n, n_s, 1))
+        grad = grad.reshape(b, j, 3 * n)
         # M: residual c_M (mbar - mu); d/d(a, b) = -c_M sigma (t, s); V: c_V (sbar - sigma) /
         # sbar, d/dz = c_V sigma / (2 sbar) (sigma = exp(-z/2) relative to the expansion point)
         rm = c["M"] * (mbar - mu)  # (B, J, N, 3)

@@ -24,7 +24,7 @@ def fit_model(
     device=None,
     views: torch.Tensor | None = None,
     weights: Weights | None = None,
-    batch: int = 64,
+    batch: int | None = None,
     indirect_paths: int = 0,
     relax: bool = True,
     progress: Callable[[str, int, int], None] | None = None,

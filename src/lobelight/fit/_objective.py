@@ -78,6 +78,34 @@ def solve_weights(
     gw = g * data.weights[:, :, None]
     a = torch.einsum("bjks,bjls->bjkl", gw, g)  # (B, J, N, N)
     rhs = torch.einsum("bjks,bjsc->bjkc", gw, data.values)  # (B, J, N, 3)
+    return solve_gram(a, rhs, lam, data.below, light_of(data), ridge=ridge)
+
+
+def light_of(data: FitData) -> torch.Tensor:
+    """``int max(T, 0)`` per vertex, view and channel, (B, J, 3): the cap of :func:`solve_gram`."""
+    return (data.weights[..., None] * data.values.clamp_min(0)).sum(2)
+
+
+def solve_gram(
+    a: torch.Tensor,
+    rhs: torch.Tensor,
+    lam: torch.Tensor,
+    below: torch.Tensor,
+    light: torch.Tensor,
+    *,
+    ridge: float = 1e-9,
+) -> torch.Tensor:
+    """The weights of :func:`solve_weights` from its normal equations.
+
+    Parameters
+    ----------
+    a : (B, J, N, N) ``int G_k G_l``;  rhs : (B, J, N, 3) ``int G_k T``;  lam : (B, J, N)
+    below : (B, J) views below the horizon;  light : (B, J, 3) from :func:`light_of`
+
+    Returns
+    -------
+    (B, J, N, 3) in ``rhs``'s dtype
+    """
     n = a.shape[-1]
     # float64 for the N x N solve: two coincident lobes make the system singular up to the
     # ridge, which float32 cannot represent next to the diagonal
@@ -86,7 +114,7 @@ def solve_weights(
     scale = a64.diagonal(dim1=-2, dim2=-1).mean(-1)[..., None, None]  # (B, J, 1, 1)
     # views below the horizon, and lobes that sit where no sample is (all G underflow), get
     # weight 0 from an identity system: solving the singular one would poison the gradients
-    bad = data.below[..., None, None] | (scale < 1e-30)
+    bad = below[..., None, None] | (scale < 1e-30)
     a64 = torch.where(bad, eye, a64 + ridge * scale * eye)
     rhs = torch.where(bad, torch.zeros_like(rhs), rhs)
     w = torch.linalg.solve(a64, rhs.double()).to(rhs.dtype).clamp_min(0)
@@ -94,8 +122,7 @@ def solve_weights(
     # unbounded weight that still fits the samples; no lobe may carry more light than the
     # data holds (twice the data's integral, per channel), which makes such lobes fit badly
     # so the solver moves them back to where the samples resolve them.
-    light = (data.weights[..., None] * data.values.clamp_min(0)).sum(2)  # (B, J, 3)
-    cap = 2 * light[:, :, None] / sg.integral(lam.double()).to(w.dtype)[..., None]
+    cap = 2 * light[:, :, None].to(w.dtype) / sg.integral(lam.double()).to(w.dtype)[..., None]
     return torch.minimum(w, cap)
 
 

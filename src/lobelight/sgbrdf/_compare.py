@@ -23,6 +23,14 @@ Metrics, per material and method, over the sphere pixels only
     The reference's own noise is reported per material: its relative standard error and the
     PSNR it alone would cap a perfect method at (``ref_psnr_ceiling``); every method row has
     ``noise_share``, the part of its display MSE the reference's noise accounts for.
+
+With ``backend="both"`` two more rows per material come from the OpenGL shaders
+(:class:`lobelight.render._gl_sgbrdf.GLSGBRDFRenderer`, headless EGL): ``ours_gl`` (the same
+fit and Prefiltered chain) and ``fis40_gl`` (40-sample FIS on a GL cube map whose base level is
+the mip chain's level 0, its coarser levels built by ``glGenerateMipmap``). Their ``fps`` is of
+whole frames of the ``size x size`` image drawn back to back with one ``ctx.finish()``, for at
+least ``GL_MIN_SECONDS`` (:func:`lobelight.render._gl_sgbrdf.time_frames`), best of
+``GL_ROUNDS`` alternating rounds: shader against shader. They are not in the image grid.
 """
 
 from __future__ import annotations
@@ -61,6 +69,11 @@ LOBES = 8
 ANISO_LOBES = 16
 #: Amplification of the difference images in the grid.
 DIFF_GAIN = 4.0
+#: Rows added by ``backend="both"`` (OpenGL shaders), and their timing.
+GL_METHODS = ("ours_gl", "fis40_gl")
+GL_MIN_SECONDS = 1.0
+GL_ROUNDS = 2
+BACKENDS = ("torch", "both")
 
 
 def default_envmap() -> Path | None:
@@ -212,6 +225,7 @@ def compare_brdf(
     device: Any = "cpu",
     ref_spp: int = 8192,
     seed: int = 0,
+    backend: str = "torch",
 ) -> dict:
     """Render the comparison of the module docstring and write its image grid and JSON.
 
@@ -227,6 +241,8 @@ def compare_brdf(
     device : torch device of every computation
     ref_spp : Monte Carlo samples per pixel of the reference (half BRDF, half environment)
     seed : seed of the reference's random numbers
+    backend : "torch" (default: the torch renderers only) or "both" (also the GLSL rows
+        ``GL_METHODS`` of the module docstring; needs a headless OpenGL 3.3 context)
 
     Returns
     -------
@@ -238,8 +254,10 @@ def compare_brdf(
     reference row has ``psnr``/``rel_l2``/``noise_share`` None), ``reference_noise`` (per
     material ``{material, rel_stderr, psnr_ceiling, exposure}``), ``goals`` (``psnr_ours_ge_fis``
     per material, ``all_psnr_ours_ge_fis``, ``ours_faster_than_fis_per_material``, and
-    ``ours_faster_than_fis``: the summed shading time over all materials), ``image`` and
-    ``json`` (paths),
+    ``ours_faster_than_fis``: the summed shading time over all materials; with
+    ``backend="both"`` also ``gl_psnr_ours_ge_fis``, ``gl_all_psnr_ours_ge_fis``,
+    ``gl_ours_faster_than_fis_per_material`` and ``gl_ours_faster_than_fis``), ``image`` and
+    ``json`` (paths), ``backend``, ``gl`` (None, or the GL renderer string and timing rule),
     ``machine``.
     """
     from ..bench import machine
@@ -257,7 +275,14 @@ def compare_brdf(
     out = Path(out)
     if out.exists() and not out.is_dir():
         raise InputError(str(out), "must be a folder")
+    if backend not in BACKENDS:
+        raise InputError("backend", f"must be one of {', '.join(BACKENDS)}, got {backend!r}")
     mats = _materials(alphas, aniso)
+    gl_ctx = None
+    if backend == "both":
+        from ..render._gl_sgbrdf import create_context
+
+        gl_ctx = create_context()  # fails early, with its reason, where there is no OpenGL
     out.mkdir(parents=True, exist_ok=True)
     env_map = _load_env(env, dev)
 
@@ -307,6 +332,8 @@ def compare_brdf(
         ref_seconds = time.perf_counter() - t0  # one run: it is the slow, offline method
         got, secs = _timed_all(runs, REPEATS, dev)
         got["reference"], secs["reference"] = ref, ref_seconds
+        if gl_ctx is not None:
+            _run_gl(gl_ctx, model, b, pf, chain, size, mask, got, secs)
         k = _exposure(ref)
         d_ref = _display(ref, k)
         # the reference's noise seen through the display curve (central difference)
@@ -322,7 +349,7 @@ def compare_brdf(
             }
         )
         row_imgs = []
-        for name in METHODS:
+        for name in METHODS + (GL_METHODS if gl_ctx is not None else ()):
             x = got[name]
             row = {"material": label, "method": name, "fps": 1 / secs[name], "seconds": secs[name]}
             if name == "reference":
@@ -333,7 +360,8 @@ def compare_brdf(
                 row["rel_l2"] = float((x.double() - ref.double()).norm()) / max(ref_norm, 1e-30)
                 row["noise_share"] = mse_noise / mse if mse > 0 else None
             table.append(row)
-            row_imgs.append(_tile(x, mask, k))
+            if name in METHODS:
+                row_imgs.append(_tile(x, mask, k))
         for name in METHODS[1:]:
             row_imgs.append(_tile(got[name], mask, k, diff_to=ref))
         images.append(row_imgs)
@@ -342,10 +370,29 @@ def compare_brdf(
         goals["ours_faster_than_fis_per_material"][label] = bool(
             rows["ours"]["fps"] > rows["fis40"]["fps"]
         )
+        if gl_ctx is not None:
+            goals.setdefault("gl_psnr_ours_ge_fis", {})[label] = bool(
+                rows["ours_gl"]["psnr"] >= rows["fis40_gl"]["psnr"]
+            )
+            goals.setdefault("gl_ours_faster_than_fis_per_material", {})[label] = bool(
+                rows["ours_gl"]["fps"] > rows["fis40_gl"]["fps"]
+            )
     goals["all_psnr_ours_ge_fis"] = all(goals["psnr_ours_ge_fis"].values())
     # over all materials: total shading time of ours against FIS's (one frame of each material)
     total = {m: sum(r["seconds"] for r in table if r["method"] == m) for m in ("ours", "fis40")}
     goals["ours_faster_than_fis"] = bool(total["ours"] < total["fis40"])
+    gl_info = None
+    if gl_ctx is not None:
+        goals["gl_all_psnr_ours_ge_fis"] = all(goals["gl_psnr_ours_ge_fis"].values())
+        total = {m: sum(r["seconds"] for r in table if r["method"] == m) for m in GL_METHODS}
+        goals["gl_ours_faster_than_fis"] = bool(total["ours_gl"] < total["fis40_gl"])
+        gl_info = {
+            "renderer": str(gl_ctx.info.get("GL_RENDERER", "")),
+            "timing": f"frames of {size}x{size} back to back, one ctx.finish(), "
+            f">= {GL_MIN_SECONDS:g} s, best of {GL_ROUNDS} alternating rounds",
+            "fis_mipmaps": "glGenerateMipmap (2 x 2 means) from the mip chain's level 0",
+        }
+        gl_ctx.release()
 
     png = out / "compare-brdf.png"
     grid = np.concatenate([np.concatenate(r, 1) for r in images], 0)
@@ -358,7 +405,7 @@ def compare_brdf(
         "device": str(dev),
         "ref_spp": ref_spp,
         "seed": seed,
-        "methods": list(METHODS),
+        "methods": list(METHODS) + (list(GL_METHODS) if gl_info is not None else []),
         "materials": [label for label, _ in mats],
         "settings": {
             "lobes": {label: m.n_lobes for (label, _), m in zip(mats, models, strict=True)},
@@ -379,10 +426,37 @@ def compare_brdf(
         "goals": goals,
         "image": str(png),
         "json": str(out / "compare-brdf.json"),
+        "backend": backend,
+        "gl": gl_info,
         "machine": machine(str(dev)),
     }
     _write_json(result, out / "compare-brdf.json")
     return result
+
+
+def _run_gl(ctx, model, brdf, pf, chain, size: int, mask, got: dict, secs: dict) -> None:
+    """Render and time ``GL_METHODS`` for one material into ``got`` (sphere pixels ``(P, 3)``,
+    as the torch rows) and ``secs`` (seconds per frame)."""
+    from ..render._gl_sgbrdf import GLSGBRDFRenderer, time_frames
+
+    rs = {
+        "ours_gl": GLSGBRDFRenderer(model, pf, size, size, ctx=ctx, method="ours"),
+        "fis40_gl": GLSGBRDFRenderer(
+            model, pf, size, size, ctx=ctx, method="fis", brdf=brdf, chain=chain
+        ),
+    }
+    try:
+        for name, r in rs.items():
+            img, _ = r.render()  # orthographic from +Z: the rays of sphere_hits
+            got[name] = img.to(mask.device)[mask]
+        best = dict.fromkeys(rs, math.inf)
+        for _ in range(GL_ROUNDS):
+            for name, r in rs.items():
+                best[name] = min(best[name], 1.0 / time_frames(r, GL_MIN_SECONDS)["fps"])
+        secs.update(best)
+    finally:
+        for r in rs.values():
+            r.release()
 
 
 def _tile(x: torch.Tensor, mask: torch.Tensor, k: float, diff_to: Any = None) -> np.ndarray:
