@@ -563,3 +563,39 @@ def test_rotation_functions_numpy_and_device(device):
         assert out.device.type == device and out.dtype == torch.float32
     t, _ = S.direction_to_spherical(np.array([0.0, 1.0, 0.0]))
     assert isinstance(t, np.ndarray) and t == 0.0
+
+
+def test_triangle_candidates_hold_the_located_triangle():
+    # the renderer tests only a texel's candidates: they must contain the triangle that the
+    # full scan (locate_views) picks, for random directions and for the hard ones, next to the
+    # geodesic vertices and edges (where several triangles and texels meet)
+    from lobelight import cubemap, sphere
+
+    res = 32
+    cand = sphere.triangle_candidates(res)
+    assert cand.shape[:3] == (6, res, res) and 1 <= cand.shape[-1] <= 8
+    g = torch.Generator().manual_seed(5)
+    views = sphere.geodesic_views(dtype=torch.float64)
+    edges = sphere.geodesic_edges()
+    t = torch.rand(4000, 1, generator=g, dtype=torch.float64)
+    mid = views[edges[:, 0]] * t[:270] + views[edges[:, 1]] * (1 - t[:270])
+    d = torch.cat(
+        [
+            torch.randn(100_000, 3, generator=g, dtype=torch.float64),
+            views.repeat(50, 1) + 1e-3 * torch.randn(92 * 50, 3, generator=g, dtype=torch.float64),
+            mid.repeat(20, 1) + 1e-4 * torch.randn(270 * 20, 3, generator=g, dtype=torch.float64),
+        ]
+    )
+    d = torch.nn.functional.normalize(d, dim=-1)
+    idx, _ = sphere.locate_views(d)
+    f, u, v = cubemap.direction_to_face_uv(d)
+    col = ((u + 1) * res / 2).floor().long().clamp(0, res - 1)
+    row = ((v + 1) * res / 2).floor().long().clamp(0, res - 1)
+    c = cand[f, row, col]  # (M, K)
+    planes, faces = sphere._face_planes(torch.float64, torch.device("cpu"))
+    m = (d @ planes).reshape(-1, 180, 3).amin(-1)
+    mc = torch.where(c >= 0, m.gather(1, c.clamp_min(0)), torch.full(c.shape, -1e30).double())
+    best = c.gather(1, mc.argmax(1, keepdim=True))[:, 0]
+    # the same triangle, or one tied with it (a direction exactly on a shared edge)
+    same = (faces[best] == idx).all(-1) | (m.gather(1, best[:, None])[:, 0] >= m.amax(1) - 1e-12)
+    assert bool(same.all())

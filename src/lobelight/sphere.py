@@ -73,6 +73,7 @@ __all__ = [
     "spherical_to_direction",
     "to_local",
     "to_world",
+    "triangle_candidates",
 ]
 
 N_VIEWS = 92
@@ -288,6 +289,52 @@ def locate_views(dirs, /, *, chunk: int = 16384):
     if not idx_out:  # no directions at all
         return torch.zeros(shape, dtype=torch.int64, device=dirs.device), torch.zeros_like(dirs)
     return torch.cat(idx_out).reshape(shape), torch.cat(bary_out).reshape(shape)
+
+
+@functools.lru_cache(maxsize=4)
+def triangle_candidates(res: int = 32, *, sub: int = 8) -> torch.Tensor:
+    """For each texel of a cube map, the geodesic triangles a direction in it may fall in.
+
+    A renderer that locates many directions (a vertex shader, per frame) tests only these few
+    triangles instead of all 180: the triangle :func:`locate_views` picks is always among them.
+    Built by locating a grid of ``sub + 1`` points per texel side (edges included) with a
+    tolerance, so triangles that only touch the texel count, then widened by the 8 neighbouring
+    texels of the same face, so that a thin corner of a triangle between grid points is not
+    missed (triangles span ~15 degrees, a texel 2.8 degrees at ``res = 32``).
+
+    Returns
+    -------
+    (6, res, res, K) int64 triangle indices (rows of :func:`geodesic_faces`), ``-1`` padded;
+    ``[face, row (t), col (s)]`` as :func:`lobelight.cubemap.texel_directions`
+    """
+    from . import cubemap  # sphere is imported by cubemap's users first: import late
+
+    g = res * sub + 1
+    c = torch.linspace(-1.0, 1.0, g, dtype=torch.float64)
+    v, u = torch.meshgrid(c, c, indexing="ij")  # (G, G): rows follow v (t), columns u (s)
+    face = torch.arange(6).reshape(6, 1, 1).expand(6, g, g)
+    d = torch.nn.functional.normalize(
+        cubemap.face_uv_to_direction(face, u.expand(6, g, g), v.expand(6, g, g)), dim=-1
+    ).reshape(-1, 3)
+    planes, _ = _face_planes(torch.float64, torch.device("cpu"))
+    hit = torch.zeros(6 * g * g, 180, dtype=torch.bool)
+    for s0 in range(0, d.shape[0], 16384):  # bounded memory: chunk x 540 values
+        det = (d[s0 : s0 + 16384] @ planes).reshape(-1, 180, 3)
+        hit[s0 : s0 + 16384] = det.amin(-1) >= -1e-4  # in the triangle or within ~0.006 deg
+    hit = hit.reshape(6, g, g, 180)
+    # texel (i, j) owns grid points i*sub .. (i+1)*sub in each direction (shared edges)
+    own = torch.zeros(6, res, res, 180, dtype=torch.bool)
+    for a in range(sub + 1):  # (sub + 1)^2 strided views, not a loop over texels
+        for b in range(sub + 1):
+            own |= hit[:, a : a + res * sub : sub, b : b + res * sub : sub]
+    pad = torch.nn.functional.pad(own.permute(0, 3, 1, 2).float(), (1, 1, 1, 1))
+    wide = torch.nn.functional.max_pool2d(pad, 3, stride=1) > 0  # (6, 180, res, res)
+    wide = wide.permute(0, 2, 3, 1)  # (6, res, res, 180)
+    k = int(wide.sum(-1).max())
+    # the candidates of each texel first, in triangle order; -1 after them
+    order = torch.argsort((~wide).to(torch.int8), dim=-1, stable=True)[..., :k]
+    ok = torch.gather(wide, -1, order)
+    return torch.where(ok, order, torch.full_like(order, -1))
 
 
 # --------------------------------------------------------------------------------------------

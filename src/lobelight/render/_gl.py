@@ -38,6 +38,8 @@ __all__ = [
 
 #: Texture width used to wrap long 1-D arrays into 2-D textures.
 TEX_WIDTH = 4096
+#: Face resolution of the cube map of candidate view triangles (sphere.triangle_candidates).
+CAND_RES = 32
 #: Resolution of the background's cube map.
 BACKGROUND_RES = 512
 _GL_TEXTURE_CUBE_MAP_SEAMLESS = 0x884F
@@ -169,10 +171,19 @@ class GLRenderer:
             )
         pf = lighting.prefiltered
         self.n_levels = len(pf.levels)
+        cand = sphere.triangle_candidates(CAND_RES)  # (6, R, R, K)
+        cand_texels = -(-cand.shape[-1] // 4)
+        cand = torch.nn.functional.pad(cand, (0, 4 * cand_texels - cand.shape[-1]), value=-1)
         self.prog = _program(
             ctx,
             "prt",
-            {"NL": n_lobes, "N_SH": n_sh, "MAX_LEVELS": self.n_levels},
+            {
+                "NL": n_lobes,
+                "N_SH": n_sh,
+                "MAX_LEVELS": self.n_levels,
+                "CAND_RES": CAND_RES,
+                "CAND_TEXELS": cand_texels,
+            },
             include=("prefiltered",),
         )
         self.bg_prog = _program(ctx, "background")
@@ -199,6 +210,9 @@ class GLRenderer:
         self.diff_tex = self._data_texture(dimg)
         planes, faces = sphere._face_planes(torch.float32, torch.device("cpu"))
         pl = torch.cat([planes.T.reshape(180, 3, 3), faces.reshape(180, 3, 1).float()], -1)
+        self.cand_tex = self._data_texture(
+            cand.reshape(6 * CAND_RES, CAND_RES * cand_texels, 4).float().numpy()
+        )
         self.planes_ubo = ctx.buffer(pl.reshape(540, 4).numpy().astype(np.float32).tobytes())
         self.atlas, atlas_uniforms = upload_prefiltered(ctx, lighting)
         cube = lighting.env.to_cubemap(BACKGROUND_RES).detach().cpu().numpy().astype(np.float32)
@@ -209,7 +223,7 @@ class GLRenderer:
         p["tex_width"].value = tw
         set_uniforms(p, atlas_uniforms)
         p["Planes"].binding = 0
-        for name, unit in (("gauss_tex", 0), ("diff_tex", 1), ("atlas", 3)):
+        for name, unit in (("gauss_tex", 0), ("diff_tex", 1), ("cand_tex", 2), ("atlas", 3)):
             p[name].value = unit
         self.bg_prog["env"].value = 4
         self.lighting = lighting
@@ -265,7 +279,15 @@ class GLRenderer:
         fbo = fbo or self.fbo
         fbo.use()
         ctx.viewport = (0, 0, self.width, self.height)
-        fbo.clear(0.0, 0.0, 0.0, 0.0, depth=1.0)
+        if background:  # the background pass writes every pixel: clear the depth alone
+            # (moderngl applies a framebuffer's colour mask when it is bound)
+            fbo.color_mask = (False, False, False, False)
+            fbo.use()
+            fbo.clear(depth=1.0)
+            fbo.color_mask = (True, True, True, True)
+            fbo.use()
+        else:
+            fbo.clear(0.0, 0.0, 0.0, 0.0, depth=1.0)
         r = rot.detach().cpu().numpy().astype(np.float32)
         rt_bytes = r.tobytes()  # row-major R is column-major R^T: the shaders' rot_t
         if background:
@@ -289,6 +311,7 @@ class GLRenderer:
         p["parts"].value = (float(diffuse), float(glossy))
         self.gauss_tex.use(0)
         self.diff_tex.use(1)
+        self.cand_tex.use(2)
         self.planes_ubo.bind_to_uniform_block(0)
         self.atlas.use(3)
         self.vao.render(moderngl.TRIANGLES)
@@ -326,6 +349,7 @@ class GLRenderer:
             self.gauss_tex,
             self.diff_tex,
             self.planes_ubo,
+            self.cand_tex,
             self.atlas,
             self.env_cube,
             self.prog,

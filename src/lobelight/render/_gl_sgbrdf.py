@@ -27,6 +27,7 @@ tangents per vertex) rasterised with interpolated normals.
 
 from __future__ import annotations
 
+import functools
 import math
 import time
 from collections.abc import Mapping
@@ -47,15 +48,23 @@ from ..sgbrdf._em import KAPPA_MIN
 from ..sgbrdf._fis import FIS_SAMPLES, hammersley
 from ..sgbrdf._fit import SGBRDF
 from ..sgbrdf._render import MipChain
-from ._gl import _GL_TEXTURE_CUBE_MAP_SEAMLESS, _program, create_context, upload_prefiltered
+from ._gl import (
+    _GL_TEXTURE_CUBE_MAP_SEAMLESS,
+    _atlas,
+    _program,
+    create_context,
+    upload_prefiltered,
+)
 from ._lighting import Lighting
 
-__all__ = ["METHODS", "GLSGBRDFRenderer", "bench_gl", "gl_mip_chain"]
+__all__ = ["METHODS", "GLSGBRDFRenderer", "bench_gl", "face_grid", "gl_mip_chain", "time_frames"]
 
 #: What the renderer can draw: our lobes, or filtered importance sampling.
 METHODS = ("ours", "fis")
 #: Face resolution of the FIS cube map when nothing sets it (the Prefiltered's, else this).
 FIS_BASE_RES = 256
+#: Cells per side of the geodesic layout's candidate-triangle grid (:func:`face_grid`).
+FACE_GRID = 32
 
 
 def gl_mip_chain(env: Any, /, *, base_res: int = FIS_BASE_RES) -> MipChain:
@@ -159,18 +168,109 @@ def _mesh_arrays(mesh: Any) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndar
     return pos, nrm, np.ascontiguousarray(faces, dtype=np.uint32), tan
 
 
-def lobe_table(model: SGBRDF) -> np.ndarray:
-    """The texture of the fitted table, ``(M, 2 N, 4)`` float32: texel ``(j, 2 k)`` holds lobe
-    ``k`` of view ``j``'s mass ``w Z(kappa)`` (RGB) and ``log kappa``, texel ``(j, 2 k + 1)``
-    its mean. These are the quantities :meth:`SGBRDF.lobes` blends (``kappa`` clamped to
-    ``KAPPA_MIN`` first), computed once here by the same torch operations, so the shader's
-    blend starts from identical numbers."""
+@functools.cache
+def face_grid(grid: int = FACE_GRID, sub: int = 8) -> np.ndarray:
+    """Candidate geodesic triangles per cell of a grid over the upper hemisphere.
+
+    A direction ``q`` (tangent frame, ``q_z > 0``) falls in cell ``floor((l / (2 sqrt 2) +
+    1/2) grid)`` of its Lambert azimuthal equal-area coordinates ``l = q_xy sqrt(2 / (1 +
+    q_z))`` (equal-area, so every cell holds about as many triangles). A cell's candidates are
+    the triangles :func:`lobelight.sphere.locate_views` picks for any of ``sub x sub`` sample
+    directions per cell, over the cell grown by half a cell on every side (triangles are ~15
+    degrees across, cells ~4.5 at the default 32, so a triangle reaching into a cell is
+    sampled); the shader falls back to all 180 triangles where no candidate contains ``q``.
+
+    Returns
+    -------
+    (grid, grid * K) float32 image: cell ``(i, j)`` (row ``i`` along ``l_y``) holds its face
+    ids ascending in texels ``j K ... j K + K - 1``, then -1; ``K`` the most any cell needs
+    """
+    f = grid * sub
+    c = (torch.arange(f, dtype=torch.float64) + 0.5) / f
+    cy, cx = torch.meshgrid(c, c, indexing="ij")
+    lam = torch.stack([cx, cy], -1) * (2 * math.sqrt(2)) - math.sqrt(2)  # (F, F, 2)
+    r2 = (lam * lam).sum(-1, keepdim=True)
+    lam = lam * torch.sqrt(r2.clamp(max=2.0) / r2.clamp_min(1e-30))  # corners onto the rim
+    r2 = r2.clamp(max=2.0)
+    q = torch.cat([lam * torch.sqrt((1 - r2 / 4).clamp_min(0)), 1 - r2 / 2], -1)  # inverse
+    planes, _ = sphere._face_planes(torch.float64, torch.device("cpu"))
+    det = (q[..., [1, 2, 0]].reshape(-1, 3) @ planes).reshape(-1, 180, 3)  # geodesic frame
+    best = det.amin(-1).argmax(-1).reshape(f, f)  # as locate_views
+    onehot = torch.nn.functional.one_hot(best, 180).permute(2, 0, 1).float().unsqueeze(0)
+    m = sub // 2
+    present = torch.nn.functional.max_pool2d(onehot, sub + 2 * m, stride=sub, padding=m)[0]
+    present = present.permute(1, 2, 0) > 0  # (G, G, 180)
+    k = int(present.sum(-1).max())
+    ids = torch.arange(180, dtype=torch.float32).expand(grid, grid, 180)
+    # present faces first, in ascending order: sort by (absent, id)
+    key = torch.where(present, ids, ids + 1000)
+    sorted_key = key.sort(-1).values[..., :k]
+    table = torch.where(sorted_key < 1000, sorted_key, torch.full_like(sorted_key, -1.0))
+    return table.reshape(grid, grid * k).numpy()
+
+
+def _upload_atlas(ctx, pf: Prefiltered):
+    """:func:`lobelight.render._gl.upload_prefiltered`'s atlas and uniforms, the atlas as RGBA
+    (the fourth channel unused): llvmpipe filters four-channel float textures faster than
+    three-channel ones (anisotropic Ward, 16 lobes, 128 x 128: 37-41 -> 47-52 fps, three
+    alternating runs each). The FIS cube map is RGBA too, so both get the fast path."""
+    import moderngl
+
+    shim = SimpleNamespace(prefiltered=pf)
+    tex, uniforms = upload_prefiltered(ctx, shim)  # for its uniforms; the texture is redone
+    tex.release()
+    atlas, _, _ = _atlas(shim)  # (H, W, 3)
+    rgba = np.concatenate([atlas, np.ones_like(atlas[..., :1])], -1)
+    tex = ctx.texture((rgba.shape[1], rgba.shape[0]), 4, rgba.tobytes(), dtype="f4")
+    tex.filter = (moderngl.LINEAR, moderngl.LINEAR)
+    tex.repeat_x = tex.repeat_y = False
+    return tex, uniforms
+
+
+def _oct_encode(mu: torch.Tensor) -> torch.Tensor:
+    """Octahedral coordinates ``(..., 2)`` in ``[-1, 1]^2`` of unit vectors ``(..., 3)``
+    (float64 in, the shader's ``oct_decode`` inverts it to ~1e-7)."""
+    p = mu[..., :2] / mu.abs().sum(-1, keepdim=True).clamp_min(1e-300)
+    sgn = torch.where(p >= 0, 1.0, -1.0).to(p.dtype)
+    folded = (1 - p.flip(-1).abs()) * sgn
+    return torch.where(mu[..., 2:] < 0, folded, p)
+
+
+def lobe_table(model: SGBRDF, *, grey: bool | None = None) -> np.ndarray:
+    """The texture of the fitted table, float32.
+
+    Per view ``j`` and lobe ``k`` the quantities :meth:`SGBRDF.lobes` blends: the mass ``w
+    Z(kappa)`` (RGB), ``log kappa`` (``kappa`` clamped to ``KAPPA_MIN`` first) and the mean,
+    computed here once by the same torch operations, so the shader's blend starts from
+    identical numbers.
+
+    Parameters
+    ----------
+    model : the fitted material;  grey : pack one texel per lobe (masses equal in R, G, B);
+        default: when the model's masses are grey
+
+    Returns
+    -------
+    ``(M, 2 N, 4)``: texel ``(j, 2 k)`` = (mass RGB, log kappa), ``(j, 2 k + 1)`` = (mu, 0);
+    grey: ``(M, N, 4)``, texel ``(j, k)`` = (mass, log kappa, octahedral mu)
+    """
     p = model.params.detach().to("cpu", torch.float32)
     kap = p[..., 6].clamp_min(KAPPA_MIN)  # (M, N)
     mass = p[..., 0:3] * integral(kap).unsqueeze(-1)  # (M, N, 3)
+    if grey is None:
+        grey = is_grey(model)
+    if grey:
+        oct_mu = _oct_encode(p[..., 3:6].double()).float()  # (M, N, 2)
+        return torch.cat([mass[..., :1], kap.log().unsqueeze(-1), oct_mu], -1).numpy()
     a = torch.cat([mass, kap.log().unsqueeze(-1)], -1)  # (M, N, 4)
     m = torch.cat([p[..., 3:6], torch.zeros_like(kap).unsqueeze(-1)], -1)
     return torch.stack([a, m], 2).reshape(p.shape[0], 2 * p.shape[1], 4).numpy()
+
+
+def is_grey(model: SGBRDF) -> bool:
+    """Whether every lobe weight of ``model`` is the same in R, G and B."""
+    w = model.params[..., 0:3]
+    return bool((w == w[..., :1]).all())
 
 
 class GLSGBRDFRenderer:
@@ -243,7 +343,11 @@ class GLSGBRDFRenderer:
             geo = model.layout == "geodesic"
             if geo and model.params.shape[0] != 92:
                 raise InputError("model", "a geodesic model must have 92 views")
+            if geo:
+                grid_img = face_grid()
+                defines.update(GRID=FACE_GRID, GRID_K=grid_img.shape[1] // FACE_GRID)
             defines.update(
+                GREY=int(is_grey(model)),
                 GEODESIC=int(geo),
                 NL=model.n_lobes,
                 N_VIEWS=int(model.params.shape[0]),
@@ -283,10 +387,10 @@ class GLSGBRDFRenderer:
         self.planes_ubo = None
 
         if method == "ours":
-            self.atlas, atlas_uniforms = upload_prefiltered(ctx, SimpleNamespace(prefiltered=pf))
+            self.atlas, atlas_uniforms = _upload_atlas(ctx, pf)
             self._uniforms.update(atlas_uniforms)
             self._uniforms["atlas"] = 3
-            table = lobe_table(model)  # (M, 2N, 4)
+            table = lobe_table(model, grey=bool(defines["GREY"]))  # (M, N or 2N, 4)
             self.lobe_tex = ctx.texture(
                 (table.shape[1], table.shape[0]), 4, table.tobytes(), dtype="f4"
             )
@@ -298,6 +402,12 @@ class GLSGBRDFRenderer:
                 pl = torch.cat([planes.T.reshape(180, 3, 3), faces.reshape(180, 3, 1).float()], -1)
                 self.planes_ubo = ctx.buffer(pl.reshape(540, 4).numpy().astype(np.float32))
                 self._buffers.append(self.planes_ubo)
+                self.grid_tex = ctx.texture(
+                    (grid_img.shape[1], grid_img.shape[0]), 1, grid_img.tobytes(), dtype="f4"
+                )
+                self.grid_tex.filter = (moderngl.NEAREST, moderngl.NEAREST)
+                self._textures.append(self.grid_tex)
+                self._uniforms["face_grid"] = 1
             else:
                 v = model.views.detach().to("cpu", torch.float32)
                 # the same float32 elevations as _elevation_weights
@@ -305,7 +415,8 @@ class GLSGBRDFRenderer:
                 self._uniforms["view_theta"] = th.numpy().astype(np.float32)
         else:
             r = cube.shape[1]
-            self.env_cube = ctx.texture_cube((r, r), 3, cube.numpy().tobytes(), dtype="f4")
+            rgba = torch.cat([cube, torch.ones_like(cube[..., :1])], -1)  # as the atlas
+            self.env_cube = ctx.texture_cube((r, r), 4, rgba.numpy().tobytes(), dtype="f4")
             self.env_cube.build_mipmaps()
             self.env_cube.filter = (moderngl.LINEAR_MIPMAP_LINEAR, moderngl.LINEAR)
             self._textures.append(self.env_cube)
@@ -430,6 +541,7 @@ class GLSGBRDFRenderer:
             self.atlas.use(3)
             if self.planes_ubo is not None:
                 self.planes_ubo.bind_to_uniform_block(0)
+                self.grid_tex.use(1)
         else:
             self.env_cube.use(2)
         if self.mesh is None:

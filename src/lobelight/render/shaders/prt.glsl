@@ -14,6 +14,8 @@ uniform sampler2D diff_tex;    // RGBA32F, N_SH texels per vertex: transfer RGB
 // the constant cache broadcasts (as a texture, the 540 fetches per vertex were the frame's
 // cost on an H100: 6 ms for 50K vertices)
 layout(std140) uniform Planes { vec4 planes[540]; };
+uniform sampler2D cand_tex;    // RGBA32F, candidate triangles per cube-map texel (-1 padded):
+                               // CAND_TEXELS texels per cell, [face * CAND_RES + row, col]
 uniform int tex_width;         // width of gauss_tex and diff_tex
 uniform vec3 sh_light[N_SH];   // the rotated lighting's SH coefficients
 uniform vec3 eye;
@@ -34,20 +36,38 @@ void main() {
     int v = gl_VertexID;
     vec3 d = normalize(eye - in_pos);
 
-    // the geodesic triangle holding d: largest smallest barycentric (as sphere.locate_views)
+    // the geodesic triangle holding d: largest smallest barycentric (as sphere.locate_views),
+    // among the few candidates of d's texel in a cube-map table (sphere.triangle_candidates)
+    // rather than all 180 (the full scan was three quarters of an H100 frame)
+    vec3 ad = abs(d);
+    int face;
+    vec2 uv;
+    if (ad.x >= ad.y && ad.x >= ad.z) {
+        face = d.x >= 0.0 ? 0 : 1; uv = vec2(d.x >= 0.0 ? -d.z : d.z, -d.y) / ad.x;
+    } else if (ad.y >= ad.z) {
+        face = d.y >= 0.0 ? 2 : 3; uv = vec2(d.x, d.y >= 0.0 ? d.z : -d.z) / ad.y;
+    } else {
+        face = d.z >= 0.0 ? 4 : 5; uv = vec2(d.z >= 0.0 ? d.x : -d.x, -d.y) / ad.z;
+    }
+    ivec2 cell = clamp(ivec2(floor((uv + 1.0) * 0.5 * float(CAND_RES))), 0, CAND_RES - 1);
     float best = -1e30;
     vec3 bdet = vec3(0.0);
     ivec3 views = ivec3(0);
-    for (int f = 0; f < 180; ++f) {
-        vec4 p0 = planes[3 * f];
-        vec4 p1 = planes[3 * f + 1];
-        vec4 p2 = planes[3 * f + 2];
-        vec3 det = vec3(dot(p0.xyz, d), dot(p1.xyz, d), dot(p2.xyz, d));
-        float m = min(det.x, min(det.y, det.z));
-        if (m > best) {
-            best = m;
-            bdet = det;
-            views = ivec3(int(p0.w + 0.5), int(p1.w + 0.5), int(p2.w + 0.5));
+    for (int q = 0; q < CAND_TEXELS; ++q) {
+        vec4 c4 = texelFetch(cand_tex, ivec2(cell.x * CAND_TEXELS + q, face * CAND_RES + cell.y), 0);
+        for (int e = 0; e < 4; ++e) {
+            int f = int(c4[e]);
+            if (f < 0) break;
+            vec4 p0 = planes[3 * f];
+            vec4 p1 = planes[3 * f + 1];
+            vec4 p2 = planes[3 * f + 2];
+            vec3 det = vec3(dot(p0.xyz, d), dot(p1.xyz, d), dot(p2.xyz, d));
+            float m = min(det.x, min(det.y, det.z));
+            if (m > best) {
+                best = m;
+                bdet = det;
+                views = ivec3(int(p0.w + 0.5), int(p1.w + 0.5), int(p2.w + 0.5));
+            }
         }
     }
     vec3 b = max(bdet, vec3(0.0));

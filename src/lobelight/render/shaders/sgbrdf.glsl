@@ -8,7 +8,9 @@
 //   HAS_TANGENT mesh only: per-vertex tangents are given (else the frame of sphere.frame)
 //   METHOD_FIS  0: our lobes with prefiltered.glsl's integrate(); 1: 40-sample FIS
 //   GEODESIC    ours only, 1: the 92-view geodesic layout, 0: the elevation layout
+//   GREY        ours only, 1: every lobe mass is grey (one texel per view and lobe)
 //   NL, N_VIEWS lobes per view and views (ours);  NS samples (FIS);  MAX_LEVELS (prefiltered)
+//   GRID, GRID_K the geodesic layout's candidate-triangle grid (cells per side, slots per cell)
 
 #if defined VERTEX_SHADER
 
@@ -150,16 +152,51 @@ vec3 shade(vec3 n, vec3 t, vec3 b, vec3 o) {
 
 #else
 // ---- our method: lobes interpolated between the fixed views, integrated by prefiltered ----
-// The table of SGBRDF.params, laid out once at upload: texel (2k, j) = (lobe mass w Z(kappa),
-// log kappa), texel (2k + 1, j) = (mu, 0) for view j, lobe k (kappa clamped to KAPPA_MIN first,
-// exactly as SGBRDF.lobes), so the shader blends what SGBRDF.lobes blends
+// The table of SGBRDF.params, laid out once at upload (_gl_sgbrdf.lobe_table): for view j,
+// lobe k, texel (2k, j) = (lobe mass w Z(kappa), log kappa) and texel (2k + 1, j) = (mu, 0)
+// (kappa clamped to KAPPA_MIN first, exactly as SGBRDF.lobes), so the shader blends what
+// SGBRDF.lobes blends. GREY (all masses grey, e.g. Ward with a grey ks): one texel (k, j) =
+// (mass, log kappa, octahedral mu), half the fetches, which bound the frame on a GPU
 uniform sampler2D lobe_tex;
+
+#if GREY
+// octahedral map of the unit sphere onto [-1, 1]^2 (lobe_table's encoding), inverted
+vec3 oct_decode(vec2 e) {
+    vec3 v = vec3(e, 1.0 - abs(e.x) - abs(e.y));
+    if (v.z < 0.0) {
+        vec2 sgn = vec2(v.x >= 0.0 ? 1.0 : -1.0, v.y >= 0.0 ? 1.0 : -1.0);
+        v.xy = (1.0 - abs(v.yx)) * sgn;
+    }
+    return normalize(v);
+}
+#endif
 #if GEODESIC
 // 3 great-circle normals per geodesic triangle, .w = the view of the opposite corner (as
 // prt.glsl); a uniform block, read by every pixel in the same order
 layout(std140) uniform Planes { vec4 planes[540]; };
+// Candidate triangles per cell of a GRID x GRID grid over the hemisphere in Lambert
+// equal-area coordinates (_gl_sgbrdf.face_grid): GRID_K texels per cell, ascending face ids,
+// -1 after the last. Testing the few candidates instead of all 180 triangles made the
+// anisotropic lookup the frame's minor cost (measured in docs/sgbrdf.md)
+uniform sampler2D face_grid;
+
+// triangle f's unnormalised barycentrics of d; keep it when its smallest beats the best
+void test_face(int f, vec3 d, inout float best, inout vec3 bary, inout ivec3 vid) {
+    vec4 p0 = planes[3 * f];
+    vec4 p1 = planes[3 * f + 1];
+    vec4 p2 = planes[3 * f + 2];
+    vec3 det = vec3(dot(p0.xyz, d), dot(p1.xyz, d), dot(p2.xyz, d));
+    float m = min(det.x, min(det.y, det.z));
+    if (m > best) {
+        best = m;
+        bary = det;
+        vid = ivec3(int(p0.w + 0.5), int(p1.w + 0.5), int(p2.w + 0.5));
+    }
+}
+#define CORNERS 3
 #else
 uniform float view_theta[N_VIEWS];  // elevation of each view, increasing
+#define CORNERS 2
 #endif
 
 vec3 shade(vec3 n, vec3 t, vec3 b, vec3 o) {
@@ -172,17 +209,18 @@ vec3 shade(vec3 n, vec3 t, vec3 b, vec3 o) {
     // in the geodesic frame (g_x, g_y, g_z) = (q_y, q_z, q_x)
     vec3 d = vec3(q.y, q.z, q.x);
     float best = -1e30;
-    for (int f = 0; f < 180; ++f) {
-        vec4 p0 = planes[3 * f];
-        vec4 p1 = planes[3 * f + 1];
-        vec4 p2 = planes[3 * f + 2];
-        vec3 det = vec3(dot(p0.xyz, d), dot(p1.xyz, d), dot(p2.xyz, d));
-        float m = min(det.x, min(det.y, det.z));
-        if (m > best) {
-            best = m;
-            bary = det;
-            vid = ivec3(int(p0.w + 0.5), int(p1.w + 0.5), int(p2.w + 0.5));
-        }
+    // the containing triangle (smallest barycentric >= 0) wins over every other, so testing
+    // the cell's candidates in ascending order finds the one the full search finds
+    vec2 lam = q.xy * sqrt(2.0 / (1.0 + q.z));  // Lambert equal-area, |lam| <= sqrt 2
+    ivec2 cell = clamp(ivec2(floor((lam * 0.35355339 + 0.5) * float(GRID))), 0, GRID - 1);
+    for (int i = 0; i < GRID_K; ++i) {
+        float f = texelFetch(face_grid, ivec2(cell.x * GRID_K + i, cell.y), 0).r;
+        if (f < 0.0) break;
+        test_face(int(f + 0.5), d, best, bary, vid);
+    }
+    if (best < -1e-6) {  // no candidate holds q (the table is built by sampling): all 180
+        best = -1e30;
+        for (int f = 0; f < 180; ++f) test_face(f, d, best, bary, vid);
     }
     bary = max(bary, vec3(0.0));
     bary /= max(bary.x + bary.y + bary.z, TINY);
@@ -204,12 +242,19 @@ vec3 shade(vec3 n, vec3 t, vec3 b, vec3 o) {
         vec3 mass = vec3(0.0);
         vec3 mu = vec3(0.0);
         float logk = 0.0;
-        for (int c = 0; c < 3; ++c) {
+        for (int c = 0; c < CORNERS; ++c) {  // 2 views (elevation) or 3 (geodesic)
+#if GREY
+            vec4 a = texelFetch(lobe_tex, ivec2(k, vid[c]), 0);
+            mass += vec3(bary[c] * a.x);
+            logk += bary[c] * a.y;
+            mu += bary[c] * oct_decode(a.zw);
+#else
             vec4 a = texelFetch(lobe_tex, ivec2(2 * k, vid[c]), 0);
             vec4 m = texelFetch(lobe_tex, ivec2(2 * k + 1, vid[c]), 0);
             mass += bary[c] * a.rgb;
             logk += bary[c] * a.a;
             mu += bary[c] * m.xyz;
+#endif
         }
         if (max(mass.r, max(mass.g, mass.b)) <= 0.0) continue;
         mu = normalize(mu);
