@@ -52,16 +52,18 @@ def _one_thread():
 
 
 MATERIALS = {
-    # elevation layout (16 views); geodesic layout (92 views, 61 fitted)
+    # elevation layout (16 views); geodesic layout (92 views, 61 fitted); both grey, so the
+    # shader reads one texel per lobe ("GREY"); a coloured one reads the two-texel layout
     "iso": Ward(1.0, 0.1),
     "aniso": Ward(1.0, 0.05, 0.2),
+    "rgb": Ward((0.9, 0.6, 0.3), 0.1),
 }
 
 
 @pytest.fixture(scope="module")
 def models():
     return {
-        k: fit(b, n_lobes=4 if k == "iso" else 3, samples=512, max_iter=40)
+        k: fit(b, n_lobes=3 if k == "aniso" else 4, samples=512, max_iter=40)
         for k, b in MATERIALS.items()
     }
 
@@ -82,12 +84,13 @@ def _rel(got: torch.Tensor, want: torch.Tensor) -> torch.Tensor:
 
 
 @needs_gl
-@pytest.mark.parametrize("kind", ["iso", "aniso"])
+@pytest.mark.parametrize("kind", ["iso", "aniso", "rgb"])
 @pytest.mark.parametrize("camera", [None, CAM], ids=["ortho", "perspective"])
 def test_ours_matches_torch(models, pf, kind, camera):
     model = models[kind]
-    assert model.layout == ("elevation" if kind == "iso" else "geodesic")
+    assert model.layout == ("geodesic" if kind == "aniso" else "elevation")
     with GLSGBRDFRenderer(model, pf, W, H, method="ours") as r:
+        assert r.defines["GREY"] == int(kind != "rgb")
         img, mask = r.render(camera)
     ref, ref_mask = render_sphere(model, pf, width=W, height=H, camera=camera)
     # the orthographic rays are the same float32 formula; a perspective hit is float32 in the
