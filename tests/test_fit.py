@@ -180,3 +180,22 @@ def test_weights_of_coincident_lobes_are_finite():
     assert bool(torch.isfinite(w).all())
     # the ridge splits the weight evenly between the two copies
     torch.testing.assert_close(w[0, 0, 0], w[0, 0, 1])
+
+
+def test_flip_count_counts_swapped_arrangements_of_live_gaussians():
+    # two Gaussians 0.3 rad apart; the neighbour has them swapped in views 0-4 of 10
+    j = 10
+    a = torch.tensor([[0.0, 0.0, 1.0], [0.3, 0.0, 1.0]])
+    a = torch.nn.functional.normalize(a, dim=-1).expand(1, j, 2, 3).clone()
+    b = a.clone()
+    b[:, :5] = a[:, :5].flip(-2)
+    active = torch.ones(1, j, dtype=torch.bool)
+    assert fit.flip_count(a, b, active).tolist() == [5]
+    assert fit.flip_count(a, a, active).tolist() == [0]
+    assert fit.flip_count(a, b, active & (torch.arange(j) >= 3)).tolist() == [2]
+    # a Gaussian of zero weight has no arrangement: with it dead in some views those views do
+    # not count (without the masks they would, by chance, about half the time)
+    live = torch.ones(1, j, 2, dtype=torch.bool)
+    dead = live.clone()
+    dead[:, :2, 1] = False
+    assert fit.flip_count(a, b, active, live, dead).tolist() == [3]

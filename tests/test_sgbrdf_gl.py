@@ -283,3 +283,33 @@ def test_bad_camera_and_timing(models, pf):
             r.render((0, 0, 3))
         with pytest.raises(InputError, match="min_seconds"):
             time_frames(r, 0.0)
+
+
+@needs_gl
+def test_lobes_in_every_octant(pf):
+    # a synthetic table whose means point into all eight octants (below the horizon too), so
+    # that the grey layout's octahedral means are decoded on every fold of the map
+    from lobelight.sgbrdf import SGBRDF, elevation_views
+
+    views = elevation_views(4)
+    signs = torch.tensor([[sx, sy, sz] for sx in (1, -1) for sy in (1, -1) for sz in (1, -1)])
+    mu = torch.nn.functional.normalize(signs * torch.tensor([0.3, 0.5, 0.8]), dim=-1)
+    kappa = torch.tensor([2.0, 5.0, 20.0, 50.0, 3.0, 8.0, 30.0, 100.0])
+    w = torch.linspace(0.2, 1.0, 8).unsqueeze(-1).expand(8, 3)
+    params = torch.cat([w, mu, kappa.unsqueeze(-1)], -1)  # (8, 7)
+    params = params.expand(4, 8, 7) * torch.tensor([1.0, 0.9, 0.8, 0.7]).view(4, 1, 1)
+    params[..., 3:6] = mu  # the scale above is for the weights and sharpness only
+    model = SGBRDF(
+        params=params.contiguous(),
+        views=views,
+        fit_views=views,
+        layout="elevation",
+        albedo=torch.ones(4, 3),
+        used=torch.ones(4, dtype=torch.bool),
+    )
+    with GLSGBRDFRenderer(model, pf, W, H) as r:
+        assert r.defines["GREY"] == 1
+        img, mask = r.render(CAM)
+    ref, ref_mask = render_sphere(model, pf, width=W, height=H, camera=CAM)
+    both = mask & ref_mask
+    assert float(_rel(img[both], ref[both]).max()) <= REL_TOL

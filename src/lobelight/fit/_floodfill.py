@@ -24,7 +24,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from .. import cubemap, sphere
+from .. import cubemap, sg, sphere
 from ..errors import InputError
 from ..scene import Mesh, Scene
 from ..transport import DIFFUSE_ORDER, Transport
@@ -109,17 +109,23 @@ def _edges(mesh: Mesh) -> torch.Tensor:
     return e[e[:, 0] < e[:, 1]]  # (E, 2) each undirected edge once
 
 
-def count_flips(mesh: Mesh, g: Gaussians) -> int:
+def count_flips(mesh: Mesh, g: Gaussians, *, live_fraction: float = 0.05) -> int:
     """Flipped (edge, view) pairs: adjacent vertices whose Gaussians swap arrangement in a view
-    where both have glossy weight (see :func:`lobelight.fit.flip_count`)."""
+    (see :func:`lobelight.fit.flip_count`), among Gaussians that carry light: at least
+    ``live_fraction`` of the light of the view's brightest Gaussian (``w int G``, summed over
+    channels)."""
     if g.mu.shape[2] < 2:
         return 0
     e = _edges(mesh).to(g.mu.device)
-    active = (g.w[e[:, 0]].amax((-1, -2)) > 0) & (g.w[e[:, 1]].amax((-1, -2)) > 0)
+    carried = g.w.sum(-1) * sg.integral(g.lam)  # (V, J, N)
+    live = carried > live_fraction * carried.amax(-1, keepdim=True).clamp_min(1e-30)
     total = 0
     for s in range(0, e.shape[0], 4096):  # bounded memory
         es = e[s : s + 4096]
-        total += int(flip_count(g.mu[es[:, 0]], g.mu[es[:, 1]], active[s : s + 4096]).sum())
+        a, b = es[:, 0], es[:, 1]
+        total += int(
+            flip_count(g.mu[a], g.mu[b], live[a].any(-1) & live[b].any(-1), live[a], live[b]).sum()
+        )
     return total
 
 

@@ -185,13 +185,24 @@ def spatial_term(mu: torch.Tensor, nbr_mu: torch.Tensor, nbr_mask: torch.Tensor)
     return pen.sum((1, 3)).mean(1)
 
 
-def flip_count(mu_a: torch.Tensor, mu_b: torch.Tensor, active: torch.Tensor) -> torch.Tensor:
+def flip_count(
+    mu_a: torch.Tensor,
+    mu_b: torch.Tensor,
+    active: torch.Tensor,
+    live_a: torch.Tensor | None = None,
+    live_b: torch.Tensor | None = None,
+) -> torch.Tensor:
     """Flipped Gaussian pairs between two vertices' fits: views where some pair's difference
     vectors point against each other (``<dmu_a, dmu_b> < 0``), counted over ``active`` views.
+
+    A pair has an arrangement only where both its Gaussians carry light at both vertices: a
+    Gaussian of zero weight sits wherever the fit left it, and counting it would make about half
+    of all views "flipped" by chance. ``live_*`` say which Gaussians carry light (default all).
 
     Parameters
     ----------
     mu_a, mu_b : (E, J, N, 3);  active : (E, J) bool (e.g. both views above the horizon)
+    live_a, live_b : optional (E, J, N) bool
 
     Returns
     -------
@@ -200,4 +211,10 @@ def flip_count(mu_a: torch.Tensor, mu_b: torch.Tensor, active: torch.Tensor) -> 
     if mu_a.shape[-2] < 2:
         return torch.zeros(mu_a.shape[0], dtype=torch.int64, device=mu_a.device)
     dot = (_pair_diffs(mu_a) * _pair_diffs(mu_b)).sum(-1)  # (E, J, P)
-    return ((dot < 0).any(-1) & active).sum(1)
+    flipped = dot < 0
+    if live_a is not None and live_b is not None:
+        live = live_a & live_b  # (E, J, N)
+        n = live.shape[-1]
+        i, j = torch.triu_indices(n, n, offset=1, device=live.device)
+        flipped = flipped & live[..., i] & live[..., j]
+    return (flipped.any(-1) & active).sum(1)

@@ -8,7 +8,10 @@ geodesic triangle, found by the same 180-plane test as :func:`lobelight.sphere.l
 turns each lobe to the world frame and integrates it against the lighting with
 ``integrate()`` of ``prefiltered.glsl`` (the exact Gaussian-prefiltered chain of
 :class:`lobelight.envmap.Prefiltered`), then sums. The fitted table lives in a float texture
-written once; nothing is repacked per frame (per frame the CPU sets the camera only).
+written once (:func:`lobe_table`; one texel per view and lobe for grey materials, two
+otherwise); nothing is repacked per frame (per frame the CPU sets the camera only). The
+geodesic triangle search tests the few candidates of a precomputed equal-area grid cell
+(:func:`face_grid`) rather than all 180 triangles.
 
 ``method="fis"`` is the baseline the paper times against: filtered importance sampling
 (:func:`lobelight.sgbrdf.shade_fis`) with 40 Hammersley samples of Ward's importance sampling,
@@ -57,7 +60,16 @@ from ._gl import (
 )
 from ._lighting import Lighting
 
-__all__ = ["METHODS", "GLSGBRDFRenderer", "bench_gl", "face_grid", "gl_mip_chain", "time_frames"]
+__all__ = [
+    "METHODS",
+    "GLSGBRDFRenderer",
+    "bench_gl",
+    "face_grid",
+    "gl_mip_chain",
+    "is_grey",
+    "lobe_table",
+    "time_frames",
+]
 
 #: What the renderer can draw: our lobes, or filtered importance sampling.
 METHODS = ("ours", "fis")
@@ -315,8 +327,6 @@ class GLSGBRDFRenderer:
         fis_res: int | None = None,
         samples: int = FIS_SAMPLES,
     ):
-        import moderngl
-
         if not isinstance(model, SGBRDF):
             raise InputError("model", f"must be an SGBRDF (from fit), got {type(model).__name__}")
         if method not in METHODS:
@@ -375,7 +385,9 @@ class GLSGBRDFRenderer:
             self._include = ()
         self.defines = defines
 
-        self.ctx = ctx if ctx is not None else create_context()
+        self.ctx = ctx if ctx is not None else create_context()  # InputError without GL
+        import moderngl  # importable once a context exists
+
         self.own_ctx = ctx is None
         ctx = self.ctx
         ctx.enable_direct(_GL_TEXTURE_CUBE_MAP_SEAMLESS)
