@@ -116,3 +116,25 @@ def test_render_rejects_a_bad_camera(tmp_path, capsys):
     m.save(tmp_path / "m.npz")
     assert main(["render", str(tmp_path / "m.npz"), "--camera", "1,2:3"]) == 2
     assert "--camera" in capsys.readouterr().err
+
+
+def test_a_reader_that_stops_early_is_not_an_error(tmp_path):
+    # `lobelight info m.npz | head -1`: the pipe closes before the summary is written; the CLI
+    # exits 0 without a traceback (it used to die with BrokenPipeError, exit 1)
+    import subprocess
+    import sys
+
+    from lobelight.bench import synthetic_model
+
+    path = tmp_path / "m.lobelight.npz"
+    synthetic_model(200, 1).save(path)
+    code = "import sys; from lobelight.cli import main; sys.exit(main(sys.argv[1:]))"
+    p = subprocess.Popen(
+        [sys.executable, "-c", code, "info", str(path), "--json"],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+    )
+    p.stdout.close()  # the reader is gone before anything is written
+    err = p.stderr.read().decode()
+    assert p.wait(timeout=120) == 0, err
+    assert "Traceback" not in err

@@ -12,6 +12,7 @@ from __future__ import annotations
 import argparse
 import json
 import math
+import os
 import sys
 import time
 from pathlib import Path
@@ -550,11 +551,17 @@ def main(argv: list[str] | None = None) -> int:
     except KeyboardInterrupt:
         print("lobelight: interrupted (a bake resumes when run again)", file=sys.stderr)
         return 130
-    if args.json:
-        print(json.dumps(summary, indent=2, default=_plain))
-    else:
-        for k, v in summary.items():
-            print(f"{k}: {v}")
+    try:
+        if args.json:
+            print(json.dumps(summary, indent=2, default=_plain))
+        else:
+            for k, v in summary.items():
+                print(f"{k}: {v}")
+        sys.stdout.flush()
+    except BrokenPipeError:
+        # the reader went away (`lobelight info m.npz | head -1`): its choice, not an error;
+        # point stdout at devnull so that the interpreter's final flush does not fail again
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
     return 0
 
 
