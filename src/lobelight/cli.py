@@ -240,7 +240,12 @@ def _cmd_compare_brdf(args) -> dict:
     return {
         "command": "compare-brdf",
         **compare_brdf(
-            args.out, env=args.env, size=args.size, ref_spp=args.ref_spp, device=args.device
+            args.out,
+            env=args.env,
+            size=args.size,
+            ref_spp=args.ref_spp,
+            device=args.device,
+            backend=args.backend,
         ),
     }
 
@@ -499,6 +504,12 @@ def _parser() -> argparse.ArgumentParser:
     cb.add_argument("--env", help=".hdr/.exr environment")
     cb.add_argument("--size", type=int, default=128, help="image size (the sphere fills it)")
     cb.add_argument("--ref-spp", type=int, default=4096, help="reference samples per pixel")
+    cb.add_argument(
+        "--backend",
+        choices=["torch", "both"],
+        default="torch",
+        help="'both' also renders ours and FIS-40 with the GLSL shaders (PSNR and fps rows)",
+    )
 
     f = cmd("figure5", _cmd_figure5, "the paper's Figure 5: Gaussians vs Haar vs SH")
     f.add_argument("--out", default="lobelight-figure5")

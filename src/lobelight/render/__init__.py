@@ -10,20 +10,25 @@
 - :class:`Lighting` an environment ready to render: prefiltered chain, SH projection, rotation.
 - :func:`tonemap` exposure, ``"srgb"`` or ``"aces"``, to 8-bit; :func:`auto_exposure`;
   :func:`save_image` (``.png`` tone-mapped, ``.exr``/``.hdr`` linear), atomically.
+- :class:`GLSGBRDFRenderer` the SG-mixture BRDF method (and FIS-40) in GLSL
+  (``_gl_sgbrdf.py``, ``shaders/sgbrdf.glsl``); :func:`bench_gl` times the two.
 - :class:`Camera` Mitsuba 3's perspective sensor (re-exported from :mod:`lobelight.camera`).
 """
 
 from ..camera import Camera
+from ._gl_sgbrdf import GLSGBRDFRenderer, bench_gl
 from ._lighting import Lighting, as_rotation
 from ._renderer import Renderer
 from ._tonemap import auto_exposure, save_image, tonemap
 
 __all__ = [
     "Camera",
+    "GLSGBRDFRenderer",
     "Lighting",
     "Renderer",
     "as_rotation",
     "auto_exposure",
+    "bench_gl",
     "save_image",
     "tonemap",
 ]
