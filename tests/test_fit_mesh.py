@@ -102,3 +102,15 @@ def test_killed_fit_resumes_to_the_same_model(tmp_path, n, stage, batch):
         log.clear()
         fit.fit_mesh(sc, **kw, seed=1, checkpoint=ck, progress=_killer("none", 0, log))
         assert log[0] == ("fit", 1)
+
+
+def test_freed_memory_is_kept_for_reuse_on_glibc():
+    # the fit's allocator setting (lobelight._malloc): mallopt accepted all three parameters
+    import sys
+
+    from lobelight._malloc import keep_freed_memory
+
+    if not sys.platform.startswith("linux"):
+        pytest.skip("glibc only")
+    assert keep_freed_memory() is True
+    assert keep_freed_memory() is True  # idempotent

@@ -25,6 +25,7 @@ import numpy as np
 import torch
 
 from .. import cubemap, sg, sphere
+from .._malloc import keep_freed_memory
 from ..errors import InputError
 from ..scene import Mesh, Scene
 from ..transport import DIFFUSE_ORDER, Transport
@@ -203,6 +204,8 @@ def fit_mesh(
     weights = Weights() if weights is None else weights
     tr = Transport(scene, device=device, shadows=shadows)
     dev = tr.device
+    if dev.type == "cpu":
+        keep_freed_memory()  # the LM's big temporaries, reused instead of page-faulted in
     batch = default_batch(dev, n) if batch is None else int(batch)
     if batch < 1:
         raise InputError("batch", f"must be a positive number of vertices, got {batch}")
