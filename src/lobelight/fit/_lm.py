@@ -79,8 +79,13 @@ def levenberg_marquardt(
     nbr_mask: torch.Tensor | None = None,
     lam_range=(0.5, 3e4),
     iters: int = 20,
+    state: dict | None = None,
 ) -> tuple[torch.Tensor, torch.Tensor]:
-    """Refine means (B, J, N, 3) and sharpness (B, J, N); returns the refined pair."""
+    """Refine means (B, J, N, 3) and sharpness (B, J, N); returns the refined pair.
+
+    ``state``, if given, receives the solved weights ``"w"`` (B, J, N, 3) and the data term
+    ``"D"`` (B,) at the returned means and widths, so the caller need not evaluate them again.
+    """
     b, j, n = lam.shape
     dt = mu.dtype
     inv_e = 1 / data.energy().sum(1).clamp_min(1e-30)  # (B,)
@@ -122,7 +127,7 @@ def levenberg_marquardt(
         mb = torch.nn.functional.normalize(_neighbour_mean(mu_, nbr_views), dim=-1)
         sb = _neighbour_mean(lam_.rsqrt(), nbr_views)
         cost = d_cost + _reg_cost(mu_, lam_, mb, sb, c, nbr_mu, mask)
-        return g_, cm1_, w_.to(dt), cost.sum(1)
+        return g_, cm1_, w_.to(dt), cost.sum(1), d_cost.sum(1)
 
     sq = (data.weights * inv_e[:, None, None]).sqrt()  # (B, J, S) residual scale
     sq_n = sq[:, :, None]  # (B, J, 1, S)
@@ -131,7 +136,7 @@ def levenberg_marquardt(
     eye = torch.eye(3 * n, dtype=dt, device=mu.device)
     mask = None if nbr_mask is None else nbr_mask.to(dt)
     mu, lam = mu.clone(), lam.clone()
-    g, cm1, w, cost0 = evaluate(mu, lam)
+    g, cm1, w, cost0, d0 = evaluate(mu, lam)
     jac = torch.empty(b, j, n, 3, n_s, dtype=dt, device=mu.device)  # reused every iteration
     for _ in range(iters):
         mbar = torch.nn.functional.normalize(_neighbour_mean(mu, nbr_views), dim=-1)
@@ -195,7 +200,7 @@ def levenberg_marquardt(
             mu + sigma[..., None] * (step[..., :1] * t + step[..., 1:2] * s), dim=-1
         )
         lam1 = (lam * torch.exp(step[..., 2])).clamp(*lam_range)
-        g1, cm11, w1, cost1 = evaluate(mu1, lam1)
+        g1, cm11, w1, cost1, d1 = evaluate(mu1, lam1)
         ok = (cost1 <= cost0)[:, None]  # (B, 1): whole vertices step or stay
         mu = torch.where(ok[..., None, None], mu1, mu)
         lam = torch.where(ok[..., None], lam1, lam)
@@ -203,7 +208,10 @@ def levenberg_marquardt(
         cm1 = torch.where(ok[..., None, None], cm11, cm1)
         w = torch.where(ok[..., None, None], w1, w)
         cost0 = torch.where(ok[:, 0], cost1, cost0)
+        d0 = torch.where(ok[:, 0], d1, d0)
         damp = torch.where(ok, damp / 3, damp * 4).clamp(1e-9, 1e9)
+    if state is not None:
+        state["w"], state["D"] = w, d0.to(dt)
     return mu, lam
 
 

@@ -222,6 +222,7 @@ def fit_batch(
     if g0 is None:
         g0 = initial_guess(data, n, lam_range=lam_range, nbr_views=nbr_views)
     if method == "lm":
+        st: dict = {}
         mu, lam = levenberg_marquardt(
             data,
             g0.mu,
@@ -232,10 +233,16 @@ def fit_batch(
             nbr_mask=nbr_mask,
             lam_range=lam_range,
             iters=20 if iters is None else iters,
+            state=st,
         )
-        with torch.no_grad():
-            _, terms = objective(data, mu, lam, nbr_views, weights, nbr_mu, nbr_mask)
-        return Gaussians(solve_weights(data, mu, lam), mu, lam), terms
+        # the LM's last evaluation already holds the weights and the data term (the costly
+        # parts); the alignment terms are cheap
+        terms = {"D": st["D"], "M": mean_term(mu, nbr_views), "V": sigma_term(lam, nbr_views)}
+        if nbr_mu is not None and nbr_mask is not None:
+            terms["S"] = spatial_term(mu, nbr_mu, nbr_mask)
+        else:
+            terms["S"] = torch.zeros_like(terms["D"])
+        return Gaussians(st["w"], mu, lam), terms
     if method != "adam":
         raise InputError("method", f"must be 'lm' or 'adam', got {method!r}")
     iters = 150 if iters is None else iters
