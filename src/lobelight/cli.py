@@ -398,7 +398,8 @@ Reference noise (mean standard error / mean): {cmp["reference_noise"]["full"]:.3
         },
         "gpu": "a CUDA GPU is available: add --device cuda"
         if gpu
-        else "CPU only; on a GPU (--device cuda) the bake is far faster (docs/benchmarks.md)",
+        else "CPU only; on a GPU (--device cuda) the bake is ~18x faster (one H100 against this "
+        "kind of 2-core CPU, docs/benchmarks.md)",
     }
 
 
