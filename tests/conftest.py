@@ -54,6 +54,17 @@ def _seed() -> None:
 DEVICES = ["cpu"] + (["cuda"] if torch.cuda.is_available() else [])
 
 
+@pytest.fixture(scope="module")
+def one_torch_thread():
+    """One torch thread for a test module: EM and the SG-BRDF harness run many small tensor
+    operations, where a second thread buys little and, on a shared 2-core machine, a contended
+    one slows torch down many times over. Use with ``pytestmark``."""
+    before = torch.get_num_threads()
+    torch.set_num_threads(1)
+    yield
+    torch.set_num_threads(before)
+
+
 @pytest.fixture(params=["cpu", "cuda"])
 def device(request) -> str:
     """Run a test on the CPU and, where there is one, on a CUDA GPU."""

@@ -38,14 +38,7 @@ from lobelight.sgbrdf import (
 F64 = torch.float64
 
 
-@pytest.fixture(autouse=True, scope="module")
-def _one_thread():
-    # EM runs many small tensor operations: a second thread buys little, and on a shared 2-core
-    # machine a contended second thread slows torch down many times over.
-    before = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(before)
+pytestmark = pytest.mark.usefixtures("one_torch_thread")
 
 
 # --------------------------------------------------------------------------------------------

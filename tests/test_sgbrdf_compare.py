@@ -34,14 +34,7 @@ from lobelight.sgbrdf import (
     wang09_lobe,
 )
 
-
-@pytest.fixture(autouse=True, scope="module")
-def _one_thread():
-    # as in test_sgbrdf.py: many small tensor operations, a contended second thread costs more
-    before = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(before)
+pytestmark = pytest.mark.usefixtures("one_torch_thread")
 
 
 def _constant_env() -> EnvMap:

@@ -42,13 +42,7 @@ CAM = Camera.look_at((0.5, 1.0, 3.0), (0.0, 0.0, 0.0), fov=45.0)
 W, H = 64, 48  # not square, so that a swapped axis would show
 
 
-@pytest.fixture(autouse=True, scope="module")
-def _one_thread():
-    # as in test_sgbrdf.py: many small tensor operations, a contended second thread costs more
-    before = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(before)
+pytestmark = pytest.mark.usefixtures("one_torch_thread")
 
 
 MATERIALS = {

@@ -80,7 +80,12 @@ def _moments(data: FitData, values: torch.Tensor, lam_range) -> tuple[torch.Tens
 
 
 def initial_guess(
-    data: FitData, n: int, *, lam_range=LAM_RANGE, nbr_views: torch.Tensor | None = None
+    data: FitData,
+    n: int,
+    *,
+    lam_range=LAM_RANGE,
+    nbr_views: torch.Tensor | None = None,
+    solve: bool = True,
 ) -> Gaussians:
     """A starting point from the data alone.
 
@@ -90,7 +95,8 @@ def initial_guess(
     residual),
     after a short joint refinement of those so far (greedy, then joint: a sharp highlight over a
     broad base separates into two lobes with their own means). ``nbr_views`` is needed for the
-    refinement when ``n > 1``.
+    refinement when ``n > 1``. ``solve=False`` leaves the weights at zero for a caller that
+    solves them itself (the LM does, in its first evaluation).
     """
     mu, lam = _moments(data, data.values, lam_range)
     mus, lams = mu[:, :, None], lam[:, :, None]
@@ -112,6 +118,8 @@ def initial_guess(
     if nbr_views is not None:
         empty = data.below | (data.energy() <= 0)
         mus, lams = _fill_empty(mus, lams, empty, nbr_views)
+    if not solve:
+        return Gaussians(torch.zeros(*lams.shape, 3, dtype=mus.dtype, device=mus.device), mus, lams)
     return Gaussians(solve_weights(data, mus, lams), mus, lams)
 
 
@@ -220,7 +228,7 @@ def fit_batch(
     weights = Weights() if weights is None else weights
     g0 = init
     if g0 is None:
-        g0 = initial_guess(data, n, lam_range=lam_range, nbr_views=nbr_views)
+        g0 = initial_guess(data, n, lam_range=lam_range, nbr_views=nbr_views, solve=method != "lm")
     if method == "lm":
         st: dict = {}
         mu, lam = levenberg_marquardt(

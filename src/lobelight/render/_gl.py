@@ -51,15 +51,25 @@ def load_shader(name: str) -> str:
     return resources.files("lobelight.render").joinpath("shaders", f"{name}.glsl").read_text()
 
 
-def _program(ctx, name: str, defines: dict[str, int] | None = None, include: tuple = ()):
-    """A program from one shader file holding both stages; ``include`` names shader files whose
-    text goes before the fragment stage (shared functions, e.g. ``"prefiltered"``)."""
+def _program(
+    ctx,
+    name: str,
+    defines: dict[str, int] | None = None,
+    include: tuple = (),
+    vertex_include: tuple = (),
+):
+    """A program from one shader file holding both stages; ``include`` and ``vertex_include``
+    name shader files whose text goes before the fragment and the vertex stage (shared
+    functions, e.g. ``"prefiltered"``, ``"geodesic"``)."""
     head = "#version 330\n" + "".join(f"#define {k} {v}\n" for k, v in (defines or {}).items())
     src = load_shader(name)
-    lib = "".join(load_shader(i) + "\n" for i in include)
+
+    def lib(names):
+        return "".join(load_shader(i) + "\n" for i in names)
+
     return ctx.program(
-        vertex_shader=head + "#define VERTEX_SHADER\n" + src,
-        fragment_shader=head + "#define FRAGMENT_SHADER\n" + lib + src,
+        vertex_shader=head + "#define VERTEX_SHADER\n" + lib(vertex_include) + src,
+        fragment_shader=head + "#define FRAGMENT_SHADER\n" + lib(include) + src,
     )
 
 
@@ -185,6 +195,7 @@ class GLRenderer:
                 "CAND_TEXELS": cand_texels,
             },
             include=("prefiltered",),
+            vertex_include=("geodesic",),
         )
         self.bg_prog = _program(ctx, "background")
         self.tm_prog = _program(ctx, "tonemap")

@@ -363,7 +363,8 @@ class GLSGBRDFRenderer:
                 N_VIEWS=int(model.params.shape[0]),
                 MAX_LEVELS=len(pf.levels),
             )
-            self._include: tuple[str, ...] = ("prefiltered",)
+            # the geodesic layout locates views among the triangles of geodesic.glsl
+            self._include: tuple[str, ...] = ("prefiltered",) + (("geodesic",) if geo else ())
         else:
             b = brdf if brdf is not None else brdf_from_dict(model.material)
             self.ks, self.alpha = _ward_params(b)

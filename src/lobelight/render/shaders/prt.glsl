@@ -9,11 +9,7 @@ in vec3 in_pos;
 
 uniform sampler2D gauss_tex;   // RGBA32F, 2 texels per record (w.rgb, sigma), (mu.xyz, 0)
 uniform sampler2D diff_tex;    // RGBA32F, N_SH texels per vertex: transfer RGB
-// 3 great-circle normals per geodesic triangle, .w = the view index of the opposite corner.
-// A uniform block, not a texture: every vertex reads the same entry at the same time, which
-// the constant cache broadcasts (as a texture, the 540 fetches per vertex were the frame's
-// cost on an H100: 6 ms for 50K vertices)
-layout(std140) uniform Planes { vec4 planes[540]; };
+// the geodesic triangles' planes and test_face() come from geodesic.glsl
 uniform sampler2D cand_tex;    // RGBA32F, candidate triangles per cube-map texel (-1 padded):
                                // CAND_TEXELS texels per cell, [face * CAND_RES + row, col]
 uniform int tex_width;         // width of gauss_tex and diff_tex
@@ -58,16 +54,7 @@ void main() {
         for (int e = 0; e < 4; ++e) {
             int f = int(c4[e]);
             if (f < 0) break;
-            vec4 p0 = planes[3 * f];
-            vec4 p1 = planes[3 * f + 1];
-            vec4 p2 = planes[3 * f + 2];
-            vec3 det = vec3(dot(p0.xyz, d), dot(p1.xyz, d), dot(p2.xyz, d));
-            float m = min(det.x, min(det.y, det.z));
-            if (m > best) {
-                best = m;
-                bdet = det;
-                views = ivec3(int(p0.w + 0.5), int(p1.w + 0.5), int(p2.w + 0.5));
-            }
+            test_face(f, d, best, bdet, views);
         }
     }
     vec3 b = max(bdet, vec3(0.0));

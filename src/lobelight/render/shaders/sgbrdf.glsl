@@ -171,28 +171,13 @@ vec3 oct_decode(vec2 e) {
 }
 #endif
 #if GEODESIC
-// 3 great-circle normals per geodesic triangle, .w = the view of the opposite corner (as
-// prt.glsl); a uniform block, read by every pixel in the same order
-layout(std140) uniform Planes { vec4 planes[540]; };
+// the geodesic triangles' planes and test_face() come from geodesic.glsl
 // Candidate triangles per cell of a GRID x GRID grid over the hemisphere in Lambert
 // equal-area coordinates (_gl_sgbrdf.face_grid): GRID_K texels per cell, ascending face ids,
 // -1 after the last. Testing the few candidates instead of all 180 triangles made the
 // anisotropic lookup the frame's minor cost (measured in docs/sgbrdf.md)
 uniform sampler2D face_grid;
 
-// triangle f's unnormalised barycentrics of d; keep it when its smallest beats the best
-void test_face(int f, vec3 d, inout float best, inout vec3 bary, inout ivec3 vid) {
-    vec4 p0 = planes[3 * f];
-    vec4 p1 = planes[3 * f + 1];
-    vec4 p2 = planes[3 * f + 2];
-    vec3 det = vec3(dot(p0.xyz, d), dot(p1.xyz, d), dot(p2.xyz, d));
-    float m = min(det.x, min(det.y, det.z));
-    if (m > best) {
-        best = m;
-        bary = det;
-        vid = ivec3(int(p0.w + 0.5), int(p1.w + 0.5), int(p2.w + 0.5));
-    }
-}
 #define CORNERS 3
 #else
 uniform float view_theta[N_VIEWS];  // elevation of each view, increasing
