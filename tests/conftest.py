@@ -54,6 +54,26 @@ def _seed() -> None:
 DEVICES = ["cpu"] + (["cuda"] if torch.cuda.is_available() else [])
 
 
+def tiny_table_params():
+    """Cosine-lobe table parameters small enough to build in about a second (loader tests)."""
+    from lobelight import cosine
+
+    return cosine.TableParams(
+        per_decade=1, e_max=10.0, angle_uniform=4, angle_grading=0.0, angle_pi_grading=0.0,
+        cap_nodes=4, quad_nodes=4,
+    )  # fmt: skip
+
+
+@pytest.fixture(scope="session")
+def tiny_table_path(tmp_path_factory) -> Path:
+    """A saved table file of :func:`tiny_table_params`, built once for the whole session."""
+    from lobelight import cosine
+
+    p = tmp_path_factory.mktemp("tables") / "t.npz"
+    cosine.save_tables(cosine.build_tables(tiny_table_params()), p)
+    return p
+
+
 @pytest.fixture(scope="module")
 def one_torch_thread():
     """One torch thread for a test module: EM and the SG-BRDF harness run many small tensor

@@ -18,6 +18,7 @@ import numpy as np
 import pytest
 import torch
 
+from conftest import tiny_table_params
 from lobelight import cosine, envmap, model, scene
 from lobelight.errors import InputError
 from lobelight.fit import Gaussians, MeshFit
@@ -189,17 +190,12 @@ def test_mesh_off_with_bad_indices(tmp_path):
 # --------------------------------------------------------------------------------------------
 # cosine lobe tables (fixes in lobelight/cosine/_tables.py)
 
-TINY = cosine.TableParams(
-    per_decade=1, e_max=10.0, angle_uniform=4, angle_grading=0.0, angle_pi_grading=0.0,
-    cap_nodes=4, quad_nodes=4,
-)  # fmt: skip
+TINY = tiny_table_params()
 
 
 @pytest.fixture(scope="module")
-def table_arrays(tmp_path_factory):
-    p = tmp_path_factory.mktemp("tables") / "t.npz"
-    cosine.save_tables(cosine.build_tables(TINY), p)
-    with np.load(p, allow_pickle=False) as z:
+def table_arrays(tiny_table_path):
+    with np.load(tiny_table_path, allow_pickle=False) as z:
         return {k: z[k] for k in z.files}
 
 

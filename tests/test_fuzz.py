@@ -34,6 +34,7 @@ import trimesh
 from hypothesis import HealthCheck, Phase, given, settings
 from hypothesis import strategies as st
 
+from conftest import tiny_table_params
 from lobelight import cosine, envmap, model, scene
 from lobelight.errors import InputError
 from lobelight.fit import Gaussians, MeshFit
@@ -652,19 +653,12 @@ def test_fuzz_envmap_pixels_and_aspect(tmp_path, h, w, bad, ext, sanitize):
 # --------------------------------------------------------------------------------------------
 # cosine lobe tables
 
-TINY_TABLES = cosine.TableParams(
-    per_decade=1, e_max=10.0, angle_uniform=4, angle_grading=0.0, angle_pi_grading=0.0,
-    cap_nodes=4, quad_nodes=4,
-)  # fmt: skip
-
 
 @pytest.fixture(scope="module")
-def table_file(tmp_path_factory):
-    p = tmp_path_factory.mktemp("tables") / "t.npz"
-    cosine.save_tables(cosine.build_tables(TINY_TABLES), p)
-    with np.load(p, allow_pickle=False) as z:
+def table_file(tiny_table_path):
+    with np.load(tiny_table_path, allow_pickle=False) as z:
         arrays = {k: z[k] for k in z.files}
-    return _Files(data=p.read_bytes(), arrays=arrays)
+    return _Files(data=tiny_table_path.read_bytes(), arrays=arrays)
 
 
 def _load_tables(path: Path) -> None:
@@ -687,7 +681,7 @@ def table_mutation(draw):
     if kind == "array":
         return kind, draw(array_mutation(("format_version", "params", "info", "product", "cap")))
     if kind == "params":
-        key = draw(st.sampled_from([*TINY_TABLES.to_dict(), "extra"]))
+        key = draw(st.sampled_from([*tiny_table_params().to_dict(), "extra"]))
         value = draw(
             st.one_of(
                 json_values,
@@ -706,7 +700,7 @@ def test_fuzz_tables_structured(tmp_path, table_file, mut):
     if kind == "array":
         arrays = apply_array_mutation(arrays, arg)
     elif kind == "params":
-        params = {**TINY_TABLES.to_dict(), arg[0]: arg[1]}
+        params = {**tiny_table_params().to_dict(), arg[0]: arg[1]}
         arrays["params"] = np.array(json.dumps(params))
     else:
         arrays["info"] = np.array(json.dumps(arg))

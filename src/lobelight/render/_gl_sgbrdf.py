@@ -10,8 +10,9 @@ turns each lobe to the world frame and integrates it against the lighting with
 :class:`lobelight.envmap.Prefiltered`), then sums. The fitted table lives in a float texture
 written once (:func:`lobe_table`; one texel per view and lobe for grey materials, two
 otherwise); nothing is repacked per frame (per frame the CPU sets the camera only). The
-geodesic triangle search tests the few candidates of a precomputed equal-area grid cell
-(:func:`face_grid`) rather than all 180 triangles.
+geodesic triangle search is ``geodesic.glsl``'s, shared with the PRT renderer: the few
+candidates of the view's cube-map texel (:func:`lobelight.sphere.triangle_candidates`) rather
+than all 180 triangles.
 
 ``method="fis"`` is the baseline the paper times against: filtered importance sampling
 (:func:`lobelight.sgbrdf.shade_fis`) with 40 Hammersley samples of Ward's importance sampling,
@@ -34,13 +35,11 @@ import functools
 import math
 import time
 from collections.abc import Mapping
-from types import SimpleNamespace
 from typing import Any
 
 import numpy as np
 import torch
 
-from .. import sphere
 from ..brdf import BRDF, Ward
 from ..brdf import from_dict as brdf_from_dict
 from ..camera import Camera
@@ -53,9 +52,9 @@ from ..sgbrdf._fit import SGBRDF
 from ..sgbrdf._render import MipChain
 from ._gl import (
     _GL_TEXTURE_CUBE_MAP_SEAMLESS,
-    _atlas,
     _program,
     create_context,
+    upload_geodesic,
     upload_prefiltered,
 )
 from ._lighting import Lighting
@@ -64,7 +63,6 @@ __all__ = [
     "METHODS",
     "GLSGBRDFRenderer",
     "bench_gl",
-    "face_grid",
     "gl_mip_chain",
     "is_grey",
     "lobe_table",
@@ -75,8 +73,6 @@ __all__ = [
 METHODS = ("ours", "fis")
 #: Face resolution of the FIS cube map when nothing sets it (the Prefiltered's, else this).
 FIS_BASE_RES = 256
-#: Cells per side of the geodesic layout's candidate-triangle grid (:func:`face_grid`).
-FACE_GRID = 32
 
 
 def gl_mip_chain(env: Any, /, *, base_res: int = FIS_BASE_RES) -> MipChain:
@@ -181,64 +177,6 @@ def _mesh_arrays(mesh: Any) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndar
 
 
 @functools.cache
-def face_grid(grid: int = FACE_GRID, sub: int = 8) -> np.ndarray:
-    """Candidate geodesic triangles per cell of a grid over the upper hemisphere.
-
-    A direction ``q`` (tangent frame, ``q_z > 0``) falls in cell ``floor((l / (2 sqrt 2) +
-    1/2) grid)`` of its Lambert azimuthal equal-area coordinates ``l = q_xy sqrt(2 / (1 +
-    q_z))`` (equal-area, so every cell holds about as many triangles). A cell's candidates are
-    the triangles :func:`lobelight.sphere.locate_views` picks for any of ``sub x sub`` sample
-    directions per cell, over the cell grown by half a cell on every side (triangles are ~15
-    degrees across, cells ~4.5 at the default 32, so a triangle reaching into a cell is
-    sampled); the shader falls back to all 180 triangles where no candidate contains ``q``.
-
-    Returns
-    -------
-    (grid, grid * K) float32 image: cell ``(i, j)`` (row ``i`` along ``l_y``) holds its face
-    ids ascending in texels ``j K ... j K + K - 1``, then -1; ``K`` the most any cell needs
-    """
-    f = grid * sub
-    c = (torch.arange(f, dtype=torch.float64) + 0.5) / f
-    cy, cx = torch.meshgrid(c, c, indexing="ij")
-    lam = torch.stack([cx, cy], -1) * (2 * math.sqrt(2)) - math.sqrt(2)  # (F, F, 2)
-    r2 = (lam * lam).sum(-1, keepdim=True)
-    lam = lam * torch.sqrt(r2.clamp(max=2.0) / r2.clamp_min(1e-30))  # corners onto the rim
-    r2 = r2.clamp(max=2.0)
-    q = torch.cat([lam * torch.sqrt((1 - r2 / 4).clamp_min(0)), 1 - r2 / 2], -1)  # inverse
-    planes, _ = sphere._face_planes(torch.float64, torch.device("cpu"))
-    det = (q[..., [1, 2, 0]].reshape(-1, 3) @ planes).reshape(-1, 180, 3)  # geodesic frame
-    best = det.amin(-1).argmax(-1).reshape(f, f)  # as locate_views
-    onehot = torch.nn.functional.one_hot(best, 180).permute(2, 0, 1).float().unsqueeze(0)
-    m = sub // 2
-    present = torch.nn.functional.max_pool2d(onehot, sub + 2 * m, stride=sub, padding=m)[0]
-    present = present.permute(1, 2, 0) > 0  # (G, G, 180)
-    k = int(present.sum(-1).max())
-    ids = torch.arange(180, dtype=torch.float32).expand(grid, grid, 180)
-    # present faces first, in ascending order: sort by (absent, id)
-    key = torch.where(present, ids, ids + 1000)
-    sorted_key = key.sort(-1).values[..., :k]
-    table = torch.where(sorted_key < 1000, sorted_key, torch.full_like(sorted_key, -1.0))
-    return table.reshape(grid, grid * k).numpy()
-
-
-def _upload_atlas(ctx, pf: Prefiltered):
-    """:func:`lobelight.render._gl.upload_prefiltered`'s atlas and uniforms, the atlas as RGBA
-    (the fourth channel unused): llvmpipe filters four-channel float textures faster than
-    three-channel ones (anisotropic Ward, 16 lobes, 128 x 128: 37-41 -> 47-52 fps, three
-    alternating runs each). The FIS cube map is RGBA too, so both get the fast path."""
-    import moderngl
-
-    shim = SimpleNamespace(prefiltered=pf)
-    tex, uniforms = upload_prefiltered(ctx, shim)  # for its uniforms; the texture is redone
-    tex.release()
-    atlas, _, _ = _atlas(shim)  # (H, W, 3)
-    rgba = np.concatenate([atlas, np.ones_like(atlas[..., :1])], -1)
-    tex = ctx.texture((rgba.shape[1], rgba.shape[0]), 4, rgba.tobytes(), dtype="f4")
-    tex.filter = (moderngl.LINEAR, moderngl.LINEAR)
-    tex.repeat_x = tex.repeat_y = False
-    return tex, uniforms
-
-
 def _oct_encode(mu: torch.Tensor) -> torch.Tensor:
     """Octahedral coordinates ``(..., 2)`` in ``[-1, 1]^2`` of unit vectors ``(..., 3)``
     (float64 in, the shader's ``oct_decode`` inverts it to ~1e-7)."""
@@ -353,9 +291,6 @@ class GLSGBRDFRenderer:
             geo = model.layout == "geodesic"
             if geo and model.params.shape[0] != 92:
                 raise InputError("model", "a geodesic model must have 92 views")
-            if geo:
-                grid_img = face_grid()
-                defines.update(GRID=FACE_GRID, GRID_K=grid_img.shape[1] // FACE_GRID)
             defines.update(
                 GREY=int(is_grey(model)),
                 GEODESIC=int(geo),
@@ -400,7 +335,7 @@ class GLSGBRDFRenderer:
         self.planes_ubo = None
 
         if method == "ours":
-            self.atlas, atlas_uniforms = _upload_atlas(ctx, pf)
+            self.atlas, atlas_uniforms = upload_prefiltered(ctx, pf)
             self._uniforms.update(atlas_uniforms)
             self._uniforms["atlas"] = 3
             table = lobe_table(model, grey=bool(defines["GREY"]))  # (M, N or 2N, 4)
@@ -411,16 +346,11 @@ class GLSGBRDFRenderer:
             self._uniforms["lobe_tex"] = 0
             self._textures += [self.atlas, self.lobe_tex]
             if geo:
-                planes, faces = sphere._face_planes(torch.float32, torch.device("cpu"))
-                pl = torch.cat([planes.T.reshape(180, 3, 3), faces.reshape(180, 3, 1).float()], -1)
-                self.planes_ubo = ctx.buffer(pl.reshape(540, 4).numpy().astype(np.float32))
+                self.planes_ubo, self.cand_tex, geo_defines = upload_geodesic(ctx)
+                self.defines.update(geo_defines)
                 self._buffers.append(self.planes_ubo)
-                self.grid_tex = ctx.texture(
-                    (grid_img.shape[1], grid_img.shape[0]), 1, grid_img.tobytes(), dtype="f4"
-                )
-                self.grid_tex.filter = (moderngl.NEAREST, moderngl.NEAREST)
-                self._textures.append(self.grid_tex)
-                self._uniforms["face_grid"] = 1
+                self._textures.append(self.cand_tex)
+                self._uniforms["cand_tex"] = 1
             else:
                 v = model.views.detach().to("cpu", torch.float32)
                 # the same float32 elevations as _elevation_weights
@@ -554,7 +484,7 @@ class GLSGBRDFRenderer:
             self.atlas.use(3)
             if self.planes_ubo is not None:
                 self.planes_ubo.bind_to_uniform_block(0)
-                self.grid_tex.use(1)
+                self.cand_tex.use(1)
         else:
             self.env_cube.use(2)
         if self.mesh is None:

@@ -9,9 +9,7 @@ in vec3 in_pos;
 
 uniform sampler2D gauss_tex;   // RGBA32F, 2 texels per record (w.rgb, sigma), (mu.xyz, 0)
 uniform sampler2D diff_tex;    // RGBA32F, N_SH texels per vertex: transfer RGB
-// the geodesic triangles' planes and test_face() come from geodesic.glsl
-uniform sampler2D cand_tex;    // RGBA32F, candidate triangles per cube-map texel (-1 padded):
-                               // CAND_TEXELS texels per cell, [face * CAND_RES + row, col]
+// the geodesic triangles and locate_triangle() come from geodesic.glsl
 uniform int tex_width;         // width of gauss_tex and diff_tex
 uniform vec3 sh_light[N_SH];   // the rotated lighting's SH coefficients
 uniform vec3 eye;
@@ -32,31 +30,9 @@ void main() {
     int v = gl_VertexID;
     vec3 d = normalize(eye - in_pos);
 
-    // the geodesic triangle holding d: largest smallest barycentric (as sphere.locate_views),
-    // among the few candidates of d's texel in a cube-map table (sphere.triangle_candidates)
-    // rather than all 180 (the full scan was three quarters of an H100 frame)
-    vec3 ad = abs(d);
-    int face;
-    vec2 uv;
-    if (ad.x >= ad.y && ad.x >= ad.z) {
-        face = d.x >= 0.0 ? 0 : 1; uv = vec2(d.x >= 0.0 ? -d.z : d.z, -d.y) / ad.x;
-    } else if (ad.y >= ad.z) {
-        face = d.y >= 0.0 ? 2 : 3; uv = vec2(d.x, d.y >= 0.0 ? d.z : -d.z) / ad.y;
-    } else {
-        face = d.z >= 0.0 ? 4 : 5; uv = vec2(d.z >= 0.0 ? d.x : -d.x, -d.y) / ad.z;
-    }
-    ivec2 cell = clamp(ivec2(floor((uv + 1.0) * 0.5 * float(CAND_RES))), 0, CAND_RES - 1);
-    float best = -1e30;
-    vec3 bdet = vec3(0.0);
-    ivec3 views = ivec3(0);
-    for (int q = 0; q < CAND_TEXELS; ++q) {
-        vec4 c4 = texelFetch(cand_tex, ivec2(cell.x * CAND_TEXELS + q, face * CAND_RES + cell.y), 0);
-        for (int e = 0; e < 4; ++e) {
-            int f = int(c4[e]);
-            if (f < 0) break;
-            test_face(f, d, best, bdet, views);
-        }
-    }
+    vec3 bdet;
+    ivec3 views;
+    locate_triangle(d, bdet, views);  // geodesic.glsl
     vec3 b = max(bdet, vec3(0.0));
     b /= max(b.x + b.y + b.z, 1e-30);
 

@@ -171,13 +171,7 @@ vec3 oct_decode(vec2 e) {
 }
 #endif
 #if GEODESIC
-// the geodesic triangles' planes and test_face() come from geodesic.glsl
-// Candidate triangles per cell of a GRID x GRID grid over the hemisphere in Lambert
-// equal-area coordinates (_gl_sgbrdf.face_grid): GRID_K texels per cell, ascending face ids,
-// -1 after the last. Testing the few candidates instead of all 180 triangles made the
-// anisotropic lookup the frame's minor cost (measured in docs/sgbrdf.md)
-uniform sampler2D face_grid;
-
+// the geodesic triangles and locate_triangle() come from geodesic.glsl
 #define CORNERS 3
 #else
 uniform float view_theta[N_VIEWS];  // elevation of each view, increasing
@@ -193,20 +187,7 @@ vec3 shade(vec3 n, vec3 t, vec3 b, vec3 o) {
     // the geodesic triangle holding q (sphere.locate_views: largest smallest barycentric),
     // in the geodesic frame (g_x, g_y, g_z) = (q_y, q_z, q_x)
     vec3 d = vec3(q.y, q.z, q.x);
-    float best = -1e30;
-    // the containing triangle (smallest barycentric >= 0) wins over every other, so testing
-    // the cell's candidates in ascending order finds the one the full search finds
-    vec2 lam = q.xy * sqrt(2.0 / (1.0 + q.z));  // Lambert equal-area, |lam| <= sqrt 2
-    ivec2 cell = clamp(ivec2(floor((lam * 0.35355339 + 0.5) * float(GRID))), 0, GRID - 1);
-    for (int i = 0; i < GRID_K; ++i) {
-        float f = texelFetch(face_grid, ivec2(cell.x * GRID_K + i, cell.y), 0).r;
-        if (f < 0.0) break;
-        test_face(int(f + 0.5), d, best, bary, vid);
-    }
-    if (best < -1e-6) {  // no candidate holds q (the table is built by sampling): all 180
-        best = -1e30;
-        for (int f = 0; f < 180; ++f) test_face(f, d, best, bary, vid);
-    }
+    locate_triangle(d, bary, vid);
     bary = max(bary, vec3(0.0));
     bary /= max(bary.x + bary.y + bary.z, TINY);
 #else
