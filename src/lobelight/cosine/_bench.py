@@ -79,20 +79,29 @@ def _sync(device: Any) -> None:
         torch.cuda.synchronize(device)
 
 
-def bench_lobes(*, device: str = "cpu", repeats: int = 3, threads: tuple = (1, None)) -> dict:
+def bench_lobes(
+    *,
+    device: str = "cpu",
+    repeats: int = 3,
+    threads: tuple = (1, None),
+    fused: tuple = (False, True),
+) -> dict:
     """Time both configurations (module docstring); JSON-serialisable dict.
 
     Parameters
     ----------
     device : torch device
-    repeats : timed frames per configuration and thread count (after one warm-up)
+    repeats : timed frames per configuration, thread count and fusion setting (after one
+        warm-up frame, which for a fused run includes compiling)
     threads : torch CPU thread counts to try (None: the process's setting); ignored on a GPU
+    fused : fusion settings to try (:mod:`._fused`: False eager, True ``torch.compile``)
 
     Returns
     -------
     dict with per configuration: points, occluders, depth, ``ms_best``, ``ms_median``, ``fps``
     (from the best frame), products and leaves per point (mean, max), the goal and the
-    paper's fps, per thread count under ``runs`` and the best run's numbers at the top level;
+    paper's fps, per thread count and fusion setting under ``runs`` (with ``warmup_s``, the
+    first frame: compile time for a fused run) and the best run's numbers at the top level;
     and ``machine``
     """
     from ..bench import machine
@@ -104,40 +113,47 @@ def bench_lobes(*, device: str = "cpu", repeats: int = 3, threads: tuple = (1, N
     result: dict = {"benchmark": "cosine_lobes", "machine": machine(str(device))}
     for name, c in cfgs.items():
         runs = []
-        for th in thread_opts:
-            kw = dict(
-                spheres=c["spheres"],
-                depth=5,
-                mode="aggressive",
-                threshold=1e-3,
-                threads=th,
-                device=dev,
-            )
-            res = shade_points(c["points"], c["normals"], c["wo"], c["brdf"], lights, **kw)
-            _sync(device)
-            times = []
-            for _ in range(max(1, int(repeats))):
+        for fz in fused:
+            for th in thread_opts:
+                kw = dict(
+                    spheres=c["spheres"],
+                    depth=5,
+                    mode="aggressive",
+                    threshold=1e-3,
+                    threads=th,
+                    fused=bool(fz),
+                    device=dev,
+                )
                 t0 = time.perf_counter()
                 res = shade_points(c["points"], c["normals"], c["wo"], c["brdf"], lights, **kw)
                 _sync(device)
-                times.append(time.perf_counter() - t0)
-            times.sort()
-            runs.append(
-                {
-                    "threads": th if th is not None else torch.get_num_threads(),
-                    "ms_best": 1e3 * times[0],
-                    "ms_median": 1e3 * times[len(times) // 2],
-                    "fps": 1.0 / times[0],
-                    "fps_median": 1.0 / times[len(times) // 2],
-                }
-            )
+                warmup = time.perf_counter() - t0
+                times = []
+                for _ in range(max(1, int(repeats))):
+                    t0 = time.perf_counter()
+                    res = shade_points(c["points"], c["normals"], c["wo"], c["brdf"], lights, **kw)
+                    _sync(device)
+                    times.append(time.perf_counter() - t0)
+                times.sort()
+                runs.append(
+                    {
+                        "fused": bool(fz),
+                        "threads": th if th is not None else torch.get_num_threads(),
+                        "warmup_s": warmup,
+                        "ms_best": 1e3 * times[0],
+                        "ms_median": 1e3 * times[len(times) // 2],
+                        "fps": 1.0 / times[0],
+                        "fps_median": 1.0 / times[len(times) // 2],
+                    }
+                )
         best = max(runs, key=lambda r: r["fps"])
+        keys = ("fused", "threads", "ms_best", "ms_median", "fps", "fps_median")
         result[name] = {
             "points": int(c["points"].shape[0]),
             "lights": 1,
             "occluders": 0 if c["spheres"] is None else int(c["spheres"].shape[0]),
             "depth": 5 if c["spheres"] is not None else None,
-            **{k: best[k] for k in ("threads", "ms_best", "ms_median", "fps", "fps_median")},
+            **{k: best[k] for k in keys},
             "products_per_point_mean": float(res.products.float().mean()),
             "products_per_point_max": int(res.products.max()),
             "leaves_per_point_mean": float(res.leaves.float().mean()),

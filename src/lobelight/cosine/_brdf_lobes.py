@@ -30,6 +30,7 @@ import torch
 
 from .. import brdf as _brdf
 from ..errors import InputError
+from ._fused import kernel
 from ._lobeset import Lobes, multiply
 from ._tables import LobeTables
 
@@ -127,15 +128,14 @@ def brdf_lobes(
     """
     if cosine not in ("product", "axis", "none"):
         raise InputError("cosine", f"must be 'product', 'axis' or 'none', got {cosine!r}")
-    fr = _brdf._Frame(normals, tangents)
-    wo_local = fr.local(wo)
-    raw, is_cos = _raw_lobes(model, fr, wo_local)
-    axis = torch.stack([r[0] for r in raw], -2)  # (P, I, 3)
-    exponent = torch.stack([r[1] for r in raw], -1)  # (P, I)
-    scale = torch.stack([r[2] for r in raw], -2).to(axis.dtype)  # (P, I, 3)
+    axis, exponent, scale, front, is_cos = _raw_stack(model, normals, wo, tangents)
     need = [i for i, c in enumerate(is_cos) if not c]
     if need and cosine != "none":
-        sub = Lobes(axis[:, need], exponent[:, need], scale[:, need])
+        if len(need) < len(is_cos):
+            ix = torch.tensor(need, device=axis.device)
+            sub = Lobes(axis[:, ix], exponent[:, ix], scale[:, ix])
+        else:
+            sub = Lobes(axis, exponent, scale)
         if cosine == "product":
             ones = torch.ones_like(exponent[:, :1])
             cos_lobe = Lobes(normals.unsqueeze(1), ones, torch.ones_like(scale[:, :1, :1]))
@@ -143,7 +143,24 @@ def brdf_lobes(
         else:
             c = (sub.axis * normals.unsqueeze(1)).sum(-1).clamp_min(0)  # (P, n)
             sub = Lobes(sub.axis, sub.exponent, sub.scale * c.unsqueeze(-1))
-        axis, exponent, scale = axis.clone(), exponent.clone(), scale.clone()
-        axis[:, need], exponent[:, need], scale[:, need] = sub.axis, sub.exponent, sub.scale
-    front = (wo_local[..., 2] > 0).to(scale.dtype)[:, None, None]  # (P, 1, 1)
+        if len(need) < len(is_cos):  # put the products back in their places
+            axis = axis.index_copy(1, ix, sub.axis)
+            exponent = exponent.index_copy(1, ix, sub.exponent)
+            scale = scale.index_copy(1, ix, sub.scale)
+        else:
+            axis, exponent, scale = sub
     return Lobes(axis, exponent, scale * front)
+
+
+@kernel
+def _raw_stack(model: _brdf.BRDF, normals, wo, tangents):
+    """The model's lobes before the cosine: axis (P, I, 3), exponent (P, I), scale (P, I, 3),
+    the one-sided mask (P, 1, 1) and which lobes are already cosines (a tuple of I bools)."""
+    fr = _brdf._Frame(normals, tangents)
+    wo_local = fr.local(wo)
+    raw, is_cos = _raw_lobes(model, fr, wo_local)
+    axis = torch.stack([r[0] for r in raw], -2)  # (P, I, 3)
+    exponent = torch.stack([r[1] for r in raw], -1)  # (P, I)
+    scale = torch.stack([r[2] for r in raw], -2).to(axis.dtype)  # (P, I, 3)
+    front = (wo_local[..., 2] > 0).to(scale.dtype)[:, None, None]  # (P, 1, 1)
+    return axis, exponent, scale, front, tuple(is_cos)

@@ -22,7 +22,7 @@ from ..errors import InputError
 from ._lobeset import Lobes
 from ._tables import LobeTables
 
-__all__ = ["SphereLight", "cap_lobe", "light_lobes"]
+__all__ = ["SphereLight", "cap_lobe", "cap_lobes", "light_lobes"]
 
 _TWO_PI = 2 * math.pi
 
@@ -92,6 +92,11 @@ def light_geometry(points: torch.Tensor, lights):
     clamped to ``pi/2`` (the cap lobe is then the cosine-0 hemisphere).
     """
     centres, radii, _ = _light_tensors(lights, points)
+    return _geometry(points, centres, radii)
+
+
+def _geometry(points, centres, radii):
+    """:func:`light_geometry` from (J, 3) centres and (J,) radii."""
     d = centres.unsqueeze(0) - points.unsqueeze(1)  # (P, J, 3)
     dist = torch.linalg.vector_norm(d, dim=-1)
     axis = d / dist.clamp_min(1e-30).unsqueeze(-1)
@@ -112,7 +117,15 @@ def light_lobes(points: torch.Tensor, lights, *, tables: LobeTables) -> Lobes:
     :class:`~._lobeset.Lobes`: axis (P, J, 3), exponent (P, J), scale (P, J, 3) =
     ``Le * Omega (e + 1) / (2 pi)``
     """
-    _, _, radiance = _light_tensors(lights, points)
-    axis, _, theta = light_geometry(points, lights)
+    return cap_lobes(points, *_light_tensors(lights, points), tables=tables)
+
+
+def cap_lobes(points, centres, radii, radiance, *, tables: LobeTables) -> Lobes:
+    """:func:`light_lobes` from light tensors: centres (J, 3), radii (J,), radiance (J, 3).
+
+    Tensors rather than :class:`SphereLight` objects, so that a compiled caller
+    (:mod:`._fused`) sees a moving light as new data, not as new constants.
+    """
+    axis, _, theta = _geometry(points, centres, radii)
     e, s = cap_lobe(axis, theta, tables=tables)
     return Lobes(axis, e, s.unsqueeze(-1) * radiance.unsqueeze(0))

@@ -28,7 +28,8 @@ import torch
 from .. import brdf as _brdf
 from ..errors import InputError
 from ._brdf_lobes import brdf_lobes
-from ._light import SphereLight, cap_lobe, light_geometry, light_lobes
+from ._fused import fusion
+from ._light import SphereLight, _geometry, _light_tensors, cap_lobe, cap_lobes
 from ._lobeset import Lobes, multiply, product_integral
 from ._tables import LobeTables, _cpu_threads, get_tables
 from ._visibility import MODES, interp_coefficients, leaf_weights, shadow_leaves
@@ -91,6 +92,7 @@ def shade_points(
     tables: LobeTables | None = None,
     chunk: int = 16384,
     threads: int | None = None,
+    fused: bool | None = None,
     device: Any = None,
 ) -> ShadeResult:
     """Outgoing direct radiance of ``P`` points lit by spherical lights, shadowed by spheres.
@@ -112,6 +114,9 @@ def shade_points(
     chunk : points per batch (memory: ~ a few kB per point and shadow leaf)
     threads : torch CPU threads while shading (None: as set). One thread is often faster on a
         shared 2-core machine (see ``bench_lobes``).
+    fused : run the hot path compiled by ``torch.compile`` (:mod:`._fused`: several times
+        faster per frame once compiled; the first call compiles, seconds to a minute). None:
+        as the enclosing :func:`~._fused.fusion` block says (default off)
     device : where to compute (default: the device of ``points``)
 
     Returns
@@ -158,7 +163,8 @@ def shade_points(
     model = brdf.to(dev)
     outs, prods, nleaves = [], [], []
     ctx = _cpu_threads(threads) if dev.type == "cpu" else contextlib.nullcontext()
-    with ctx, torch.no_grad():
+    fuse = contextlib.nullcontext() if fused is None else fusion(fused)
+    with ctx, fuse, torch.no_grad():
         for s in range(0, P, chunk):
             sl = slice(s, s + chunk)
             m = (
@@ -224,25 +230,19 @@ def _shade_chunk(
     """One chunk: radiance (P, 3), products (P,), leaves (P,) [, calibration features]."""
     P = x.shape[0]
     dev = x.device
-    f = brdf_lobes(model, n, wo, tables=tables, cosine=cosine, preserve_integral=preserve)
     n_cos = 0 if cosine != "product" else _count_cosine_products(model)
-    light = light_lobes(x, lights, tables=tables)  # (P, J)
-    I, J = f.exponent.shape[1], light.exponent.shape[1]
-    fa = Lobes(f.axis.unsqueeze(2), f.exponent.unsqueeze(2), f.scale.unsqueeze(2))
-    la = Lobes(light.axis.unsqueeze(1), light.exponent.unsqueeze(1), light.scale.unsqueeze(1))
-    if spheres is None:  # nothing multiplies m_ij again: its integral is all that is needed
-        m = None
-        mint = product_integral(tables, fa, la, preserve_integral=preserve)  # (P, I, J, 3)
-    else:
-        m = multiply(tables, fa, la, preserve_integral=preserve)  # (P, I, J)
-        mint = m.integral()  # (P, I, J, 3)
+    centres, radii, radiance_l = _light_tensors(lights, x)
+    mint, m = _direct(
+        model, x, n, wo, centres, radii, radiance_l, tables, cosine, preserve, spheres is not None
+    )  # (P, I, J, 3), the product lobes m_ij (P, I, J) when shadows multiply them again
+    I, J = mint.shape[1], mint.shape[2]
     keep = mint.amax(-1) >= threshold  # (P, I, J)
     radiance = (mint * keep.unsqueeze(-1)).sum((1, 2))  # (P, 3)
     products = torch.full((P,), n_cos + I * J, dtype=torch.long, device=dev)
     nleaves = torch.zeros(P, dtype=torch.long, device=dev)
     feats = []
     if spheres is not None:
-        axis, dist_l, theta = light_geometry(x, lights)  # (P, J, 3), (P, J), (P, J)
+        axis, dist_l, theta = _geometry(x, centres, radii)  # (P, J, 3), (P, J), (P, J)
         for j in range(J):  # lights: a small fixed count
             lv = shadow_leaves(
                 x,
@@ -258,22 +258,25 @@ def _shade_chunk(
             if lv.point.numel() == 0:
                 continue
             nleaves += torch.bincount(lv.point, minlength=P)
-            # the leaf's lobe: the paper's bounding-cap exponent; its integral is the cell's
-            # own solid angle (leaf_scale="cell") or the bounding cap's ("cap")
-            e_k, s_k = cap_lobe(lv.axis, lv.theta, tables=tables)
-            if leaf_scale == "cell":
-                s_k = lv.omega * (e_k + 1) / (2 * math.pi)
             # (leaf, reflectance lobe) pairs whose m_ij survived the threshold
             ok = keep[lv.point, :, j]  # (L, I)
             leaf, i = ok.nonzero(as_tuple=True)  # (Q,)
             if leaf.numel() == 0:
                 continue
             pt = lv.point[leaf]
-            mj = Lobes(m.axis[pt, i, j], m.exponent[pt, i, j], m.scale[pt, i, j])
-            ck = Lobes(lv.axis[leaf], e_k[leaf], s_k[leaf].unsqueeze(-1))
-            val = product_integral(tables, mj, ck, preserve_integral=preserve)  # (Q, 3)
             products += torch.bincount(pt, minlength=P)
-            val = val * (val.amax(-1, keepdim=True) >= threshold)
+            val = _leaf_products(
+                m.axis[pt, i, j],
+                m.exponent[pt, i, j],
+                m.scale[pt, i, j],
+                lv.axis[leaf],
+                lv.theta[leaf],
+                lv.omega[leaf],
+                tables,
+                preserve,
+                leaf_scale == "cell",
+                threshold,
+            )  # (Q, 3)
             if features:
                 i0, i1, lam = interp_coefficients(lv.dist[pt])
                 feats.append((pt, lv.depth[leaf], i0, i1, lam, val))
@@ -284,6 +287,44 @@ def _shade_chunk(
     if features:
         return radiance, products, nleaves, feats
     return radiance, products, nleaves
+
+
+def _direct(model, x, n, wo, centres, radii, radiance, tables, cosine, preserve, lobes: bool):
+    """Reflectance x lighting of each point, ``m_ij = f_i L_j``.
+
+    Parameters
+    ----------
+    x, n, wo : (P, 3);  centres (J, 3), radii (J,), radiance (J, 3) of the lights
+    lobes : also build the product lobes (they are multiplied again by visibility)
+
+    Returns
+    -------
+    integrals : (P, I, J, 3) ``∫ m_ij``;  the product :class:`Lobes` (P, I, J) or None
+    """
+    f = brdf_lobes(model, n, wo, tables=tables, cosine=cosine, preserve_integral=preserve)
+    light = cap_lobes(x, centres, radii, radiance, tables=tables)  # (P, J)
+    fa = Lobes(f.axis.unsqueeze(2), f.exponent.unsqueeze(2), f.scale.unsqueeze(2))
+    la = Lobes(light.axis.unsqueeze(1), light.exponent.unsqueeze(1), light.scale.unsqueeze(1))
+    if not lobes:  # nothing multiplies m_ij again: its integral is all that is needed
+        return product_integral(tables, fa, la, preserve_integral=preserve), None
+    m = multiply(tables, fa, la, preserve_integral=preserve)  # (P, I, J)
+    return m.integral(), m
+
+
+def _leaf_products(m_axis, m_exp, m_scale, axis, theta, omega, tables, preserve, cell, threshold):
+    """``∫ m_ij c_k`` of (product lobe, shadow leaf) pairs, below ``threshold`` culled.
+
+    The leaf's lobe has the paper's bounding-cap exponent; its integral is the cell's own solid
+    angle (``cell``) or the bounding cap's. All (Q, ...): m_axis (Q, 3), m_exp (Q,),
+    m_scale (Q, 3), axis (Q, 3), theta (Q,), omega (Q,). Returns (Q, 3).
+    """
+    e_k, s_k = cap_lobe(axis, theta, tables=tables)
+    if cell:
+        s_k = omega * (e_k + 1) / (2 * math.pi)
+    mj = Lobes(m_axis, m_exp, m_scale)
+    ck = Lobes(axis, e_k, s_k.unsqueeze(-1))
+    val = product_integral(tables, mj, ck, preserve_integral=preserve)  # (Q, 3)
+    return val * (val.amax(-1, keepdim=True) >= threshold)
 
 
 def _count_cosine_products(model: _brdf.BRDF) -> int:

@@ -78,7 +78,7 @@ import time
 import zipfile
 import zlib
 from pathlib import Path
-from typing import Any
+from typing import Any, NamedTuple
 
 import numpy as np
 import torch
@@ -86,6 +86,7 @@ import torch
 from .._backend import dispatch
 from ..errors import InputError
 from ..sphere import _check_vec, _float
+from ._fused import kernel
 from ._lobe import (
     _axis_pair,
     _check_exponent,
@@ -428,6 +429,10 @@ class LobeTables:
     cap_table: torch.Tensor
     info: dict = dataclasses.field(default_factory=dict)
 
+    def __post_init__(self) -> None:
+        # the grid as Python numbers, once: a compiled lookup reads them as constants
+        object.__setattr__(self, "_grid", _Grid.of(self.params))
+
     @property
     def device(self) -> torch.device:
         return self.product_table.device
@@ -458,41 +463,8 @@ class LobeTables:
 
     def _product_cs(self, e1, e2, c, s, preserve_integral):
         """Lookup from ``cos``/``sin`` of the angle: ``(cos b, sin b, exponent, log p_r)``."""
-        p = self.params
         tab = self.product_table.to(e1.device)
-        n, na = p.n_exponent, p.n_angle
-        cb, sb, _, _, log_peak = _peak(e1, e2, c, s)
-        # normalised table coordinates; above e_max keep the ratio e1 : e2 (sharp limit)
-        top = torch.maximum(e1, e2)
-        k = torch.where(top > p.e_max, p.e_max / top.clamp_min(1e-30), 1.0)
-        u0, u1 = p._u_range
-        du = (u1 - u0) / (n - 1)
-        f1 = ((torch.log10(e1 * k + p.e_offset) - u0) / du).clamp(0, n - 1)
-        f2 = ((torch.log10(e2 * k + p.e_offset) - u0) / du).clamp(0, n - 1)
-        f1, f2 = torch.minimum(f1, f2), torch.maximum(f1, f2)  # symmetric table: i <= j
-        v0, v1 = p._v_range
-        alpha = torch.atan2(s, c)
-        fa = ((p._angle_coord(alpha) - v0) * ((na - 1) / (v1 - v0))).clamp(0, na - 1)
-        i, j, m = (f.floor().clamp(max=top_ - 2) for f, top_ in ((f1, n), (f2, n), (fa, na)))
-        ti, tj, tm = f1 - i, f2 - j, fa - m
-        i, j, m = i.long(), j.long(), m.long()
-        flat = tab.view(-1, 3)
-        acc = torch.zeros((*e1.shape, 3), dtype=tab.dtype, device=tab.device)
-        for di, wi in ((0, 1 - ti), (1, ti)):
-            for dj, wj in ((0, 1 - tj), (1, tj)):
-                a, b = i + di, j + dj
-                lo, hi = torch.minimum(a, b), torch.maximum(a, b)
-                row = (lo * n - lo * (lo - 1) // 2 + (hi - lo)) * na + m  # (...,) flat index
-                wij = (wi * wj).to(tab.dtype)
-                for dm, wm in ((0, 1 - tm), (1, tm)):
-                    acc = acc + (wij * wm.to(tab.dtype)).unsqueeze(-1) * flat[row + dm]
-        acc = acc.to(e1.dtype)
-        q, rho, ratio = acc.unbind(-1)
-        exponent = (torch.exp(rho) * (e1 + e2 + 1) - 1).clamp_min(0)
-        log_scale = torch.log(q.clamp_min(0)) + log_peak
-        if preserve_integral:
-            log_scale = log_scale + ratio
-        return cb, sb, exponent, log_scale
+        return _product_lookup(e1, e2, c, s, tab, self._grid, bool(preserve_integral))
 
     @dispatch
     def product(self, e1, e2, angle, /, *, preserve_integral: bool = False):
@@ -576,15 +548,91 @@ class LobeTables:
         (...) exponents (the lobe's scale is 1: ``max(h.w, 0)^e``)
         """
         theta = _float(theta)
-        tab = self.cap_table.to(theta.device)
-        n = tab.numel()
-        f = (theta.clamp(0, _HALF_PI) * ((n - 1) / _HALF_PI)).clamp(0, n - 1)
-        i = f.floor().clamp(max=n - 2)
-        t = (f - i).to(tab.dtype)
-        i = i.long()
-        kappa = ((1 - t) * tab[i] + t * tab[i + 1]).to(theta.dtype)
-        s = 2 * torch.sin(theta.clamp(0, _HALF_PI) / 2) ** 2  # 1 - cos, exact for small caps
-        return torch.where(theta >= _HALF_PI, 0.0, kappa / s)
+        return _cap_lookup(theta, self.cap_table.to(theta.device))
+
+
+@kernel
+def _cap_lookup(theta: torch.Tensor, tab: torch.Tensor) -> torch.Tensor:
+    """:meth:`LobeTables.cap_exponent` on a (cap_nodes,) ``kappa`` table."""
+    n = tab.shape[0]
+    f = (theta.clamp(0, _HALF_PI) * ((n - 1) / _HALF_PI)).clamp(0, n - 1)
+    i = f.floor().clamp(max=n - 2)
+    t = (f - i).to(tab.dtype)
+    i = i.long()
+    kappa = ((1 - t) * tab[i] + t * tab[i + 1]).to(theta.dtype)
+    s = 2 * torch.sin(theta.clamp(0, _HALF_PI) / 2) ** 2  # 1 - cos, exact for small caps
+    return torch.where(theta >= _HALF_PI, 0.0, kappa / s)
+
+
+class _Grid(NamedTuple):
+    """The product table's grid as Python numbers (constants for a compiled lookup)."""
+
+    n: int  # exponent nodes
+    na: int  # angle nodes
+    e_max: float
+    e_offset: float
+    u0: float  # log10(e_offset)
+    du: float  # exponent-node spacing in u
+    v0: float  # angle coordinate of alpha = 0
+    v_scale: float  # angle nodes per unit of v
+    h: float  # the ungraded angle spacing
+    g1: float
+    w1: float
+    g2: float
+    w2: float
+
+    @classmethod
+    def of(cls, p: TableParams) -> _Grid:
+        u0, u1 = p._u_range
+        v0, v1 = p._v_range
+        n, na = p.n_exponent, p.n_angle
+        return cls(
+            n, na, float(p.e_max), float(p.e_offset), u0, (u1 - u0) / (n - 1), v0,
+            (na - 1) / (v1 - v0), math.pi / (p.angle_uniform - 1), float(p.angle_grading),
+            float(p.angle_width), float(p.angle_pi_grading), float(p.angle_pi_width),
+        )  # fmt: skip
+
+
+@kernel
+def _product_lookup(e1, e2, c, s, tab: torch.Tensor, g: _Grid, preserve_integral: bool):
+    """Trilinear lookup of the (upper-triangle) product table: ``(cos b, sin b, e_r, log p_r)``.
+
+    e1, e2, c, s : (...) exponents and cos/sin of the angle between the axes;
+    tab : (n_pairs, n_angle, 3) :attr:`LobeTables.product_table`
+    """
+    n, na = g.n, g.na
+    cb, sb, _, _, log_peak = _peak(e1, e2, c, s)
+    # normalised table coordinates; above e_max keep the ratio e1 : e2 (sharp limit)
+    top = torch.maximum(e1, e2)
+    k = torch.where(top > g.e_max, g.e_max / top.clamp_min(1e-30), 1.0)
+    f1 = ((torch.log10(e1 * k + g.e_offset) - g.u0) / g.du).clamp(0, n - 1)
+    f2 = ((torch.log10(e2 * k + g.e_offset) - g.u0) / g.du).clamp(0, n - 1)
+    f1, f2 = torch.minimum(f1, f2), torch.maximum(f1, f2)  # symmetric table: i <= j
+    alpha = torch.atan2(s, c)
+    # TableParams._angle_coord, inlined on Python constants
+    v = alpha / g.h + g.g1 * torch.asinh((alpha - _HALF_PI) / g.w1)
+    v = v + g.g2 * torch.asinh((alpha - math.pi) / g.w2)
+    fa = ((v - g.v0) * g.v_scale).clamp(0, na - 1)
+    i, j, m = (f.floor().clamp(max=top_ - 2) for f, top_ in ((f1, n), (f2, n), (fa, na)))
+    ti, tj, tm = f1 - i, f2 - j, fa - m
+    i, j, m = i.long(), j.long(), m.long()
+    flat = tab.view(-1, 3)
+    acc = torch.zeros((*e1.shape, 3), dtype=tab.dtype, device=tab.device)
+    for di, wi in ((0, 1 - ti), (1, ti)):
+        for dj, wj in ((0, 1 - tj), (1, tj)):
+            a, b = i + di, j + dj
+            lo, hi = torch.minimum(a, b), torch.maximum(a, b)
+            row = (lo * n - lo * (lo - 1) // 2 + (hi - lo)) * na + m  # (...,) flat index
+            wij = (wi * wj).to(tab.dtype)
+            for dm, wm in ((0, 1 - tm), (1, tm)):
+                acc = acc + (wij * wm.to(tab.dtype)).unsqueeze(-1) * flat[row + dm]
+    acc = acc.to(e1.dtype)
+    q, rho, ratio = acc.unbind(-1)
+    exponent = (torch.exp(rho) * (e1 + e2 + 1) - 1).clamp_min(0)
+    log_scale = torch.log(q.clamp_min(0)) + log_peak
+    if preserve_integral:
+        log_scale = log_scale + ratio
+    return cb, sb, exponent, log_scale
 
 
 @contextlib.contextmanager

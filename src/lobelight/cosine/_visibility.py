@@ -51,6 +51,7 @@ import torch
 
 from ..errors import InputError
 from ..sphere import frame
+from ._fused import kernel
 
 __all__ = ["DIST_NODES", "MODES", "Leaves", "leaf_weights", "shadow_leaves"]
 
@@ -160,99 +161,180 @@ def shadow_leaves(
         return empty
     t, b, a = frame(light_axis)
     # ---- clipping: dense (P, N) test, then a flat list of (point, occluder) pairs
-    d = spheres[:, :3].unsqueeze(0) - points.unsqueeze(1)  # (P, N, 3)
-    dn = torch.linalg.vector_norm(d, dim=-1)
-    rad = spheres[:, 3].unsqueeze(0)
-    along = (d * a.unsqueeze(1)).sum(-1)  # (P, N) distance along the light's axis
-    cos_g = along / dn.clamp_min(1e-30)  # angle between the light and the occluder's centre
-    sin_phi = (rad / dn.clamp_min(1e-30)).clamp(max=1.0)
-    phi = torch.asin(sin_phi)
-    reach = phi + torch.atan(span * math.sqrt(2)).unsqueeze(1)  # the square's corner angle
-    keep = (dn > rad) & (along - rad < light_dist.unsqueeze(1))
-    keep &= cos_g > torch.cos(reach.clamp(max=math.pi))
-    if exclude is not None:
-        ids = torch.arange(N, device=dev)
-        keep &= ids.unsqueeze(0) != exclude.unsqueeze(1)
+    ex = exclude if exclude is not None else torch.full((P,), -1, dtype=torch.long, device=dev)
+    keep = _clip(points, a, light_dist, span, spheres, ex)  # (P, N)
     pp, pn = keep.nonzero(as_tuple=True)  # (Q,) pairs
     if pp.numel() == 0:
         return empty
-    dl = d[pp, pn] / dn[pp, pn].unsqueeze(-1)  # (Q, 3) unit direction to the occluder
-    o = torch.stack([(dl * t[pp]).sum(-1), (dl * b[pp]).sum(-1), (dl * a[pp]).sum(-1)], -1)
-    cos_phi = torch.sqrt((1 - sin_phi[pp, pn] ** 2).clamp_min(0))  # (Q,)
     # per pair: the occluder's unit direction in the light frame and its cone, (Q, 5)
-    pq = torch.cat([o, cos_phi.unsqueeze(-1), phi[pp, pn].unsqueeze(-1)], -1)
+    pq = _pair_cones(points[pp], spheres[pn], t[pp], b[pp], a[pp])
     # ---- the quad-tree, level by level over the flat lists
     cell_pt = torch.arange(P, device=dev)  # (C,) point of each live cell
     cu = torch.zeros(P, dtype=dt, device=dev)
     cv = torch.zeros(P, dtype=dt, device=dev)
     pair_cell = pp  # (Q,) live cell of each pair (at level 0 the cell id is the point id)
+    pair_src = torch.arange(pp.numel(), device=dev)  # (Q,) the pair's row of pq
     leaves_pt, leaves_depth, leaves_u, leaves_v = [], [], [], []
-    sgn_u = torch.tensor([-1.0, 1.0, -1.0, 1.0], dtype=dt, device=dev)
-    sgn_v = torch.tensor([-1.0, -1.0, 1.0, 1.0], dtype=dt, device=dev)
     for level in range(int(depth) + 1):
-        C = cell_pt.numel()
-        h = torch.full((C,), 0.5 / 2**level, dtype=dt, device=dev)
-        kc = k[cell_pt]
-        # tangent-plane coordinates of the cell's centre (x0, y0) and corners (x0 +- dx,
-        # y0 +- dx); a direction is (x, y, 1) / norm, so its dot with an occluder's unit
-        # direction o is linear in (x, y): no (pairs, 4, 3) tensors are formed
-        x0, y0, dx = kc * cu, kc * cv, kc * h  # (C,)
-        cxs = x0.unsqueeze(-1) + dx.unsqueeze(-1) * sgn_u  # (C, 4)
-        cys = y0.unsqueeze(-1) + dx.unsqueeze(-1) * sgn_v
-        inv_c = torch.rsqrt(1 + cxs * cxs + cys * cys)  # (C, 4) 1 / |corner|
-        inv_m = torch.rsqrt(1 + x0 * x0 + y0 * y0)  # (C,) 1 / |centre|
-        cos_r = (cxs * x0.unsqueeze(-1) + cys * y0.unsqueeze(-1) + 1) * inv_c
-        radius = torch.acos((cos_r * inv_m.unsqueeze(-1)).clamp(-1, 1)).amax(-1)  # (C,)
-        # one gather of the per-cell values each pair needs: (Q, 9)
-        cell = torch.cat([torch.stack([x0, y0, dx, inv_m, radius], -1), inv_c], -1)[pair_cell]
-        ox, oy, oz, cos_phi, phi_q = pq.unbind(-1)  # (Q,) occluder direction and cone
-        base = cell[:, 0] * ox + cell[:, 1] * oy + oz  # (Q,) centre . o, unnormalised
-        ddx, ddy = cell[:, 2] * ox, cell[:, 2] * oy
-        dots = base.unsqueeze(-1) + ddx.unsqueeze(-1) * sgn_u + ddy.unsqueeze(-1) * sgn_v
-        inside = (dots * cell[:, 5:]).amin(-1) >= cos_phi  # (Q,) all four corners in the cone
-        gamma = torch.acos((base * cell[:, 3]).clamp(-1, 1))
-        touch = gamma < phi_q + cell[:, 4]
-        covered = torch.zeros(C, dtype=torch.bool, device=dev)
-        covered[pair_cell[inside]] = True
-        partial_pair = touch & ~inside & ~covered[pair_cell]
-        partial = torch.zeros(C, dtype=torch.bool, device=dev)
-        partial[pair_cell[partial_pair]] = True
-        partial &= ~covered
+        covered, partial, partial_pair = _cell_tests(
+            cu, cv, k, cell_pt, 0.5 / 2**level, pair_cell, pq, pair_src
+        )  # (C,), (C,), (Q,)
         last = level == int(depth)
-        leaf = covered | (
-            partial if (last and mode == "conservative") else torch.zeros_like(covered)
-        )
-        if bool(leaf.any()):
-            leaves_pt.append(cell_pt[leaf])
-            leaves_depth.append(torch.full((int(leaf.sum()),), level, dtype=torch.long, device=dev))
-            leaves_u.append(cu[leaf])
-            leaves_v.append(cv[leaf])
-        if last or not bool(partial.any()):
+        leaf = covered | partial if (last and mode == "conservative") else covered
+        ids = leaf.nonzero(as_tuple=True)[0]
+        if ids.numel():
+            leaves_pt.append(cell_pt[ids])
+            leaves_depth.append(torch.full((ids.numel(),), level, dtype=torch.long, device=dev))
+            leaves_u.append(cu[ids])
+            leaves_v.append(cv[ids])
+        if last:
             break
         # ---- subdivide the partly covered cells; carry their touching pairs to the children
-        rank = torch.cumsum(partial.long(), 0) - 1  # (C,) new index of a subdivided cell
         parents = partial.nonzero(as_tuple=True)[0]  # (C',)
-        q = torch.tensor([[-1.0, -1.0], [1.0, -1.0], [-1.0, 1.0], [1.0, 1.0]], dtype=dt, device=dev)
-        hh = 0.25 / 2**level  # child half-size
-        cu = (cu[parents].unsqueeze(1) + hh * q[:, 0]).reshape(-1)  # (4 C',)
-        cv = (cv[parents].unsqueeze(1) + hh * q[:, 1]).reshape(-1)
-        cell_pt = cell_pt[parents].repeat_interleave(4)
-        keep_pair = partial_pair & partial[pair_cell]
-        pc = rank[pair_cell[keep_pair]]  # (Q',) parent's new index
-        pair_cell = (4 * pc.unsqueeze(1) + torch.arange(4, device=dev)).reshape(-1)  # (4 Q',)
-        pq = pq[keep_pair].repeat_interleave(4, 0)  # (4 Q', 5)
+        if parents.numel() == 0:
+            break
+        moved = partial_pair.nonzero(as_tuple=True)[0]  # (Q',) pairs that go on
+        cu, cv, cell_pt, pair_cell, pair_src = _subdivide(
+            cu, cv, cell_pt, partial, parents, 0.25 / 2**level, pair_cell, pair_src, moved
+        )
     if not leaves_pt:
         return empty
     lp = torch.cat(leaves_pt)
     ld = torch.cat(leaves_depth)
     lu, lv = torch.cat(leaves_u), torch.cat(leaves_v)
-    h = 0.5 / 2 ** ld.to(dt)
-    corners, centre = _corner_dirs(lu, lv, h, k[lp])
-    theta = torch.acos((corners * centre.unsqueeze(1)).sum(-1).clamp(-1, 1)).amax(-1)
-    axis = centre[:, :1] * t[lp] + centre[:, 1:2] * b[lp] + centre[:, 2:] * a[lp]  # (L, 3) world
-    kl = k[lp]
-    omega = cell_solid_angle(kl * (lu - h), kl * (lu + h), kl * (lv - h), kl * (lv + h))
+    axis, theta, omega = _leaf_geometry(lu, lv, ld, k[lp], t[lp], b[lp], a[lp])
     return Leaves(lp, ld, axis, theta, dist, omega)
+
+
+@kernel
+def _clip(points, a, light_dist, span, spheres, exclude):
+    """(P, N) bool: the occluders that may block each point's square (module docstring).
+
+    points (P, 3), a (P, 3) unit axis to the light, light_dist (P,), span (P,) the square's
+    half-width in tangent units, spheres (N, 4), exclude (P,) int64 (-1: none).
+    """
+    d = spheres[:, :3].unsqueeze(0) - points.unsqueeze(1)  # (P, N, 3)
+    dn = torch.linalg.vector_norm(d, dim=-1)
+    rad = spheres[:, 3].unsqueeze(0)
+    along = (d * a.unsqueeze(1)).sum(-1)  # (P, N) distance along the light's axis
+    cos_g = along / dn.clamp_min(1e-30)  # angle between the light and the occluder's centre
+    phi = torch.asin((rad / dn.clamp_min(1e-30)).clamp(max=1.0))
+    reach = phi + torch.atan(span * math.sqrt(2)).unsqueeze(1)  # the square's corner angle
+    keep = (dn > rad) & (along - rad < light_dist.unsqueeze(1))
+    keep &= cos_g > torch.cos(reach.clamp(max=math.pi))
+    ids = torch.arange(spheres.shape[0], device=points.device)
+    return keep & (ids.unsqueeze(0) != exclude.unsqueeze(1))
+
+
+@kernel
+def _pair_cones(x, sphere, t, b, a):
+    """Per (point, occluder) pair (Q rows of each input): the occluder's unit direction in the
+    point's light frame ``(t, b, a)`` and its cone, ``(ox, oy, oz, cos phi, sin phi)``, (Q, 5)."""
+    d = sphere[:, :3] - x
+    dn = torch.linalg.vector_norm(d, dim=-1, keepdim=True)
+    dl = d / dn
+    o = torch.stack([(dl * t).sum(-1), (dl * b).sum(-1), (dl * a).sum(-1)], -1)
+    sin_phi = (sphere[:, 3:] / dn).clamp(max=1.0)
+    cos_phi = torch.sqrt((1 - sin_phi * sin_phi).clamp_min(0))
+    return torch.cat([o, cos_phi, sin_phi], -1)
+
+
+def _cell_tests(cu, cv, k, cell_pt, h: float, pair_cell, pq, pair_src):
+    """One level of the quad-tree: which cells are covered and which are partly covered.
+
+    Parameters
+    ----------
+    cu, cv : (C,) cell centres in square coordinates;  cell_pt : (C,) their points
+    k : (P,) each point's square scale;  h : the cells' half-size (the same on a level)
+    pair_cell : (Q,) the cell of each (cell, occluder) pair
+    pq : (Q0, 5) the occluder cones of the level-0 pairs;  pair_src : (Q,) each pair's row
+
+    Returns
+    -------
+    covered : (C,) bool, all four corners inside one occluder's cone
+    partial : (C,) bool, touched by a cone but not covered (to subdivide)
+    partial_pair : (Q,) bool, the pairs that carry on to the children of a partial cell
+    """
+    # two kernels: per cell, then per pair; one would recompute each cell for each of its pairs
+    cells = _cell_bounds(cu, cv, k, cell_pt, h)
+    return _pair_tests(cells, pair_cell, pq, pair_src)
+
+
+@kernel
+def _cell_bounds(cu, cv, k, cell_pt, h: float):
+    """Per cell (C, 10): centre ``(x0, y0)`` on the tangent plane, half-size ``dx``, ``1/|centre|``,
+    cosine and sine of the bounding cap's radius, ``1/|corner|`` of the four corners."""
+    # tangent-plane coordinates of the cell's centre (x0, y0) and corners (x0 +- dx,
+    # y0 +- dx); a direction is (x, y, 1) / norm, so its dot with an occluder's unit
+    # direction o is linear in (x, y): no (pairs, 4, 3) tensors are formed
+    kc = k[cell_pt]
+    x0, y0, dx = kc * cu, kc * cv, kc * h  # (C,)
+    sgn_u = torch.tensor([-1.0, 1.0, -1.0, 1.0], dtype=cu.dtype, device=cu.device)
+    sgn_v = torch.tensor([-1.0, -1.0, 1.0, 1.0], dtype=cu.dtype, device=cu.device)
+    cxs = x0.unsqueeze(-1) + dx.unsqueeze(-1) * sgn_u  # (C, 4)
+    cys = y0.unsqueeze(-1) + dx.unsqueeze(-1) * sgn_v
+    inv_c = torch.rsqrt(1 + cxs * cxs + cys * cys)  # (C, 4) 1 / |corner|
+    inv_m = torch.rsqrt(1 + x0 * x0 + y0 * y0)  # (C,) 1 / |centre|
+    cos_r = (cxs * x0.unsqueeze(-1) + cys * y0.unsqueeze(-1) + 1) * inv_c
+    # the cell's bounding cap: its radius is the largest corner angle, i.e. the smallest cosine
+    cos_rad = (cos_r.amin(-1) * inv_m).clamp(-1, 1)  # (C,)
+    sin_rad = torch.sqrt(1 - cos_rad * cos_rad)
+    return torch.cat([torch.stack([x0, y0, dx, inv_m, cos_rad, sin_rad], -1), inv_c], -1)
+
+
+@kernel
+def _pair_tests(cells, pair_cell, pq, pair_src):
+    """:func:`_cell_tests` from :func:`_cell_bounds`'s (C, 10) rows."""
+    C = cells.shape[0]
+    cell = cells[pair_cell]  # (Q, 10)
+    ox, oy, oz, cos_phi, sin_phi = pq[pair_src].unbind(-1)  # (Q,) occluder direction, cone
+    x0, y0, dx, inv_m, cos_rad, sin_rad = cell[:, :6].unbind(-1)
+    base = x0 * ox + y0 * oy + oz  # (Q,) centre . o, unnormalised
+    sgn_u = torch.tensor([-1.0, 1.0, -1.0, 1.0], dtype=cells.dtype, device=cells.device)
+    sgn_v = torch.tensor([-1.0, -1.0, 1.0, 1.0], dtype=cells.dtype, device=cells.device)
+    dots = base.unsqueeze(-1) + (dx * ox).unsqueeze(-1) * sgn_u + (dx * oy).unsqueeze(-1) * sgn_v
+    inside = (dots * cell[:, 6:]).amin(-1) >= cos_phi  # (Q,) all four corners in the cone
+    # touch: the angle between the cell's centre and the occluder is below phi + radius, as
+    # cosines (both angles are below pi/2, so their sum is below pi, where cos decreases)
+    touch = base * inv_m > cos_phi * cos_rad - sin_phi * sin_rad
+    zeros = cells.new_zeros(C)
+    covered = zeros.index_add(0, pair_cell, inside.to(cells.dtype)) > 0
+    partial_pair = touch & ~inside & ~covered[pair_cell]
+    partial = (zeros.index_add(0, pair_cell, partial_pair.to(cells.dtype)) > 0) & ~covered
+    return covered, partial, partial_pair & partial[pair_cell]
+
+
+@kernel
+def _subdivide(cu, cv, cell_pt, partial, parents, hh: float, pair_cell, pair_src, moved):
+    """Split the ``parents`` (C',) of the partly covered cells (``partial``, (C,)) into four
+    children of half-size ``hh`` each, and hand the ``moved`` (Q',) pairs to all four.
+
+    Returns the children's cu, cv, cell_pt (4 C',) and the pairs' cell and row (4 Q',).
+    """
+    dev = cu.device
+    su = torch.tensor([-1.0, 1.0, -1.0, 1.0], dtype=cu.dtype, device=dev)
+    sv = torch.tensor([-1.0, -1.0, 1.0, 1.0], dtype=cu.dtype, device=dev)
+    cu2 = (cu[parents].unsqueeze(1) + hh * su).reshape(-1)
+    cv2 = (cv[parents].unsqueeze(1) + hh * sv).reshape(-1)
+    pt2 = cell_pt[parents].unsqueeze(1).expand(-1, 4).reshape(-1)
+    rank = torch.cumsum(partial.long(), 0) - 1  # (C,) new index of a subdivided cell
+    pc = rank[pair_cell[moved]]  # (Q',) the parent's new index
+    four = torch.arange(4, device=dev)
+    cell2 = (4 * pc.unsqueeze(1) + four).reshape(-1)
+    src2 = pair_src[moved].unsqueeze(1).expand(-1, 4).reshape(-1)
+    return cu2, cv2, pt2, cell2, src2
+
+
+@kernel
+def _leaf_geometry(lu, lv, depth, kl, t, b, a):
+    """World axis (L, 3), bounding-cap half-angle (L,) and solid angle (L,) of the leaves at
+    square coordinates ``(lu, lv)`` of depth ``depth`` (all (L,); frames (L, 3))."""
+    h = 0.5 / torch.pow(2.0, depth.to(lu.dtype))
+    corners, centre = _corner_dirs(lu, lv, h, kl)
+    theta = torch.acos((corners * centre.unsqueeze(1)).sum(-1).amin(-1).clamp(-1, 1))
+    axis = centre[:, :1] * t + centre[:, 1:2] * b + centre[:, 2:] * a  # (L, 3) world
+    omega = cell_solid_angle(kl * (lu - h), kl * (lu + h), kl * (lv - h), kl * (lv + h))
+    return axis, theta, omega
 
 
 def cell_solid_angle(x1, x2, y1, y2):
