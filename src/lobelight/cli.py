@@ -261,7 +261,9 @@ def _cmd_lobes_demo(args) -> dict:
 
     return {
         "command": "lobes-demo",
-        **lobes_demo(args.out, frames=args.frames, size=args.size, device=args.device),
+        **lobes_demo(
+            args.out, frames=args.frames, size=args.size, device=args.device, fused=args.fused
+        ),
     }
 
 
@@ -523,6 +525,11 @@ def _parser() -> argparse.ArgumentParser:
     ld.add_argument("--out", default="lobelight-lobes")
     ld.add_argument("--frames", type=int, default=24)
     ld.add_argument("--size", type=int, default=256)
+    ld.add_argument(
+        "--fused",
+        action="store_true",
+        help="shade with torch.compile'd kernels (faster frames after a compile of up to a minute)",
+    )
 
     be = cmd("bench", _cmd_bench, "benchmarks with machine-readable output")
     be.add_argument(

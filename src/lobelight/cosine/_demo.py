@@ -66,8 +66,12 @@ def lobes_demo(
     device: Any = "cpu",
     depth: int = 5,
     threshold: float = 1e-3,
+    fused: bool = False,
 ) -> dict:
     """Render ``frames`` frames of ``size x size`` into the folder ``out``.
+
+    ``fused`` shades with the compiled kernels (:mod:`._fused`): worth its compile time (up to a
+    minute, once per process) for long sequences or large frames.
 
     Returns
     -------
@@ -112,6 +116,7 @@ def lobes_demo(
             depth=depth,
             threshold=threshold,
             device=device,
+            fused=fused,
             threads=1,  # measured: 1 thread beats 2 on the shared 2-core machine (bench_lobes)
         )
         t2 = time.perf_counter()
