@@ -57,7 +57,8 @@ def _check_points(name: str, x: torch.Tensor, P: int | None = None) -> None:
     if x.ndim != 2 or x.shape[-1] != 3 or (P is not None and x.shape[0] != P):
         want = f"({P}, 3)" if P is not None else "(P, 3)"
         raise InputError(name, f"must be {want}, got {tuple(x.shape)}")
-    if not bool(torch.isfinite(x).all()):
+    # NaN and Inf propagate through min and max: two reductions, no (P, 3) temporaries
+    if x.numel() and not bool(torch.isfinite(torch.stack([x.amin(), x.amax()])).all()):
         raise InputError(name, "must be finite (NaN or Inf found)")
 
 
