@@ -256,6 +256,7 @@ def fit_mesh(
 
     def fit_chunk(i: int, vidx: torch.Tensor, *, all_neighbours: bool) -> None:
         lobe = None
+        chunk = vidx
         if not all_neighbours:
             diffuse[vidx] = tr.diffuse(vidx, ddirs, dom)
             done[vidx] = True
@@ -278,7 +279,14 @@ def fit_mesh(
             gen = torch.Generator().manual_seed(seed * 1_000_003 + 2 * i + int(all_neighbours))
             ind = tr.indirect(vidx, views, paths=indirect_paths, res=16, generator=gen)
         data = gather(tr, vidx, views, indirect=ind, lobe=lobe)
-        ids, mask = _processed_neighbours(mesh, vidx, glossy if all_neighbours else done & glossy)
+        if all_neighbours:
+            avail = glossy
+        else:
+            # the chunk's own vertices are fitted together, now: none may read another's
+            # unfitted state (zero means) as a processed neighbour, for S or as a start
+            avail = done & glossy
+            avail[chunk] = False
+        ids, mask = _processed_neighbours(mesh, vidx, avail)
         nbr_mu = mu[ids] if n > 1 else None  # (B, Q, J, N, 3)
         init = None
         if all_neighbours:  # relaxation starts from the current fit

@@ -11,13 +11,16 @@ and sharpness the data term is quadratic in them, so they are solved exactly (an
 inside the objective — variable projection, which removes the worst-conditioned directions of
 the problem. The batch's objective is the sum of its vertices' objectives (they are independent:
 a wavefront of the flood fill), minimised by batched Levenberg-Marquardt (:mod:`._lm`) on any
-torch device, or by Adam through autograd as an independent check.
+torch device, or by Adam through autograd as an independent check. Both are local; the data
+term does not see the order of a view's Gaussians, so :func:`relabel` then makes the discrete
+moves of eq. (6) they cannot: reordering Gaussians where ``M``, ``V`` or ``S`` prefer it.
 
 This replaces the paper's MATLAB ``fmincon`` on a 20-machine cluster.
 """
 
 from __future__ import annotations
 
+import itertools
 import math
 from dataclasses import dataclass
 
@@ -29,6 +32,8 @@ from ._data import FitData
 from ._lm import levenberg_marquardt
 from ._objective import (
     Weights,
+    _neighbour_mean,
+    _pair_diffs,
     data_term,
     mean_term,
     sigma_term,
@@ -36,7 +41,7 @@ from ._objective import (
     spatial_term,
 )
 
-__all__ = ["Gaussians", "fit_batch", "initial_guess"]
+__all__ = ["Gaussians", "fit_batch", "initial_guess", "relabel"]
 
 #: Default sharpness range: from a hemisphere-wide lobe to well past a Phong exponent of 1e4.
 LAM_RANGE = (0.5, 3e4)
@@ -141,6 +146,149 @@ def _fill_empty(mu, lam, empty, nbr, *, sweeps: int = 30):
     return mu, loglam.exp()
 
 
+def _permuted(x: torch.Tensor, perm: torch.Tensor) -> torch.Tensor:
+    """``x`` (B, J, N, ...) with its Gaussians reordered by ``perm`` (B, J, N) indices."""
+    idx = perm.reshape(*perm.shape, *([1] * (x.ndim - 3))).expand_as(x)
+    return torch.gather(x, 2, idx)
+
+
+def _spatial_per_view(mu, nbr_mu, nbr_mask) -> torch.Tensor:
+    """``S`` of each view before the average over views, (B, J)."""
+    dot = (_pair_diffs(mu)[:, None] * _pair_diffs(nbr_mu)).sum(-1)  # (B, Q, J, P)
+    pen = (-dot).clamp_min(0) ** 3 * nbr_mask[:, :, None, None].to(mu.dtype)
+    return pen.sum((1, 3))
+
+
+def _swap_gain(
+    g: Gaussians, perm: torch.Tensor, nbr_views, weights: Weights, nbr_mu, nbr_mask
+) -> torch.Tensor:
+    """How much eq. (6) drops when view ``v`` alone reorders its Gaussians by ``perm`` (N,),
+    every other view held: (B, J). ``D`` is invariant; ``M`` and ``V`` change in the view's own
+    term and in its neighbours' terms, through their averages; ``S`` in the view's own term."""
+    mu, sigma = g.mu, g.lam.clamp_min(1e-12).rsqrt()  # (B, J, N, 3), (B, J, N)
+    j = mu.shape[1]
+    nb = nbr_views.clamp_min(0)  # (J, 6)
+    valid = (nbr_views >= 0).to(mu.dtype)
+    count = valid.sum(1)  # (J,)
+    mu_p, sigma_p = mu[:, :, perm], sigma[:, :, perm]
+    # M: own term with the neighbours' average held, plus each neighbour u's term through its
+    # average, which holds mu_v / R_u
+    avg = _neighbour_mean(mu, nbr_views)  # (B, J, N, 3)
+    mbar = torch.nn.functional.normalize(avg, dim=-1)
+    own = ((mbar - mu_p) ** 2).sum((-1, -2)) - ((mbar - mu) ** 2).sum((-1, -2))  # (B, J)
+    shift = (mu_p - mu)[:, :, None] / count[nb][None, :, :, None, None]  # (B, J, 6, N, 3)
+    avg_u, mu_u = avg[:, nb], mu[:, nb]  # (B, J, 6, N, 3)
+    new_u = torch.nn.functional.normalize(avg_u + shift, dim=-1)
+    old_u = torch.nn.functional.normalize(avg_u, dim=-1)
+    nbr_m = ((new_u - mu_u) ** 2).sum((-1, -2)) - ((old_u - mu_u) ** 2).sum((-1, -2))
+    d_m = own + (nbr_m * valid).sum(-1)
+
+    def rel2(avg_s: torch.Tensor, x: torch.Tensor) -> torch.Tensor:
+        return (((avg_s - x) / avg_s) ** 2).sum(-1)
+
+    # V: the same for sigma, relative to the neighbours' average
+    sbar = _neighbour_mean(sigma, nbr_views)  # (B, J, N)
+    own = rel2(sbar, sigma_p) - rel2(sbar, sigma)
+    sbar_u, sigma_u = sbar[:, nb], sigma[:, nb]  # (B, J, 6, N)
+    new_s = sbar_u + (sigma_p - sigma)[:, :, None] / count[nb][None, :, :, None]
+    d_v = own + ((rel2(new_s, sigma_u) - rel2(sbar_u, sigma_u)) * valid).sum(-1)
+    delta = weights.beta * d_m + weights.gamma * d_v
+    if nbr_mu is not None and nbr_mask is not None and weights.delta > 0:
+        d_s = _spatial_per_view(mu_p, nbr_mu, nbr_mask) - _spatial_per_view(mu, nbr_mu, nbr_mask)
+        delta = delta + weights.delta * d_s
+    return -delta / j
+
+
+def _order_cost(g: Gaussians, nbr_views, weights: Weights, nbr_mu, nbr_mask) -> torch.Tensor:
+    """The part of eq. (6) that depends on the order of the Gaussians, per vertex (B,)."""
+    cost = weights.beta * mean_term(g.mu, nbr_views) + weights.gamma * sigma_term(g.lam, nbr_views)
+    if nbr_mu is not None and nbr_mask is not None and weights.delta > 0:
+        cost = cost + weights.delta * spatial_term(g.mu, nbr_mu, nbr_mask)
+    return cost
+
+
+def relabel(
+    g: Gaussians,
+    nbr_views: torch.Tensor,
+    *,
+    weights: Weights | None = None,
+    nbr_mu: torch.Tensor | None = None,
+    nbr_mask: torch.Tensor | None = None,
+    sweeps: int = 16,
+) -> Gaussians:
+    """Reorder each vertex's Gaussians where that lowers eq. (6): moves a local optimiser
+    cannot make.
+
+    The data term does not see the order of the N Gaussians (any permutation fits equally),
+    while ``M``, ``V`` and ``S`` do. Changing the order by moving means continuously would take
+    two lobes through each other, across the data term's barrier, so the optimiser keeps the
+    order it was started with or, where a lobe lies several of its widths from where the start
+    put it (a neighbour's fit on a curved or finely detailed surface), the order the data
+    happens to lead it to, view by view: a lobe handed from one Gaussian to the other in some
+    views only ("Gaussian flipping"). Two exact steps, each applied only where it lowers the
+    objective:
+
+    1. per vertex, the permutation of all its views at once that minimises ``S`` against the
+       processed neighbours (``D``, ``M`` and ``V`` do not change under it);
+    2. per view, the permutation that lowers ``beta M + gamma V + delta S`` the most with the
+       other views held (``M`` and ``V`` through the view's own term and its neighbours'
+       averages), applied at once to the views whose gain is the largest among their
+       neighbouring views, in sweeps until no vertex gains.
+
+    Parameters
+    ----------
+    g : Gaussians (B, J, N);  nbr_views : (J, 6) geodesic neighbour table (-1 padded)
+    nbr_mu, nbr_mask : processed neighbours' means (B, Q, J, N, 3) and slots (B, Q), for ``S``
+    sweeps : at most this many sweeps of step 2
+
+    Returns
+    -------
+    Gaussians: per view, the same lobes, perhaps in another order
+    """
+    weights = Weights() if weights is None else weights
+    b, j, n = g.lam.shape
+    if n < 2:
+        return g
+    dev = g.mu.device
+    perms = torch.tensor(list(itertools.permutations(range(n))), device=dev)  # (P, N), id first
+    ident = torch.arange(n, device=dev)
+
+    def apply(x: Gaussians, perm: torch.Tensor) -> Gaussians:  # perm (B, J, N)
+        return Gaussians(_permuted(x.w, perm), _permuted(x.mu, perm), _permuted(x.lam, perm))
+
+    if weights.delta > 0 and nbr_mu is not None and nbr_mask is not None:
+        s = torch.stack([spatial_term(g.mu[:, :, p], nbr_mu, nbr_mask) for p in perms])  # (P, B)
+        best = torch.where(s.min(0).values < s[0], s.argmin(0), 0)  # N! <= 6 orders looped
+        g = apply(g, perms[best][:, None].expand(b, j, n))
+    nb, valid = nbr_views.clamp_min(0), nbr_views >= 0
+    ids = torch.arange(j, device=dev)
+    cost = _order_cost(g, nbr_views, weights, nbr_mu, nbr_mask)
+    for _ in range(sweeps):
+        gains = torch.stack(
+            [_swap_gain(g, p, nbr_views, weights, nbr_mu, nbr_mask) for p in perms[1:]]
+        )  # (P - 1, B, J)
+        gain, which = gains.max(0)
+        want = gain > 0
+        # a view moves if no neighbouring view that also wants to move gains more (ties: the
+        # lower index moves), so the gains, each computed with the others held, add up
+        rank = torch.where(want, gain, torch.full_like(gain, -1.0))
+        other = rank[:, nb]  # (B, J, 6)
+        beats = (other > rank[..., None]) | ((other == rank[..., None]) & (nb < ids[:, None]))
+        move = want & ~(beats & valid).any(-1)
+        cand = apply(g, torch.where(move[..., None], perms[1:][which], ident))
+        new_cost = _order_cost(cand, nbr_views, weights, nbr_mu, nbr_mask)
+        better = new_cost < cost  # (B,): a sweep that does not lower the objective is undone
+        if not bool(better.any()):
+            break
+        g = Gaussians(
+            torch.where(better[:, None, None, None], cand.w, g.w),
+            torch.where(better[:, None, None, None], cand.mu, g.mu),
+            torch.where(better[:, None, None], cand.lam, g.lam),
+        )
+        cost = torch.where(better, new_cost, cost)
+    return g
+
+
 class _Params:
     """The unconstrained parametrisation around a starting point (module docstring)."""
 
@@ -208,7 +356,8 @@ def fit_batch(
     iters: int | None = None,
     lr: float = 0.05,
 ) -> tuple[Gaussians, dict[str, torch.Tensor]]:
-    """Minimise eq. (6) for a batch of independent vertices.
+    """Minimise eq. (6) for a batch of independent vertices: a local optimiser over the means
+    and widths, then :func:`relabel` over the order of each view's Gaussians.
 
     Parameters
     ----------
@@ -243,14 +392,22 @@ def fit_batch(
             iters=20 if iters is None else iters,
             state=st,
         )
+        g = relabel(
+            Gaussians(st["w"], mu, lam),
+            nbr_views,
+            weights=weights,
+            nbr_mu=nbr_mu,
+            nbr_mask=nbr_mask,
+        )
         # the LM's last evaluation already holds the weights and the data term (the costly
-        # parts); the alignment terms are cheap
-        terms = {"D": st["D"], "M": mean_term(mu, nbr_views), "V": sigma_term(lam, nbr_views)}
+        # parts, which the order of the Gaussians does not change); the alignment terms are
+        # cheap
+        terms = {"D": st["D"], "M": mean_term(g.mu, nbr_views), "V": sigma_term(g.lam, nbr_views)}
         if nbr_mu is not None and nbr_mask is not None:
-            terms["S"] = spatial_term(mu, nbr_mu, nbr_mask)
+            terms["S"] = spatial_term(g.mu, nbr_mu, nbr_mask)
         else:
             terms["S"] = torch.zeros_like(terms["D"])
-        return Gaussians(st["w"], mu, lam), terms
+        return g, terms
     if method != "adam":
         raise InputError("method", f"must be 'lm' or 'adam', got {method!r}")
     iters = 150 if iters is None else iters
@@ -272,6 +429,12 @@ def fit_batch(
         sched.step()
     with torch.no_grad():
         mu, lam = p.decode(clamp=True)
-        _, terms = objective(data, mu, lam, nbr_views, weights, nbr_mu, nbr_mask)
-        w = solve_weights(data, mu, lam)
-    return Gaussians(w, mu, lam), terms
+        g = relabel(
+            Gaussians(solve_weights(data, mu, lam), mu, lam),
+            nbr_views,
+            weights=weights,
+            nbr_mu=nbr_mu,
+            nbr_mask=nbr_mask,
+        )
+        _, terms = objective(data, g.mu, g.lam, nbr_views, weights, nbr_mu, nbr_mask)
+    return g, terms

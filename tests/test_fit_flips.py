@@ -1,0 +1,120 @@
+"""Gaussian flipping (Green et al. 2006, sections 4.2 and 7): the order of the N Gaussians.
+
+The data term does not see which Gaussian is "first"; the mean and sigma alignment terms across
+views (M, V) and the spatial term across vertices (S) do, and the renderer interpolates
+Gaussians slot by slot, so a lobe handed from one slot to the other between neighbouring views
+or vertices is interpolated through the wrong lobe. :func:`lobelight.fit._optimize.relabel`
+reorders a fit's Gaussians where that lowers eq. (6), which a local optimiser cannot do.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import torch
+
+from lobelight import brdf, fit, scene, sphere
+from lobelight.fit import Gaussians, Weights, _optimize
+from lobelight.scene import _shapes
+
+VIEWS = sphere.geodesic_views()
+NBR = sphere.geodesic_neighbor_table()
+
+
+def _coherent_pair() -> Gaussians:
+    """One vertex whose two Gaussians, a sharp lobe and a broad one 0.6 rad apart, are the same
+    in every view: a perfectly coherent fit (M = V = 0)."""
+    j = VIEWS.shape[0]
+    mu = torch.nn.functional.normalize(torch.tensor([[0.0, 1.0, 0.0], [0.7, 1.0, 0.0]]), dim=-1)
+    mu = mu.expand(1, j, 2, 3).contiguous()
+    lam = torch.tensor([200.0, 20.0]).expand(1, j, 2).contiguous()
+    w = torch.tensor([[1.0, 0.5, 0.2], [0.3, 0.3, 0.3]]).expand(1, j, 2, 3).contiguous()
+    return Gaussians(w, mu, lam)
+
+
+def _swapped(g: Gaussians, views: torch.Tensor) -> Gaussians:
+    """``g`` with its two Gaussians exchanged in ``views`` (bool (J,))."""
+    s = views[None, :, None]
+    return Gaussians(
+        torch.where(s[..., None], g.w.flip(2), g.w),
+        torch.where(s[..., None], g.mu.flip(2), g.mu),
+        torch.where(s, g.lam.flip(2), g.lam),
+    )
+
+
+def _same(a: Gaussians, b: Gaussians) -> bool:
+    return all(torch.equal(x, y) for x, y in ((a.w, b.w), (a.mu, b.mu), (a.lam, b.lam)))
+
+
+def test_relabel_restores_views_whose_gaussians_were_exchanged():
+    # the lobes exchanged in 16 views, no two of them neighbours (what an optimiser does when a
+    # lobe lies several widths from where it was started, view by view): M and V, with every
+    # other view held, prefer the original order in each
+    g = _coherent_pair()
+    order = torch.randperm(VIEWS.shape[0], generator=torch.Generator().manual_seed(1))
+    pick = torch.zeros(VIEWS.shape[0], dtype=torch.bool)
+    for v in order.tolist():
+        nb = NBR[v][NBR[v] >= 0]
+        if not bool(pick[nb].any()) and int(pick.sum()) < 16:
+            pick[v] = True
+    bad = _swapped(g, pick)
+    assert not _same(bad, g)
+    assert _same(_optimize.relabel(bad, NBR), g)
+    # reordering never touches the data term: the same lobes, per view, as a set
+    assert _same(_optimize.relabel(g, NBR), g)
+
+
+def test_relabel_uses_the_spatial_term_for_a_vertex_swapped_as_a_whole():
+    # every view exchanged: M and V cannot tell (the vertex is coherent across its views);
+    # only S, against a processed neighbour in the original order, can
+    g = _coherent_pair()
+    bad = _swapped(g, torch.ones(VIEWS.shape[0], dtype=torch.bool))
+    nbr_mu, nbr_mask = g.mu[:, None], torch.ones(1, 1, dtype=torch.bool)  # (B, Q, J, N, 3)
+    assert _same(_optimize.relabel(bad, NBR, nbr_mu=nbr_mu, nbr_mask=nbr_mask), g)
+    # without S nothing prefers either order, and nothing moves
+    no_s = Weights(delta=0.0)
+    assert _same(_optimize.relabel(bad, NBR, weights=no_s, nbr_mu=nbr_mu, nbr_mask=nbr_mask), bad)
+
+
+def _sharp_cap() -> scene.Scene:
+    """40 vertices of a 642-vertex sphere (a cap 0.5 rad wide, normals 0.14 rad apart) with a
+    sharp mirror lobe (Lafortune exponent 200, width ~0.07 rad) and a broad retro-reflective
+    lobe (exponent 20): between neighbouring vertices the mirror lobe moves by about four of
+    its widths in every view, so a vertex started from its neighbour's fit finds the lobes
+    where the neighbour's other Gaussian is, in some views."""
+    v, f = _shapes.icosphere(3)
+    axis = np.array([-0.2, 0.3, 0.9]) / np.linalg.norm([-0.2, 0.3, 0.9])
+    keep = v @ axis > math.cos(0.5)
+    faces = f[keep[f].all(1)]
+    used = np.unique(faces)
+    remap = np.full(len(v), -1)
+    remap[used] = np.arange(len(used))
+    mesh = scene.mesh_from_arrays(v[used], remap[faces])
+    lobes = [
+        {"cx": -1.0, "cy": -1.0, "cz": 1.0, "exponent": 200.0, "rho": [0.5 * 201 / math.tau] * 3},
+        {"cx": 1.0, "cy": 1.0, "cz": 1.0, "exponent": 20.0, "rho": [0.3 * 21 / math.tau] * 3},
+    ]
+    mats = scene.Materials(torch.full((mesh.n_vertices, 3), 0.1), brdf.Lafortune(lobes))
+    return scene.Scene(mesh, mats)
+
+
+def test_flood_fill_reorders_the_lobes_the_optimiser_hands_over(monkeypatch):
+    sc = _sharp_cap()
+    assert sc.mesh.n_vertices == 40
+    # no S and no relaxation: the reordering by M and V alone, in the flood fill's one pass
+    kw = dict(n=2, weights=Weights(delta=0.0), relax=False)
+    fitted = fit.fit_mesh(sc, **kw)
+    # regression: vertices of one wavefront once read each other's unfitted state (zero means)
+    # as processed neighbours, and a vertex started from one lost both lobes (relative error
+    # squared 0.99 at 10 of these 40 vertices); measured now 0.06
+    assert float(fitted.data_error.max()) < 0.3
+    monkeypatch.setattr(_optimize, "relabel", lambda g, *args, **kwargs: g)
+    unordered = fit.fit_mesh(sc, **kw)
+    # flipped (edge, view) pairs of Gaussians that carry light (count_flips): measured 133
+    # without the reordering and 28 with it (4 of those where the true mirror-minus-retro
+    # arrangement itself reverses along the edge, near the vertex whose normal is the view).
+    # The LM's hand-overs depend on small details: with beta 10 % lower or higher the counts
+    # are 127 -> 20 and 113 -> 23, and on two other caps of the same sphere 149 -> 16 and
+    # 152 -> 25; a factor 3 (measured 4.7 to 9.3) leaves room for that
+    assert 3 * fitted.flips_before <= unordered.flips_before
