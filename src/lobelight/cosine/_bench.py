@@ -93,7 +93,8 @@ def bench_lobes(
     device : torch device
     repeats : timed frames per configuration, thread count and fusion setting (after one
         warm-up frame, which for a fused run includes compiling)
-    threads : torch CPU thread counts to try (None: the process's setting); ignored on a GPU
+    threads : torch CPU thread counts to try for eager runs (None: the process's setting);
+        fused runs use the process's setting; ignored on a GPU
     fused : fusion settings to try (:mod:`._fused`: False eager, True ``torch.compile``)
 
     Returns
@@ -114,7 +115,9 @@ def bench_lobes(
     for name, c in cfgs.items():
         runs = []
         for fz in fused:
-            for th in thread_opts:
+            # compiled kernels keep the thread count they were compiled with (_fused): fused
+            # runs use the process's own
+            for th in thread_opts if not fz else (None,):
                 kw = dict(
                     spheres=c["spheres"],
                     depth=5,

@@ -8,6 +8,10 @@ conversions), so TorchInductor can fuse each into a few loops (C++/OpenMP on the
 CUDA). The eager code is the same function: fusion changes speed, not the arithmetic (up to
 float rounding, tested).
 
+On the CPU a compiled kernel keeps the number of threads of the call that compiled it (TorchInductor
+writes it into the generated OpenMP loops), so set ``torch.set_num_threads`` before the first
+fused call of a process.
+
 Fusion is off by default: compiling costs seconds to a minute per process the first time (the
 inductor's on-disk cache shortens later runs), which only pays off over many frames. Turn it on
 around a loop of frames with :func:`fusion` or ``shade_points(..., fused=True)``. Where

@@ -91,7 +91,7 @@ def shade_points(
     cosine: str = "product",
     preserve_integral: bool = True,
     tables: LobeTables | None = None,
-    chunk: int = 16384,
+    chunk: int | None = None,
     threads: int | None = None,
     fused: bool | None = None,
     device: Any = None,
@@ -112,7 +112,8 @@ def shade_points(
     cosine, preserve_integral : see :func:`~._brdf_lobes.brdf_lobes`; ``preserve_integral``
         also applies to the lighting and visibility products
     tables : lobe tables (default :func:`get_tables` on ``device``)
-    chunk : points per batch (memory: ~ a few kB per point and shadow leaf)
+    chunk : points per batch (memory: ~ a few kB per point and shadow leaf); default 16,384
+        with occluders, 65,536 without (a few hundred bytes per point)
     threads : torch CPU threads while shading (None: as set). One thread is often faster on a
         shared 2-core machine (see ``bench_lobes``).
     fused : run the hot path compiled by ``torch.compile`` (:mod:`._fused`: several times
@@ -166,11 +167,16 @@ def shade_points(
     ctx = _cpu_threads(threads) if dev.type == "cpu" else contextlib.nullcontext()
     fuse = contextlib.nullcontext() if fused is None else fusion(fused)
     with ctx, fuse, torch.no_grad():
+        if chunk is None:
+            chunk = 16384 if sph is not None else 65536
+        if int(chunk) < 1:
+            raise InputError("chunk", f"must be >= 1, got {chunk!r}")
         for s in range(0, P, chunk):
             sl = slice(s, s + chunk)
+            whole = s == 0 and chunk >= P  # one chunk: the model as it is, no gather
             m = (
                 model.take(torch.arange(s, min(s + chunk, P), device=dev))
-                if _per_point(model)
+                if _per_point(model) and not whole
                 else model
             )
             r = _shade_chunk(
