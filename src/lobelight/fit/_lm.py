@@ -133,7 +133,6 @@ def levenberg_marquardt(
     sq_n = sq[:, :, None]  # (B, J, 1, S)
     dflat = data.dirs.reshape(bj, -1, 3).transpose(1, 2)  # (BJ, 3, S)
     vals_t = data.values.reshape(bj, n_s, 3).transpose(1, 2)  # (BJ, 3, S)
-    eye = torch.eye(3 * n, dtype=dt, device=mu.device)
     mask = None if nbr_mask is None else nbr_mask.to(dt)
     mu, lam = mu.clone(), lam.clone()
     g, cm1, w, cost0, d0 = evaluate(mu, lam)
@@ -193,7 +192,11 @@ def levenberg_marquardt(
         if nbr_mu is not None and n > 1:
             h, grad = _add_spatial(h, grad, mu, sigma, t, s, nbr_mu, mask, c["S"])
         hd = h.diagonal(dim1=-2, dim2=-1)
-        lhs = h + torch.diag_embed(damp[..., None] * hd + 1e-12) + 1e-12 * eye
+        # a parameter nothing sees (a Gaussian whose weight is 0 with M, V and S switched off)
+        # has no curvature and no gradient; a floor relative to the system's largest curvature
+        # keeps the solve regular (an absolute 1e-12 vanishes in float32) and moves it by 0
+        floor = 1e-6 * hd.amax(-1, keepdim=True) + 1e-20
+        lhs = h + torch.diag_embed(damp[..., None] * torch.maximum(hd, floor) + floor)
         step = -torch.linalg.solve(lhs, grad).reshape(b, j, n, 3)
         step = step.clamp(-3, 3)  # at most 3 widths / a factor e^3 in sharpness per iteration
         mu1 = torch.nn.functional.normalize(
