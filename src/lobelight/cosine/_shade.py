@@ -272,10 +272,11 @@ def _shade_chunk(
                 continue
             pt = lv.point[leaf]
             products += torch.bincount(pt, minlength=P)
+            row = (pt * I + i) * J + j  # one flat gather per array (3-index gathers are slow)
             val = _leaf_products(
-                m.axis[pt, i, j],
-                m.exponent[pt, i, j],
-                m.scale[pt, i, j],
+                m.axis.reshape(-1, 3)[row],
+                m.exponent.reshape(-1)[row],
+                m.scale.reshape(-1, m.scale.shape[-1])[row],
                 lv.axis[leaf],
                 lv.theta[leaf],
                 lv.omega[leaf],
