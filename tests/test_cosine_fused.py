@@ -16,8 +16,6 @@ from lobelight import brdf as B
 from lobelight import cosine as C
 from lobelight.cosine import _fused
 
-pytestmark = pytest.mark.filterwarnings("ignore::UserWarning")
-
 
 def _scene(n: int, seed: int = 0):
     g = torch.Generator().manual_seed(seed)

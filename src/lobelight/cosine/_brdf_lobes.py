@@ -131,7 +131,8 @@ def brdf_lobes(
     axis, exponent, scale, front, is_cos = _raw_stack(model, normals, wo, tangents)
     need = [i for i, c in enumerate(is_cos) if not c]
     if need and cosine != "none":
-        if len(need) < len(is_cos):
+        some = len(need) < len(is_cos)  # else every lobe needs the cosine: no gather, no scatter
+        if some:
             ix = torch.tensor(need, device=axis.device)
             sub = Lobes(axis[:, ix], exponent[:, ix], scale[:, ix])
         else:
@@ -143,7 +144,7 @@ def brdf_lobes(
         else:
             c = (sub.axis * normals.unsqueeze(1)).sum(-1).clamp_min(0)  # (P, n)
             sub = Lobes(sub.axis, sub.exponent, sub.scale * c.unsqueeze(-1))
-        if len(need) < len(is_cos):  # put the products back in their places
+        if some:  # put the products back in their places
             axis = axis.index_copy(1, ix, sub.axis)
             exponent = exponent.index_copy(1, ix, sub.exponent)
             scale = scale.index_copy(1, ix, sub.scale)

@@ -192,8 +192,10 @@ class TableParams:
     #                                              + g2 asinh((alpha - pi) / w2)
     def _angle_coord(self, alpha: torch.Tensor) -> torch.Tensor:
         h = math.pi / (self.angle_uniform - 1)
-        v = alpha / h + self.angle_grading * torch.asinh((alpha - _HALF_PI) / self.angle_width)
-        return v + self.angle_pi_grading * torch.asinh((alpha - math.pi) / self.angle_pi_width)
+        return _angle_coordinate(
+            alpha, h, self.angle_grading, self.angle_width, self.angle_pi_grading,
+            self.angle_pi_width,
+        )  # fmt: skip
 
     @property
     def _v_range(self) -> tuple[float, float]:
@@ -564,6 +566,13 @@ def _cap_lookup(theta: torch.Tensor, tab: torch.Tensor) -> torch.Tensor:
     return torch.where(theta >= _HALF_PI, 0.0, kappa / s)
 
 
+def _angle_coordinate(alpha, h: float, g1: float, w1: float, g2: float, w2: float):
+    """The angle axis's coordinate ``alpha / h + g1 asinh((alpha - pi/2) / w1) + g2 asinh((alpha
+    - pi) / w2)`` (:class:`TableParams`), on Python numbers so a compiled lookup can use it."""
+    v = alpha / h + g1 * torch.asinh((alpha - _HALF_PI) / w1)
+    return v + g2 * torch.asinh((alpha - math.pi) / w2)
+
+
 class _Grid(NamedTuple):
     """The product table's grid as Python numbers (constants for a compiled lookup)."""
 
@@ -608,10 +617,7 @@ def _product_lookup(e1, e2, c, s, tab: torch.Tensor, g: _Grid, preserve_integral
     f1 = ((torch.log10(e1 * k + g.e_offset) - g.u0) / g.du).clamp(0, n - 1)
     f2 = ((torch.log10(e2 * k + g.e_offset) - g.u0) / g.du).clamp(0, n - 1)
     f1, f2 = torch.minimum(f1, f2), torch.maximum(f1, f2)  # symmetric table: i <= j
-    alpha = torch.atan2(s, c)
-    # TableParams._angle_coord, inlined on Python constants
-    v = alpha / g.h + g.g1 * torch.asinh((alpha - _HALF_PI) / g.w1)
-    v = v + g.g2 * torch.asinh((alpha - math.pi) / g.w2)
+    v = _angle_coordinate(torch.atan2(s, c), g.h, g.g1, g.w1, g.g2, g.w2)
     fa = ((v - g.v0) * g.v_scale).clamp(0, na - 1)
     i, j, m = (f.floor().clamp(max=top_ - 2) for f, top_ in ((f1, n), (f2, n), (fa, na)))
     ti, tj, tm = f1 - i, f2 - j, fa - m

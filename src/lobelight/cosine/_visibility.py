@@ -93,10 +93,16 @@ def _check_spheres(spheres: torch.Tensor) -> None:
         raise InputError("spheres", "radii must be > 0")
 
 
+def _corner_signs(like: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    """(4,) signs of the corners (and children) of a cell, ``u`` and ``v``: the order
+    (-,-), (+,-), (-,+), (+,+) used throughout the quad-tree."""
+    kw = {"dtype": like.dtype, "device": like.device}
+    return torch.tensor([-1.0, 1.0, -1.0, 1.0], **kw), torch.tensor([-1.0, -1.0, 1.0, 1.0], **kw)
+
+
 def _corner_dirs(cu, cv, h, k):
     """Unit local directions (..., 4, 3) of a cell's corners and (..., 3) of its centre."""
-    su = torch.tensor([-1.0, 1.0, -1.0, 1.0], dtype=cu.dtype, device=cu.device)
-    sv = torch.tensor([-1.0, -1.0, 1.0, 1.0], dtype=cu.dtype, device=cu.device)
+    su, sv = _corner_signs(cu)
     x = k.unsqueeze(-1) * (cu.unsqueeze(-1) + su * h.unsqueeze(-1))  # (..., 4)
     y = k.unsqueeze(-1) * (cv.unsqueeze(-1) + sv * h.unsqueeze(-1))
     corners = torch.stack([x, y, torch.ones_like(x)], -1)
@@ -269,8 +275,7 @@ def _cell_bounds(cu, cv, k, cell_pt, h: float):
     # direction o is linear in (x, y): no (pairs, 4, 3) tensors are formed
     kc = k[cell_pt]
     x0, y0, dx = kc * cu, kc * cv, kc * h  # (C,)
-    sgn_u = torch.tensor([-1.0, 1.0, -1.0, 1.0], dtype=cu.dtype, device=cu.device)
-    sgn_v = torch.tensor([-1.0, -1.0, 1.0, 1.0], dtype=cu.dtype, device=cu.device)
+    sgn_u, sgn_v = _corner_signs(cu)
     cxs = x0.unsqueeze(-1) + dx.unsqueeze(-1) * sgn_u  # (C, 4)
     cys = y0.unsqueeze(-1) + dx.unsqueeze(-1) * sgn_v
     inv_c = torch.rsqrt(1 + cxs * cxs + cys * cys)  # (C, 4) 1 / |corner|
@@ -290,8 +295,7 @@ def _pair_tests(cells, pair_cell, pq, pair_src):
     ox, oy, oz, cos_phi, sin_phi = pq[pair_src].unbind(-1)  # (Q,) occluder direction, cone
     x0, y0, dx, inv_m, cos_rad, sin_rad = cell[:, :6].unbind(-1)
     base = x0 * ox + y0 * oy + oz  # (Q,) centre . o, unnormalised
-    sgn_u = torch.tensor([-1.0, 1.0, -1.0, 1.0], dtype=cells.dtype, device=cells.device)
-    sgn_v = torch.tensor([-1.0, -1.0, 1.0, 1.0], dtype=cells.dtype, device=cells.device)
+    sgn_u, sgn_v = _corner_signs(cells)
     dots = base.unsqueeze(-1) + (dx * ox).unsqueeze(-1) * sgn_u + (dx * oy).unsqueeze(-1) * sgn_v
     inside = (dots * cell[:, 6:]).amin(-1) >= cos_phi  # (Q,) all four corners in the cone
     # touch: the angle between the cell's centre and the occluder is below phi + radius, as
@@ -312,8 +316,7 @@ def _subdivide(cu, cv, cell_pt, partial, parents, hh: float, pair_cell, pair_src
     Returns the children's cu, cv, cell_pt (4 C',) and the pairs' cell and row (4 Q',).
     """
     dev = cu.device
-    su = torch.tensor([-1.0, 1.0, -1.0, 1.0], dtype=cu.dtype, device=dev)
-    sv = torch.tensor([-1.0, -1.0, 1.0, 1.0], dtype=cu.dtype, device=dev)
+    su, sv = _corner_signs(cu)
     cu2 = (cu[parents].unsqueeze(1) + hh * su).reshape(-1)
     cv2 = (cv[parents].unsqueeze(1) + hh * sv).reshape(-1)
     pt2 = cell_pt[parents].unsqueeze(1).expand(-1, 4).reshape(-1)

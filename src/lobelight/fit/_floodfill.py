@@ -256,7 +256,6 @@ def fit_mesh(
 
     def fit_chunk(i: int, vidx: torch.Tensor, *, all_neighbours: bool) -> None:
         lobe = None
-        chunk = vidx
         if not all_neighbours:
             diffuse[vidx] = tr.diffuse(vidx, ddirs, dom)
             done[vidx] = True
@@ -285,7 +284,7 @@ def fit_mesh(
             # the chunk's own vertices are fitted together, now: none may read another's
             # unfitted state (zero means) as a processed neighbour, for S or as a start
             avail = done & glossy
-            avail[chunk] = False
+            avail[vidx] = False
         ids, mask = _processed_neighbours(mesh, vidx, avail)
         nbr_mu = mu[ids] if n > 1 else None  # (B, Q, J, N, 3)
         init = None
