@@ -77,12 +77,13 @@ def test_bake_info_render_compare(tmp_path, capsys):
         out,
     )
     assert code == 0
-    assert {"table", "reference_noise", "images", "seconds", "object_pixels"} <= set(c)
+    assert {"table", "reference_noise", "images", "seconds", "object_pixels", "sun"} <= set(c)
     assert all({"psnr", "psnr_display", "rel_l2"} <= set(row) for row in c["table"])
     methods = {(row["method"], row["component"]) for row in c["table"]}
     assert methods == {
         ("ours", "full"),
         ("ours", "glossy"),
+        ("ours_sh_diffuse", "full"),  # the sun in the SH diffuse: the paper's diffuse term
         ("linear", "full"),
         ("linear", "glossy"),
     }

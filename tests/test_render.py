@@ -63,8 +63,12 @@ def test_transport_at_stored_views_is_the_stored_record(model2):
     # at a view, its barycentric is 1 up to float32 rounding (~1e-7 of the neighbours' values)
     atol = 1e-6 * float(ref.w.max())
     torch.testing.assert_close(g.w, ref.w.reshape(-1, 2, 3), rtol=1e-5, atol=atol)
-    torch.testing.assert_close(g.lam, ref.lam.reshape(-1, 2), rtol=1e-4, atol=0)
-    torch.testing.assert_close(g.mu, ref.mu.reshape(-1, 2, 3), rtol=0, atol=1e-5)
+    # a lobe's shape is weighted by the light it carries, so where the record carries none
+    # (below the horizon) its neighbours' (at ~1e-7 weight) decide it: compare live lobes
+    live = ref.w.reshape(-1, 2, 3).amax(-1) > 0
+    assert 0.3 < float(live.float().mean()) < 0.7
+    torch.testing.assert_close(g.lam[live], ref.lam.reshape(-1, 2)[live], rtol=1e-4, atol=0)
+    torch.testing.assert_close(g.mu[live], ref.mu.reshape(-1, 2, 3)[live], rtol=0, atol=1e-5)
 
 
 def test_transport_is_continuous_across_view_triangles(model2):
@@ -76,15 +80,60 @@ def test_transport_is_continuous_across_view_triangles(model2):
     side = torch.nn.functional.normalize(torch.linalg.cross(views[e[:, 0]], views[e[:, 1]]), dim=-1)
     a = (mid + 1e-6 * side).float()
     b = (mid - 1e-6 * side).float()
-    vid = torch.zeros(20, dtype=torch.long)
+    # for each edge, the vertex facing it, so that its lobes carry light there
+    vid = (model2.mesh.normals @ mid.float().T).argmax(0)
     ga, gb = model2.transport(vid, a), model2.transport(vid, b)
     # the change is of the order of the offset (1e-6) times the values: no jump
     atol = 1e-5 * float(model2.gaussians.w.max())
     torch.testing.assert_close(ga.w, gb.w, rtol=0, atol=atol)
-    torch.testing.assert_close(ga.lam, gb.lam, rtol=1e-4, atol=0)
-    # while crossing a whole triangle changes them: the test can fail
+    # widths of lobes carrying light (a lobe without light has a placeholder width)
+    live = (ga.w.amax(-1) > 0) & (gb.w.amax(-1) > 0)
+    assert int(live.sum()) >= 30
+    torch.testing.assert_close(ga.lam[live], gb.lam[live], rtol=1e-4, atol=0)
+    torch.testing.assert_close(ga.mu[live], gb.mu[live], rtol=0, atol=1e-4)
+    # while moving to a corner view turns the mirror lobes' means: the test can fail
     far = model2.transport(vid, views[e[:, 0]].float())
-    assert float((far.w - ga.w).abs().max()) > 100 * atol
+    assert float((far.mu - ga.mu)[live].abs().max()) > 1e-2
+
+
+def dead_slot_model() -> Model:
+    """The synthetic sphere with slot 0 alive (a sharp mirror lobe) at even views only; at odd
+    views it is dead (weight 0) with a broad placeholder width, as a fit with two Gaussians
+    leaves unused slots. Blending peak weights and widths independently spreads the sharp
+    lobe's peak (~500) over the broad width there: the carried light grows ~100x."""
+    m = synthetic_model()
+    g = m.gaussians
+    w, lam = g.w.clone(), g.lam.clone()
+    lam[..., 0] = 3000.0
+    w[..., 0, :] = torch.tensor([0.5, 0.4, 0.3]) * (3000.0 / (2 * math.pi)) * (w[..., 0, :1] > 0)
+    odd = torch.arange(92) % 2 == 1
+    w[:, odd, 0] = 0.0
+    lam[:, odd, 0] = 2.0
+    return Model(m.mesh, m.views, fit.Gaussians(w, g.mu, lam), m.diffuse, m.materials, {})
+
+
+def test_interpolation_conserves_the_light_each_lobe_carries():
+    m = dead_slot_model()
+    gen = torch.Generator().manual_seed(3)
+    vid = torch.randint(0, m.mesh.n_vertices, (4000,), generator=gen)
+    vd = torch.nn.functional.normalize(torch.randn(4000, 3, generator=gen), dim=-1)
+    g = m.transport(vid, vd)
+    got = g.w * sg.integral(g.lam)[..., None]  # (P, 2, 3)
+    # the barycentric blend of the stored records' light, computed here independently
+    idx, bary = sphere.locate_views(vd)
+    rec = m.gaussians.w * sg.integral(m.gaussians.lam)[..., None]  # (V, J, 2, 3)
+    want = (rec[vid[:, None], idx] * bary[..., None, None]).sum(1)
+    # float32 quotients and products of ~1e3 and ~1e-3: a few ulps
+    torch.testing.assert_close(got, want, rtol=1e-5, atol=1e-7)
+    # the test can fail: blending the peak weights with the widths breaks it by far
+    pw = (m.gaussians.w[vid[:, None], idx] * bary[..., None, None]).sum(1)
+    ps = (m.gaussians.lam[vid[:, None], idx].rsqrt() * bary[..., None]).sum(1)
+    old = pw * sg.integral(ps.pow(-2))[..., None]
+    assert float(old.sum() / want.sum()) > 10
+    # where every record carries light the shape is the plain blend of the live records
+    both = (rec[vid[:, None], idx, 0].amax(-1) > 0).all(-1)
+    assert int(both.sum()) > 0
+    torch.testing.assert_close(g.lam[both, 0], torch.full_like(g.lam[both, 0], 3000.0), rtol=1e-4, atol=0)
 
 
 def test_evaluate_sums_the_interpolated_gaussians(model2):
@@ -101,11 +150,14 @@ def test_evaluate_sums_the_interpolated_gaussians(model2):
 
 
 @needs_gl
-@pytest.mark.parametrize("rotation", [None, 65.0])
-def test_shaders_match_the_torch_path(model2, lighting, rotation):
+@pytest.mark.parametrize(("rotation", "dead"), [(None, False), (65.0, False), (None, True)])
+def test_shaders_match_the_torch_path(model2, lighting, rotation, dead):
     # the issue's criterion: <= 1e-3 relative on sampled pixels. Both paths do the same float32
     # arithmetic in a different order; the rasteriser's barycentrics and the ray's differ by
-    # rounding only, so the expected gap is ~1e-5
+    # rounding only, so the expected gap is ~1e-5. With dead slots the live-record rule of
+    # blend_lobes (per pixel: premultiplied varyings) is exercised too
+    if dead:
+        model2 = dead_slot_model()
     w, h = 96, 72
     gl = render.Renderer(model2, lighting, w, h, backend="gl")
     img, mask = gl.render(CAM, rotation, return_mask=True)
@@ -141,8 +193,9 @@ def test_constant_environment_gives_the_lobe_integrals(model2):
     bary = torch.zeros(tri.shape[0], 3)
     bary[:, 0] = 1.0  # at the first corner: exactly the vertex's Gaussians
     got = render._torch.pixel_stage(m, light, vd, tri, bary, torch.eye(3), diffuse=False)
-    lam = vd.sigma.pow(-2)
-    want = (vd.w * sg.integral(lam)[..., None]).sum(1)[faces[:, 0]]
+    view = torch.nn.functional.normalize(torch.tensor(CAM.origin) - m.mesh.vertices, dim=-1)
+    g = m.transport(torch.arange(m.mesh.n_vertices), view)
+    want = (g.w * sg.integral(g.lam)[..., None]).sum(1)[faces[:, 0]]
     torch.testing.assert_close(got, want, rtol=2e-4, atol=1e-6)
     dif = render._torch.pixel_stage(m, light, vd, tri, bary, torch.eye(3), glossy=False)
     want_d = m.diffuse[faces[:, 0], 0] * math.sqrt(4 * math.pi)

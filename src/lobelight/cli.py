@@ -169,7 +169,9 @@ def _cmd_render(args) -> dict:
     if backend == "auto":
         backend = "gl" if gl_available() else "torch"
     t0 = time.perf_counter()
-    with Renderer(m, env, args.width, args.height, backend=backend, base_res=args.base_res) as ren:
+    with Renderer(
+        m, env, args.width, args.height, backend=backend, base_res=args.base_res, sun=not args.no_sun
+    ) as ren:
         t1 = time.perf_counter()
         img, mask = ren.render(
             cam,
@@ -196,7 +198,9 @@ def _cmd_render(args) -> dict:
 def _cmd_view(args) -> dict:
     from .render._window import view
 
-    return view(args.model, env=_env(args.env), width=args.width, height=args.height)
+    return view(
+        args.model, env=_env(args.env), width=args.width, height=args.height, sun=not args.no_sun
+    )
 
 
 def _cmd_compare(args) -> dict:
@@ -230,6 +234,7 @@ def _cmd_compare(args) -> dict:
             base_res=args.base_res,
             out=args.out,
             device=args.device,
+            sun=not args.no_sun,
         ),
     }
 
@@ -324,7 +329,7 @@ def _cmd_demo(args) -> dict:
     backend = "gl" if gl_available() else "torch"
     stills = {}
     t1 = time.perf_counter()
-    with Renderer(model, env, args.width, args.height, backend=backend) as ren:
+    with Renderer(model, env, args.width, args.height, backend=backend, sun=not args.no_sun) as ren:
         for label, rot in (("sky", None), ("sky-turned-120", 120.0)):
             img, mask = ren.render(sc.camera, rot, return_mask=True)
             stills[label] = str(
@@ -345,6 +350,7 @@ def _cmd_demo(args) -> dict:
         backend=backend,
         baselines=("linear",),
         out=out / "compare",
+        sun=not args.no_sun,
     )
     total = time.perf_counter() - t0
     rows = "\n".join(
@@ -378,6 +384,9 @@ Against the Monte Carlo reference (direct lighting, pixel centres, object pixels
 
 Reference noise (mean standard error / mean): {cmp["reference_noise"]["full"]:.3f}.
 `linear` is the cross-fading baseline (radiance blended across views and vertices).
+`ours_sh_diffuse` is ours with the paper's diffuse term alone (the whole sky, sun included, in
+order-5 SH per vertex); `ours` takes the sun out of the SH and shades it per pixel with a
+shadow map (`--no-sun` turns that off).
 """
     tmp = out / "report.md.tmp"
     tmp.write_text(report)
@@ -435,6 +444,12 @@ def _parser() -> argparse.ArgumentParser:
     d.add_argument("--lobes", type=int, default=1, choices=[1, 2, 3])
     d.add_argument("--spp", type=int, default=64, help="reference samples per pixel")
     size(d, 320, 240)
+    d.add_argument(
+        "--no-sun",
+        action="store_true",
+        help="keep the sun in the SH diffuse (the paper's term) instead of a per-pixel "
+        "shadow-mapped light",
+    )
 
     b = cmd("bake", _cmd_bake, "fit a model of a mesh or scene (resumes if interrupted)")
     b.add_argument(
@@ -464,6 +479,12 @@ def _parser() -> argparse.ArgumentParser:
     r.add_argument("--rotate", type=float, default=None, help="turn the lighting (degrees)")
     r.add_argument("--parts", choices=["both", "diffuse", "glossy"], default="both")
     r.add_argument("--no-background", action="store_true")
+    r.add_argument(
+        "--no-sun",
+        action="store_true",
+        help="keep the sun in the SH diffuse (the paper's term) instead of a per-pixel "
+        "shadow-mapped light",
+    )
     r.add_argument("--exposure", default="auto", help="stops, or 'auto'")
     r.add_argument("--tonemap", choices=["srgb", "aces"], default="srgb")
     r.add_argument("--backend", choices=["auto", "gl", "torch"], default="auto")
@@ -478,6 +499,12 @@ def _parser() -> argparse.ArgumentParser:
     )
     v.add_argument("model")
     v.add_argument("--env")
+    v.add_argument(
+        "--no-sun",
+        action="store_true",
+        help="keep the sun in the SH diffuse (the paper's term) instead of a per-pixel "
+        "shadow-mapped light",
+    )
     size(v, 1024, 768)
 
     c = cmd("compare", _cmd_compare, "score a model against the path tracer and baselines")
@@ -496,6 +523,12 @@ def _parser() -> argparse.ArgumentParser:
         choices=["linear", "no_visibility", "sh10"],
     )
     c.add_argument("--base-res", type=int, default=256, help="sharpest prefiltered level")
+    c.add_argument(
+        "--no-sun",
+        action="store_true",
+        help="keep the sun in the SH diffuse (the paper's term) instead of a per-pixel "
+        "shadow-mapped light",
+    )
     size(c, 192, 144)
 
     cb = cmd(

@@ -14,6 +14,10 @@ the object's pixels (the background is the environment in all of them):
 ``sh10``            the glossy transport of every vertex and view projected onto order-10
                     spherical harmonics (100 coefficients, by the fit's own quadrature),
                     integrated against the lighting's order-10 projection, blended linearly
+``ours_sh_diffuse`` (with a sun, ``sun=True``) ours with the paper's diffuse term alone: the
+                    whole map, sun included, through the order-5 SH transfer, no per-pixel
+                    sun shadow; ``ours`` takes the sun out of the SH and shades it per pixel
+                    with a shadow test (:func:`lobelight.envmap.extract_sun`)
 ``reference``       :func:`lobelight.reference.render`, direct lighting (``max_depth = 2``),
                     through the pixel centres
 
@@ -142,6 +146,7 @@ def compare(
     out=None,
     device=None,
     seed: int = 0,
+    sun: bool = True,
 ) -> dict[str, Any]:
     """Render ``scene``'s model and the baselines, score them against the reference.
 
@@ -152,6 +157,8 @@ def compare(
     backend : "gl", "torch" or "auto" (gl when a context can be made)
     out : folder for the images (PNG, tone-mapped with the reference's exposure) and
         ``compare.json``; nothing is written when None
+    sun : shade the map's sun per pixel with shadows in the diffuse part (:class:`Lighting`);
+        the paper's SH-only diffuse is then scored too, as ``ours_sh_diffuse``
 
     Returns
     -------
@@ -168,7 +175,13 @@ def compare(
     if model is None:
         model = fit_model(scene, n_lobes, device=device)
         timings["fit"] = time.perf_counter() - t0
-    lighting = Lighting(env, base_res=base_res, device=model.device)
+    lighting = Lighting(env, base_res=base_res, device=model.device, sun=sun)
+    # the paper's lighting (all of it in the SH diffuse), sharing the prefiltered chain
+    plain = (
+        lighting
+        if lighting.sun is None
+        else Lighting(env, device=model.device, prefiltered=lighting.prefiltered)
+    )
     if backend == "auto":
         backend = "gl" if gl_available() else "torch"
     ren = Renderer(model, lighting, width, height, backend=backend)
@@ -178,6 +191,10 @@ def compare(
     diffuse = ren.render(camera, rot, glossy=False)
     ren.close()
     timings["ours"] = time.perf_counter() - t
+    full_sh = None
+    if plain is not lighting:
+        with Renderer(model, plain, width, height, backend=backend) as r_sh:
+            full_sh = r_sh.render(camera, rot)
 
     # references: the environment is turned by rotating the map itself (independent of ours)
     ref_env = env if light_rotation is None else env.rotate(rot)
@@ -211,6 +228,9 @@ def compare(
 
     score("ours", "full", full)
     score("ours", "glossy", glossy)
+    if full_sh is not None:
+        images["ours_sh_diffuse"] = full_sh.cpu()
+        score("ours_sh_diffuse", "full", full_sh)
     tri, bary = _hits(model, camera, width, height)
     diff_only = diffuse.cpu() * mask[..., None]
     background = full.cpu() * (~mask)[..., None]
@@ -222,7 +242,7 @@ def compare(
             g = sh_glossy(scene, model, lighting, camera, rot, tri, bary)
         elif name == "no_visibility":
             nv = fit_model(scene, model.n_lobes, device=model.device, shadows=False)
-            r2 = Renderer(nv, lighting, width, height, backend=backend)
+            r2 = Renderer(nv, plain, width, height, backend=backend)  # no shadows at all
             g = r2.render(camera, rot, diffuse=False, background=False).cpu()
             # unshadowed diffuse as well: plain environment mapping has no visibility at all
             d2 = r2.render(camera, rot, glossy=False, background=False).cpu()
@@ -252,6 +272,12 @@ def compare(
         "spp": spp,
         "backend": backend,
         "light_rotation": rot.tolist(),
+        "sun": None
+        if lighting.sun is None
+        else {
+            "direction": lighting.sun.direction.tolist(),
+            "irradiance": lighting.sun.irradiance.tolist(),
+        },
         "table": rows,
         "reference_noise": noise,
         "object_pixels": int(mask.sum()),
@@ -271,7 +297,7 @@ def _write(out: Path, images: dict, mask, result: dict) -> dict[str, str]:
         if k in ("ours", "reference"):
             save_image(out / f"{k}.exr", img)
     # difference images, scaled by 4 so that small errors show
-    for k in ("ours", "linear", "no_visibility", "sh10"):
+    for k in ("ours", "ours_sh_diffuse", "linear", "no_visibility", "sh10"):
         if k in images:
             diff = (images[k] - images["reference"]).abs() * mask[..., None] * 4
             paths[f"diff_{k}"] = str(save_image(out / f"diff-{k}.png", diff, exposure=exposure))

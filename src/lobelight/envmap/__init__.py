@@ -5,6 +5,8 @@
 - :func:`load` / :func:`save` ``.hdr`` and ``.exr`` files (lat-long or cross cube maps), checked
   at the door: a bad file is one :class:`lobelight.errors.InputError` naming it.
 - :func:`builtin` a procedural sky with a small, very bright sun, so nothing needs a file.
+- :func:`extract_sun` a dominant small light split off a map (:class:`Sun`), for per-pixel
+  shadows of the diffuse part.
 - :func:`prefilter` -> :class:`Prefiltered`, whose ``integrate(mu, lam)`` approximates
   ``int exp(lam (mu.w - 1)) L(w) dw`` with one interpolated lookup per lobe.
 """
@@ -13,5 +15,16 @@ from ._builtin import builtin
 from ._envmap import EnvMap
 from ._io import load, save
 from ._prefilter import Prefiltered, prefilter, sg_integral
+from ._sun import Sun, extract_sun
 
-__all__ = ["EnvMap", "Prefiltered", "builtin", "load", "prefilter", "save", "sg_integral"]
+__all__ = [
+    "EnvMap",
+    "Prefiltered",
+    "Sun",
+    "builtin",
+    "extract_sun",
+    "load",
+    "prefilter",
+    "save",
+    "sg_integral",
+]

@@ -22,7 +22,8 @@ from importlib import resources
 import numpy as np
 import torch
 
-from .. import cubemap, sphere
+from .. import cubemap, sg, sphere
+from .. import model as model_module
 from ..camera import Camera
 from ..envmap import Prefiltered
 from ..errors import InputError
@@ -44,6 +45,8 @@ TEX_WIDTH = 4096
 CAND_RES = 32
 #: Resolution of the background's cube map.
 BACKGROUND_RES = 512
+#: Resolution of the sun's shadow map (texels across the mesh's bounding sphere).
+SHADOW_RES = 4096
 _GL_TEXTURE_CUBE_MAP_SEAMLESS = 0x884F
 
 
@@ -56,7 +59,7 @@ def load_shader(name: str) -> str:
 def _program(
     ctx,
     name: str,
-    defines: dict[str, int] | None = None,
+    defines: dict[str, int | str] | None = None,
     include: tuple = (),
     vertex_include: tuple = (),
 ):
@@ -211,7 +214,14 @@ class GLRenderer:
         self.prog = _program(
             ctx,
             "prt",
-            {"NL": n_lobes, "N_SH": n_sh, "MAX_LEVELS": self.n_levels, **geo_defines},
+            {
+                "NL": n_lobes,
+                "N_SH": n_sh,
+                "MAX_LEVELS": self.n_levels,
+                "FLOOR": f"{model_module._FLOOR:.6e}",
+                "MIN_SAY": f"{model_module._MIN_SAY:.6e}",
+                **geo_defines,
+            },
             include=("prefiltered",),
             vertex_include=("geodesic",),
         )
@@ -221,7 +231,9 @@ class GLRenderer:
         # Gaussians: record (v, j, k) -> texels 2r, 2r + 1 with r = (v J + j) N + k
         g = model.gaussians
         sigma = g.lam.rsqrt()[..., None]
-        a = torch.cat([g.w, sigma], -1).reshape(-1, 4)  # (V J N, 4)
+        # the light each lobe carries (prt.glsl blends it, not the peak weight)
+        e = (g.w.double() * sg.integral(g.lam.double())[..., None]).float()
+        a = torch.cat([e, sigma], -1).reshape(-1, 4)  # (V J N, 4)
         m = torch.cat([g.mu, torch.zeros_like(sigma)], -1).reshape(-1, 4)
         rec = torch.stack([a, m], 1).reshape(-1, 4).detach().cpu().numpy()
         img, tw = _wrap(rec)
@@ -255,7 +267,28 @@ class GLRenderer:
         faces_np = model.mesh.faces.cpu().numpy().astype(np.uint32)
         self.vbo = ctx.buffer(verts.tobytes())
         self.ibo = ctx.buffer(faces_np.tobytes())
-        self.vao = ctx.vertex_array(p, [(self.vbo, "3f", "in_pos")], self.ibo, 4)
+        normals = model.mesh.normals.detach().cpu().numpy().astype(np.float32)
+        albedo = model.materials.diffuse.detach().cpu().numpy().astype(np.float32)
+        self.nbo = ctx.buffer(normals.tobytes())
+        self.abo = ctx.buffer(albedo.tobytes())
+        self.vao = ctx.vertex_array(
+            p,
+            [(self.vbo, "3f", "in_pos"), (self.nbo, "3f", "in_normal"), (self.abo, "3f", "in_albedo")],
+            self.ibo,
+            4,
+        )
+        # the sun's shadow map (a 1-texel stand-in without a sun: the sampler stays valid)
+        self.shadow_res = SHADOW_RES if lighting.sun is not None else 1
+        self.shadow_prog = _program(ctx, "shadow")
+        self.shadow_tex = ctx.depth_texture((self.shadow_res,) * 2)
+        self.shadow_tex.compare_func = "<="
+        self.shadow_tex.filter = (moderngl.LINEAR, moderngl.LINEAR)  # 2x2 PCF
+        self.shadow_tex.repeat_x = self.shadow_tex.repeat_y = False
+        self.shadow_fbo = ctx.framebuffer(depth_attachment=self.shadow_tex)
+        self.shadow_vao = ctx.vertex_array(
+            self.shadow_prog, [(self.vbo, "3f", "in_pos")], self.ibo, 4
+        )
+        p["shadow_map"].value = 6
         quad = np.array([-1, -1, 1, -1, -1, 1, 1, 1], np.float32)
         self.quad = ctx.buffer(quad.tobytes())
         self.bg_vao = ctx.vertex_array(self.bg_prog, [(self.quad, "2f", "in_xy")])
@@ -332,12 +365,49 @@ class GLRenderer:
             self.lighting.sh_rotated(rot).cpu().numpy().astype(np.float32).tobytes()
         )
         p["parts"].value = (float(diffuse), float(glossy))
+        self._sun_pass(rot, on=diffuse)
+        fbo.use()
+        ctx.viewport = (0, 0, self.width, self.height)
+        self.shadow_tex.use(6)
         self.gauss_tex.use(0)
         self.diff_tex.use(1)
         self.cand_tex.use(2)
         self.planes_ubo.bind_to_uniform_block(0)
         self.atlas.use(3)
         self.vao.render(moderngl.TRIANGLES)
+
+    def _sun_pass(self, rot: torch.Tensor, *, on: bool) -> None:
+        """Set the sun's uniforms and render its shadow map (when the lighting has a sun)."""
+        import moderngl
+
+        p = self.prog
+        sun = self.lighting.sun
+        p["sun_on"].value = float(on and sun is not None)
+        if not (on and sun is not None):
+            return
+        l = self.lighting.sun_direction(rot).detach().cpu().double().numpy()
+        l = l / np.linalg.norm(l)
+        a = np.array([1.0, 0.0, 0.0]) if abs(l[0]) < 0.9 else np.array([0.0, 1.0, 0.0])
+        u = np.cross(l, a)
+        u /= np.linalg.norm(u)
+        v = np.cross(l, u)
+        frame = np.stack([u, v, l]).astype(np.float32)  # rows; GLSL mat3 is column-major
+        scale = 1.0 / (1.02 * self.radius)
+        texel = 2.0 / (scale * self.shadow_res)  # world size of a shadow-map texel
+        for prog in (p, self.shadow_prog):
+            prog["shadow_frame"].write(frame.T.copy().tobytes())
+            prog["shadow_center"].value = tuple(float(x) for x in self.center)
+            prog["shadow_scale"].value = scale
+        p["sun_dir"].value = tuple(float(x) for x in l)
+        p["sun_e"].value = tuple(float(x) for x in sun.irradiance)
+        p["shadow_offset"].value = 1.5 * texel
+        p["shadow_bias"].value = 1.0 / self.shadow_res
+        ctx = self.ctx
+        self.shadow_fbo.use()
+        ctx.viewport = (0, 0, self.shadow_res, self.shadow_res)
+        self.shadow_fbo.clear(depth=1.0)
+        ctx.enable(moderngl.DEPTH_TEST)
+        self.shadow_vao.render(moderngl.TRIANGLES)
 
     def present(self, screen, *, exposure: float = 0.0, curve: str = "srgb") -> None:
         """Tone-map the last frame onto ``screen`` (a window's framebuffer)."""
@@ -361,6 +431,12 @@ class GLRenderer:
     def release(self) -> None:
         for o in (
             self.vao,
+            self.shadow_vao,
+            self.shadow_fbo,
+            self.shadow_tex,
+            self.shadow_prog,
+            self.nbo,
+            self.abo,
             self.bg_vao,
             self.tm_vao,
             self.vbo,

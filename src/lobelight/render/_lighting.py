@@ -4,6 +4,12 @@ A lighting rotation ``R`` turns the environment: radiance from ``d`` becomes ``L
 Nothing is re-prefiltered for it (the paper, section 5): a Gaussian with mean ``mu`` sees the
 rotated lighting as the original seen by ``R^T mu``, the SH diffuse term rotates its 25
 coefficients, and the background looks up ``R^T d``.
+
+With ``sun=True`` a dominant small light is taken out of the map
+(:func:`lobelight.envmap.extract_sun`) for the diffuse part: the SH projection is of the map
+without it, and renderers add its diffuse light per pixel with a shadow test (shadow map in the
+shader, shadow ray in the torch path); the sun turns with the lighting, to ``R d``. The glossy
+part and the background keep the whole map.
 """
 
 from __future__ import annotations
@@ -14,7 +20,7 @@ import numpy as np
 import torch
 
 from .. import sh
-from ..envmap import EnvMap, Prefiltered, prefilter
+from ..envmap import EnvMap, Prefiltered, Sun, extract_sun, prefilter
 from ..errors import InputError
 
 __all__ = ["Lighting", "as_rotation"]
@@ -50,10 +56,13 @@ class Lighting:
         ``lam = (base_res / 5)**2`` are resolved (655 at 128, 10486 at 512)
     sh_order : order of the diffuse SH projection (5 = 25 coefficients, the transfer's order)
     device : torch device
+    sun : take a dominant sun out of the diffuse lighting and shade it per pixel with shadows
+        (module docstring); a map without one (:func:`lobelight.envmap.extract_sun`) is used
+        whole, and ``self.sun`` is None
 
     Attributes
     ----------
-    prefiltered : Prefiltered;  sh : (sh_order**2, 3) float32;  env : EnvMap
+    prefiltered : Prefiltered;  sh : (sh_order**2, 3) float32;  env : EnvMap;  sun : Sun or None
     """
 
     def __init__(
@@ -64,6 +73,7 @@ class Lighting:
         sh_order: int = 5,
         device=None,
         prefiltered: Prefiltered | None = None,
+        sun: bool = False,
     ):
         if not isinstance(env, EnvMap):
             raise InputError("env", f"expected an EnvMap, got {type(env).__name__}")
@@ -74,7 +84,11 @@ class Lighting:
             if prefiltered is not None
             else prefilter(self.env, base_res=base_res, device=self.device)
         )
-        self.sh = sh.project_envmap(self.env, sh_order, res=64).to(torch.float32)
+        self.sun: Sun | None = None
+        diffuse_env = self.env
+        if sun:
+            self.sun, diffuse_env = extract_sun(self.env)
+        self.sh = sh.project_envmap(diffuse_env, sh_order, res=64).to(torch.float32)
         self.name = env.name
         self._rotator = ShRotator(self.sh)
 
@@ -86,6 +100,14 @@ class Lighting:
     def integrate(self, mu: torch.Tensor, lam: torch.Tensor, rot: torch.Tensor) -> torch.Tensor:
         """``int G(w; mu, lam) L(R^T w) dw``, ``(..., 3)``: the lookup at ``R^T mu``."""
         return self.prefiltered.integrate(mu @ rot.to(mu.device, mu.dtype), lam)
+
+    def lookup(self, mu: torch.Tensor, lam: torch.Tensor, rot: torch.Tensor) -> torch.Tensor:
+        """The lighting averaged under the normalised Gaussian, ``integrate / int G``: (..., 3)."""
+        return self.prefiltered.lookup(mu @ rot.to(mu.device, mu.dtype), lam)
+
+    def sun_direction(self, rot: torch.Tensor) -> torch.Tensor:
+        """``(3,)`` the sun's direction in the rotated lighting, ``R d`` (requires a sun)."""
+        return rot.to(self.sun.direction.device) @ self.sun.direction
 
     def background(self, dirs: torch.Tensor, rot: torch.Tensor) -> torch.Tensor:
         """Radiance seen along ``dirs (..., 3)`` in the rotated environment, ``(..., 3)``."""

@@ -24,6 +24,8 @@ class Renderer:
     width, height : image size in pixels
     backend : ``"gl"`` (shaders through moderngl/EGL) or ``"torch"`` (the same stages in torch)
     base_res : face resolution of the sharpest prefiltered level (when ``env`` is an EnvMap)
+    sun : shade the map's sun per pixel with shadows (when ``env`` is an EnvMap; see
+        :class:`Lighting`)
     device : torch device of the torch path and of the prefiltering
     ctx : an existing moderngl context (a window's), for ``"gl"``
     """
@@ -39,6 +41,7 @@ class Renderer:
         base_res: int = 128,
         device=None,
         ctx=None,
+        sun: bool = False,
     ):
         if backend not in BACKENDS:
             raise InputError("backend", f"must be one of {BACKENDS}, got {backend!r}")
@@ -50,7 +53,7 @@ class Renderer:
         if isinstance(env, Lighting):
             self.lighting = env
         elif isinstance(env, EnvMap):
-            self.lighting = Lighting(env, base_res=base_res, device=model.device)
+            self.lighting = Lighting(env, base_res=base_res, device=model.device, sun=sun)
         else:
             raise InputError("env", f"expected an EnvMap or Lighting, got {type(env).__name__}")
         if model.diffuse.shape[1] != self.lighting.sh.shape[0]:

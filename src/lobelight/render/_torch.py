@@ -8,9 +8,10 @@ Stage for stage what ``shaders/prt.glsl`` does, so that shader output can be che
    barycentric weights (:meth:`lobelight.model.Model.transport`); the diffuse colour is the SH
    transfer dotted with the (rotated) lighting's SH coefficients.
 2. *pixel stage* (:func:`pixel_stage`): at a pixel, the hit triangle's three vertex Gaussians
-   blend with the (perspective-correct) barycentrics of the hit: RGB weights and sigma
-   linearly, means linearly then renormalised; each Gaussian is integrated against the lighting
-   in one prefiltered lookup at ``R^T mu``; the diffuse colours blend like the weights.
+   blend with the (perspective-correct) barycentrics of the hit by the same rule
+   (:func:`lobelight.model.blend_lobes`: the light each lobe carries linearly, width and mean
+   weighted by it); each Gaussian is integrated against the lighting in one prefiltered lookup
+   at ``R^T mu``; the diffuse colours blend linearly.
 
 Primary visibility comes from ray casting (Embree); the rasteriser's barycentrics at a pixel
 centre are those of the ray through it, so the two paths agree up to rounding.
@@ -18,18 +19,24 @@ centre are those of the ray through it, so the two paths agree up to rounding.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import torch
 
+from .. import sg
 from ..camera import Camera
+from ..errors import InputError
+from ..model import blend_lobes
 from ..raycast import RayCaster
 from ._lighting import Lighting
 
-__all__ = ["VertexData", "pixel_stage", "render_torch", "vertex_stage"]
+__all__ = ["VertexData", "pixel_stage", "render_torch", "sun_stage", "vertex_stage"]
 
 #: Pixels shaded per batch (bounds memory at ~1 KB per pixel).
 PIXEL_BATCH = 1 << 16
+#: Shadow-ray origins are lifted off the triangle by this fraction of the mesh's diagonal.
+_SHADOW_OFFSET = 1e-4
 
 
 @dataclass(eq=False)
@@ -38,10 +45,11 @@ class VertexData:
 
     Attributes
     ----------
-    w : (V, N, 3);  mu : (V, N, 3) unit;  sigma : (V, N);  diffuse : (V, 3)
+    e : (V, N, 3) the light each lobe carries (weight times integral);  mu : (V, N, 3) unit;
+    sigma : (V, N);  diffuse : (V, 3)
     """
 
-    w: torch.Tensor
+    e: torch.Tensor
     mu: torch.Tensor
     sigma: torch.Tensor
     diffuse: torch.Tensor
@@ -56,7 +64,7 @@ def vertex_stage(model, lighting: Lighting, eye, rot: torch.Tensor) -> VertexDat
     g = model.transport(torch.arange(mesh.n_vertices, device=dev), view)
     shl = lighting.sh_rotated(rot).to(dev)  # (n, 3)
     diffuse = (model.diffuse * shl).sum(-2)  # (V, 3)
-    return VertexData(g.w, g.mu, g.lam.rsqrt(), diffuse)
+    return VertexData(g.w * sg.integral(g.lam)[..., None], g.mu, g.lam.rsqrt(), diffuse)
 
 
 def pixel_stage(
@@ -69,8 +77,10 @@ def pixel_stage(
     *,
     diffuse: bool = True,
     glossy: bool = True,
+    caster: RayCaster | None = None,
 ) -> torch.Tensor:
-    """Radiance at surface points given by triangle ids ``tri (P,)`` and barycentrics ``(P, 3)``.
+    """Radiance at surface points given by triangle ids ``tri (P,)`` and barycentrics ``(P, 3)``
+    (with the lighting's sun: ``caster`` casts its shadow rays).
 
     Returns
     -------
@@ -87,13 +97,47 @@ def pixel_stage(
         if diffuse:
             acc += (vd.diffuse[c] * b[..., None]).sum(1)
         if glossy:
-            bw = b[..., None, None]  # (p, 3, 1, 1)
-            w = (vd.w[c] * bw).sum(1)  # (p, N, 3)
-            mu = torch.nn.functional.normalize((vd.mu[c] * bw).sum(1), dim=-1)
-            sigma = (vd.sigma[c] * b[..., None]).sum(1)  # (p, N)
-            light = lighting.integrate(mu, sigma.pow(-2), rot).to(dev)  # (p, N, 3)
-            acc += (w * light).sum(1)
+            e, mu, sigma = blend_lobes(vd.e[c], vd.mu[c], vd.sigma[c], b)  # (p, N, 3) ...
+            # the carried light times the lighting averaged under the lobe: the integral
+            # without forming the (up to 1e5) peak weight
+            acc += (e * lighting.lookup(mu, sigma.pow(-2), rot).to(dev)).sum(1)
         out[s : s + PIXEL_BATCH] = acc
+    if diffuse and lighting.sun is not None:
+        if caster is None:
+            raise InputError("caster", "the sun's shadow rays need the mesh's RayCaster")
+        out += sun_stage(model, lighting, tri, bary, rot, caster)
+    return out
+
+
+def sun_stage(
+    model, lighting: Lighting, tri: torch.Tensor, bary: torch.Tensor, rot: torch.Tensor, caster
+) -> torch.Tensor:
+    """The sun's diffuse light at surface points, ``albedo / pi * E * max(n.l, 0) * V``: (P, 3).
+
+    ``n`` is the interpolated vertex normal (as the shader's), ``V`` one shadow ray toward the
+    sun's centre from the point lifted off the triangle's plane (the shader uses a shadow map:
+    the two agree away from shadow edges).
+    """
+    dev = model.device
+    mesh = model.mesh
+    f = mesh.faces.to(dev)[tri.to(dev)]  # (P, 3)
+    b = bary.to(dev, torch.float32)[..., None]  # (P, 3, 1)
+    verts = mesh.vertices.to(dev)
+    pos = (verts[f] * b).sum(1)
+    n = torch.nn.functional.normalize((mesh.normals.to(dev)[f] * b).sum(1), dim=-1)
+    albedo = (model.materials.diffuse.to(dev)[f] * b).sum(1)
+    l = lighting.sun_direction(rot).to(dev, torch.float32)
+    cos = (n @ l).clamp_min(0)  # (P,)
+    lit = cos > 0
+    out = torch.zeros(tri.shape[0], 3, device=dev)
+    if bool(lit.any()):
+        t = verts[f[lit]]  # (p, 3, 3)
+        ng = torch.nn.functional.normalize(torch.linalg.cross(t[:, 1] - t[:, 0], t[:, 2] - t[:, 0]), dim=-1)
+        side = torch.where((ng @ l) < 0, -1.0, 1.0)[:, None]
+        origin = pos[lit] + (_SHADOW_OFFSET * mesh.scale) * side * ng
+        vis = ~caster.occluded(origin.cpu(), l.cpu().expand_as(origin)).to(dev)
+        e = lighting.sun.irradiance.to(dev)
+        out[lit] = albedo[lit] / math.pi * e * (cos[lit] * vis)[:, None]
     return out
 
 
@@ -137,6 +181,6 @@ def render_torch(
     if background:
         img[~hit.to(dev)] = lighting.background(d[~hit].to(dev), rot).to(dev, torch.float32)
     img[hit.to(dev)] = pixel_stage(
-        model, lighting, vd, tri[hit], bary[hit], rot, diffuse=diffuse, glossy=glossy
+        model, lighting, vd, tri[hit], bary[hit], rot, diffuse=diffuse, glossy=glossy, caster=caster
     )
     return img.reshape(*shape, 3), hit.reshape(shape)

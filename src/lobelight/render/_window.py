@@ -47,7 +47,7 @@ def _open_window(width: int, height: int, title: str):
     return glfw, win
 
 
-def view(model_path, *, env, width: int = 1024, height: int = 768) -> dict:
+def view(model_path, *, env, width: int = 1024, height: int = 768, sun: bool = True) -> dict:
     """Open the window and run until it is closed; returns frames drawn and the mean fps."""
     glfw, win = _open_window(width, height, "lobelight")
     import moderngl
@@ -59,7 +59,7 @@ def view(model_path, *, env, width: int = 1024, height: int = 768) -> dict:
         model = load(model_path)
         ctx = moderngl.create_context()
         fb_w, fb_h = glfw.get_framebuffer_size(win)
-        ren = Renderer(model, env, fb_w, fb_h, backend="gl", ctx=ctx)
+        ren = Renderer(model, env, fb_w, fb_h, backend="gl", ctx=ctx, sun=sun)
         verts = model.mesh.vertices
         centre = ((verts.amin(0) + verts.amax(0)) / 2).tolist()
         radius = float((verts - verts.mean(0)).norm(dim=-1).max())

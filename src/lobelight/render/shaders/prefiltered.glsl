@@ -31,9 +31,10 @@ vec3 level_lookup(int k, vec3 d) {
     return texture(atlas, tcoord / atlas_size).rgb;
 }
 
-// int G(w; mu, lam) L(w) dw: the two levels around lam, blended with the weight that minimises
-// the L2 distance of the blended kernel to the requested one (Prefiltered.level_coords, "l2")
-vec3 integrate(vec3 mu, float lam) {
+// The lighting averaged under the normalised Gaussian, int G L dw / int G dw: the two levels
+// around lam, blended with the weight that minimises the L2 distance of the blended kernel to
+// the requested one (Prefiltered.level_coords, "l2")
+vec3 prefiltered_lookup(vec3 mu, float lam) {
     float kf = log(lam0 / lam) / log_rho;
     int kmax = n_levels - 1;
     int k0 = clamp(int(floor(kf)), 0, kmax - 1);
@@ -46,7 +47,10 @@ vec3 integrate(vec3 mu, float lam) {
     if (kf < 0.0) t = 0.0;
     if (kf > float(kmax)) t = 1.0;
     t = clamp(t, 0.0, 1.0);
-    vec3 l = (1.0 - t) * level_lookup(k0, mu) + t * level_lookup(k0 + 1, mu);
-    float z = 6.283185307179586 / lam * (1.0 - exp(-2.0 * lam));
-    return l * z;
+    return (1.0 - t) * level_lookup(k0, mu) + t * level_lookup(k0 + 1, mu);
+}
+
+// int G(w; mu, lam) L(w) dw
+vec3 integrate(vec3 mu, float lam) {
+    return prefiltered_lookup(mu, lam) * (6.283185307179586 / lam * (1.0 - exp(-2.0 * lam)));
 }

@@ -1,0 +1,114 @@
+"""A dominant small light (a sun) taken out of an environment map, for per-pixel shadows.
+
+Why: a real sun carries half of a clear sky's power within 0.5 deg. Order-5 SH diffuse transfer
+per vertex (the paper's diffuse term) can only blur its shadow, and on the built-in knot that
+blur is the full image's largest error (results.md). Game engines and Filament treat the sun as
+a directional light with a shadow map next to image-based lighting; so do we, for the diffuse
+part only: the glossy Gaussians keep integrating the whole map (they resolve the sun's
+highlights), while the diffuse SH integrates the map without the sun, and the sun's diffuse
+light is added per pixel, ``albedo / pi * E * max(n.l, 0) * V(x, l)`` with ``V`` from a
+shadow map (GL) or a shadow ray (torch).
+
+Extraction: the peak pixel's neighbourhood (within ``radius`` of it) holds the sun; its pixels
+brighter than ``threshold`` times the peak are the disc. The background under the disc is the
+mean of a ring just outside the neighbourhood; what the disc carries above it is the sun's
+irradiance ``E`` (RGB, W/m^2-like: radiance x steradian), its direction the
+irradiance-weighted mean. In the residual map the disc pixels take the background's value, so
+``residual.power() + E`` equals ``env.power()`` up to the ring's estimate of what lay under
+the disc. A map whose brightest spot carries less than ``min_share`` of the power has no sun
+(``None``): an overcast sky or an interior map then stays whole.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import torch
+
+from ..errors import InputError
+from ._envmap import EnvMap, _latlong_row_weights
+
+__all__ = ["Sun", "extract_sun"]
+
+
+@dataclass(frozen=True)
+class Sun:
+    """A distant, small light: direction (towards the light), irradiance at normal incidence.
+
+    Attributes
+    ----------
+    direction : (3,) float32 unit, world frame (the unrotated map's)
+    irradiance : (3,) float32 RGB, ``int_disc L dw``
+    radius : float, angular radius of the disc in radians (for the record; shading treats the
+        sun as a direction)
+    """
+
+    direction: torch.Tensor
+    irradiance: torch.Tensor
+    radius: float
+
+
+def _latlong_dirs(h: int, w: int, device) -> torch.Tensor:
+    """``(H, W, 3)`` pixel directions of a lat-long map (Mitsuba's orientation, _envmap)."""
+    theta = torch.arange(h, dtype=torch.float64, device=device) * (math.pi / (h - 1))
+    phi = (torch.arange(w, dtype=torch.float64, device=device) + 0.5) * (2 * math.pi / w)
+    st, ct = torch.sin(theta)[:, None], torch.cos(theta)[:, None]
+    sp, cp = torch.sin(phi)[None], torch.cos(phi)[None]
+    return torch.stack([sp * st, ct.expand(h, w), -cp * st], -1)
+
+
+def extract_sun(
+    env: EnvMap,
+    *,
+    threshold: float = 0.02,
+    radius_deg: float = 3.0,
+    min_share: float = 0.2,
+) -> tuple[Sun | None, EnvMap]:
+    """Split ``env`` into a sun and the rest (module docstring).
+
+    Parameters
+    ----------
+    env : EnvMap (a cube map is resampled to lat-long first, at 4 R x 8 R)
+    threshold : disc pixels are brighter than this fraction of the peak (luminance)
+    radius_deg : the disc lies within this angle of the peak; the background ring spans
+        ``radius_deg`` to ``2 radius_deg``
+    min_share : the least share of the map's power (mean over RGB) the sun must carry
+
+    Returns
+    -------
+    sun : Sun or None;  residual : EnvMap (lat-long; ``env`` itself when there is no sun)
+    """
+    if not 0.0 < threshold < 1.0:
+        raise InputError("threshold", f"must be in (0, 1), got {threshold}")
+    if not 0.0 < radius_deg <= 30.0:
+        raise InputError("radius_deg", f"must be in (0, 30] degrees, got {radius_deg}")
+    if not 0.0 <= min_share < 1.0:
+        raise InputError("min_share", f"must be in [0, 1), got {min_share}")
+    ll = env if env.layout == "latlong" else env.to_latlong(4 * env.data.shape[1])
+    data = ll.data.double()  # (H, W, 3)
+    h, w = data.shape[:2]
+    dirs = _latlong_dirs(h, w, data.device)
+    omega = _latlong_row_weights(h, device=data.device)[:, None] * (2 * math.pi / w)  # (H, 1)
+    lum = data.mean(-1)  # (H, W)
+    peak = int(lum.argmax())
+    d0 = dirs.reshape(-1, 3)[peak]
+    cos = dirs @ d0  # (H, W)
+    near = cos >= math.cos(math.radians(radius_deg))
+    ring = (~near) & (cos >= math.cos(math.radians(2 * radius_deg)))
+    if not bool(ring.any()):
+        return None, env
+    wr = omega.expand(h, w)[ring]
+    background = (data[ring] * wr[:, None]).sum(0) / wr.sum()  # (3,)
+    disc = near & (lum >= threshold * lum.reshape(-1)[peak])
+    excess = (data - background).clamp_min(0) * disc[..., None]  # (H, W, 3)
+    e = (excess * omega[..., None]).sum((0, 1))  # (3,)
+    total = (data * omega[..., None]).sum((0, 1))
+    if float(e.mean()) < min_share * float(total.mean()):
+        return None, env
+    weight = (excess.mean(-1) * omega)[..., None]  # (H, W, 1)
+    direction = torch.nn.functional.normalize((dirs * weight).sum((0, 1)), dim=0)
+    spread = float(torch.arccos((dirs[disc] @ direction).clamp(-1, 1)).max())
+    residual = torch.where(disc[..., None], torch.minimum(data, background.expand_as(data)), data)
+    sun = Sun(direction.float(), e.float(), spread)
+    return sun, EnvMap._trusted(residual.float(), "latlong", f"{env.name}-without-sun")
