@@ -128,3 +128,19 @@ def test_shadow_map_matches_shadow_rays_on_the_knot(sky):
     facing = (n @ light.sun_direction(render.as_rotation(30.0))) > 0.1
     dark = t.reshape(-1, 3)[hit].amax(-1) <= 0
     assert float((facing & dark).float().mean()) > 0.05
+
+
+@needs_gl
+def test_the_shadow_map_follows_the_turning_light(sky):
+    # the map is re-rendered only when the sun's direction changes: turning away and back
+    # gives the first frame again, and the turned frame differs
+    sc = scene.builtin("knot")
+    light = render.Lighting(sky, base_res=16, sun=True)
+    with render.Renderer(dark_model(sc), light, 64, 48, backend="gl") as ren:
+        a = ren.render(sc.camera, 30.0, background=False)
+        b = ren.render(sc.camera, 100.0, background=False)
+        c = ren.render(sc.camera, 30.0, background=False)
+        d = ren.render(sc.camera, 100.0, background=False)
+    torch.testing.assert_close(a, c, rtol=0, atol=0)
+    torch.testing.assert_close(b, d, rtol=0, atol=0)
+    assert float((a - b).abs().mean()) > 0.05 * float(a.mean())

@@ -289,6 +289,7 @@ class GLRenderer:
             self.shadow_prog, [(self.vbo, "3f", "in_pos")], self.ibo, 4
         )
         p["shadow_map"].value = 6
+        self._shadow_key = None  # the sun frame the shadow map was last rendered for
         quad = np.array([-1, -1, 1, -1, -1, 1, 1, 1], np.float32)
         self.quad = ctx.buffer(quad.tobytes())
         self.bg_vao = ctx.vertex_array(self.bg_prog, [(self.quad, "2f", "in_xy")])
@@ -402,6 +403,10 @@ class GLRenderer:
         p["sun_e"].value = tuple(float(x) for x in sun.irradiance)
         p["shadow_offset"].value = 1.5 * texel
         p["shadow_bias"].value = 1.0 / self.shadow_res
+        key = frame.tobytes()
+        if key == self._shadow_key:  # the map depends on the sun's direction alone
+            return
+        self._shadow_key = key
         ctx = self.ctx
         self.shadow_fbo.use()
         ctx.viewport = (0, 0, self.shadow_res, self.shadow_res)
