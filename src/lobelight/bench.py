@@ -207,8 +207,12 @@ def bench_render(
     frames: int = 10,
     base_res: int = 256,
     min_seconds: float = 1.0,
+    sun: bool = False,
 ) -> dict:
     """Frames per second of the renderer for each model size, lobe count and square image size.
+
+    With ``sun`` the sky's sun is shaded per pixel with a shadow map; every timed frame turns
+    the light, so the map is redrawn every frame (a still light reuses it for free).
 
     GL: ``fps`` is throughput, frames submitted back to back (each with its own camera-free
     rotation upload) and one ``finish`` at the end, as a real-time loop runs; at least
@@ -219,7 +223,7 @@ def bench_render(
     from .envmap import builtin
     from .render import Lighting, Renderer
 
-    light = Lighting(builtin(), base_res=base_res)
+    light = Lighting(builtin(), base_res=base_res, sun=sun)
     cam = Camera.look_at((0.0, 0.8, 3.2), (0.0, 0.0, 0.0), fov=45.0)
     rows = []
     for v in vertices:
@@ -262,6 +266,7 @@ def bench_render(
     return {
         "benchmark": "render",
         "backend": backend,
+        "sun": sun,
         "rows": rows,
         "goals": {"cpu_512_fps": 5.0, "h100_50k_1024_fps": 1000.0},
         "machine": {**machine("cpu"), **info},

@@ -285,7 +285,9 @@ def _cmd_bench(args) -> dict:
     if w == "fit":
         return bench.bench_fit(scene=args.scene, n_lobes=args.lobes, device=args.device)
     if w == "render":
-        return bench.bench_render(backend=args.backend if args.backend != "auto" else "gl")
+        return bench.bench_render(
+            backend=args.backend if args.backend != "auto" else "gl", sun=args.sun
+        )
     if w == "lobe-tables":
         from .cosine import bench_tables
 
@@ -575,6 +577,12 @@ def _parser() -> argparse.ArgumentParser:
     be.add_argument("--base-res", type=int, default=512)
     be.add_argument("--backend", choices=["auto", "gl", "torch"], default="auto")
     be.add_argument("--repeats", type=int, default=3)
+    be.add_argument(
+        "--sun",
+        action="store_true",
+        help="render: shade the sky's sun per pixel; the light turns every frame, so its "
+        "shadow map is redrawn every frame (the worst case)",
+    )
     return p
 
 
