@@ -266,3 +266,34 @@ def test_tonemap_and_image_files(tmp_path):
     with pytest.raises(InputError, match="unsupported"):
         render.save_image(tmp_path / "a.jpg", img)
     assert not list(tmp_path.glob(".*tmp*"))
+
+
+def test_mirror_frame_follows_the_reflection_inside_a_triangle():
+    # three corners whose lobe sits exactly on their own mirror directions (offsets 0): at any
+    # point the blended mean is the point's mirror direction, while blending the corners'
+    # means directly lands degrees away when their mirror directions differ by ~60 deg (the
+    # default knot's triangles); and a corner's own lobe comes back exactly at the corner
+    from lobelight.model import blend_lobes
+    from lobelight.render._torch import mirror_direction
+
+    gen = torch.Generator().manual_seed(5)
+    normals = torch.nn.functional.normalize(
+        torch.tensor([[0.0, 0.0, 1.0]]) + 0.6 * torch.randn(200, 3, 3, generator=gen), dim=-1
+    )  # (P, 3 corners, 3)
+    view = torch.nn.functional.normalize(torch.tensor([0.2, 0.1, 1.0]), dim=0).expand(200, 3, 3)
+    base = mirror_direction(normals, view)  # (P, 3, 3)
+    b = torch.rand(200, 3, generator=gen)
+    b = b / b.sum(-1, keepdim=True)
+    target = mirror_direction((normals * b[..., None]).sum(1), view[:, 0])  # (P, 3)
+    e = torch.ones(200, 3, 1, 3)
+    mu = base[:, :, None]  # (P, 3, 1, 3)
+    sigma = torch.full((200, 3, 1), 0.05)
+    _, got, _ = blend_lobes(e, mu, sigma, b, frame=(base, target))
+    torch.testing.assert_close(got[:, 0], target, rtol=0, atol=1e-5)
+    _, plain, _ = blend_lobes(e, mu, sigma, b)
+    off = torch.rad2deg(torch.arccos((plain[:, 0] * target).sum(-1).clamp(max=1)))
+    assert float(off.max()) > 2.0  # the test can fail: the plain blend is off by degrees
+    corner = torch.zeros(200, 3)
+    corner[:, 1] = 1.0
+    _, at, _ = blend_lobes(e, mu, sigma, corner, frame=(base, base[:, 1]))
+    torch.testing.assert_close(at[:, 0], base[:, 1], rtol=0, atol=1e-5)

@@ -10,8 +10,9 @@ Stage for stage what ``shaders/prt.glsl`` does, so that shader output can be che
 2. *pixel stage* (:func:`pixel_stage`): at a pixel, the hit triangle's three vertex Gaussians
    blend with the (perspective-correct) barycentrics of the hit by the same rule
    (:func:`lobelight.model.blend_lobes`: the light each lobe carries linearly, width and mean
-   weighted by it); each Gaussian is integrated against the lighting in one prefiltered lookup
-   at ``R^T mu``; the diffuse colours blend linearly.
+   over the live corners), the means as offsets from each corner's mirror direction re-based
+   on the point's own; each Gaussian is integrated against the lighting in one prefiltered
+   lookup at ``R^T mu``; the diffuse colours blend linearly.
 
 Primary visibility comes from ray casting (Embree); the rasteriser's barycentrics at a pixel
 centre are those of the ray through it, so the two paths agree up to rounding.
@@ -46,13 +47,23 @@ class VertexData:
     Attributes
     ----------
     e : (V, N, 3) the light each lobe carries (weight times integral);  mu : (V, N, 3) unit;
-    sigma : (V, N);  diffuse : (V, 3)
+    sigma : (V, N);  diffuse : (V, 3);  mirror : (V, 3) each vertex's view direction reflected
+    about its normal;  eye : (3,) the camera's position
     """
 
     e: torch.Tensor
     mu: torch.Tensor
     sigma: torch.Tensor
     diffuse: torch.Tensor
+    mirror: torch.Tensor
+    eye: torch.Tensor
+
+
+def mirror_direction(normal: torch.Tensor, view: torch.Tensor) -> torch.Tensor:
+    """``2 (n.v) n - v`` for ``n``, ``v`` normalised: (..., 3), the view reflected about n."""
+    n = torch.nn.functional.normalize(normal, dim=-1)
+    v = torch.nn.functional.normalize(view, dim=-1)
+    return 2 * (n * v).sum(-1, keepdim=True) * n - v
 
 
 def vertex_stage(model, lighting: Lighting, eye, rot: torch.Tensor) -> VertexData:
@@ -64,7 +75,8 @@ def vertex_stage(model, lighting: Lighting, eye, rot: torch.Tensor) -> VertexDat
     g = model.transport(torch.arange(mesh.n_vertices, device=dev), view)
     shl = lighting.sh_rotated(rot).to(dev)  # (n, 3)
     diffuse = (model.diffuse * shl).sum(-2)  # (V, 3)
-    return VertexData(g.w * sg.integral(g.lam)[..., None], g.mu, g.lam.rsqrt(), diffuse)
+    mirror = mirror_direction(mesh.normals.to(dev), view)  # (V, 3)
+    return VertexData(g.w * sg.integral(g.lam)[..., None], g.mu, g.lam.rsqrt(), diffuse, mirror, eye)
 
 
 def pixel_stage(
@@ -97,7 +109,12 @@ def pixel_stage(
         if diffuse:
             acc += (vd.diffuse[c] * b[..., None]).sum(1)
         if glossy:
-            e, mu, sigma = blend_lobes(vd.e[c], vd.mu[c], vd.sigma[c], b)  # (p, N, 3) ...
+            # means blend as offsets from the corners' mirror directions, re-based on the
+            # point's own (from its interpolated normal and its view direction)
+            pos = (model.mesh.vertices.to(dev)[c] * b[..., None]).sum(1)
+            nrm = (model.mesh.normals.to(dev)[c] * b[..., None]).sum(1)
+            frame = (vd.mirror[c], mirror_direction(nrm, vd.eye - pos))
+            e, mu, sigma = blend_lobes(vd.e[c], vd.mu[c], vd.sigma[c], b, frame=frame)
             # the carried light times the lighting averaged under the lobe: the integral
             # without forming the (up to 1e5) peak weight
             acc += (e * lighting.lookup(mu, sigma.pow(-2), rot).to(dev)).sum(1)

@@ -27,7 +27,7 @@ uniform vec2 depth_range;      // near, far
 
 out vec3 v_e[NL];        // carried light
 out float v_live[NL];    // 1 if the vertex's lobe is live (carries light), else 0
-out vec3 v_mu[NL];       // live flag times mean
+out vec3 v_mu[NL];       // live flag times (mean - the vertex's mirror direction)
 out float v_sigma[NL];   // live flag times sigma
 out vec3 v_diffuse;
 out vec3 v_pos;
@@ -46,6 +46,7 @@ void main() {
     vec3 b = max(bdet, vec3(0.0));
     b /= max(b.x + b.y + b.z, 1e-30);
 
+    vec3 mirror = 2.0 * dot(in_normal, d) * in_normal - d;
     for (int k = 0; k < NL; ++k) {
         vec3 e = vec3(0.0), mu = vec3(0.0);
         float sigma = 0.0, say = 0.0;
@@ -64,7 +65,8 @@ void main() {
         v_e[k] = ok ? e : vec3(0.0);
         v_live[k] = live;
         v_sigma[k] = ok ? live * sigma / say : 0.0;
-        v_mu[k] = ok ? live * normalize(mu / say) : vec3(0.0);  // divide first: no underflow
+        // the mean as an offset from this vertex's mirror direction (divide first: no underflow)
+        v_mu[k] = ok ? live * (normalize(mu / say) - mirror) : vec3(0.0);
     }
 
     vec3 diffuse = vec3(0.0);
@@ -107,6 +109,7 @@ uniform float shadow_offset;      // normal offset against self-shadowing (world
 uniform float shadow_bias;        // depth bias (shadow-map depth units)
 
 // the prefiltered lookups (integrate, level_lookup) come from prefiltered.glsl
+uniform vec3 eye;
 uniform mat3 rot_t;               // R^T: the rotated lighting seen by mu is the original at R^T mu
 uniform vec2 parts;               // (diffuse on, glossy on)
 
@@ -125,11 +128,16 @@ void main() {
         }
     }
     if (parts.y > 0.0) {
+        // the pixel's own mirror direction, from its interpolated normal and view direction:
+        // the blended offsets are re-based on it (lobelight.model.blend_lobes, frame=)
+        vec3 n = normalize(v_normal);
+        vec3 d = normalize(eye - v_pos);
+        vec3 mirror = 2.0 * dot(n, d) * n - d;
         for (int k = 0; k < NL; ++k) {
             float say = v_live[k];  // the live corners' barycentric weight
             if (say < MIN_SAY) continue;
             float sigma = v_sigma[k] / say;
-            vec3 mu = normalize(v_mu[k] / say);
+            vec3 mu = normalize(mirror + v_mu[k] / say);
             c += v_e[k] * prefiltered_lookup(rot_t * mu, 1.0 / (sigma * sigma));
         }
     }
