@@ -30,8 +30,8 @@ from ..errors import InputError
 from ..scene import Mesh, Scene
 from ..transport import DIFFUSE_ORDER, Transport
 from ._data import gather, lobe_estimate
-from ._objective import Weights, flip_count
-from ._optimize import Gaussians, fit_batch
+from ._objective import Weights, flip_count, mixture, solve_weights
+from ._optimize import Gaussians, fit_batch, initial_guess
 
 __all__ = ["MeshFit", "count_flips", "fit_mesh", "wavefronts"]
 
@@ -159,6 +159,33 @@ def _processed_neighbours(
     ids = torch.gather(cand, 1, order)
     mask = torch.gather(ok, 1, order)
     return ids, mask
+
+
+def _better_start(data, n: int, nbr_views: torch.Tensor, neighbour: Gaussians) -> Gaussians:
+    """Per view, the neighbour's Gaussians or the data's own initial guess, whichever fits the
+    view's samples better (weights solved for both).
+
+    Why: a neighbour's lobes keep the labels coherent across the mesh, but on a coarse mesh
+    neighbouring vertices' mirror directions differ by tens of degrees (60 on the default knot),
+    so a sharp lobe taken over from a neighbour can miss this vertex's data altogether; with no
+    overlap the fit has no gradient and stays there. Measured on the knot with two Gaussians:
+    always starting from the neighbour ends at mean relative error 0.178 (one Gaussian: 0.173),
+    never starting from it at 0.156.
+    """
+    own = initial_guess(data, n, nbr_views=nbr_views)
+    w_nb = solve_weights(data, neighbour.mu, neighbour.lam)
+
+    def per_view(g_w, g_mu, g_lam):
+        r = mixture(data, g_w, g_mu, g_lam) - data.values  # (B, J, S, 3)
+        return (data.weights[..., None] * r * r).sum((-1, -2))  # (B, J)
+
+    take = (per_view(w_nb, neighbour.mu, neighbour.lam) <= per_view(own.w, own.mu, own.lam))
+    t = take[..., None]
+    return Gaussians(
+        torch.where(t[..., None], w_nb, own.w),
+        torch.where(t[..., None], neighbour.mu, own.mu),
+        torch.where(t, neighbour.lam, own.lam),
+    )
 
 
 def fit_mesh(
@@ -291,9 +318,10 @@ def fit_mesh(
         if all_neighbours:  # relaxation starts from the current fit
             init = Gaussians(w[vidx], mu[vidx], lam[vidx])
         elif n > 1 and bool(mask[:, 0].all()):
-            # start from a processed neighbour's Gaussians: the same correspondence of lobes
+            # start from a processed neighbour's Gaussians (the same correspondence of lobes)
+            # where they fit this vertex's data, from the data's own guess where they do not
             first = ids[:, 0]
-            init = Gaussians(w[first], mu[first], lam[first])
+            init = _better_start(data, n, nbr_views, Gaussians(w[first], mu[first], lam[first]))
         g, terms = fit_batch(
             data,
             n,
