@@ -133,7 +133,9 @@ def test_interpolation_conserves_the_light_each_lobe_carries():
     # where every record carries light the shape is the plain blend of the live records
     both = (rec[vid[:, None], idx, 0].amax(-1) > 0).all(-1)
     assert int(both.sum()) > 0
-    torch.testing.assert_close(g.lam[both, 0], torch.full_like(g.lam[both, 0], 3000.0), rtol=1e-4, atol=0)
+    torch.testing.assert_close(
+        g.lam[both, 0], torch.full_like(g.lam[both, 0], 3000.0), rtol=1e-4, atol=0
+    )
 
 
 def test_evaluate_sums_the_interpolated_gaussians(model2):

@@ -83,9 +83,11 @@ def test_sun_on_a_convex_sphere_is_lambert_without_shadows(sky):
     ren = render.Renderer(m, light, 64, 48, backend="torch")
     img, mask = ren.render(cam, 25.0, background=False, return_mask=True)
     o, d = cam.rays(64, 48)
-    tri, dist, _ = RayCaster(m.mesh, offset=0.0).first_hit(o[mask], d[mask])
+    _, dist, _ = RayCaster(m.mesh, offset=0.0).first_hit(o[mask], d[mask])
     # the true sphere's normal at the hit point: radial (the mesh is centred at the origin)
-    n = torch.nn.functional.normalize(o[mask].double() + dist.double()[:, None] * d[mask].double(), dim=-1)
+    n = torch.nn.functional.normalize(
+        o[mask].double() + dist.double()[:, None] * d[mask].double(), dim=-1
+    )
     l = light.sun_direction(render.as_rotation(25.0)).double()
     want = sc.materials.diffuse[0].double() / math.pi * light.sun.irradiance.double()
     want = want * (n @ l).clamp_min(0)[:, None]

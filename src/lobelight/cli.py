@@ -170,7 +170,13 @@ def _cmd_render(args) -> dict:
         backend = "gl" if gl_available() else "torch"
     t0 = time.perf_counter()
     with Renderer(
-        m, env, args.width, args.height, backend=backend, base_res=args.base_res, sun=not args.no_sun
+        m,
+        env,
+        args.width,
+        args.height,
+        backend=backend,
+        base_res=args.base_res,
+        sun=not args.no_sun,
     ) as ren:
         t1 = time.perf_counter()
         img, mask = ren.render(

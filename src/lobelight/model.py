@@ -102,7 +102,9 @@ def blend_lobes(e, mu, sigma, b, *, frame=None):
     s = a.sum(-2)  # (..., N)
     ok = s >= _MIN_SAY
     u = a / torch.where(ok, s, torch.ones_like(s))[..., None, :]
-    e_out = torch.where(ok[..., None], (e * bn[..., None]).sum(-3), torch.zeros_like(e[..., 0, :, :]))
+    e_out = torch.where(
+        ok[..., None], (e * bn[..., None]).sum(-3), torch.zeros_like(e[..., 0, :, :])
+    )
     sigma = torch.where(ok, (u * sigma).sum(-2), torch.ones_like(s))
     z = torch.zeros_like(mu[..., 0, :, :])
     z[..., 2] = 1.0

@@ -179,7 +179,7 @@ def _better_start(data, n: int, nbr_views: torch.Tensor, neighbour: Gaussians) -
         r = mixture(data, g_w, g_mu, g_lam) - data.values  # (B, J, S, 3)
         return (data.weights[..., None] * r * r).sum((-1, -2))  # (B, J)
 
-    take = (per_view(w_nb, neighbour.mu, neighbour.lam) <= per_view(own.w, own.mu, own.lam))
+    take = per_view(w_nb, neighbour.mu, neighbour.lam) <= per_view(own.w, own.mu, own.lam)
     t = take[..., None]
     return Gaussians(
         torch.where(t[..., None], w_nb, own.w),

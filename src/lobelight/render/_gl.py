@@ -273,7 +273,11 @@ class GLRenderer:
         self.abo = ctx.buffer(albedo.tobytes())
         self.vao = ctx.vertex_array(
             p,
-            [(self.vbo, "3f", "in_pos"), (self.nbo, "3f", "in_normal"), (self.abo, "3f", "in_albedo")],
+            [
+                (self.vbo, "3f", "in_pos"),
+                (self.nbo, "3f", "in_normal"),
+                (self.abo, "3f", "in_albedo"),
+            ],
             self.ibo,
             4,
         )

@@ -76,7 +76,9 @@ def vertex_stage(model, lighting: Lighting, eye, rot: torch.Tensor) -> VertexDat
     shl = lighting.sh_rotated(rot).to(dev)  # (n, 3)
     diffuse = (model.diffuse * shl).sum(-2)  # (V, 3)
     mirror = mirror_direction(mesh.normals.to(dev), view)  # (V, 3)
-    return VertexData(g.w * sg.integral(g.lam)[..., None], g.mu, g.lam.rsqrt(), diffuse, mirror, eye)
+    return VertexData(
+        g.w * sg.integral(g.lam)[..., None], g.mu, g.lam.rsqrt(), diffuse, mirror, eye
+    )
 
 
 def pixel_stage(
@@ -149,7 +151,9 @@ def sun_stage(
     out = torch.zeros(tri.shape[0], 3, device=dev)
     if bool(lit.any()):
         t = verts[f[lit]]  # (p, 3, 3)
-        ng = torch.nn.functional.normalize(torch.linalg.cross(t[:, 1] - t[:, 0], t[:, 2] - t[:, 0]), dim=-1)
+        ng = torch.nn.functional.normalize(
+            torch.linalg.cross(t[:, 1] - t[:, 0], t[:, 2] - t[:, 0]), dim=-1
+        )
         side = torch.where((ng @ l) < 0, -1.0, 1.0)[:, None]
         origin = pos[lit] + (_SHADOW_OFFSET * mesh.scale) * side * ng
         vis = ~caster.occluded(origin.cpu(), l.cpu().expand_as(origin)).to(dev)
