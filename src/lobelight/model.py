@@ -150,7 +150,7 @@ class Model:
         The paper's scheme (section 5): the geodesic triangle holding the view
         (:func:`lobelight.sphere.locate_views`) gives three stored records and barycentric
         weights, and corresponding lobes blend with each other, by :func:`blend_lobes`: the
-        light each lobe carries linearly, its width and mean weighted by that light.
+        light each lobe carries linearly, width and mean over the records that carry light.
 
         Parameters
         ----------

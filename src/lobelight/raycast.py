@@ -70,12 +70,21 @@ class RayCaster:
         self._rt = RayMeshIntersector(tm, scale_to_box=False)
 
     def spawn(
-        self, points: torch.Tensor, normals: torch.Tensor, dirs: torch.Tensor
+        self,
+        points: torch.Tensor,
+        normals: torch.Tensor,
+        dirs: torch.Tensor,
+        *,
+        offset: float | None = None,
     ) -> torch.Tensor:
-        """Ray origins offset off the surface on the side ``dirs`` leave toward, ``(..., 3)``."""
+        """Ray origins offset off the surface on the side ``dirs`` leave toward, ``(..., 3)``.
+
+        ``offset`` overrides the caster's, as a fraction of the mesh's diagonal (a caster made
+        for primary rays has none, but its shadow rays need one)."""
+        off = self.offset if offset is None else float(offset) * self.mesh.scale
         side = torch.sign((normals * dirs).sum(-1, keepdim=True))
         side = torch.where(side == 0, torch.ones_like(side), side)
-        return points + (self.offset * side) * normals
+        return points + (off * side) * normals
 
     def occluded(self, origins: torch.Tensor, dirs: torch.Tensor) -> torch.Tensor:
         """Whether each ray hits the mesh at all, ``(...)`` bool on the inputs' device.

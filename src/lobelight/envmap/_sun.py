@@ -27,7 +27,7 @@ from dataclasses import dataclass
 import torch
 
 from ..errors import InputError
-from ._envmap import EnvMap, _latlong_row_weights
+from ._envmap import EnvMap, _LatlongCells
 
 __all__ = ["Sun", "extract_sun"]
 
@@ -47,15 +47,6 @@ class Sun:
     direction: torch.Tensor
     irradiance: torch.Tensor
     radius: float
-
-
-def _latlong_dirs(h: int, w: int, device) -> torch.Tensor:
-    """``(H, W, 3)`` pixel directions of a lat-long map (Mitsuba's orientation, _envmap)."""
-    theta = torch.arange(h, dtype=torch.float64, device=device) * (math.pi / (h - 1))
-    phi = (torch.arange(w, dtype=torch.float64, device=device) + 0.5) * (2 * math.pi / w)
-    st, ct = torch.sin(theta)[:, None], torch.cos(theta)[:, None]
-    sp, cp = torch.sin(phi)[None], torch.cos(phi)[None]
-    return torch.stack([sp * st, ct.expand(h, w), -cp * st], -1)
 
 
 def extract_sun(
@@ -88,8 +79,10 @@ def extract_sun(
     ll = env if env.layout == "latlong" else env.to_latlong(4 * env.data.shape[1])
     data = ll.data.double()  # (H, W, 3)
     h, w = data.shape[:2]
-    dirs = _latlong_dirs(h, w, data.device)
-    omega = _latlong_row_weights(h, device=data.device)[:, None] * (2 * math.pi / w)  # (H, 1)
+    # pixel directions and the solid angle each pixel's value stands for (EnvMap.power's)
+    cells = _LatlongCells(h, w, device=data.device)
+    dirs = cells.frames()[0].double().reshape(h, w, 3)
+    omega = cells.measure().reshape(h, w)
     lum = data.mean(-1)  # (H, W)
     peak = int(lum.argmax())
     d0 = dirs.reshape(-1, 3)[peak]
@@ -98,7 +91,7 @@ def extract_sun(
     ring = (~near) & (cos >= math.cos(math.radians(2 * radius_deg)))
     if not bool(ring.any()):
         return None, env
-    wr = omega.expand(h, w)[ring]
+    wr = omega[ring]
     background = (data[ring] * wr[:, None]).sum(0) / wr.sum()  # (3,)
     disc = near & (lum >= threshold * lum.reshape(-1)[peak])
     excess = (data - background).clamp_min(0) * disc[..., None]  # (H, W, 3)

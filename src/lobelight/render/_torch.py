@@ -154,9 +154,9 @@ def sun_stage(
         ng = torch.nn.functional.normalize(
             torch.linalg.cross(t[:, 1] - t[:, 0], t[:, 2] - t[:, 0]), dim=-1
         )
-        side = torch.where((ng @ l) < 0, -1.0, 1.0)[:, None]
-        origin = pos[lit] + (_SHADOW_OFFSET * mesh.scale) * side * ng
-        vis = ~caster.occluded(origin.cpu(), l.cpu().expand_as(origin)).to(dev)
+        ray = l.expand_as(ng)
+        origin = caster.spawn(pos[lit], ng, ray, offset=_SHADOW_OFFSET)
+        vis = ~caster.occluded(origin.cpu(), ray.cpu()).to(dev)
         e = lighting.sun.irradiance.to(dev)
         out[lit] = albedo[lit] / math.pi * e * (cos[lit] * vis)[:, None]
     return out

@@ -117,8 +117,8 @@ out vec4 frag;
 
 void main() {
     vec3 c = parts.x * v_diffuse;
+    vec3 n = normalize(v_normal);
     if (parts.x > 0.0 && sun_on > 0.0) {
-        vec3 n = normalize(v_normal);
         float cosine = dot(n, sun_dir);
         if (cosine > 0.0) {
             vec3 q = shadow_frame * (v_pos + shadow_offset * n - shadow_center) * shadow_scale;
@@ -130,7 +130,6 @@ void main() {
     if (parts.y > 0.0) {
         // the pixel's own mirror direction, from its interpolated normal and view direction:
         // the blended offsets are re-based on it (lobelight.model.blend_lobes, frame=)
-        vec3 n = normalize(v_normal);
         vec3 d = normalize(eye - v_pos);
         vec3 mirror = 2.0 * dot(n, d) * n - d;
         for (int k = 0; k < NL; ++k) {
