@@ -39,7 +39,9 @@ neighbours in ``dist``).
 
 Everything is vectorised over flat lists of (cell, occluder) pairs; only the ``depth + 1``
 levels of the tree are a Python loop. The work per level is proportional to the number of
-cells that an occluder's outline crosses (penumbra), not to ``4^depth``.
+cells that an occluder's outline crosses (penumbra), not to ``4^depth``. With fusion on and
+on the CPU, the same tree is walked point by point instead, compiled by numba
+(:mod:`._walk`: the flat lists' memory traffic is what bounds them there).
 """
 
 from __future__ import annotations
@@ -51,7 +53,8 @@ import torch
 
 from ..errors import InputError
 from ..sphere import frame
-from ._fused import kernel
+from . import _walk
+from ._fused import fusion_enabled, kernel
 
 __all__ = ["DIST_NODES", "MODES", "Leaves", "leaf_weights", "shadow_leaves"]
 
@@ -62,24 +65,41 @@ _MAX_SQUARE_ANGLE = 1.35  # radians: past ~77 degrees the gnomonic square degene
 
 
 class Leaves(NamedTuple):
-    """Shadow leaves of all points for one light, as flat lists.
+    """Shadow leaves of all points for one light, as flat lists of quad-tree cells.
+
+    A leaf's lobe (:meth:`geometry`) is computed where it is used: shading does it inside its
+    fused loop rather than writing and reading back (L, 3) axes.
 
     Attributes
     ----------
     point : (L,) int64 index of the shaded point
     depth : (L,) int64 depth of the leaf (0: the whole square)
-    axis : (L, 3) unit direction of the centre of the leaf's bounding cap
-    theta : (L,) half-angle of the bounding cap
+    u, v : (L,) the leaf cell's centre in square coordinates (``|u|, |v| < 1/2``)
     dist : (P,) the paper's ``dist`` of each point's square
-    omega : (L,) solid angle of the leaf's cell (exact, :func:`cell_solid_angle`)
+    scale : (P,) square coordinates to tangent-plane coordinates, ``2 tan(margin theta)``
+    t, b, a : (P, 3) each point's light frame (``a`` towards the light's centre)
+    count : (P,) int64 leaves per point
     """
 
     point: torch.Tensor
     depth: torch.Tensor
-    axis: torch.Tensor
-    theta: torch.Tensor
+    u: torch.Tensor
+    v: torch.Tensor
     dist: torch.Tensor
-    omega: torch.Tensor
+    scale: torch.Tensor
+    t: torch.Tensor
+    b: torch.Tensor
+    a: torch.Tensor
+    count: torch.Tensor
+
+    def geometry(self, *, solid_angle: bool = True):
+        """``axis`` (L, 3) unit direction of the centre of each leaf's bounding cap, ``theta``
+        (L,) its half-angle and ``omega`` (L,) the cell's exact solid angle
+        (:func:`cell_solid_angle`; NaN unless ``solid_angle``)."""
+        return _leaf_geometry(
+            self.u, self.v, self.depth, self.point, self.scale, self.t, self.b, self.a,
+            bool(solid_angle),
+        )  # fmt: skip
 
 
 def _check_spheres(spheres: torch.Tensor) -> None:
@@ -98,18 +118,6 @@ def _corner_signs(like: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
     (-,-), (+,-), (-,+), (+,+) used throughout the quad-tree."""
     kw = {"dtype": like.dtype, "device": like.device}
     return torch.tensor([-1.0, 1.0, -1.0, 1.0], **kw), torch.tensor([-1.0, -1.0, 1.0, 1.0], **kw)
-
-
-def _corner_dirs(cu, cv, h, k):
-    """Unit local directions (..., 4, 3) of a cell's corners and (..., 3) of its centre."""
-    su, sv = _corner_signs(cu)
-    x = k.unsqueeze(-1) * (cu.unsqueeze(-1) + su * h.unsqueeze(-1))  # (..., 4)
-    y = k.unsqueeze(-1) * (cv.unsqueeze(-1) + sv * h.unsqueeze(-1))
-    corners = torch.stack([x, y, torch.ones_like(x)], -1)
-    corners = corners / torch.linalg.vector_norm(corners, dim=-1, keepdim=True)
-    centre = torch.stack([k * cu, k * cv, torch.ones_like(cu)], -1)
-    centre = centre / torch.linalg.vector_norm(centre, dim=-1, keepdim=True)
-    return corners, centre
 
 
 def shadow_leaves(
@@ -154,20 +162,24 @@ def shadow_leaves(
     span = torch.tan(square)  # (P,) half-width of the square, in tangent units
     k = 2 * span  # square coordinates (u, v) -> tangent-plane coordinates k (u, v)
     dist = 0.5 / span
-    empty = Leaves(
-        torch.zeros(0, dtype=torch.long, device=dev),
-        torch.zeros(0, dtype=torch.long, device=dev),
-        torch.zeros(0, 3, dtype=dt, device=dev),
-        torch.zeros(0, dtype=dt, device=dev),
-        dist,
-        torch.zeros(0, dtype=dt, device=dev),
-    )
+    t, b, a = frame(light_axis)
+    none_i = torch.zeros(0, dtype=torch.long, device=dev)
+    none_f = torch.zeros(0, dtype=dt, device=dev)
+    empty = Leaves(none_i, none_i, none_f, none_f, dist, k, t, b, a, points.new_zeros(P).long())
     N = spheres.shape[0]
     if N == 0 or P == 0:
         return empty
-    t, b, a = frame(light_axis)
-    # ---- clipping: dense (P, N) test, then a flat list of (point, occluder) pairs
     ex = exclude if exclude is not None else torch.full((P,), -1, dtype=torch.long, device=dev)
+    if dev.type == "cpu" and fusion_enabled() and _walk.available():
+        # compiled on the CPU: walked per point, depth-first (module _walk: the same tests)
+        lp, ld, lu, lv, count = _walk.walk_leaves(
+            points, t, b, a, light_dist, span, spheres, ex,
+            depth=int(depth), conservative=mode == "conservative",
+        )  # fmt: skip
+        if lp.numel() == 0:
+            return empty
+        return Leaves(lp, ld, lu.to(dt), lv.to(dt), dist, k, t, b, a, count)
+    # ---- clipping: dense (P, N) test, then a flat list of (point, occluder) pairs
     keep = _clip(points, a, light_dist, span, spheres, ex)  # (P, N)
     pp, pn = keep.nonzero(as_tuple=True)  # (Q,) pairs
     if pp.numel() == 0:
@@ -208,8 +220,7 @@ def shadow_leaves(
     lp = torch.cat(leaves_pt)
     ld = torch.cat(leaves_depth)
     lu, lv = torch.cat(leaves_u), torch.cat(leaves_v)
-    axis, theta, omega = _leaf_geometry(lu, lv, ld, k[lp], t[lp], b[lp], a[lp])
-    return Leaves(lp, ld, axis, theta, dist, omega)
+    return Leaves(lp, ld, lu, lv, dist, k, t, b, a, torch.bincount(lp, minlength=P))
 
 
 @kernel
@@ -280,11 +291,30 @@ def _cell_bounds(cu, cv, k, cell_pt, h: float):
     cys = y0.unsqueeze(-1) + dx.unsqueeze(-1) * sgn_v
     inv_c = torch.rsqrt(1 + cxs * cxs + cys * cys)  # (C, 4) 1 / |corner|
     inv_m = torch.rsqrt(1 + x0 * x0 + y0 * y0)  # (C,) 1 / |centre|
-    cos_r = (cxs * x0.unsqueeze(-1) + cys * y0.unsqueeze(-1) + 1) * inv_c
-    # the cell's bounding cap: its radius is the largest corner angle, i.e. the smallest cosine
-    cos_rad = (cos_r.amin(-1) * inv_m).clamp(-1, 1)  # (C,)
-    sin_rad = torch.sqrt(1 - cos_rad * cos_rad)
+    # the cell's bounding cap: its radius is the largest corner angle (:func:`_cap_tan2`)
+    t2 = _cap_tan2(x0, y0, dx)
+    cos_rad = torch.rsqrt(1 + t2)
+    sin_rad = torch.sqrt(t2) * cos_rad
     return torch.cat([torch.stack([x0, y0, dx, inv_m, cos_rad, sin_rad], -1), inv_c], -1)
+
+
+def _cap_tan2(x0, y0, dx):
+    """``tan^2`` of the largest angle between a cell's centre direction ``(x0, y0, 1)`` and its
+    corners ``(x0 +- dx, y0 +- dx, 1)`` (all (...)): the bounding cap's radius.
+
+    From ``|m x c|^2 / (m . c)^2``, whose cross product has the exact components
+    ``(-ey, ex, x0 ey - y0 ex)`` (``ex, ey = +-dx``): well conditioned for small cells, where
+    ``1 - cos`` or ``acos`` of a cosine near 1 loses most digits in float32. ``m . c > 0``
+    (a cell off the square's centre has ``|x0|, |y0| >= dx``), so ``tan`` grows with the angle.
+    """
+    t2 = None
+    for su, sv in ((-1, -1), (1, -1), (-1, 1), (1, 1)):
+        ex, ey = su * dx, sv * dx
+        d = 1 + (x0 + ex) * x0 + (y0 + ey) * y0  # m . c
+        cz = x0 * ey - y0 * ex
+        c2 = (ex * ex + ey * ey + cz * cz) / (d * d)
+        t2 = c2 if t2 is None else torch.maximum(t2, c2)
+    return t2
 
 
 @kernel
@@ -329,14 +359,22 @@ def _subdivide(cu, cv, cell_pt, partial, parents, hh: float, pair_cell, pair_src
 
 
 @kernel
-def _leaf_geometry(lu, lv, depth, kl, t, b, a):
-    """World axis (L, 3), bounding-cap half-angle (L,) and solid angle (L,) of the leaves at
-    square coordinates ``(lu, lv)`` of depth ``depth`` (all (L,); frames (L, 3))."""
-    h = 0.5 / torch.pow(2.0, depth.to(lu.dtype))
-    corners, centre = _corner_dirs(lu, lv, h, kl)
-    theta = torch.acos((corners * centre.unsqueeze(1)).sum(-1).amin(-1).clamp(-1, 1))
-    axis = centre[:, :1] * t + centre[:, 1:2] * b + centre[:, 2:] * a  # (L, 3) world
-    omega = cell_solid_angle(kl * (lu - h), kl * (lu + h), kl * (lv - h), kl * (lv + h))
+def _leaf_geometry(lu, lv, depth, point, k, t, b, a, solid_angle: bool):
+    """World axis (L, 3), bounding-cap half-angle (L,) and solid angle (L,; NaN unless
+    ``solid_angle``) of the leaves at square coordinates ``(lu, lv)`` of depth ``depth`` of the
+    points ``point`` (all (L,)); ``k`` (P,) and the frames ``t, b, a`` (P, 3) are the points'
+    (gathered here, inside the fused loop)."""
+    kl = k[point]
+    h = torch.exp2(-1.0 - depth.to(lu.dtype))  # the cell's half-size, 2^-(depth + 1)
+    x0, y0, dx = kl * lu, kl * lv, kl * h  # tangent-plane centre and half-size
+    m2 = 1 + x0 * x0 + y0 * y0  # |centre|^2 of the direction (x0, y0, 1)
+    theta = torch.atan(torch.sqrt(_cap_tan2(x0, y0, dx)))  # the bounding cap's radius
+    inv_m = torch.rsqrt(m2).unsqueeze(-1)
+    axis = (x0.unsqueeze(-1) * t[point] + y0.unsqueeze(-1) * b[point] + a[point]) * inv_m
+    if solid_angle:
+        omega = cell_solid_angle(x0 - dx, x0 + dx, y0 - dx, y0 + dx)
+    else:
+        omega = torch.full_like(theta, math.nan)
     return axis, theta, omega
 
 

@@ -1,0 +1,363 @@
+"""The visibility quad-tree walked point by point, compiled by numba (CPU only).
+
+:func:`~._visibility.shadow_leaves` builds the masks of all points level by level over flat
+lists of (cell, occluder) pairs, which suits a GPU. On a CPU that form is bound by memory
+traffic, not arithmetic: every level gathers each pair's cell and cone, scatters its results
+back to the cells and writes the next level's lists, ~12 ns per (cell, occluder) test on the
+2-core benchmark machine even fused by TorchInductor (docs/cosine-lobes.md). Walked depth-first
+per point, a point's cones, its current cell and the occluders still in play stay in
+registers and L1 cache, and nothing but the leaves' cells is written.
+
+The tests are :mod:`._visibility`'s (clip, cones, covered, touched, subdivide), computed in
+float64 and without roots where squares compare exactly; they find the same cells as the flat
+lists run in float64 (tested). Two shortcuts change the work, not the result: a cell's bounding
+cap is computed only when a touch test needs it, and in aggressive mode the children of a cell
+one level above the last are tested together on the 3 x 3 corners they share (only covered
+cells count there). Leaves come out grouped by point (the flat lists group them by depth);
+shading sums over them, so the order does not matter. Their lobes are built afterwards in torch
+(:meth:`~._visibility.Leaves.geometry`), vectorised.
+
+Each point is walked once, keeping its first ``_ROOM`` leaves in a fixed slot of a scratch
+buffer (parallel writes never collide); a pass then moves them to their final rows. The few
+points with more leaves are walked a second time straight into theirs. numba compiles the walk
+on first use and caches it on disk (``cache=True``; seconds).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import torch
+
+try:  # optional: without numba the flat-list walk runs everywhere
+    import numba as _nb
+except ImportError:  # pragma: no cover - numba is a dependency; kept optional for source builds
+    _nb = None
+
+__all__ = ["available", "walk_leaves"]
+
+_prange = _nb.prange if _nb is not None else range
+
+
+def available() -> bool:
+    """Whether the compiled walk can run (numba importable)."""
+    return _nb is not None
+
+
+def _njit(**kw):
+    """numba's njit, cached on disk; ``error_model="numpy"`` drops the per-division zero
+    checks of the default (the divisors here are never 0), fastmath lets LLVM vectorise."""
+
+    def deco(fn):
+        if _nb is None:
+            return fn
+        return _nb.njit(cache=True, fastmath=True, error_model="numpy", **kw)(fn)
+
+    return deco
+
+
+@_njit()
+def _cones(x, t, b, a, light_dist, span, spheres_t, exclude, ok, out):
+    """The occluders that may block one point's square and their cones, as
+    :func:`~._visibility._clip` and :func:`~._visibility._pair_cones`.
+
+    x, t, b, a : (3,) the point and its light frame;  light_dist, span : floats
+    spheres_t : (4, N) occluders, one row per coordinate (so that the test loop vectorises)
+    exclude : sphere index to ignore (-1: none);  ok : (N,) bool scratch
+    out : (N, 5) written with ``(ox, oy, oz, cos phi, sin phi)`` of the kept occluders
+    Returns how many were kept.
+    """
+    # the square's corner angle r0; an occluder of angular radius phi whose centre is at the
+    # angle g from the axis can reach the square iff g < phi + r0 (both below pi/2), tested as
+    # cos g > cos(phi + r0), times the distance: along > sqrt(d^2 - r^2) cos r0 - r sin r0
+    r0 = math.atan(span * math.sqrt(2.0))
+    cos_r0, sin_r0 = math.cos(r0), math.sin(r0)
+    N = spheres_t.shape[1]
+    sx, sy, sz, sr = spheres_t[0], spheres_t[1], spheres_t[2], spheres_t[3]
+    for s in range(N):  # branch-free: SIMD
+        dx, dy, dz, rad = sx[s] - x[0], sy[s] - x[1], sz[s] - x[2], sr[s]
+        along = dx * a[0] + dy * a[1] + dz * a[2]
+        d2 = dx * dx + dy * dy + dz * dz
+        tangent = math.sqrt(max(d2 - rad * rad, 0.0))  # distance to the occluder's outline
+        ok[s] = (
+            (along - rad < light_dist)  # not behind the light
+            & (d2 > rad * rad)  # the point is outside the occluder
+            & (along > tangent * cos_r0 - rad * sin_r0)  # in the square's cone
+        )
+    if 0 <= exclude < N:
+        ok[exclude] = False
+    n = 0
+    for s in range(N):
+        if ok[s]:
+            dx, dy, dz = sx[s] - x[0], sy[s] - x[1], sz[s] - x[2]
+            dn = math.sqrt(dx * dx + dy * dy + dz * dz)
+            sin_phi = min(sr[s] / dn, 1.0)
+            out[n, 0] = (dx * t[0] + dy * t[1] + dz * t[2]) / dn
+            out[n, 1] = (dx * b[0] + dy * b[1] + dz * b[2]) / dn
+            out[n, 2] = (dx * a[0] + dy * a[1] + dz * a[2]) / dn
+            out[n, 3] = math.sqrt(max(1.0 - sin_phi * sin_phi, 0.0))
+            out[n, 4] = sin_phi
+            n += 1
+    return n
+
+
+@_njit()
+def _tan2(x0, y0, ex, ey):
+    """``tan^2`` of the angle between ``(x0, y0, 1)`` and the corner ``(x0 + ex, y0 + ey, 1)``
+    (:func:`~._visibility._cap_tan2`)."""
+    d = 1.0 + (x0 + ex) * x0 + (y0 + ey) * y0
+    cz = x0 * ey - y0 * ex
+    return (ex * ex + ey * ey + cz * cz) / (d * d)
+
+
+@_njit()
+def _inside(x, y, ox, oy, oz, cp2):
+    """Whether the direction ``(x, y, 1)`` lies in the cone ``(o, phi)``: ``c . o >= 0`` and
+    ``(c . o)^2 >= cos^2(phi) |c|^2`` (``cos phi >= 0``; no root)."""
+    c = x * ox + y * oy + oz
+    return c >= 0.0 and c * c >= cp2 * (1.0 + x * x + y * y)
+
+
+@_njit()
+def _covered_children(x0, y0, dx, lists, row, npart, cones):
+    """Bit ``c`` set: child ``c`` of the cell ``(x0, y0, dx)`` (tangent-plane centre and
+    half-size; children in the order (-,-), (+,-), (-,+), (+,+)) lies in one of the cones
+    ``lists[row, :npart]`` (a row index, not a row view: views cost reference counting). The
+    children's 16 corners are 9 points, each tested once per cone."""
+    xa, xb = x0 - dx, x0 + dx
+    ya, yb = y0 - dx, y0 + dx
+    mask = 0
+    for q in range(npart):
+        o = lists[row, q]
+        ox, oy, oz, cp2 = cones[o, 0], cones[o, 1], cones[o, 2], cones[o, 3] * cones[o, 3]
+        # the 3 x 3 corners, row by row in y
+        i00, i10, i20 = (
+            _inside(xa, ya, ox, oy, oz, cp2),
+            _inside(x0, ya, ox, oy, oz, cp2),
+            _inside(xb, ya, ox, oy, oz, cp2),
+        )
+        i01, i11, i21 = (
+            _inside(xa, y0, ox, oy, oz, cp2),
+            _inside(x0, y0, ox, oy, oz, cp2),
+            _inside(xb, y0, ox, oy, oz, cp2),
+        )
+        i02, i12, i22 = (
+            _inside(xa, yb, ox, oy, oz, cp2),
+            _inside(x0, yb, ox, oy, oz, cp2),
+            _inside(xb, yb, ox, oy, oz, cp2),
+        )
+        if i00 and i10 and i01 and i11:
+            mask |= 1
+        if i10 and i20 and i11 and i21:
+            mask |= 2
+        if i01 and i11 and i02 and i12:
+            mask |= 4
+        if i11 and i21 and i12 and i22:
+            mask |= 8
+        if mask == 15:
+            break
+    return mask
+
+
+@_njit()
+def _walk_point(
+    p, points, t, b, a, light_dist, span, spheres_t, exclude, depth, conservative, start, limit,
+    leaf_u, leaf_v, leaf_level, ok, cones, lists, nlist, su, sv, sl,
+):  # fmt: skip
+    """Walk one point's quad-tree depth-first; write its first ``limit`` leaves' square
+    coordinates and depths to rows ``start...`` of ``leaf_u``, ``leaf_v``, ``leaf_level``.
+
+    Returns the number of leaves (all of them, also past ``limit``). Scratch (a block's, reused
+    point after point): ok (N,), cones (N, 5), lists (depth + 2, N), nlist (depth + 2,), the
+    stack su, sv, sl (4 depth + 5,).
+    The children of a subdivided cell share one list of the occluders that touched it
+    (``lists[level + 1]``): a depth-first walk finishes a cell's subtree before it reaches the
+    cell's next sibling, the only other writer of that list.
+    """
+    nk = _cones(
+        points[p], t[p], b[p], a[p], light_dist[p], span[p], spheres_t, exclude[p], ok, cones
+    )
+    if nk == 0:
+        return 0
+    kk = 2.0 * span[p]
+    for q in range(nk):
+        lists[0, q] = q
+    nlist[0] = nk
+    su[0], sv[0], sl[0] = 0.0, 0.0, 0
+    sp = 1
+    count = 0
+    while sp > 0:
+        sp -= 1
+        u, v, level = su[sp], sv[sp], sl[sp]
+        h = 0.5 / (1 << level)
+        x0, y0, dx = kk * u, kk * v, kk * h
+        xa, xb, ya, yb = x0 - dx, x0 + dx, y0 - dx, y0 + dx  # the corners' coordinates
+        # squared lengths of the corner directions (x, y, 1), corners in the order (-,-),
+        # (+,-), (-,+), (+,+); the tests below compare squares, so no root per corner
+        n0 = 1.0 + xa * xa + ya * ya
+        n1 = 1.0 + xb * xb + ya * ya
+        n2 = 1.0 + xa * xa + yb * yb
+        n3 = 1.0 + xb * xb + yb * yb
+        cap = False  # the bounding cap, computed when a touch test first needs it
+        cos_rad = sin_rad = inv_m = 0.0
+        covered = False
+        npart = 0
+        for q in range(nlist[level]):
+            o = lists[level, q]
+            ox, oy, oz = cones[o, 0], cones[o, 1], cones[o, 2]
+            cos_phi, sin_phi = cones[o, 3], cones[o, 4]
+            base = x0 * ox + y0 * oy + oz
+            ex, ey = dx * ox, dx * oy
+            # a corner c is in the cone iff c . o >= cos(phi) |c|, i.e. c . o >= 0 and
+            # (c . o)^2 >= cos^2(phi) |c|^2 (cos phi >= 0)
+            cp2 = cos_phi * cos_phi
+            c0, c1 = base - ex - ey, base + ex - ey
+            c2, c3 = base - ex + ey, base + ex + ey
+            if (
+                c0 >= 0.0 and c1 >= 0.0 and c2 >= 0.0 and c3 >= 0.0
+                and c0 * c0 >= cp2 * n0 and c1 * c1 >= cp2 * n1
+                and c2 * c2 >= cp2 * n2 and c3 * c3 >= cp2 * n3
+            ):  # fmt: skip
+                covered = True
+                break
+            if not cap:  # the bounding cap's radius, as _visibility._cap_tan2
+                t2 = max(
+                    _tan2(x0, y0, -dx, -dx), _tan2(x0, y0, dx, -dx),
+                    _tan2(x0, y0, -dx, dx), _tan2(x0, y0, dx, dx),
+                )  # fmt: skip
+                cos_rad = 1.0 / math.sqrt(1.0 + t2)
+                sin_rad = math.sqrt(t2) * cos_rad
+                inv_m = 1.0 / math.sqrt(1.0 + x0 * x0 + y0 * y0)
+                cap = True
+            if base * inv_m > cos_phi * cos_rad - sin_phi * sin_rad:  # touched
+                # the next level's list: used only if this cell is subdivided (below)
+                if level < depth:
+                    lists[level + 1, npart] = o
+                npart += 1
+        leaf = covered or (npart > 0 and level == depth and conservative)
+        if leaf:
+            if count < limit:
+                leaf_u[start + count] = u
+                leaf_v[start + count] = v
+                leaf_level[start + count] = level
+            count += 1
+        elif npart > 0 and level + 1 == depth and not conservative:
+            # the children are the last level, where only covered cells count: test them here,
+            # on the 3 x 3 corners they share, rather than one by one
+            mask = _covered_children(x0, y0, dx, lists, level + 1, npart, cones)
+            hh = 0.5 * h
+            for c in range(4):
+                if mask & (1 << c):
+                    if count < limit:
+                        leaf_u[start + count] = u + (hh if c & 1 else -hh)
+                        leaf_v[start + count] = v + (hh if c & 2 else -hh)
+                        leaf_level[start + count] = depth
+                    count += 1
+        elif npart > 0 and level < depth:
+            nlist[level + 1] = npart
+            hh = 0.5 * h
+            # pushed in reverse so that they pop in the flat lists' child order
+            sl[sp : sp + 4] = level + 1
+            su[sp + 3], sv[sp + 3] = u - hh, v - hh
+            su[sp + 2], sv[sp + 2] = u + hh, v - hh
+            su[sp + 1], sv[sp + 1] = u - hh, v + hh
+            su[sp], sv[sp] = u + hh, v + hh
+            sp += 4
+    return count
+
+
+_BLOCK = 64  # points per parallel task: scratch is allocated once per block
+_ROOM = 64  # leaves kept per point by the first walk (the benchmark's mean is 19)
+
+
+@_njit(parallel=True)
+def _walk_all(
+    points, t, b, a, light_dist, span, spheres_t, exclude, depth, conservative, limit,
+    leaf_u, leaf_v, leaf_level, fixed,
+):  # fmt: skip
+    """Walk every point (its leaves to rows ``p * limit...``, or to ``fixed[p]...`` where
+    ``fixed[p] >= 0``: a second walk of the points that had more than ``limit``). Returns the
+    leaf count of every point, (P,)."""
+    P, N = points.shape[0], spheres_t.shape[1]
+    counts = np.zeros(P, dtype=np.int64)
+    for blk in _prange((P + _BLOCK - 1) // _BLOCK):
+        ok = np.empty(N, dtype=np.bool_)
+        cones = np.empty((N, 5))
+        lists = np.empty((depth + 2, N), dtype=np.int64)
+        nlist = np.zeros(depth + 2, dtype=np.int64)
+        top = 4 * depth + 5
+        su, sv = np.empty(top), np.empty(top)
+        sl = np.empty(top, dtype=np.int64)
+        for p in range(blk * _BLOCK, min(P, (blk + 1) * _BLOCK)):
+            if fixed.shape[0] and fixed[p] < 0:
+                continue
+            start, room = (p * limit, limit) if not fixed.shape[0] else (fixed[p], 1 << 62)
+            counts[p] = _walk_point(
+                p, points, t, b, a, light_dist, span, spheres_t, exclude, depth, conservative,
+                start, room, leaf_u, leaf_v, leaf_level, ok, cones, lists, nlist, su, sv, sl,
+            )  # fmt: skip
+    return counts
+
+
+@_njit(parallel=True)
+def _gather(counts, offsets, limit, leaf_u, leaf_v, leaf_level, out_point, out_u, out_v, out_level):
+    """Leaves from the first walk's rows (``p * limit...``) to their final rows (``offsets``);
+    points with more than ``limit`` leaves were walked again straight into theirs."""
+    P = counts.shape[0]
+    for blk in _prange((P + _BLOCK - 1) // _BLOCK):
+        for p in range(blk * _BLOCK, min(P, (blk + 1) * _BLOCK)):
+            n, o = counts[p], offsets[p]
+            for r in range(n):
+                out_point[o + r] = p
+            if n <= limit:
+                for r in range(n):
+                    out_u[o + r] = leaf_u[p * limit + r]
+                    out_v[o + r] = leaf_v[p * limit + r]
+                    out_level[o + r] = leaf_level[p * limit + r]
+
+
+def walk_leaves(points, t, b, a, light_dist, span, spheres, exclude, *, depth, conservative):
+    """Shadow leaves of all points, walked per point (module docstring).
+
+    Each point is walked once, keeping up to ``_ROOM`` leaves; the few points with more are
+    walked again straight into their final rows, so memory stays ``O(P * _ROOM + L)``.
+
+    Parameters
+    ----------
+    points, t, b, a : (P, 3) CPU tensors, the points and their light frames
+    light_dist, span : (P,) distance to the light, half-width of the square (tangent units)
+    spheres : (N, 4);  exclude : (P,) int64 (-1: none)
+    depth : maximal depth;  conservative : keep partly covered cells of the last level
+
+    Returns
+    -------
+    point (L,) int64, depth (L,) int64, and the leaves' centres in square coordinates u (L,),
+    v (L,) float32 (multiples of ``2^-(depth + 1)``: exact), grouped by point; the leaf count
+    of every point (P,) int64
+    """
+    f64 = [np.ascontiguousarray(z.detach().cpu().numpy(), dtype=np.float64)
+           for z in (points, t, b, a, light_dist, span, spheres.T)]  # fmt: skip
+    ex = np.ascontiguousarray(exclude.detach().cpu().numpy(), dtype=np.int64)
+    args = (*f64, ex, int(depth), bool(conservative))
+    P = points.shape[0]
+    leaf_u, leaf_v = np.empty(P * _ROOM, np.float32), np.empty(P * _ROOM, np.float32)
+    leaf_level = np.empty(P * _ROOM, dtype=np.int8)
+    counts = _walk_all(*args, _ROOM, leaf_u, leaf_v, leaf_level, np.empty(0, dtype=np.int64))
+    offsets = np.zeros(P, dtype=np.int64)
+    np.cumsum(counts[:-1], out=offsets[1:])
+    L = int(counts.sum())
+    out_point = np.empty(L, dtype=np.int64)
+    out_u, out_v = np.empty(L, np.float32), np.empty(L, np.float32)
+    out_level = np.empty(L, dtype=np.int8)
+    big = counts > _ROOM
+    if big.any():  # walked again, straight into their rows
+        _walk_all(*args, 0, out_u, out_v, out_level, np.where(big, offsets, -1))
+    _gather(counts, offsets, _ROOM, leaf_u, leaf_v, leaf_level, out_point, out_u, out_v, out_level)
+    return (
+        torch.from_numpy(out_point),
+        torch.from_numpy(out_level).long(),
+        torch.from_numpy(out_u),
+        torch.from_numpy(out_v),
+        torch.from_numpy(counts),
+    )
