@@ -32,7 +32,7 @@ from ._fused import fusion, kernel
 from ._light import SphereLight, _geometry, _light_tensors, cap_lobes, cap_scale
 from ._lobeset import Lobes, _integral_flat, multiply, product_integral
 from ._tables import LobeTables, _cap_lookup, _cpu_threads, get_tables
-from ._visibility import MODES, interp_coefficients, shadow_leaves
+from ._visibility import MODES, depth_weights, interp_coefficients, shadow_leaves
 
 __all__ = ["ShadeResult", "shade_points"]
 
@@ -272,10 +272,8 @@ def _shade_chunk(
             # eq. (39)'s weights per point and depth first (P x (depth + 1) lookups), gathered
             # per leaf in the products' loop; calibration wants the unweighted values
             wp = None
-            if not features:  # leaf_weights' interpolation in dist, once per point
-                i0, i1, lam = interp_coefficients(lv.dist)  # (P,)
-                lam = lam.unsqueeze(-1)
-                wp = ((1 - lam) * weights[:, i0].T + lam * weights[:, i1].T).reshape(-1)
+            if not features:
+                wp = depth_weights(weights, lv.dist).reshape(-1)  # (P * (depth + 1),)
             val = _shadow_products(
                 lv.point,
                 lv.depth,
@@ -297,7 +295,7 @@ def _shade_chunk(
                 preserve,
                 cell,
                 threshold,
-            )  # (L, 3) fmt: skip
+            )  # (L, 3)
             if features:
                 i0, i1, lam = interp_coefficients(lv.dist[lv.point])
                 feats.append((lv.point, lv.depth, i0, i1, lam, val))

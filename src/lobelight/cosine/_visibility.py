@@ -67,8 +67,9 @@ _MAX_SQUARE_ANGLE = 1.35  # radians: past ~77 degrees the gnomonic square degene
 class Leaves(NamedTuple):
     """Shadow leaves of all points for one light, as flat lists of quad-tree cells.
 
-    A leaf's lobe (:meth:`geometry`) is computed where it is used: shading does it inside its
-    fused loop rather than writing and reading back (L, 3) axes.
+    The leaves' lobes are built on demand (:meth:`geometry`, one fused loop): the walk and the
+    flat lists write only cells, and the solid angles (four arc tangents per leaf) are skipped
+    where the shading does not use them.
 
     Attributes
     ----------
@@ -403,12 +404,21 @@ def leaf_weights(weights: torch.Tensor, depth: torch.Tensor, dist: torch.Tensor)
     -------
     (L,)
     """
-    nodes = torch.tensor(DIST_NODES, dtype=dist.dtype, device=dist.device)
-    x = dist.clamp(nodes[0], nodes[-1])
-    i = (torch.searchsorted(nodes, x.contiguous(), right=True) - 1).clamp(0, len(DIST_NODES) - 2)
-    lam = (x - nodes[i]) / (nodes[i + 1] - nodes[i])
+    i0, i1, lam = interp_coefficients(dist)
     w = weights.to(device=dist.device, dtype=dist.dtype)
-    return (1 - lam) * w[depth, i] + lam * w[depth, i + 1]
+    return (1 - lam) * w[depth, i0] + lam * w[depth, i1]
+
+
+def depth_weights(weights: torch.Tensor, dist: torch.Tensor) -> torch.Tensor:
+    """:func:`leaf_weights` of every depth at each ``dist``: (P, D + 1), for ``dist`` (P,).
+
+    Shading interpolates once per point and gathers per leaf (a leaf's weight is
+    ``depth_weights(...)[point, depth]``) rather than interpolating per leaf.
+    """
+    i0, i1, lam = interp_coefficients(dist)
+    w = weights.to(device=dist.device, dtype=dist.dtype)
+    lam = lam.unsqueeze(-1)
+    return (1 - lam) * w[:, i0].T + lam * w[:, i1].T
 
 
 def interp_coefficients(dist: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:

@@ -231,9 +231,8 @@ def _walk_point(
                 inv_m = 1.0 / math.sqrt(1.0 + x0 * x0 + y0 * y0)
                 cap = True
             if base * inv_m > cos_phi * cos_rad - sin_phi * sin_rad:  # touched
-                # the next level's list: used only if this cell is subdivided (below)
-                if level < depth:
-                    lists[level + 1, npart] = o
+                # the next level's list (depth + 2 rows): used only if this cell is subdivided
+                lists[level + 1, npart] = o
                 npart += 1
         leaf = covered or (npart > 0 and level == depth and conservative)
         if leaf:
