@@ -15,7 +15,6 @@ from typing import NamedTuple
 import torch
 
 from ._fused import kernel
-from ._lobe import _axis_pair
 from ._tables import LobeTables, _product_lookup
 
 __all__ = ["Lobes"]
@@ -62,55 +61,68 @@ def multiply(tables: LobeTables, a: Lobes, b: Lobes, *, preserve_integral: bool)
 
     Returns
     -------
-    :class:`Lobes` of the broadcast batch shape; ``scale = p_r * scale_a * scale_b``
+    :class:`Lobes` of the broadcast batch shape; ``scale = p_r * scale_a * scale_b`` (the axes
+    are a view of component rows, ``(3, ...)`` moved last)
     """
-    a1, a2, e1, e2 = _flat_pairs(a, b)
-    batch = a1.shape[:-1]
+    a1, a2, e1, e2, batch = _flat_pairs(a, b)
     axis, exponent, unit = _multiply_flat(
-        a1.reshape(-1, 3), a2.reshape(-1, 3), e1.reshape(-1), e2.reshape(-1),
-        tables.product_table, tables._grid, bool(preserve_integral),
-    )  # fmt: skip
+        a1, a2, e1, e2, tables.product_table, tables._grid, bool(preserve_integral)
+    )
     scale = unit.reshape(batch).unsqueeze(-1) * a.scale * b.scale  # (..., C)
-    return Lobes(axis.reshape(*batch, 3), exponent.reshape(batch), scale)
+    return Lobes(axis.reshape(3, *batch).movedim(0, -1), exponent.reshape(batch), scale)
 
 
 def product_integral(tables: LobeTables, a: Lobes, b: Lobes, *, preserve_integral: bool):
     """``∫ a b`` by the table, without building the product lobe's axis: ``(..., C)``."""
-    a1, a2, e1, e2 = _flat_pairs(a, b)
-    batch = a1.shape[:-1]
+    a1, a2, e1, e2, batch = _flat_pairs(a, b)
     unit = _integral_flat(
-        a1.reshape(-1, 3), a2.reshape(-1, 3), e1.reshape(-1), e2.reshape(-1),
-        tables.product_table, tables._grid, bool(preserve_integral),
-    )  # fmt: skip
+        a1, a2, e1, e2, tables.product_table, tables._grid, bool(preserve_integral)
+    )
     return unit.reshape(batch).unsqueeze(-1) * a.scale * b.scale
 
 
 def _flat_pairs(a: Lobes, b: Lobes):
-    """Axes (..., 3) and exponents (...) of both, broadcast to one batch and contiguous.
+    """Both lobes' axes as (3, M) component rows and exponents (M,), broadcast to one batch of
+    ``M`` pairs, contiguous; and the batch shape.
 
     The fused kernels take flat, dense lists: a compiled loop over broadcast (stride-0) views
-    was measured 3x slower than the copy this makes.
+    was measured 3x slower than the copy this makes, and one over (M, 3) rows (stride 3) is
+    not vectorised by TorchInductor (component rows: 1.6x faster lookups on the CPU).
     """
     a1, a2 = torch.broadcast_tensors(a.axis, b.axis)
     batch = a1.shape[:-1]
     e1, e2 = a.exponent.expand(batch), b.exponent.expand(batch)
-    return a1.contiguous(), a2.contiguous(), e1.contiguous(), e2.contiguous()
+    rows = [x.movedim(-1, 0).reshape(3, -1).contiguous() for x in (a1, a2)]
+    return rows[0], rows[1], e1.reshape(-1).contiguous(), e2.reshape(-1).contiguous(), batch
 
 
 @kernel
 def _multiply_flat(a1, a2, e1, e2, tab, grid, preserve: bool):
-    """(M, 3) axes, (M,) exponents -> product axis (M, 3), exponent (M,), unit scale (M,)."""
-    c, s, tangent = _axis_pair(a1, a2)
-    cb, sb, exponent, log_scale = _product_lookup(e1, e2, c, s, tab, grid, preserve)
-    axis = cb.unsqueeze(-1) * a1 + sb.unsqueeze(-1) * tangent
-    return axis, exponent, torch.exp(log_scale)
+    """(3, M) axes (component rows), (M,) exponents -> product axis (3, M), exponent (M,),
+    unit scale (M,)."""
+    x1, y1, z1 = a1.unbind(0)
+    c = x1 * a2[0] + y1 * a2[1] + z1 * a2[2]
+    perp = a2 - c * a1  # (3, M) a2's part orthogonal to a1
+    s = torch.sqrt((perp * perp).sum(0))
+    # parallel or opposite axes: any tangent will do (beta is 0, or the product is zero);
+    # this one is Duff et al.'s branchless frame's first axis
+    sign = torch.where(z1 >= 0, 1.0, -1.0)
+    q = -1 / (sign + z1)
+    fallback = torch.stack([1 + sign * x1 * x1 * q, sign * x1 * y1 * q, -sign * x1])
+    tiny = torch.finfo(s.dtype).tiny
+    tangent = torch.where(s > tiny, perp / s.clamp_min(tiny), fallback)
+    cb, sb, exponent, log_scale = _product_lookup(e1, e2, c.clamp(-1, 1), s, tab, grid, preserve)
+    return cb * a1 + sb * tangent, exponent, torch.exp(log_scale)
 
 
 @kernel
 def _integral_flat(a1, a2, e1, e2, tab, grid, preserve: bool):
-    """(M, 3) axes, (M,) exponents -> ``∫ c1 c2`` of unit-scale lobes, (M,)."""
-    c = (a1 * a2).sum(-1).clamp(-1, 1)
+    """(3, M) axes (component rows), (M,) exponents -> ``∫ c1 c2`` of unit-scale lobes, (M,)."""
+    x1, y1, z1 = a1.unbind(0)
+    x2, y2, z2 = a2.unbind(0)
+    c = (x1 * x2 + y1 * y2 + z1 * z2).clamp(-1, 1)
     # |a1 x a2| keeps sin(alpha) accurate for nearly parallel axes (sqrt(1 - c^2) does not)
-    s = torch.linalg.vector_norm(torch.linalg.cross(a1, a2, dim=-1), dim=-1)
+    cx, cy, cz = y1 * z2 - z1 * y2, z1 * x2 - x1 * z2, x1 * y2 - y1 * x2
+    s = torch.sqrt(cx * cx + cy * cy + cz * cz)
     _, _, exponent, log_scale = _product_lookup(e1, e2, c, s, tab, grid, preserve)
     return torch.exp(log_scale) * (_TWO_PI / (exponent + 1))

@@ -281,7 +281,7 @@ def _shade_chunk(
                 theta,
                 omega,
                 wp,
-                m.axis.reshape(-1, 3),
+                m.axis.movedim(-1, 0).reshape(3, -1),
                 m.exponent.reshape(-1),
                 m.scale.reshape(-1, m.scale.shape[-1]),
                 keep.reshape(-1),
@@ -343,7 +343,8 @@ def _shadow_products(
 
     point, depth : (L,);  axis (L, 3), theta (L,), omega (L,) the leaves' bounding caps and
     solid angles (:meth:`~._visibility.Leaves.geometry`);  wp : (P D1,) eq. (39)'s weight per
-    point and depth (``D1`` depths), or None for ``w_k = 1``;  m_axis (P I J, 3), m_exp (P I J,),
+    point and depth (``D1`` depths), or None for ``w_k = 1``;  m_axis (3, P I J) (component
+    rows), m_exp (P I J,),
     m_scale (P I J, C) the product lobes and keep (P I J,) bool, flattened;  cap_tab, tab,
     grid : the lobe tables (:class:`LobeTables`)
 
@@ -359,7 +360,7 @@ def _shadow_products(
         s_k = omega[leaf] * (e_k + 1) / (2 * math.pi)
     else:
         s_k = cap_scale(theta[leaf], e_k)
-    unit = _integral_flat(m_axis[row], axis[leaf], m_exp[row], e_k, tab, grid, preserve)
+    unit = _integral_flat(m_axis[:, row], axis.T[:, leaf], m_exp[row], e_k, tab, grid, preserve)
     val = (unit * s_k).unsqueeze(-1) * m_scale[row]  # (L I, C)
     val = val * ((val.amax(-1, keepdim=True) >= threshold) & keep[row].unsqueeze(-1))
     val = val.reshape(L, I, -1).sum(1)
