@@ -284,7 +284,7 @@ def _cmd_bench(args) -> dict:
     w = args.what
     if w == "prefilter":
         return bench.bench_prefilter(
-            base_res=args.base_res, repeats=args.repeats, device=args.device
+            base_res=args.base_res, repeats=args.repeats or 3, device=args.device
         )
     if w == "transport":
         return bench.bench_transport(scene=args.scene, device=args.device)
@@ -301,7 +301,7 @@ def _cmd_bench(args) -> dict:
     if w == "lobes":
         from .cosine import bench_lobes
 
-        return bench_lobes(device=args.device, repeats=args.repeats)
+        return bench_lobes(device=args.device, repeats=args.repeats or 20)
     if w == "brdf-fit":
         from .sgbrdf import bench_fit
 
@@ -582,7 +582,13 @@ def _parser() -> argparse.ArgumentParser:
     be.add_argument("--material", default="ward", help="brdf-fit material (ward, ward_aniso)")
     be.add_argument("--base-res", type=int, default=512)
     be.add_argument("--backend", choices=["auto", "gl", "torch"], default="auto")
-    be.add_argument("--repeats", type=int, default=3)
+    be.add_argument(
+        "--repeats",
+        type=int,
+        default=None,
+        help="timed repeats (default: prefilter 3 builds, lobes 20 frames: on a shared "
+        "machine the best of a few frames is mostly noise)",
+    )
     be.add_argument(
         "--sun",
         action="store_true",

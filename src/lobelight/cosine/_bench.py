@@ -82,7 +82,7 @@ def _sync(device: Any) -> None:
 def bench_lobes(
     *,
     device: str = "cpu",
-    repeats: int = 3,
+    repeats: int = 20,
     threads: tuple = (1, None),
     fused: tuple = (False, True),
 ) -> dict:
@@ -111,7 +111,11 @@ def bench_lobes(
     get_tables(device=dev)
     cfgs, lights = _configs(dev)
     thread_opts = threads if dev.type == "cpu" else (None,)
-    result: dict = {"benchmark": "cosine_lobes", "machine": machine(str(device))}
+    result: dict = {
+        "benchmark": "cosine_lobes",
+        "machine": machine(str(device)),
+        "repeats": max(1, int(repeats)),
+    }
     for name, c in cfgs.items():
         runs = []
         for fz in fused:
