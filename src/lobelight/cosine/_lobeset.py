@@ -14,6 +14,7 @@ from typing import NamedTuple
 
 import torch
 
+from ..sphere import frame
 from ._fused import kernel
 from ._tables import LobeTables, _product_lookup
 
@@ -100,15 +101,11 @@ def _flat_pairs(a: Lobes, b: Lobes):
 def _multiply_flat(a1, a2, e1, e2, tab, grid, preserve: bool):
     """(3, M) axes (component rows), (M,) exponents -> product axis (3, M), exponent (M,),
     unit scale (M,)."""
-    x1, y1, z1 = a1.unbind(0)
-    c = x1 * a2[0] + y1 * a2[1] + z1 * a2[2]
+    c = (a1 * a2).sum(0)
     perp = a2 - c * a1  # (3, M) a2's part orthogonal to a1
     s = torch.sqrt((perp * perp).sum(0))
-    # parallel or opposite axes: any tangent will do (beta is 0, or the product is zero);
-    # this one is Duff et al.'s branchless frame's first axis
-    sign = torch.where(z1 >= 0, 1.0, -1.0)
-    q = -1 / (sign + z1)
-    fallback = torch.stack([1 + sign * x1 * x1 * q, sign * x1 * y1 * q, -sign * x1])
+    # parallel or opposite axes: any tangent will do (beta is 0, or the product is zero)
+    fallback = frame(a1.T)[0].T  # (3, M)
     tiny = torch.finfo(s.dtype).tiny
     tangent = torch.where(s > tiny, perp / s.clamp_min(tiny), fallback)
     cb, sb, exponent, log_scale = _product_lookup(e1, e2, c.clamp(-1, 1), s, tab, grid, preserve)

@@ -343,10 +343,9 @@ def _shadow_products(
 
     point, depth : (L,);  axis (L, 3), theta (L,), omega (L,) the leaves' bounding caps and
     solid angles (:meth:`~._visibility.Leaves.geometry`);  wp : (P D1,) eq. (39)'s weight per
-    point and depth (``D1`` depths), or None for ``w_k = 1``;  m_axis (3, P I J) (component
-    rows), m_exp (P I J,),
-    m_scale (P I J, C) the product lobes and keep (P I J,) bool, flattened;  cap_tab, tab,
-    grid : the lobe tables (:class:`LobeTables`)
+    point and depth (``D1`` depths), or None for ``w_k = 1``;  m_axis (3, P I J) component
+    rows, m_exp (P I J,), m_scale (P I J, C) the product lobes and keep (P I J,) bool,
+    flattened;  cap_tab, tab, grid : the lobe tables (:class:`LobeTables`)
 
     (Building the leaves' caps inside this loop as well was measured 1.8x slower on the CPU
     than the two kernels.)
