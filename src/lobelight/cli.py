@@ -577,7 +577,7 @@ def _parser() -> argparse.ArgumentParser:
         "what",
         choices=["prefilter", "transport", "fit", "render", "lobe-tables", "lobes", "brdf-fit"],
     )
-    be.add_argument("--scene", default="knot:3", help="scene of transport/fit (knot:3: 12.8K)")
+    be.add_argument("--scene", default="knot:2", help="scene of transport/fit (knot:2: 11.5K)")
     be.add_argument("--lobes", type=int, default=1)
     be.add_argument("--material", default="ward", help="brdf-fit material (ward, ward_aniso)")
     be.add_argument("--base-res", type=int, default=512)
