@@ -282,10 +282,10 @@ def _cmd_bench(args) -> dict:
     from . import bench
 
     w = args.what
+    # each benchmark's own default count unless --repeats is given
+    reps = {} if args.repeats is None else {"repeats": args.repeats}
     if w == "prefilter":
-        return bench.bench_prefilter(
-            base_res=args.base_res, repeats=args.repeats or 3, device=args.device
-        )
+        return bench.bench_prefilter(base_res=args.base_res, device=args.device, **reps)
     if w == "transport":
         return bench.bench_transport(scene=args.scene, device=args.device)
     if w == "fit":
@@ -301,7 +301,7 @@ def _cmd_bench(args) -> dict:
     if w == "lobes":
         from .cosine import bench_lobes
 
-        return bench_lobes(device=args.device, repeats=args.repeats or 20)
+        return bench_lobes(device=args.device, **reps)
     if w == "brdf-fit":
         from .sgbrdf import bench_fit
 
