@@ -103,6 +103,23 @@ def _occluded_vertex(sc: Scene) -> int:
     return int(cand[(frac - 0.5).abs().argmin()])
 
 
+def test_per_view_directions_agree_with_shared_directions():
+    # the per-(vertex, view) path (local grids) packs the views above the horizon and casts
+    # rays for them only; on the same directions it must equal the shared-directions path,
+    # which evaluates the BRDF where the environment is visible, with its own code
+    sc = scene.builtin("knot")
+    tr = transport.Transport(sc)
+    vidx = torch.tensor([_occluded_vertex(sc), 5, 900])
+    views = sphere.geodesic_views()
+    d = cubemap.texel_directions(8).reshape(-1, 3)
+    shared = tr.direct(vidx, views, d)  # (B, J, D, 3)
+    per_view = tr.direct(vidx, views, d.expand(3, views.shape[0], -1, 3))
+    torch.testing.assert_close(per_view, shared, rtol=1e-5, atol=1e-7)
+    below = (sc.mesh.normals[vidx] @ views.T) <= 0
+    assert bool(below.any()) and bool((per_view[below] == 0).all())
+    assert bool((per_view[~below] > 0).any())
+
+
 def test_diffuse_transfer_against_path_tracing():
     sc = scene.builtin("knot")
     v = _occluded_vertex(sc)

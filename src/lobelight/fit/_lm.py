@@ -33,14 +33,14 @@ import torch
 
 from .. import sphere
 from ._data import FitData
-from ._objective import Weights, _neighbour_mean, _pair_diffs, light_of, solve_gram
+from ._objective import Weights, _neighbour_mean, _pair_diffs, solve_gram
 
 __all__ = ["levenberg_marquardt"]
 
 
 def _gauss(dirs64: torch.Tensor, mu: torch.Tensor, lam: torch.Tensor):
-    """``G_k(omega_s)`` and ``mu_k . omega_s - 1``, both (B, J, N, S) in ``mu``'s dtype, by one
-    batched matmul.
+    """``G_k(omega_s)`` and ``mu_k . omega_s - 1``, both (P, N, S) in ``mu``'s dtype, by one
+    batched matmul, for ``dirs64`` (P, S, 3), ``mu`` (P, N, 3), ``lam`` (P, N).
 
     The dot products are taken in float64 (``dirs64`` is the float64 copy of the sample
     directions): ``lam (mu.w - 1)`` for ``lam = 3e4`` needs ``1 - mu.w`` to better than float32's
@@ -48,10 +48,7 @@ def _gauss(dirs64: torch.Tensor, mu: torch.Tensor, lam: torch.Tensor):
     formed, is exact enough in float32 (relative error 6e-8 of an argument down to -100 moves
     G by < 1e-5 relative), and float32 ``exp`` is several times cheaper.
     """
-    b, j, n, _ = mu.shape
-    s = dirs64.shape[2]
-    dot = torch.bmm(mu.reshape(b * j, n, 3).double(), dirs64.reshape(b * j, s, 3).transpose(1, 2))
-    cm1 = (dot - 1).reshape(b, j, n, s)
+    cm1 = torch.bmm(mu.double(), dirs64.transpose(1, 2)) - 1
     g = torch.exp((lam.double()[..., None] * cm1).to(mu.dtype))
     return g, cm1.to(mu.dtype)
 
@@ -88,7 +85,8 @@ def levenberg_marquardt(
     """
     b, j, n = lam.shape
     dt = mu.dtype
-    inv_e = 1 / data.energy().sum(1).clamp_min(1e-30)  # (B,)
+    energy = data.energy()  # (B, J)
+    inv_e = 1 / energy.sum(1).clamp_min(1e-30)  # (B,)
     c = {
         "M": (weights.beta / j) ** 0.5,
         "V": (weights.gamma / j) ** 0.5,
@@ -104,65 +102,87 @@ def levenberg_marquardt(
         g = xr[:, nbr_views.clamp_min(0)]  # (B, J, 6, ...)
         return (g * valid.reshape(1, *valid.shape, *([1] * (x.ndim - 2)))).sum(2)
 
-    dirs64 = data.dirs.double()
+    # Only views whose samples carry light have a data term: below the horizon, or fully
+    # occluded, the transport is 0, the solved weights are 0 and so are the data residuals and
+    # their Jacobian. On a typical vertex that is over half of the views (half lie below its
+    # horizon), so the per-sample work runs on the P active views alone, packed, and is
+    # scattered back to (B, J); M and V still act on every view.
     bj, n_s = b * j, data.dirs.shape[2]
-    w64 = data.weights.double()[:, :, None]  # (B, J, 1, S)
-    vals64 = data.values.double().reshape(bj, n_s, 3)
+    act = (energy > 0).reshape(-1).nonzero().squeeze(1)  # (P,) flat (vertex, view) indices
+    p_n = act.numel()
+    dirs_a = data.dirs.reshape(bj, n_s, 3)[act]  # (P, S, 3)
+    dirs64 = dirs_a.double()
+    wts_a = data.weights.reshape(bj, n_s)[act]  # (P, S)
+    vals_a = data.values.reshape(bj, n_s, 3)[act]  # (P, S, 3)
+    w64 = wts_a.double()[:, None]  # (P, 1, S)
+    vals64 = vals_a.double()
     # the data term from the normal equations: sum_s W_s |sum_k w_k G_k - T|^2
     # = int |T|^2 - 2 w.b + w^T A w per view (in float64, where the cancellation is harmless),
     # so no iteration evaluates the mixture and its residual at every sample
-    t2 = (data.weights[..., None].double() * data.values.double() ** 2).sum((-1, -2))  # (B, J)
-    light = light_of(data)
+    t2 = (w64[:, 0, :, None] * vals64**2).sum((-1, -2))  # (P,)
+    light = (wts_a[..., None] * vals_a.clamp_min(0)).sum(1)[:, None]  # (P, 1, 3), as light_of
+    no_below = torch.zeros(p_n, 1, dtype=torch.bool, device=mu.device)
+    inv_e_a = inv_e[act // j]  # (P,)
+
+    def pack(x: torch.Tensor) -> torch.Tensor:
+        """(B, J, ...) -> (P, ...) the active views."""
+        return x.reshape(bj, *x.shape[2:])[act]
+
+    def unpack(x: torch.Tensor) -> torch.Tensor:
+        """(P, ...) -> (B, J, ...), zero on views without data."""
+        out = x.new_zeros(bj, *x.shape[1:])
+        return out.index_copy_(0, act, x).reshape(b, j, *x.shape[1:])
 
     def evaluate(mu_, lam_):
-        """G, mu.w - 1 (float32), the solved weights and the vertex's whole objective."""
-        g_, cm1_ = _gauss(dirs64, mu_, lam_)
+        """G, mu.w - 1 (float32, (P, N, S)), the solved weights (P, N, 3) and the vertex's whole
+        objective."""
+        lam_a = pack(lam_)
+        g_, cm1_ = _gauss(dirs64, pack(mu_), lam_a)
         g64 = g_.double()
-        gw = (g64 * w64).reshape(bj, n, n_s)
-        a_ = torch.bmm(gw, g64.reshape(bj, n, n_s).transpose(1, 2)).reshape(b, j, n, n)
-        rhs = torch.bmm(gw, vals64).reshape(b, j, n, 3)
-        w_ = solve_gram(a_, rhs, lam_, data.below, light)  # (B, J, N, 3) float64
-        quad = torch.einsum("bjkc,bjkl,bjlc->bj", w_, a_, w_)
-        d_cost = (t2 - 2 * (w_ * rhs).sum((-1, -2)) + quad).clamp_min(0) * inv_e[:, None]
+        gw = g64 * w64
+        a_ = torch.bmm(gw, g64.transpose(1, 2))  # (P, N, N)
+        rhs = torch.bmm(gw, vals64)  # (P, N, 3)
+        w_ = solve_gram(a_[:, None], rhs[:, None], lam_a[:, None], no_below, light)[:, 0]
+        quad = torch.einsum("pkc,pkl,plc->p", w_, a_, w_)
+        d_a = (t2 - 2 * (w_ * rhs).sum((-1, -2)) + quad).clamp_min(0) * inv_e_a
+        d_cost = unpack(d_a)  # (B, J)
         mb = torch.nn.functional.normalize(_neighbour_mean(mu_, nbr_views), dim=-1)
         sb = _neighbour_mean(lam_.rsqrt(), nbr_views)
         cost = d_cost + _reg_cost(mu_, lam_, mb, sb, c, nbr_mu, mask)
         return g_, cm1_, w_.to(dt), cost.sum(1), d_cost.sum(1)
 
-    sq = (data.weights * inv_e[:, None, None]).sqrt()  # (B, J, S) residual scale
-    sq_n = sq[:, :, None]  # (B, J, 1, S)
-    dflat = data.dirs.reshape(bj, -1, 3).transpose(1, 2)  # (BJ, 3, S)
-    vals_t = data.values.reshape(bj, n_s, 3).transpose(1, 2)  # (BJ, 3, S)
+    sq_n = (wts_a * inv_e_a[:, None]).sqrt()[:, None]  # (P, 1, S) residual scale
+    dflat = dirs_a.transpose(1, 2)  # (P, 3, S)
+    vals_t = vals_a.transpose(1, 2)  # (P, 3, S)
     mask = None if nbr_mask is None else nbr_mask.to(dt)
     mu, lam = mu.clone(), lam.clone()
     g, cm1, w, cost0, d0 = evaluate(mu, lam)
-    jac = torch.empty(b, j, n, 3, n_s, dtype=dt, device=mu.device)  # reused every iteration
+    jac = torch.empty(p_n, n, 3, n_s, dtype=dt, device=mu.device)  # reused every iteration
+    vertex_of = act // j  # (P,) which vertex each active view belongs to
     for _ in range(iters):
         mbar = torch.nn.functional.normalize(_neighbour_mean(mu, nbr_views), dim=-1)
         sigma = lam.rsqrt()  # (B, J, N)
         sbar = _neighbour_mean(sigma, nbr_views)
         t, s, _ = sphere.frame(mu)  # (B, J, N, 3) each
-        # tangent components of the sample directions, by matmul: (B, J, N, S) each
-        tw = torch.bmm(t.reshape(bj, n, 3), dflat).reshape(g.shape)
-        sw = torch.bmm(s.reshape(bj, n, 3), dflat).reshape(g.shape)
+        # tangent components of the sample directions, by matmul: (P, N, S) each
+        lam_a, sigma_a = pack(lam), pack(sigma)  # (P, N)
+        tw = torch.bmm(pack(t), dflat)
+        sw = torch.bmm(pack(s), dflat)
         # scaled Jacobian rows d G_k / d (a, b, z)_k * sqrt(W_s / E), written in place:
         # dG/da = G lam sigma (t.w), dG/db = G lam sigma (s.w), dG/dz = G lam (mu.w - 1)
         gs = g * sq_n
-        q = gs * (lam * sigma)[..., None]
-        torch.mul(q, tw, out=jac[:, :, :, 0])
-        torch.mul(q, sw, out=jac[:, :, :, 1])
-        torch.mul(gs, cm1 * lam[..., None], out=jac[:, :, :, 2])
-        jr = jac.reshape(bj, 3 * n, n_s)
-        ww = torch.bmm(w.reshape(bj, n, 3), w.reshape(bj, n, 3).transpose(1, 2))  # (BJ, N, N)
-        h = torch.bmm(jr, jr.transpose(1, 2)).reshape(bj, n, 3, n, 3)
-        h = (h * ww.reshape(bj, n, 1, n, 1)).reshape(b, j, 3 * n, 3 * n)
+        q = gs * (lam_a * sigma_a)[..., None]
+        torch.mul(q, tw, out=jac[:, :, 0])
+        torch.mul(q, sw, out=jac[:, :, 1])
+        torch.mul(gs, cm1 * lam_a[..., None], out=jac[:, :, 2])
+        jr = jac.reshape(p_n, 3 * n, n_s)
+        ww = torch.bmm(w, w.transpose(1, 2))  # (P, N, N)
+        h = torch.bmm(jr, jr.transpose(1, 2)).reshape(p_n, n, 3, n, 3)
+        h = unpack((h * ww.reshape(p_n, n, 1, n, 1)).reshape(p_n, 3 * n, 3 * n))
         # e_k = sum_c w_kc r_c with r the scaled residual: sqrt(W/E) (sum_l ww_kl G_l - w_k.T)
-        e = torch.baddbmm(
-            torch.bmm(ww, g.reshape(bj, n, n_s)), w.reshape(bj, n, 3), vals_t, alpha=-1
-        )
-        e = e.reshape(b, j, n, n_s) * sq_n  # (B, J, N, S)
-        grad = torch.bmm(jr.reshape(bj * n, 3, n_s), e.reshape(bj * n, n_s, 1))
-        grad = grad.reshape(b, j, 3 * n)
+        e = torch.baddbmm(torch.bmm(ww, g), w, vals_t, alpha=-1) * sq_n  # (P, N, S)
+        grad = torch.bmm(jr.reshape(p_n * n, 3, n_s), e.reshape(p_n * n, n_s, 1))
+        grad = unpack(grad.reshape(p_n, 3 * n))  # (B, J, 3N)
         # M: residual c_M (mbar - mu); d/d(a, b) = -c_M sigma (t, s); V: c_V (sbar - sigma) /
         # sbar, d/dz = c_V sigma / (2 sbar) (sigma = exp(-z/2) relative to the expansion point)
         rm = c["M"] * (mbar - mu)  # (B, J, N, 3)
@@ -205,16 +225,17 @@ def levenberg_marquardt(
         lam1 = (lam * torch.exp(step[..., 2])).clamp(*lam_range)
         g1, cm11, w1, cost1, d1 = evaluate(mu1, lam1)
         ok = (cost1 <= cost0)[:, None]  # (B, 1): whole vertices step or stay
+        ok_a = ok[vertex_of]  # (P, 1)
         mu = torch.where(ok[..., None, None], mu1, mu)
         lam = torch.where(ok[..., None], lam1, lam)
-        g = torch.where(ok[..., None, None], g1, g)
-        cm1 = torch.where(ok[..., None, None], cm11, cm1)
-        w = torch.where(ok[..., None, None], w1, w)
+        g = torch.where(ok_a[..., None], g1, g)
+        cm1 = torch.where(ok_a[..., None], cm11, cm1)
+        w = torch.where(ok_a[..., None], w1, w)
         cost0 = torch.where(ok[:, 0], cost1, cost0)
         d0 = torch.where(ok[:, 0], d1, d0)
         damp = torch.where(ok, damp / 3, damp * 4).clamp(1e-9, 1e9)
     if state is not None:
-        state["w"], state["D"] = w, d0.to(dt)
+        state["w"], state["D"] = unpack(w), d0.to(dt)
     return mu, lam
 
 

@@ -72,9 +72,19 @@ class Gaussians:
 def _moments(data: FitData, values: torch.Tensor, lam_range) -> tuple[torch.Tensor, torch.Tensor]:
     """Moment estimate of one Gaussian per view; views with no data take their vertex's
     average mean and median sharpness (the M and V terms refine them)."""
-    mu0, lam0, _ = sg.fit_from_samples(data.dirs, values, data.weights)  # (B, J, 3), (B, J)
+    b, j, s = data.shape
     mass = (data.weights[..., None] * values.clamp_min(0)).sum((-1, -2))
     empty = data.below | (mass <= 0)
+    # moments of the views with data only (typically under half: the rest lie below the
+    # horizon or are occluded), packed; the others are filled below
+    act = (~empty).reshape(-1).nonzero().squeeze(1)
+    m_a, l_a, _ = sg.fit_from_samples(
+        data.dirs.reshape(b * j, s, 3)[act],
+        values.reshape(b * j, s, -1)[act],
+        data.weights.reshape(b * j, s)[act],
+    )
+    mu0 = m_a.new_zeros(b * j, 3).index_copy_(0, act, m_a).reshape(b, j, 3)
+    lam0 = l_a.new_zeros(b * j).index_copy_(0, act, l_a).reshape(b, j)
     has = (~empty).to(mu0.dtype)[..., None]
     avg = torch.nn.functional.normalize((mu0 * has).sum(1, keepdim=True) + 1e-12, dim=-1)
     mu0 = torch.where(empty[..., None], avg.expand_as(mu0), mu0)
