@@ -7,7 +7,7 @@ import math
 import pytest
 import torch
 
-from lobelight import envmap, fit, render, scene, sphere
+from lobelight import brdf, envmap, fit, render, scene, sphere
 from lobelight.envmap import _builtin
 from lobelight.model import Model
 from lobelight.raycast import RayCaster
@@ -81,7 +81,7 @@ def test_sun_on_a_convex_sphere_is_lambert_without_shadows(sky):
     light = render.Lighting(sky, base_res=16, sun=True)
     cam = render.Camera.look_at((0.3, 0.8, 3.0), (0.0, 0.0, 0.0), fov=40)
     ren = render.Renderer(m, light, 64, 48, backend="torch")
-    img, mask = ren.render(cam, 25.0, background=False, return_mask=True)
+    img, mask = ren.render(cam, 25.0, background=False, glossy=False, return_mask=True)
     o, d = cam.rays(64, 48)
     _, dist, _ = RayCaster(m.mesh, offset=0.0).first_hit(o[mask], d[mask])
     # the true sphere's normal at the hit point: radial (the mesh is centred at the origin)
@@ -114,7 +114,9 @@ def test_shadow_map_matches_shadow_rays_on_the_knot(sky):
     out = {}
     for backend in ("gl", "torch"):
         with render.Renderer(m, light, 128, 96, backend=backend) as ren:
-            out[backend] = ren.render(sc.camera, 30.0, background=False, return_mask=True)
+            out[backend] = ren.render(
+                sc.camera, 30.0, background=False, glossy=False, return_mask=True
+            )
     (a, ma), (t, mt) = out["gl"], out["torch"]
     both = ma & mt
     rel = (a - t).abs().amax(-1) / t.amax(-1).clamp_min(1e-3)
@@ -146,3 +148,77 @@ def test_the_shadow_map_follows_the_turning_light(sky):
     torch.testing.assert_close(a, c, rtol=0, atol=0)
     torch.testing.assert_close(b, d, rtol=0, atol=0)
     assert float((a - b).abs().mean()) > 0.05 * float(a.mean())
+
+
+def _with_specular(sc, spec):
+    import dataclasses
+
+    return dataclasses.replace(sc, materials=dataclasses.replace(sc.materials, specular=spec))
+
+
+_SPECULARS = {
+    # the knot's own model, with a per-vertex exponent and colour
+    "phong_per_vertex": lambda v: brdf.Phong(
+        torch.linspace(0.2, 0.9, v)[:, None].expand(v, 3), torch.linspace(50.0, 400.0, v)
+    ),
+    "blinn_phong": lambda v: brdf.BlinnPhong(0.6, 120.0),
+    "ggx_gold": lambda v: brdf.GGX(0.15, eta=[0.143, 0.374, 1.442], k=[3.983, 2.385, 1.603]),
+    "beckmann_per_vertex": lambda v: brdf.Beckmann(torch.linspace(0.05, 0.3, v), specular=0.8),
+}
+
+
+@needs_gl
+@pytest.mark.parametrize("name", sorted(_SPECULARS))
+def test_sun_glossy_shader_matches_the_torch_brdf(sky, name):
+    # the shader's BRDFs (prt.glsl) against lobelight.brdf's, which tests/test_brdf.py checks
+    # against Mitsuba 3: a model with no Gaussians and no SH, so its glossy image is the sun's
+    # glossy reflection alone. A convex sphere casts no shadow; float32 GLSL against float32
+    # torch, per-vertex parameters interpolated alike (the rasteriser's perspective-correct
+    # interpolation against barycentrics of the ray hit: equal up to rounding)
+    sc = scene.builtin("sphere", subdivisions=4)
+    sc = _with_specular(sc, _SPECULARS[name](sc.mesh.n_vertices))
+    m = dark_model(sc)
+    light = render.Lighting(sky, base_res=16, sun=True)
+    cam = render.Camera.look_at((0.3, 0.8, 3.0), (0.0, 0.0, 0.0), fov=40)
+    out = {}
+    for backend in ("gl", "torch"):
+        with render.Renderer(m, light, 96, 72, backend=backend) as ren:
+            out[backend] = ren.render(cam, 200.0, background=False, diffuse=False, return_mask=True)
+    (a, ma), (t, mt) = out["gl"], out["torch"]
+    both = ma & mt
+    peak = float(t[both].amax())
+    assert peak > 1.0  # the sun's highlight is in view (E_sun is ~2e2 here)
+    lit = t[both].amax(-1) > 1e-3 * peak
+    assert int(lit.sum()) > 50
+    rel = (a - t)[both].abs().amax(-1) / t[both].amax(-1).clamp_min(1e-3 * peak)
+    # 1e-3 relative where the highlight is; a few terminator pixels may differ where the
+    # shadow map's bias lets through what the ray's offset does not (as for the diffuse sun)
+    assert float((rel[lit] > 1e-3).float().mean()) < 0.02, float(rel[lit].max())
+    assert float((a - t)[both].abs().mean()) < 1e-3 * float(t[both].mean())
+
+
+def test_the_sun_and_the_rest_of_the_map_make_the_whole_for_the_gaussians(sky):
+    # the Gaussians of a model shaded with the sun per pixel integrate the map without it: for
+    # a lobe much wider than the sun, int G L = int G L_rest + G(l) E_sun, to the chains'
+    # prefiltering accuracy (docs/results.md: <= 2 % for these widths)
+    light = render.Lighting(sky, base_res=64, sun=True)
+    g = torch.Generator().manual_seed(3)
+    l = light.sun.direction
+    mu = torch.nn.functional.normalize(l + 0.3 * torch.randn(64, 3, generator=g), dim=-1)
+    rot = torch.eye(3)
+    for lam in (2.0, 10.0, 40.0):
+        lam_t = torch.full((64,), lam)
+        whole = light.integrate(mu, lam_t, rot)
+        rest = light.rest_prefiltered.integrate(mu, lam_t)
+        sun = torch.exp(lam * ((mu @ l) - 1))[:, None] * light.sun.irradiance
+        assert float(((rest + sun) - whole).norm() / whole.norm()) < 0.02
+
+
+def test_only_models_the_shader_can_evaluate_take_the_sun_per_pixel():
+    from lobelight.render._sun_glossy import sun_glossy_supported
+
+    assert sun_glossy_supported(brdf.GGX(0.1)) and sun_glossy_supported(brdf.Phong(0.5, 10.0))
+    # anisotropic lobes, Ward, Lafortune and sums keep the sun in the Gaussians' lighting
+    assert not sun_glossy_supported(brdf.GGX(alpha_u=0.1, alpha_v=0.3))
+    assert not sun_glossy_supported(brdf.Ward(0.5, 0.1))
+    assert not sun_glossy_supported(None)

@@ -28,6 +28,11 @@ from ..camera import Camera
 from ..envmap import Prefiltered
 from ..errors import InputError
 from ._lighting import Lighting
+from ._sun_glossy import (
+    sun_glossy_supported,
+    sun_glossy_uniforms,
+    sun_glossy_vertex_params,
+)
 
 __all__ = [
     "GLRenderer",
@@ -208,7 +213,11 @@ class GLRenderer:
             raise InputError(
                 "lighting", f"has {lighting.sh.shape[0]} SH coefficients, the model {n_sh}"
             )
-        pf = lighting.prefiltered
+        # the sun's glossy reflection per pixel where the BRDF allows (render/_sun_glossy.py);
+        # the Gaussians then integrate the map without the sun
+        spec = model.materials.specular
+        self.sun_glossy = lighting.sun is not None and sun_glossy_supported(spec)
+        pf = lighting.rest_prefiltered if self.sun_glossy else lighting.prefiltered
         self.n_levels = len(pf.levels)
         self.planes_ubo, self.cand_tex, geo_defines = upload_geodesic(ctx)
         self.prog = _program(
@@ -249,7 +258,7 @@ class GLRenderer:
             img, tw = _wrap(rec, tw2)
         self.gauss_tex = self._data_texture(img)
         self.diff_tex = self._data_texture(dimg)
-        self.atlas, atlas_uniforms = upload_prefiltered(ctx, lighting.prefiltered)
+        self.atlas, atlas_uniforms = upload_prefiltered(ctx, pf)
         cube = lighting.env.to_cubemap(BACKGROUND_RES).detach().cpu().numpy().astype(np.float32)
         self.env_cube = ctx.texture_cube((BACKGROUND_RES,) * 2, 3, cube.tobytes(), dtype="f4")
         self.env_cube.filter = (moderngl.LINEAR, moderngl.LINEAR)
@@ -271,12 +280,21 @@ class GLRenderer:
         albedo = model.materials.diffuse.detach().cpu().numpy().astype(np.float32)
         self.nbo = ctx.buffer(normals.tobytes())
         self.abo = ctx.buffer(albedo.tobytes())
+        v = model.mesh.n_vertices
+        if self.sun_glossy:
+            sb = sun_glossy_vertex_params(spec, v)
+            set_uniforms(p, sun_glossy_uniforms(spec))
+        else:
+            sb = np.zeros((v, 10), np.float32)
+        p["sun_glossy"].value = float(self.sun_glossy)
+        self.sbo = ctx.buffer(np.ascontiguousarray(sb).tobytes())
         self.vao = ctx.vertex_array(
             p,
             [
                 (self.vbo, "3f", "in_pos"),
                 (self.nbo, "3f", "in_normal"),
                 (self.abo, "3f", "in_albedo"),
+                (self.sbo, "4f 3f 3f", "in_sb0", "in_eta", "in_k"),
             ],
             self.ibo,
             4,
@@ -370,7 +388,7 @@ class GLRenderer:
             self.lighting.sh_rotated(rot).cpu().numpy().astype(np.float32).tobytes()
         )
         p["parts"].value = (float(diffuse), float(glossy))
-        self._sun_pass(rot, on=diffuse)
+        self._sun_pass(rot, on=diffuse or (glossy and self.sun_glossy))
         fbo.use()
         ctx.viewport = (0, 0, self.width, self.height)
         self.shadow_tex.use(6)
@@ -446,6 +464,7 @@ class GLRenderer:
             self.shadow_prog,
             self.nbo,
             self.abo,
+            self.sbo,
             self.bg_vao,
             self.tm_vao,
             self.vbo,

@@ -310,11 +310,7 @@ class GLSGBRDFRenderer:
                         "lighting", "method='fis' needs a Lighting or an EnvMap (or chain=)"
                     )
                 if fis_res is None:
-                    fis_res = (
-                        lighting.prefiltered.base_res
-                        if isinstance(lighting, Lighting)
-                        else FIS_BASE_RES
-                    )
+                    fis_res = lighting.base_res if isinstance(lighting, Lighting) else FIS_BASE_RES
                 chain = env
             cube = _base_cube(chain, fis_res or FIS_BASE_RES)
             defines.update(NS=samples)

@@ -8,8 +8,11 @@ coefficients, and the background looks up ``R^T d``.
 With ``sun=True`` a dominant small light is taken out of the map
 (:func:`lobelight.envmap.extract_sun`) for the diffuse part: the SH projection is of the map
 without it, and renderers add its diffuse light per pixel with a shadow test (shadow map in the
-shader, shadow ray in the torch path); the sun turns with the lighting, to ``R d``. The glossy
-part and the background keep the whole map.
+shader, shadow ray in the torch path); the sun turns with the lighting, to ``R d``. Where the
+model's specular BRDF can be evaluated per pixel (:mod:`._sun_glossy`), the glossy part too
+takes the sun per pixel and its Gaussians integrate the map without it
+(:attr:`Lighting.rest_prefiltered`); otherwise the glossy part keeps the whole map. The
+background always shows the whole map.
 """
 
 from __future__ import annotations
@@ -62,7 +65,9 @@ class Lighting:
 
     Attributes
     ----------
-    prefiltered : Prefiltered;  sh : (sh_order**2, 3) float32;  env : EnvMap;  sun : Sun or None
+    prefiltered : Prefiltered (built on first use);  sh : (sh_order**2, 3) float32;  env : EnvMap
+    sun : Sun or None
+    rest_prefiltered : the prefiltered chain of the map without its sun (built on first use)
     """
 
     def __init__(
@@ -79,18 +84,40 @@ class Lighting:
             raise InputError("env", f"expected an EnvMap, got {type(env).__name__}")
         self.env = env.to(device) if device is not None else env
         self.device = self.env.device
-        self.prefiltered = (
-            prefiltered
-            if prefiltered is not None
-            else prefilter(self.env, base_res=base_res, device=self.device)
-        )
+        # both chains are built on first use: a renderer that shades the sun's glossy part
+        # per pixel needs only the one without the sun (a chain at 256^2 takes seconds)
+        self._pf = prefiltered
+        self._base_res = prefiltered.base_res if prefiltered is not None else base_res
         self.sun: Sun | None = None
         diffuse_env = self.env
         if sun:
             self.sun, diffuse_env = extract_sun(self.env)
+        self._rest_env = diffuse_env
+        self._rest_pf: Prefiltered | None = None
         self.sh = sh.project_envmap(diffuse_env, sh_order, res=64).to(torch.float32)
         self.name = env.name
         self._rotator = ShRotator(self.sh)
+
+    @property
+    def base_res(self) -> int:
+        """Face resolution of the chains' sharpest level."""
+        return self._base_res
+
+    @property
+    def prefiltered(self) -> Prefiltered:
+        """The prefiltered chain of the whole map."""
+        if self._pf is None:
+            self._pf = prefilter(self.env, base_res=self._base_res, device=self.device)
+        return self._pf
+
+    @property
+    def rest_prefiltered(self) -> Prefiltered:
+        """The prefiltered chain of the map without its sun (the whole map's without a sun)."""
+        if self.sun is None:
+            return self.prefiltered
+        if self._rest_pf is None:
+            self._rest_pf = prefilter(self._rest_env, base_res=self._base_res, device=self.device)
+        return self._rest_pf
 
     def sh_rotated(self, rot: torch.Tensor) -> torch.Tensor:
         """``(n, 3)`` float32 SH coefficients of the rotated lighting ``L(R^T w)`` (on the CPU:
@@ -101,9 +128,13 @@ class Lighting:
         """``int G(w; mu, lam) L(R^T w) dw``, ``(..., 3)``: the lookup at ``R^T mu``."""
         return self.prefiltered.integrate(mu @ rot.to(mu.device, mu.dtype), lam)
 
-    def lookup(self, mu: torch.Tensor, lam: torch.Tensor, rot: torch.Tensor) -> torch.Tensor:
-        """The lighting averaged under the normalised Gaussian, ``integrate / int G``: (..., 3)."""
-        return self.prefiltered.lookup(mu @ rot.to(mu.device, mu.dtype), lam)
+    def lookup(
+        self, mu: torch.Tensor, lam: torch.Tensor, rot: torch.Tensor, *, rest: bool = False
+    ) -> torch.Tensor:
+        """The lighting averaged under the normalised Gaussian, ``integrate / int G``: (..., 3);
+        ``rest``: of the map without its sun (:attr:`rest_prefiltered`)."""
+        pf = self.rest_prefiltered if rest else self.prefiltered
+        return pf.lookup(mu @ rot.to(mu.device, mu.dtype), lam)
 
     def sun_direction(self, rot: torch.Tensor) -> torch.Tensor:
         """``(3,)`` the sun's direction in the rotated lighting, ``R d`` (requires a sun)."""

@@ -31,6 +31,7 @@ from ..errors import InputError
 from ..model import blend_lobes
 from ..raycast import RayCaster
 from ._lighting import Lighting
+from ._sun_glossy import sun_glossy, sun_glossy_supported
 
 __all__ = ["VertexData", "pixel_stage", "render_torch", "sun_stage", "vertex_stage"]
 
@@ -103,6 +104,9 @@ def pixel_stage(
     dev = model.device
     faces = model.mesh.faces.to(dev)
     out = torch.zeros(tri.shape[0], 3, device=dev)
+    # the sun's glossy reflection per pixel where the BRDF allows (the Gaussians then see the
+    # map without the sun)
+    sun_gl = glossy and lighting.sun is not None and sun_glossy_supported(model.materials.specular)
     for s in range(0, tri.shape[0], PIXEL_BATCH):
         t = tri[s : s + PIXEL_BATCH].to(dev)
         b = bary[s : s + PIXEL_BATCH].to(dev, torch.float32)  # (p, 3)
@@ -119,19 +123,31 @@ def pixel_stage(
             e, mu, sigma = blend_lobes(vd.e[c], vd.mu[c], vd.sigma[c], b, frame=frame)
             # the carried light times the lighting averaged under the lobe: the integral
             # without forming the (up to 1e5) peak weight
-            acc += (e * lighting.lookup(mu, sigma.pow(-2), rot).to(dev)).sum(1)
+            acc += (e * lighting.lookup(mu, sigma.pow(-2), rot, rest=sun_gl).to(dev)).sum(1)
         out[s : s + PIXEL_BATCH] = acc
-    if diffuse and lighting.sun is not None:
+    if (diffuse or sun_gl) and lighting.sun is not None:
         if caster is None:
             raise InputError("caster", "the sun's shadow rays need the mesh's RayCaster")
-        out += sun_stage(model, lighting, tri, bary, rot, caster)
+        out += sun_stage(
+            model, lighting, tri, bary, rot, caster, diffuse=diffuse, glossy=sun_gl, eye=vd.eye
+        )
     return out
 
 
 def sun_stage(
-    model, lighting: Lighting, tri: torch.Tensor, bary: torch.Tensor, rot: torch.Tensor, caster
+    model,
+    lighting: Lighting,
+    tri: torch.Tensor,
+    bary: torch.Tensor,
+    rot: torch.Tensor,
+    caster,
+    *,
+    diffuse: bool = True,
+    glossy: bool = False,
+    eye: torch.Tensor | None = None,
 ) -> torch.Tensor:
-    """The sun's diffuse light at surface points, ``albedo / pi * E * max(n.l, 0) * V``: (P, 3).
+    """The sun's light at surface points, ``(albedo / pi + f_s(l, v)) E max(n.l, 0) V``: (P, 3),
+    its diffuse and (``glossy``, seen from ``eye``) glossy parts.
 
     ``n`` is the interpolated vertex normal (as the shader's), ``V`` one shadow ray toward the
     sun's centre from the point lifted off the triangle's plane (the shader uses a shadow map:
@@ -158,7 +174,11 @@ def sun_stage(
         origin = caster.spawn(pos[lit], ng, ray, offset=_SHADOW_OFFSET)
         vis = ~caster.occluded(origin.cpu(), ray.cpu()).to(dev)
         e = lighting.sun.irradiance.to(dev)
-        out[lit] = albedo[lit] / math.pi * e * (cos[lit] * vis)[:, None]
+        if diffuse:
+            out[lit] = albedo[lit] / math.pi * e * (cos[lit] * vis)[:, None]
+        if glossy:
+            spec = sun_glossy(model, lighting, pos[lit], n[lit], eye, f[lit], b[lit, :, 0], rot)
+            out[lit] += spec * vis[:, None]
     return out
 
 

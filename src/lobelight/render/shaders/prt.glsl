@@ -12,6 +12,9 @@
 in vec3 in_pos;
 in vec3 in_normal;
 in vec3 in_albedo;
+in vec4 in_sb0;                // the sun's glossy BRDF (render/_sun_glossy.py): alpha, specular
+in vec3 in_eta;                // conductor index eta + i k
+in vec3 in_k;
 
 uniform sampler2D gauss_tex;   // RGBA32F, 2 texels per record (e.rgb, sigma), (mu.xyz, 0)
 uniform sampler2D diff_tex;    // RGBA32F, N_SH texels per vertex: transfer RGB
@@ -33,6 +36,9 @@ out vec3 v_diffuse;
 out vec3 v_pos;
 out vec3 v_normal;
 out vec3 v_albedo;
+out vec4 v_sb0;
+out vec3 v_eta;
+out vec3 v_k;
 
 ivec2 at(int i) { return ivec2(i % tex_width, i / tex_width); }
 
@@ -77,6 +83,9 @@ void main() {
     v_pos = in_pos;
     v_normal = in_normal;
     v_albedo = in_albedo;
+    v_sb0 = in_sb0;
+    v_eta = in_eta;
+    v_k = in_k;
 
     // Mitsuba's perspective sensor: x runs against cam_left, y along cam_up
     vec3 q = in_pos - eye;
@@ -96,6 +105,9 @@ in vec3 v_diffuse;
 in vec3 v_pos;
 in vec3 v_normal;
 in vec3 v_albedo;
+in vec4 v_sb0;
+in vec3 v_eta;
+in vec3 v_k;
 
 // the sun taken out of the diffuse lighting (render/_lighting.py), with its shadow map
 uniform float sun_on;
@@ -107,6 +119,89 @@ uniform vec3 shadow_center;
 uniform float shadow_scale;
 uniform float shadow_offset;      // normal offset against self-shadowing (world units)
 uniform float shadow_bias;        // depth bias (shadow-map depth units)
+// the sun's glossy reflection per pixel (render/_sun_glossy.py): then the Gaussians' lighting is
+// the map without the sun; the BRDFs are lobelight.brdf's
+uniform float sun_glossy;         // 1: on
+uniform int sun_model;            // 0 GGX, 1 Beckmann, 2 modified Phong, 3 Blinn-Phong
+uniform float sun_fresnel;        // 1 conductor Fresnel, 0 none (F = 1)
+
+const float PI = 3.14159265358979;
+
+// microfacet distribution at a half vector with cosine c to the normal (brdf._Microfacet._D)
+float mf_d(float c, float a) {
+    float c2 = c * c;
+    float s2 = max(1.0 - c2, 0.0);
+    float r;
+    if (sun_model == 1) {
+        r = exp(-(s2 / (a * a)) / c2) / (PI * a * a * c2 * c2);
+    } else {
+        float t = s2 / (a * a) + c2;
+        r = 1.0 / (PI * a * a * t * t);
+    }
+    return r * c > 1e-20 ? r : 0.0;
+}
+
+// Smith's masking of direction v (cosine vz to the normal) for the microfacet normal m
+float mf_g1(float vz, float vm, float a) {
+    float xy = a * a * max(1.0 - vz * vz, 0.0);
+    if (vm * vz <= 0.0) return 0.0;
+    if (xy == 0.0) return 1.0;
+    float tan2 = xy / (vz * vz);
+    if (sun_model == 1) {
+        float b = inversesqrt(tan2);
+        return b >= 1.6 ? 1.0 : (3.535 * b + 2.181 * b * b) / (1.0 + 2.276 * b + 2.577 * b * b);
+    }
+    return 2.0 / (1.0 + sqrt(1.0 + tan2));
+}
+
+// unpolarised conductor Fresnel (brdf._fresnel_conductor)
+vec3 fresnel_conductor(float c, vec3 eta, vec3 k) {
+    float c2 = c * c;
+    float s2 = 1.0 - c2;
+    float s4 = s2 * s2;
+    vec3 t1 = eta * eta - k * k - s2;
+    vec3 a2pb2 = sqrt(max(t1 * t1 + 4.0 * k * k * eta * eta, 0.0));
+    vec3 a = sqrt(max(0.5 * (a2pb2 + t1), 0.0));
+    vec3 term1 = a2pb2 + c2;
+    vec3 term2 = 2.0 * c * a;
+    vec3 rs = (term1 - term2) / (term1 + term2);
+    vec3 term3 = a2pb2 * c2 + s4;
+    vec3 term4 = term2 * s2;
+    vec3 rp = rs * (term3 - term4) / (term3 + term4);
+    return 0.5 * (rs + rp);
+}
+
+// pos(a.w)^e for unit vectors, from the half squared chord (brdf._cospow: precise near the peak)
+float cospow(vec3 a, vec3 w, float e) {
+    if (dot(a, w) <= 0.0) return 0.0;
+    vec3 d = a - w;
+    float h = min(0.5 * dot(d, d), 1.0 - 1.2e-7);
+    float lg = h < 1e-3 ? -h * (1.0 + h * (0.5 + h / 3.0)) : log(1.0 - h);
+    return exp(e * lg);
+}
+
+// f_s(l, v) max(n.l, 0) (0 where l or v is below the horizon)
+vec3 sun_brdf_cos(vec3 l, vec3 v, vec3 n) {
+    float zi = dot(n, l), zo = dot(n, v);
+    if (zi <= 0.0 || zo <= 0.0) return vec3(0.0);
+    if (sun_model == 2) {  // modified Phong: ks (e + 2) / (2 pi) pos(r.l)^e
+        float e = v_sb0.x;
+        vec3 r = 2.0 * zo * n - v;
+        return v_sb0.yzw * ((e + 2.0) / (2.0 * PI) * cospow(r, l, e) * zi);
+    }
+    if (sun_model == 3) {  // Blinn-Phong: ks c(e) pos(n.h)^e
+        float e = v_sb0.x;
+        float c = (e + 2.0) * (e + 4.0) / (8.0 * PI * (exp2(-0.5 * e) + e));
+        return v_sb0.yzw * (c * cospow(n, normalize(l + v), e) * zi);
+    }
+    float a = max(v_sb0.x, 1e-4);
+    vec3 h = normalize(l + v);
+    float ch = dot(n, h), oh = dot(v, h);
+    float val = mf_d(ch, a) * mf_g1(zo, oh, a) * mf_g1(zi, dot(l, h), a) / (4.0 * zo);
+    vec3 f = v_sb0.yzw;
+    if (sun_fresnel > 0.0) f *= fresnel_conductor(oh, v_eta, v_k);
+    return f * val;
+}
 
 // the prefiltered lookups (integrate, level_lookup) come from prefiltered.glsl
 uniform vec3 eye;
@@ -118,19 +213,21 @@ out vec4 frag;
 void main() {
     vec3 c = parts.x * v_diffuse;
     vec3 n = normalize(v_normal);
-    if (parts.x > 0.0 && sun_on > 0.0) {
+    vec3 d = normalize(eye - v_pos);
+    bool sun_gl = parts.y > 0.0 && sun_glossy > 0.0;
+    if (sun_on > 0.0 && (parts.x > 0.0 || sun_gl)) {
         float cosine = dot(n, sun_dir);
         if (cosine > 0.0) {
             vec3 q = shadow_frame * (v_pos + shadow_offset * n - shadow_center) * shadow_scale;
             // hardware 2x2 percentage-closer filtering of the depth comparison
             float vis = texture(shadow_map, vec3(q.xy * 0.5 + 0.5, -q.z * 0.5 + 0.5 - shadow_bias));
-            c += v_albedo * (0.3183098861837907 * cosine * vis) * sun_e;
+            if (parts.x > 0.0) c += v_albedo * (0.3183098861837907 * cosine * vis) * sun_e;
+            if (sun_gl) c += sun_brdf_cos(sun_dir, d, n) * vis * sun_e;
         }
     }
     if (parts.y > 0.0) {
         // the pixel's own mirror direction, from its interpolated normal and view direction:
         // the blended offsets are re-based on it (lobelight.model.blend_lobes, frame=)
-        vec3 d = normalize(eye - v_pos);
         vec3 mirror = 2.0 * dot(n, d) * n - d;
         for (int k = 0; k < NL; ++k) {
             float say = v_live[k];  // the live corners' barycentric weight

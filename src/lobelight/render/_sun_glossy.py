@@ -1,0 +1,93 @@
+"""The sun's glossy reflection, shaded per pixel with the material's own BRDF.
+
+A sun 10^5 times brighter than the sky within 0.6 degrees samples the glossy transport at one
+direction, so a highlight shows the fitted Gaussian's *shape* there, not its integral: one
+Gaussian per view against a GGX lobe with its long tail, interpolated from three vertices, is
+where the glossy image's largest errors were (docs/results.md). With a sun taken out of the map
+(:class:`~lobelight.render.Lighting` with ``sun=True``) and a material this module can evaluate,
+the Gaussians integrate the map *without* the sun, and the sun adds
+
+    E_sun f_s(l, v) max(n.l, 0) V(l)
+
+per pixel, ``V`` from the sun's shadow map in the shader (one shadow ray in the torch path):
+the split is exact, ``int T L = int T L_rest + T(l) E_sun`` for a sun small against the lobe.
+
+Supported (``prt.glsl`` carries the same formulas; parameters constant or per vertex):
+modified Phong and normalised Blinn-Phong (:class:`lobelight.brdf.Phong`,
+:class:`lobelight.brdf.BlinnPhong`) and the isotropic rough conductors
+(:class:`lobelight.brdf.GGX`, :class:`lobelight.brdf.Beckmann`, with or without conductor
+Fresnel). Other specular BRDFs keep the sun in the Gaussians' lighting, as the paper does.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import torch
+
+from .. import brdf
+
+__all__ = ["sun_glossy_supported", "sun_glossy_uniforms", "sun_glossy_vertex_params"]
+
+
+#: Shader model numbers (``sun_model`` in ``prt.glsl``).
+_MODELS = {brdf.GGX: 0, brdf.Beckmann: 1, brdf.Phong: 2, brdf.BlinnPhong: 3}
+
+
+def sun_glossy_supported(spec) -> bool:
+    """Whether the sun's glossy reflection off ``spec`` (a specular BRDF or None) can be shaded
+    per pixel."""
+    if type(spec) not in _MODELS:
+        return False
+    return not isinstance(spec, (brdf.GGX, brdf.Beckmann)) or spec.isotropic
+
+
+def sun_glossy_uniforms(spec) -> dict[str, float | int]:
+    """The shader's per-material switches: ``sun_model`` (0 GGX, 1 Beckmann, 2 Phong,
+    3 Blinn-Phong) and ``sun_fresnel`` (1 conductor Fresnel, 0 none)."""
+    return {"sun_model": _MODELS[type(spec)], "sun_fresnel": float(getattr(spec, "fresnel", 0))}
+
+
+def sun_glossy_vertex_params(spec, n_vertices: int) -> np.ndarray:
+    """Per-vertex BRDF parameters for the shader, ``(V, 10)`` float32: alpha (the exponent for
+    the Phong models), specular RGB, eta RGB, k RGB (0 where the model has none)."""
+    v = n_vertices
+
+    def per_vertex(name: str, width: int) -> torch.Tensor:
+        if name not in spec.params:
+            return torch.zeros(v, width)
+        t = spec.params[name].detach().cpu().float()
+        if t.ndim == 0:  # one value (a grey colour too)
+            return t.expand(v, width)
+        return t.reshape(-1, width).expand(v, width)  # (3,) constant, (V,) / (V, 3) per vertex
+
+    first = "alpha" if isinstance(spec, (brdf.GGX, brdf.Beckmann)) else "exponent"
+    parts = ((first, 1), ("specular", 3), ("eta", 3), ("k", 3))
+    cols = [per_vertex(name, w) for name, w in parts]
+    return torch.cat(cols, 1).numpy().astype(np.float32)
+
+
+def sun_glossy(
+    model, lighting, pos: torch.Tensor, n: torch.Tensor, eye: torch.Tensor, corners, bary, rot
+) -> torch.Tensor:
+    """``E f_s(l, v) max(n.l, 0)`` at surface points, before visibility: (P, 3).
+
+    Parameters
+    ----------
+    pos, n : (P, 3) points and interpolated (normalised) normals;  eye : (3,) camera origin
+    corners : (P, 3) the triangles' vertex ids;  bary : (P, 3) barycentrics (per-vertex
+        parameters are interpolated with them, as the rasteriser interpolates the shader's)
+    """
+    spec = model.materials.specular.to(pos.device)
+    b = bary.to(pos.device, torch.float32)
+
+    def blend(t: torch.Tensor, kind: int) -> torch.Tensor:
+        if t.ndim <= kind:
+            return t
+        return (t[corners] * b.reshape(*b.shape, *([1] * kind))).sum(1)
+
+    s = spec.map_params(blend)
+    wo = torch.nn.functional.normalize(eye.to(pos.device, pos.dtype) - pos, dim=-1)
+    l = lighting.sun_direction(rot).to(pos.device, pos.dtype).expand_as(pos)
+    cos = (n * l).sum(-1).clamp_min(0)
+    f = s.eval(l, wo, n)  # (P, 3)
+    return f * (cos[:, None] * lighting.sun.irradiance.to(pos.device, pos.dtype))
