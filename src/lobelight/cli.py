@@ -393,8 +393,9 @@ Against the Monte Carlo reference (direct lighting, pixel centres, object pixels
 Reference noise (mean standard error / mean): {cmp["reference_noise"]["full"]:.3f}.
 `linear` is the cross-fading baseline (radiance blended across views and vertices).
 `ours_sh_diffuse` is ours with the paper's diffuse term alone (the whole sky, sun included, in
-order-5 SH per vertex); `ours` takes the sun out of the SH and shades it per pixel with a
-shadow map (`--no-sun` turns that off).
+order-5 SH per vertex, and in the Gaussians' lighting); `ours` takes the sun out of the
+lighting and shades its diffuse and glossy light per pixel with a shadow map and the material's
+BRDF (`--no-sun` turns that off).
 """
     tmp = out / "report.md.tmp"
     tmp.write_text(report)
@@ -455,8 +456,8 @@ def _parser() -> argparse.ArgumentParser:
     d.add_argument(
         "--no-sun",
         action="store_true",
-        help="keep the sun in the SH diffuse (the paper's term) instead of a per-pixel "
-        "shadow-mapped light",
+        help="keep the sun in the SH diffuse and the Gaussians' lighting (the paper's terms) "
+        "instead of a per-pixel shadow-mapped light",
     )
 
     b = cmd("bake", _cmd_bake, "fit a model of a mesh or scene (resumes if interrupted)")
@@ -490,8 +491,8 @@ def _parser() -> argparse.ArgumentParser:
     r.add_argument(
         "--no-sun",
         action="store_true",
-        help="keep the sun in the SH diffuse (the paper's term) instead of a per-pixel "
-        "shadow-mapped light",
+        help="keep the sun in the SH diffuse and the Gaussians' lighting (the paper's terms) "
+        "instead of a per-pixel shadow-mapped light",
     )
     r.add_argument("--exposure", default="auto", help="stops, or 'auto'")
     r.add_argument("--tonemap", choices=["srgb", "aces"], default="srgb")
@@ -510,8 +511,8 @@ def _parser() -> argparse.ArgumentParser:
     v.add_argument(
         "--no-sun",
         action="store_true",
-        help="keep the sun in the SH diffuse (the paper's term) instead of a per-pixel "
-        "shadow-mapped light",
+        help="keep the sun in the SH diffuse and the Gaussians' lighting (the paper's terms) "
+        "instead of a per-pixel shadow-mapped light",
     )
     size(v, 1024, 768)
 
@@ -534,8 +535,8 @@ def _parser() -> argparse.ArgumentParser:
     c.add_argument(
         "--no-sun",
         action="store_true",
-        help="keep the sun in the SH diffuse (the paper's term) instead of a per-pixel "
-        "shadow-mapped light",
+        help="keep the sun in the SH diffuse and the Gaussians' lighting (the paper's terms) "
+        "instead of a per-pixel shadow-mapped light",
     )
     size(c, 192, 144)
 

@@ -157,8 +157,9 @@ def compare(
     backend : "gl", "torch" or "auto" (gl when a context can be made)
     out : folder for the images (PNG, tone-mapped with the reference's exposure) and
         ``compare.json``; nothing is written when None
-    sun : shade the map's sun per pixel with shadows in the diffuse part (:class:`Lighting`);
-        the paper's SH-only diffuse is then scored too, as ``ours_sh_diffuse``
+    sun : shade the map's sun per pixel with shadows (:class:`Lighting`: its diffuse light,
+        and its glossy light where the BRDF allows); the paper's lighting (the sun in the SH
+        diffuse and in the Gaussians' lighting) is then scored too, as ``ours_sh_diffuse``
 
     Returns
     -------
