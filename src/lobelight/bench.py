@@ -195,7 +195,12 @@ def synthetic_model(vertices: int, n_lobes: int):
     w = (cos > 0).float()[..., None, None] * torch.full((n_lobes, 3), 0.3) * lam[..., None] / 6.3
     diffuse = torch.zeros(n.shape[0], 25, 3)
     diffuse[:, 0] = 0.2
-    mats = uniform({"diffuse": [0.5, 0.5, 0.5]}, mesh.n_vertices)
+    # a Phong material as sharp as the mirror lobe, so that ``--sun`` shades the sun's glossy
+    # reflection per pixel too (render/_sun_glossy.py), as for a real glossy model
+    mats = uniform(
+        {"diffuse": [0.5, 0.5, 0.5], "model": "phong", "specular": 0.3, "exponent": 600.0},
+        mesh.n_vertices,
+    )
     return Model(mesh, views, Gaussians(w.contiguous(), mu, lam), diffuse, mats, {})
 
 
