@@ -418,8 +418,8 @@ BRDF (`--no-sun` turns that off).
         },
         "gpu": "a CUDA GPU is available: add --device cuda"
         if gpu
-        else "CPU only; on a GPU (--device cuda) the bake is ~18x faster (one H100 against this "
-        "kind of 2-core CPU, docs/benchmarks.md)",
+        else "CPU only; on a GPU (--device cuda) the bake is ~10x faster or more (one H100: "
+        "20.6 s for the benchmark bake this kind of 2-core CPU does in 204 s, docs/benchmarks.md)",
     }
 
 
