@@ -522,7 +522,7 @@ def _parser() -> argparse.ArgumentParser:
     c.add_argument("--lobes", type=int, default=1, choices=[1, 2, 3])
     c.add_argument("--env")
     c.add_argument("--out", default="lobelight-compare")
-    c.add_argument("--spp", type=int, default=256)
+    c.add_argument("--spp", type=int, default=1024, help="reference samples per pixel")
     c.add_argument("--rotate", type=float, default=None)
     c.add_argument("--backend", choices=["auto", "gl", "torch"], default="auto")
     c.add_argument(
