@@ -26,7 +26,12 @@ import torch
 
 from .. import brdf
 
-__all__ = ["sun_glossy_supported", "sun_glossy_uniforms", "sun_glossy_vertex_params"]
+__all__ = [
+    "sun_glossy",
+    "sun_glossy_supported",
+    "sun_glossy_uniforms",
+    "sun_glossy_vertex_params",
+]
 
 
 #: Shader model numbers (``sun_model`` in ``prt.glsl``).
