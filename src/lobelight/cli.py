@@ -447,18 +447,21 @@ def _parser() -> argparse.ArgumentParser:
         sp.add_argument("--width", type=int, default=w)
         sp.add_argument("--height", type=int, default=h)
 
+    def no_sun(sp):
+        sp.add_argument(
+            "--no-sun",
+            action="store_true",
+            help="keep the sun in the SH diffuse and the Gaussians' lighting (the paper's terms) "
+            "instead of a per-pixel shadow-mapped light",
+        )
+
     d = cmd("demo", _cmd_demo, "bake the built-in scene, render it, score it, write a report")
     d.add_argument("--out", default="lobelight-demo", help="output folder")
     d.add_argument("--scene", default="knot", help="scene to bake (default: the built-in knot)")
     d.add_argument("--lobes", type=int, default=1, choices=[1, 2, 3])
     d.add_argument("--spp", type=int, default=64, help="reference samples per pixel")
     size(d, 320, 240)
-    d.add_argument(
-        "--no-sun",
-        action="store_true",
-        help="keep the sun in the SH diffuse and the Gaussians' lighting (the paper's terms) "
-        "instead of a per-pixel shadow-mapped light",
-    )
+    no_sun(d)
 
     b = cmd("bake", _cmd_bake, "fit a model of a mesh or scene (resumes if interrupted)")
     b.add_argument(
@@ -488,12 +491,7 @@ def _parser() -> argparse.ArgumentParser:
     r.add_argument("--rotate", type=float, default=None, help="turn the lighting (degrees)")
     r.add_argument("--parts", choices=["both", "diffuse", "glossy"], default="both")
     r.add_argument("--no-background", action="store_true")
-    r.add_argument(
-        "--no-sun",
-        action="store_true",
-        help="keep the sun in the SH diffuse and the Gaussians' lighting (the paper's terms) "
-        "instead of a per-pixel shadow-mapped light",
-    )
+    no_sun(r)
     r.add_argument("--exposure", default="auto", help="stops, or 'auto'")
     r.add_argument("--tonemap", choices=["srgb", "aces"], default="srgb")
     r.add_argument("--backend", choices=["auto", "gl", "torch"], default="auto")
@@ -508,12 +506,7 @@ def _parser() -> argparse.ArgumentParser:
     )
     v.add_argument("model")
     v.add_argument("--env")
-    v.add_argument(
-        "--no-sun",
-        action="store_true",
-        help="keep the sun in the SH diffuse and the Gaussians' lighting (the paper's terms) "
-        "instead of a per-pixel shadow-mapped light",
-    )
+    no_sun(v)
     size(v, 1024, 768)
 
     c = cmd("compare", _cmd_compare, "score a model against the path tracer and baselines")
@@ -532,12 +525,7 @@ def _parser() -> argparse.ArgumentParser:
         choices=["linear", "no_visibility", "sh10"],
     )
     c.add_argument("--base-res", type=int, default=256, help="sharpest prefiltered level")
-    c.add_argument(
-        "--no-sun",
-        action="store_true",
-        help="keep the sun in the SH diffuse and the Gaussians' lighting (the paper's terms) "
-        "instead of a per-pixel shadow-mapped light",
-    )
+    no_sun(c)
     size(c, 192, 144)
 
     cb = cmd(

@@ -122,7 +122,8 @@ def levenberg_marquardt(
     t2 = (w64[:, 0, :, None] * vals64**2).sum((-1, -2))  # (P,)
     light = (wts_a[..., None] * vals_a.clamp_min(0)).sum(1)[:, None]  # (P, 1, 3), as light_of
     no_below = torch.zeros(p_n, 1, dtype=torch.bool, device=mu.device)
-    inv_e_a = inv_e[act // j]  # (P,)
+    vertex_of = act // j  # (P,) which vertex each active view belongs to
+    inv_e_a = inv_e[vertex_of]  # (P,)
 
     def pack(x: torch.Tensor) -> torch.Tensor:
         """(B, J, ...) -> (P, ...) the active views."""
@@ -158,7 +159,6 @@ def levenberg_marquardt(
     mu, lam = mu.clone(), lam.clone()
     g, cm1, w, cost0, d0 = evaluate(mu, lam)
     jac = torch.empty(p_n, n, 3, n_s, dtype=dt, device=mu.device)  # reused every iteration
-    vertex_of = act // j  # (P,) which vertex each active view belongs to
     for _ in range(iters):
         mbar = torch.nn.functional.normalize(_neighbour_mean(mu, nbr_views), dim=-1)
         sigma = lam.rsqrt()  # (B, J, N)

@@ -287,7 +287,7 @@ class GLRenderer:
         else:
             sb = np.zeros((v, 10), np.float32)
         p["sun_glossy"].value = float(self.sun_glossy)
-        self.sbo = ctx.buffer(np.ascontiguousarray(sb).tobytes())
+        self.sbo = ctx.buffer(sb.tobytes())
         self.vao = ctx.vertex_array(
             p,
             [
