@@ -15,7 +15,7 @@ import numpy as np
 import torch
 
 from lobelight import brdf, fit, scene, sphere
-from lobelight.fit import Gaussians, Weights, _optimize
+from lobelight.fit import Gaussians, Weights, _optimize, _relax
 from lobelight.scene import _shapes
 
 VIEWS = sphere.geodesic_views()
@@ -119,3 +119,47 @@ def test_flood_fill_reorders_the_lobes_the_optimiser_hands_over(monkeypatch):
     # LM's small hand-overs (the counts move by a few with beta +-10 %)
     assert fitted.flips_before < unordered.flips_before
     assert fitted.flips_before <= 15
+
+
+def _coherent_mesh() -> tuple[scene.Mesh, Gaussians]:
+    """A 42-vertex sphere whose every vertex holds the coherent pair of :func:`_coherent_pair`:
+    no flip anywhere, M = V = 0."""
+    v, f = _shapes.icosphere(1)
+    mesh = scene.mesh_from_arrays(v, f)
+    g = _coherent_pair()
+    nv = mesh.n_vertices
+    return mesh, Gaussians(*(x.expand(nv, *x.shape[1:]).contiguous() for x in (g.w, g.mu, g.lam)))
+
+
+def test_mesh_reordering_mends_swapped_views_and_a_vertex_swapped_as_a_whole():
+    mesh, g = _coherent_mesh()
+    nv, j = g.lam.shape[:2]
+    assert fit.count_flips(mesh, g) == 0
+    # scattered (vertex, view) nodes exchanged, mended by M and V; and vertex 0 exchanged in
+    # every view: coherent across its views, so none of them gains by moving alone, and only
+    # the whole-vertex move against the flip count mends it
+    gen = torch.Generator().manual_seed(3)
+    pick = torch.rand(nv, j, generator=gen) < 0.05
+    pick[0] = True
+    s = pick[..., None]
+    bad = Gaussians(
+        torch.where(s[..., None], g.w.flip(2), g.w),
+        torch.where(s[..., None], g.mu.flip(2), g.mu),
+        torch.where(s, g.lam.flip(2), g.lam),
+    )
+    assert fit.count_flips(mesh, bad) > 200
+    fixed = _relax.reorder_mesh(mesh, bad, NBR)
+    assert _same(fixed, g)
+
+
+def test_relaxation_reduces_flips_on_a_sphere():
+    # Issue 4's "S plus relaxation reduce flips": sphere:1 (42 vertices), two Gaussians per
+    # view. The relaxation refits each vertex with S against all its neighbours, keeping the new
+    # lobes only where they add no flipped pair, then reorders the whole mesh. Measured (2-core
+    # CPU): flipped pairs 172 -> 145, among lobes at least half a width apart 59 -> 31, the fit
+    # error (D) 0.0072 -> 0.0070. The paper's refit alone (before this pass) went 172 -> 174 and
+    # 59 -> 125 (its fit error 0.0062), so the bounds below fail for it; they leave ~10 % for
+    # platform differences.
+    mf = fit.fit_mesh(scene.load("sphere:1"), n=2, relax=True)
+    assert mf.flips_after < 0.95 * mf.flips_before
+    assert mf.separated_flips_after < 0.7 * mf.separated_flips_before

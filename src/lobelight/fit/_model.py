@@ -76,6 +76,8 @@ def fit_model(
         "relative_l2_error_mean": float(err.clamp_min(0).sqrt().mean()) if err.numel() else 0.0,
         "flips_before": mf.flips_before,
         "flips_after": mf.flips_after,
+        "separated_flips_before": mf.separated_flips_before,
+        "separated_flips_after": mf.separated_flips_after,
         "seconds": seconds,
         "device": str(mf.gaussians.w.device),
         "torch": torch.__version__,

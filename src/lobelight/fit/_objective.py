@@ -191,6 +191,7 @@ def flip_count(
     active: torch.Tensor,
     live_a: torch.Tensor | None = None,
     live_b: torch.Tensor | None = None,
+    pair_ok: torch.Tensor | None = None,
 ) -> torch.Tensor:
     """Flipped Gaussian pairs between two vertices' fits: views where some pair's difference
     vectors point against each other (``<dmu_a, dmu_b> < 0``), counted over ``active`` views.
@@ -203,6 +204,7 @@ def flip_count(
     ----------
     mu_a, mu_b : (E, J, N, 3);  active : (E, J) bool (e.g. both views above the horizon)
     live_a, live_b : optional (E, J, N) bool
+    pair_ok : optional (E, J, P) bool, which pairs ``k1 < k2`` to count at all
 
     Returns
     -------
@@ -217,4 +219,6 @@ def flip_count(
         n = live.shape[-1]
         i, j = torch.triu_indices(n, n, offset=1, device=live.device)
         flipped = flipped & live[..., i] & live[..., j]
+    if pair_ok is not None:
+        flipped = flipped & pair_ok
     return (flipped.any(-1) & active).sum(1)
