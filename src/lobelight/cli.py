@@ -131,8 +131,8 @@ def _cmd_bake(args) -> dict:
         "relative_l2_error_mean": m.provenance["relative_l2_error_mean"],
         "flips_before": m.provenance["flips_before"],
         "flips_after": m.provenance["flips_after"],
-        "separated_flips_before": m.provenance.get("separated_flips_before", 0),
-        "separated_flips_after": m.provenance.get("separated_flips_after", 0),
+        "separated_flips_before": m.provenance["separated_flips_before"],
+        "separated_flips_after": m.provenance["separated_flips_after"],
         "seconds": time.perf_counter() - t0,
     }
 

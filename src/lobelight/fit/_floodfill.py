@@ -32,9 +32,9 @@ from ..errors import InputError
 from ..scene import Mesh, Scene
 from ..transport import DIFFUSE_ORDER, Transport
 from ._data import gather, lobe_estimate
-from ._objective import Weights, _pair_diffs, flip_count, mixture, solve_weights
+from ._objective import Weights, flip_count, mixture, solve_weights
 from ._optimize import Gaussians, fit_batch, initial_guess
-from ._relax import live_gaussians, reorder_mesh, vertex_flips
+from ._relax import live_gaussians, reorder_mesh, separated_pairs, vertex_flips
 
 __all__ = ["MeshFit", "count_flips", "fit_mesh", "wavefronts"]
 
@@ -142,18 +142,13 @@ def count_flips(
         return 0
     e = _edges(mesh).to(g.mu.device)
     live = live_gaussians(g, live_fraction)  # (V, J, N)
-    n = g.mu.shape[2]
-    i, j = torch.triu_indices(n, n, offset=1, device=g.mu.device)
-    sigma = g.lam.clamp_min(1e-12).rsqrt()
-    apart = _pair_diffs(g.mu).norm(dim=-1) >= min_separation * torch.maximum(
-        sigma[..., i], sigma[..., j]
-    )  # (V, J, P)
+    apart = separated_pairs(g, min_separation) if min_separation > 0 else None  # (V, J, P)
     total = 0
     for s in range(0, e.shape[0], 4096):  # bounded memory
         es = e[s : s + 4096]
         a, b = es[:, 0], es[:, 1]
         active = live[a].any(-1) & live[b].any(-1)
-        ok = apart[a] & apart[b] if min_separation > 0 else None
+        ok = None if apart is None else apart[a] & apart[b]
         total += int(flip_count(g.mu[a], g.mu[b], active, live[a], live[b], ok).sum())
     return total
 

@@ -30,7 +30,15 @@ import torch
 from .. import sg
 from ._data import FitData
 
-__all__ = ["Weights", "data_term", "flip_count", "mean_term", "sigma_term", "spatial_term"]
+__all__ = [
+    "Weights",
+    "data_term",
+    "flip_count",
+    "flipped_views",
+    "mean_term",
+    "sigma_term",
+    "spatial_term",
+]
 
 
 @dataclass(frozen=True)
@@ -212,13 +220,25 @@ def flip_count(
     """
     if mu_a.shape[-2] < 2:
         return torch.zeros(mu_a.shape[0], dtype=torch.int64, device=mu_a.device)
-    dot = (_pair_diffs(mu_a) * _pair_diffs(mu_b)).sum(-1)  # (E, J, P)
-    flipped = dot < 0
+    return (flipped_views(mu_a, mu_b, live_a, live_b, pair_ok) & active).sum(-1)
+
+
+def flipped_views(
+    mu_a: torch.Tensor,
+    mu_b: torch.Tensor,
+    live_a: torch.Tensor | None = None,
+    live_b: torch.Tensor | None = None,
+    pair_ok: torch.Tensor | None = None,
+) -> torch.Tensor:
+    """Which views are flipped between two fits, (..., J) bool: the test of :func:`flip_count`
+    per view, for any broadcastable leading shapes of ``mu_*`` (..., J, N, 3), ``live_*``
+    (..., J, N) and ``pair_ok`` (..., J, P)."""
+    flipped = (_pair_diffs(mu_a) * _pair_diffs(mu_b)).sum(-1) < 0  # (..., J, P)
     if live_a is not None and live_b is not None:
-        live = live_a & live_b  # (E, J, N)
+        live = live_a & live_b  # (..., J, N)
         n = live.shape[-1]
         i, j = torch.triu_indices(n, n, offset=1, device=live.device)
         flipped = flipped & live[..., i] & live[..., j]
     if pair_ok is not None:
         flipped = flipped & pair_ok
-    return (flipped.any(-1) & active).sum(1)
+    return flipped.any(-1)

@@ -32,15 +32,23 @@ import torch
 
 from .. import sg
 from ..scene import Mesh
-from ._objective import Weights, _pair_diffs, mean_term, sigma_term
+from ._objective import Weights, _pair_diffs, flipped_views, mean_term, sigma_term
 from ._optimize import Gaussians, _permuted, _swap_gain
 
-__all__ = ["FLIP_WEIGHT", "live_gaussians", "neighbour_table", "reorder_mesh", "vertex_flips"]
+__all__ = [
+    "FLIP_WEIGHT",
+    "live_gaussians",
+    "neighbour_table",
+    "reorder_mesh",
+    "separated_pairs",
+    "vertex_flips",
+]
 
-# One flipped neighbour pair costs what M charges for one mean 0.3 rad out of line with its
-# neighbouring views at the default beta (0.01 x 0.3^2 ~ 1e-3): a flip outweighs the small
-# incoherence of exchanging two nearby lobes, not the large one of exchanging distant ones.
-# Measured on sphere:2 (N = 2), 1e-3, 1e-2 and 1e-1 leave the same flips within 3 %.
+# One flipped neighbour pair costs what M charges for one mean 1 rad out of line with its
+# neighbouring views at the default beta (0.01 x 1^2): a flip outweighs the small incoherence
+# of exchanging two nearby lobes, not the large one of exchanging distant ones. Measured with
+# N = 2: on sphere:2, 1e-3, 1e-2 and 1e-1 leave the same flips within 3 %; on sphere:1, 1e-3
+# moves nothing and 1e-2, 1e-1 and 1 give the same counts.
 FLIP_WEIGHT = 1e-2
 
 
@@ -63,21 +71,24 @@ def neighbour_table(mesh: Mesh) -> tuple[torch.Tensor, torch.Tensor]:
     return ids, mask
 
 
+def separated_pairs(g: Gaussians, min_separation: float) -> torch.Tensor:
+    """Pairs ``k1 < k2`` of Gaussians whose means lie at least ``min_separation`` widths
+    (``sigma`` of the wider) apart, (..., J, P) bool for Gaussians (..., J, N)."""
+    n = g.mu.shape[-2]
+    i, j = torch.triu_indices(n, n, offset=1, device=g.mu.device)
+    sigma = g.lam.clamp_min(1e-12).rsqrt()
+    wide = torch.maximum(sigma[..., i], sigma[..., j])
+    return _pair_diffs(g.mu).norm(dim=-1) >= min_separation * wide
+
+
 def _flipped(mu, live, nbr_mu, nbr_live, nbr_mask, pair_ok=None) -> torch.Tensor:
     """Per (vertex, view), how many neighbours are flipped against it: (B, J) float.
 
     mu (B, J, N, 3), live (B, J, N); nbr_mu (B, Q, J, N, 3), nbr_live (B, Q, J, N), nbr_mask (B, Q);
     pair_ok (B, Q, J, P) optional, which pairs of Gaussians to count
     """
-    n = mu.shape[-2]
-    i, j = torch.triu_indices(n, n, offset=1, device=mu.device)
-    dot = (_pair_diffs(mu)[:, None] * _pair_diffs(nbr_mu)).sum(-1)  # (B, Q, J, P)
-    both = live[:, None] & nbr_live  # (B, Q, J, N)
-    flip = (dot < 0) & both[..., i] & both[..., j]
-    if pair_ok is not None:
-        flip = flip & pair_ok
-    flip = flip.any(-1) & nbr_mask[:, :, None]  # (B, Q, J)
-    return flip.sum(1).to(mu.dtype)
+    flip = flipped_views(mu[:, None], nbr_mu, live[:, None], nbr_live, pair_ok)  # (B, Q, J)
+    return (flip & nbr_mask[:, :, None]).sum(1).to(mu.dtype)
 
 
 def vertex_flips(
@@ -93,17 +104,8 @@ def vertex_flips(
         return g.mu.new_zeros(g.mu.shape[0])
     pair_ok = None
     if min_separation > 0:
-        n = g.mu.shape[-2]
-        i, j = torch.triu_indices(n, n, offset=1, device=g.mu.device)
-
-        def apart(x: Gaussians) -> torch.Tensor:
-            sigma = x.lam.clamp_min(1e-12).rsqrt()
-            wide = torch.maximum(sigma[..., i], sigma[..., j])
-            return _pair_diffs(x.mu).norm(dim=-1) >= min_separation * wide
-
-        pair_ok = apart(g)[:, None] & apart(nbr)
-    live = live_gaussians(g)
-    nbr_live = live_gaussians(nbr)
+        pair_ok = separated_pairs(g, min_separation)[:, None] & separated_pairs(nbr, min_separation)
+    live, nbr_live = live_gaussians(g), live_gaussians(nbr)
     return _flipped(g.mu, live, nbr.mu, nbr_live, nbr_mask, pair_ok).sum(1)
 
 
@@ -200,8 +202,7 @@ def reorder_mesh(
             ids_v = torch.arange(v, device=dev)
             vmove = vwant & ~_beaten(vrank, ids_v, vrank[nbrs], ids_v[nbrs], nmask)
             perm = torch.where(vmove[:, None], perms[vwhich], ident)[:, None].expand(v, j, n)
-            w, mu, lam = _permuted(w, perm), _permuted(mu, perm), _permuted(lam, perm)
-            live = _permuted(live, perm)
+            w, mu, lam, live = (_permuted(x, perm) for x in (w, mu, lam, live))
             continue
         want = gain > 1e-12
         rank = torch.where(want, gain, torch.full_like(gain, -1.0))
@@ -215,6 +216,5 @@ def reorder_mesh(
         if not bool(move.any()):
             break
         perm = torch.where(move[..., None], perms[which], ident)  # (V, J, N)
-        w, mu, lam = _permuted(w, perm), _permuted(mu, perm), _permuted(lam, perm)
-        live = _permuted(live, perm)
+        w, mu, lam, live = (_permuted(x, perm) for x in (w, mu, lam, live))
     return Gaussians(w, mu, lam)
