@@ -80,6 +80,8 @@ class Leaves(NamedTuple):
     scale : (P,) square coordinates to tangent-plane coordinates, ``2 tan(margin theta)``
     t, b, a : (P, 3) each point's light frame (``a`` towards the light's centre)
     count : (P,) int64 leaves per point
+    grouped : whether the leaves come grouped by point in point order (the per-point walk):
+        then per-point sums are segment sums over ``count``
     """
 
     point: torch.Tensor
@@ -92,6 +94,7 @@ class Leaves(NamedTuple):
     b: torch.Tensor
     a: torch.Tensor
     count: torch.Tensor
+    grouped: bool = False
 
     def geometry(self, *, solid_angle: bool = True):
         """``axis`` (L, 3) unit direction of the centre of each leaf's bounding cap, ``theta``
@@ -179,7 +182,7 @@ def shadow_leaves(
         )  # fmt: skip
         if lp.numel() == 0:
             return empty
-        return Leaves(lp, ld, lu.to(dt), lv.to(dt), dist, k, t, b, a, count)
+        return Leaves(lp, ld, lu.to(dt), lv.to(dt), dist, k, t, b, a, count, grouped=True)
     # ---- clipping: dense (P, N) test, then a flat list of (point, occluder) pairs
     keep = _clip(points, a, light_dist, span, spheres, ex)  # (P, N)
     pp, pn = keep.nonzero(as_tuple=True)  # (Q,) pairs

@@ -268,7 +268,20 @@ def _walk_point(
     return count
 
 
-_BLOCK = 64  # points per parallel task: scratch is allocated once per block
+_BLOCK = 16  # points dealt to a lane at a time
+_LANES = 64  # parallel tasks; each allocates its scratch once
+
+
+@_njit()
+def _lane_points(lane, lanes, P):
+    """The points of one lane: blocks ``lane, lane + lanes, ...`` of ``_BLOCK`` points."""
+    out = np.empty(P, dtype=np.int64)
+    n = 0
+    for blk in range(lane, (P + _BLOCK - 1) // _BLOCK, lanes):
+        for p in range(blk * _BLOCK, min(P, (blk + 1) * _BLOCK)):
+            out[n] = p
+            n += 1
+    return out[:n]
 _ROOM = 64  # leaves kept per point by the first walk (the benchmark's mean is 19)
 
 
@@ -282,7 +295,11 @@ def _walk_all(
     leaf count of every point, (P,)."""
     P, N = points.shape[0], spheres_t.shape[1]
     counts = np.zeros(P, dtype=np.int64)
-    for blk in _prange((P + _BLOCK - 1) // _BLOCK):
+    blocks = (P + _BLOCK - 1) // _BLOCK
+    # blocks dealt round-robin to the lanes: shadows are spatially coherent, so contiguous
+    # halves of the points carry unequal work (measured 15 : 11 ms on the benchmark)
+    lanes = min(blocks, _LANES)
+    for lane in _prange(lanes):
         ok = np.empty(N, dtype=np.bool_)
         cones = np.empty((N, 5))
         lists = np.empty((depth + 2, N), dtype=np.int64)
@@ -290,7 +307,7 @@ def _walk_all(
         top = 4 * depth + 5
         su, sv = np.empty(top), np.empty(top)
         sl = np.empty(top, dtype=np.int64)
-        for p in range(blk * _BLOCK, min(P, (blk + 1) * _BLOCK)):
+        for p in _lane_points(lane, lanes, P):
             if fixed.shape[0] and fixed[p] < 0:
                 continue
             start, room = (p * limit, limit) if not fixed.shape[0] else (fixed[p], 1 << 62)
