@@ -300,7 +300,8 @@ def _shade_chunk(
                 i0, i1, lam = interp_coefficients(lv.dist[lv.point])
                 feats.append((lv.point, lv.depth, i0, i1, lam, val))
             elif lv.grouped:  # segment sums: 0.8 ms against 1.4 for index_add (benchmark)
-                radiance = radiance - torch.segment_reduce(val, "sum", lengths=lv.count, unsafe=True)
+                shadow = torch.segment_reduce(val, "sum", lengths=lv.count, unsafe=True)
+                radiance = radiance - shadow
             else:
                 radiance = radiance.index_add(0, lv.point, -val)  # (alpha=-1 is a slow path)
     radiance = radiance.clamp_min(0)

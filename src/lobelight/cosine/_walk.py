@@ -270,18 +270,6 @@ def _walk_point(
 
 _BLOCK = 16  # points dealt to a lane at a time
 _LANES = 64  # parallel tasks; each allocates its scratch once
-
-
-@_njit()
-def _lane_points(lane, lanes, P):
-    """The points of one lane: blocks ``lane, lane + lanes, ...`` of ``_BLOCK`` points."""
-    out = np.empty(P, dtype=np.int64)
-    n = 0
-    for blk in range(lane, (P + _BLOCK - 1) // _BLOCK, lanes):
-        for p in range(blk * _BLOCK, min(P, (blk + 1) * _BLOCK)):
-            out[n] = p
-            n += 1
-    return out[:n]
 _ROOM = 64  # leaves kept per point by the first walk (the benchmark's mean is 19)
 
 
@@ -307,14 +295,16 @@ def _walk_all(
         top = 4 * depth + 5
         su, sv = np.empty(top), np.empty(top)
         sl = np.empty(top, dtype=np.int64)
-        for p in _lane_points(lane, lanes, P):
-            if fixed.shape[0] and fixed[p] < 0:
-                continue
-            start, room = (p * limit, limit) if not fixed.shape[0] else (fixed[p], 1 << 62)
-            counts[p] = _walk_point(
-                p, points, t, b, a, light_dist, span, spheres_t, exclude, depth, conservative,
-                start, room, leaf_u, leaf_v, leaf_level, ok, cones, lists, nlist, su, sv, sl,
-            )  # fmt: skip
+        for blk in range(lane, blocks, lanes):
+            for p in range(blk * _BLOCK, min(P, (blk + 1) * _BLOCK)):
+                if fixed.shape[0] and fixed[p] < 0:
+                    continue
+                start, room = (p * limit, limit) if not fixed.shape[0] else (fixed[p], 1 << 62)
+                counts[p] = _walk_point(
+                    p, points, t, b, a, light_dist, span, spheres_t, exclude, depth,
+                    conservative, start, room, leaf_u, leaf_v, leaf_level, ok, cones, lists,
+                    nlist, su, sv, sl,
+                )  # fmt: skip
     return counts
 
 
