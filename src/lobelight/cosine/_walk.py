@@ -170,7 +170,7 @@ def _walk_point(
     """Walk one point's quad-tree depth-first; write its first ``limit`` leaves' square
     coordinates and depths to rows ``start...`` of ``leaf_u``, ``leaf_v``, ``leaf_level``.
 
-    Returns the number of leaves (all of them, also past ``limit``). Scratch (a block's, reused
+    Returns the number of leaves (all of them, also past ``limit``). Scratch (a lane's, reused
     point after point): ok (N,), cones (N, 5), lists (depth + 2, N), nlist (depth + 2,), the
     stack su, sv, sl (4 depth + 5,).
     The children of a subdivided cell share one list of the occluders that touched it
