@@ -168,6 +168,33 @@ def test_unoccluded_shading_matches_monte_carlo(tables, device, name):
     assert float(diff.mean()) < 0.01 * float(ref.max()) + float(se.mean())
 
 
+@pytest.mark.parametrize("name", ["lambert+phong", "lafortune"])
+@pytest.mark.parametrize("threshold", [0.0, 2e-2])
+def test_unshadowed_kernel_equals_the_shadow_paths_direct_term(tables, name, threshold):
+    """Without occluders the frame is one kernel (``_lit``: integrals only, per-channel rows);
+    with occluders that cast no shadow here, the same terms come from the product lobes
+    ``m_ij`` (``multiply`` then ``integral``) and their own threshold mask. Two routes to the
+    same sum: equal to float32 rounding (the integral-preserving scale makes the product
+    lobe's integral the tabulated one). The higher threshold drops some products, the same
+    ones on both routes (else the difference would be a whole product, > 1e-3 here)."""
+    P = 64
+    x, n, wo = _plane_points(P)
+    light = C.SphereLight((0.6, 2.0, -0.3), 0.35, (5.0, 4.5, 4.0))
+    model = _materials(P)[name]
+    far = torch.tensor([[9.0, -5.0, 9.0, 0.5]])  # below the plane: never between it and the light
+    kw = dict(threshold=threshold, tables=tables)
+    lit = C.shade_points(x, n, wo, model, light, **kw)
+    shad = C.shade_points(x, n, wo, model, light, spheres=far, **kw)
+    assert int(shad.leaves.sum()) == 0
+    scale = float(shad.radiance.max())
+    assert scale > 0.05
+    torch.testing.assert_close(lit.radiance, shad.radiance, rtol=1e-5, atol=1e-6 * scale)
+    assert torch.equal(lit.products, shad.products)
+    if threshold:  # not vacuous: the threshold dropped products somewhere
+        full = C.shade_points(x, n, wo, model, light, threshold=0.0, tables=tables)
+        assert float((full.radiance - lit.radiance).abs().max()) > 1e-3
+
+
 def test_shadowed_points_match_monte_carlo(tables):
     """With occluders: umbra, penumbra and light on a plane under a cluster of spheres.
 

@@ -27,10 +27,10 @@ import torch
 
 from .. import brdf as _brdf
 from ..errors import InputError
-from ._brdf_lobes import brdf_lobes
+from ._brdf_lobes import _lobe_parts, brdf_lobes
 from ._fused import fusion, kernel
 from ._light import SphereLight, _geometry, _light_tensors, cap_lobes, cap_scale
-from ._lobeset import Lobes, _integral_flat, multiply, product_integral
+from ._lobeset import Lobes, _integral_flat, multiply
 from ._tables import LobeTables, _cap_lookup, _cpu_threads, get_tables
 from ._visibility import MODES, depth_weights, interp_coefficients, shadow_leaves
 
@@ -139,6 +139,8 @@ def shade_points(
         raise InputError("lights", "must be a SphereLight or a non-empty list of them")
     if mode not in MODES:
         raise InputError("mode", f"must be one of {MODES}, got {mode!r}")
+    if cosine not in ("product", "axis", "none"):
+        raise InputError("cosine", f"must be 'product', 'axis' or 'none', got {cosine!r}")
     if not (threshold >= 0):
         raise InputError("threshold", f"must be >= 0, got {threshold!r}")
     sph = None
@@ -237,11 +239,18 @@ def _shade_chunk(
     """One chunk: radiance (P, 3), products (P,), leaves (P,) [, calibration features]."""
     P = x.shape[0]
     dev = x.device
-    n_cos = 0 if cosine != "product" else _count_cosine_products(model)
+    n_lobes, n_cos = _lobe_counts(model)
+    n_cos = n_cos if cosine == "product" else 0
     centres, radii, radiance_l = _light_tensors(lights, x)
-    mint, m = _direct(
-        model, x, n, wo, centres, radii, radiance_l, tables, cosine, preserve, spheres is not None
-    )  # (P, I, J, 3), the product lobes m_ij (P, I, J) when shadows multiply them again
+    if spheres is None and not features:  # nothing multiplies m_ij again: one kernel
+        radiance = _lit(
+            model, x, n, wo, centres, radii, radiance_l, tables.product_table, tables._grid,
+            tables.cap_table, cosine, preserve, float(threshold),
+        )  # fmt: skip
+        products = torch.full((P,), n_cos + n_lobes * len(lights), dtype=torch.long, device=dev)
+        return radiance, products, torch.zeros(P, dtype=torch.long, device=dev)
+    # (P, I, J, 3) integrals and the product lobes m_ij (P, I, J)
+    mint, m = _direct(model, x, n, wo, centres, radii, radiance_l, tables, cosine, preserve)
     I, J = mint.shape[1], mint.shape[2]
     keep = mint.amax(-1) >= threshold  # (P, I, J)
     radiance = (mint * keep.unsqueeze(-1)).sum((1, 2))  # (P, 3)
@@ -310,26 +319,55 @@ def _shade_chunk(
     return radiance, products, nleaves
 
 
-def _direct(model, x, n, wo, centres, radii, radiance, tables, cosine, preserve, lobes: bool):
-    """Reflectance x lighting of each point, ``m_ij = f_i L_j``.
+def _direct(model, x, n, wo, centres, radii, radiance, tables, cosine, preserve):
+    """Reflectance x lighting of each point as lobes, ``m_ij = f_i L_j`` (shadows multiply
+    them again; without occluders :func:`_lit` needs only their integrals).
 
     Parameters
     ----------
     x, n, wo : (P, 3);  centres (J, 3), radii (J,), radiance (J, 3) of the lights
-    lobes : also build the product lobes (they are multiplied again by visibility)
 
     Returns
     -------
-    integrals : (P, I, J, 3) ``∫ m_ij``;  the product :class:`Lobes` (P, I, J) or None
+    integrals : (P, I, J, 3) ``∫ m_ij``;  the product :class:`Lobes` (P, I, J)
     """
     f = brdf_lobes(model, n, wo, tables=tables, cosine=cosine, preserve_integral=preserve)
     light = cap_lobes(x, centres, radii, radiance, tables=tables)  # (P, J)
     fa = Lobes(f.axis.unsqueeze(2), f.exponent.unsqueeze(2), f.scale.unsqueeze(2))
     la = Lobes(light.axis.unsqueeze(1), light.exponent.unsqueeze(1), light.scale.unsqueeze(1))
-    if not lobes:  # nothing multiplies m_ij again: its integral is all that is needed
-        return product_integral(tables, fa, la, preserve_integral=preserve), None
     m = multiply(tables, fa, la, preserve_integral=preserve)  # (P, I, J)
     return m.integral(), m
+
+
+@kernel
+def _lit(
+    model, x, n, wo, centres, radii, radiance, tab, grid, cap_tab,
+    cosine: str, preserve: bool, threshold: float,
+):  # fmt: skip
+    """Unshadowed radiance ``sum_ij ∫ f_i L_j`` of each point, (P, 3), in one kernel.
+
+    Without occluders nothing multiplies ``m_ij = f_i L_j`` again, so only its integral is
+    looked up (no product lobe), and the threshold and the sum follow in the same loop.
+    x, n, wo : (P, 3);  centres (J, 3), radii (J,), radiance (J, 3) of the lights;  tab, grid,
+    cap_tab : the lobe tables (:class:`LobeTables`)
+
+    The colour channels are separate (P,) rows, stacked last: TorchInductor then runs the
+    table lookups once per point, not once per channel (65,536 points, 2 cores: 9.5 ms,
+    against 10.1 ms with (P, 3) rows and 12.7 ms as :func:`_direct`'s separate kernels).
+    """
+    axes, exps, factors, scales = _lobe_parts(model, n, wo, None, tab, grid, cosine, preserve)
+    l_axis, _, theta = _geometry(x, centres, radii)  # (P, J, 3), (P, J)
+    l_exp = _cap_lookup(theta, cap_tab)
+    l_scale = cap_scale(theta, l_exp)
+    out = [torch.zeros_like(x[:, 0]) for _ in range(3)]
+    for j in range(centres.shape[0]):  # lights, then reflectance lobes: small fixed counts
+        for axis, e, factor, scale in zip(axes, exps, factors, scales, strict=True):
+            unit = _integral_flat(axis.T, l_axis[:, j].T, e, l_exp[:, j], tab, grid, preserve)
+            unit = unit * factor * l_scale[:, j]
+            v = [unit * scale[:, c] * radiance[j, c] for c in range(3)]  # ∫ m_ij per channel
+            keep = torch.maximum(torch.maximum(v[0], v[1]), v[2]) >= threshold
+            out = [o + torch.where(keep, vc, 0.0) for o, vc in zip(out, v, strict=True)]
+    return torch.stack(out, -1)  # a sum of kept integrals: >= 0, as the shadowed sum clamped
 
 
 @kernel
@@ -369,9 +407,11 @@ def _shadow_products(
     return val if wp is None else val * wp[point * D1 + depth].unsqueeze(-1)
 
 
-def _count_cosine_products(model: _brdf.BRDF) -> int:
+def _lobe_counts(model: _brdf.BRDF) -> tuple[int, int]:
+    """Reflectance lobes of ``model`` and how many of them are multiplied by the cosine."""
     if isinstance(model, _brdf.Sum):
-        return sum(_count_cosine_products(c) for c in model.components)
+        counts = [_lobe_counts(c) for c in model.components]
+        return sum(c[0] for c in counts), sum(c[1] for c in counts)
     if isinstance(model, _brdf.Lafortune):
-        return model.n_lobes
-    return 0 if isinstance(model, _brdf.Lambert) else 1
+        return model.n_lobes, model.n_lobes
+    return 1, (0 if isinstance(model, _brdf.Lambert) else 1)
