@@ -285,6 +285,60 @@ def test_mask_leaves_bound_the_covered_area(depth):
     assert areas["conservative"] - truth < boundary
 
 
+def test_useful_depth_bounds_every_leaf_product():
+    """:func:`useful_depth`'s bound: a leaf of level ``d`` has a lobe integral (its bounding
+    cap's solid angle, the lobe's scale) of at most ``2 pi span^2 4^-d``. Checked on every leaf
+    of every depth of a dense mask; and the depth it returns is the deepest level whose bound,
+    doubled, still reaches the threshold."""
+    from lobelight.cosine._light import light_geometry
+    from lobelight.cosine._visibility import useful_depth
+
+    P = 400
+    x, _, _ = _plane_points(P, half=1.2)
+    spheres = torch.tensor([[0.0, 0.9, 0.0, 0.4], [0.5, 0.7, 0.3, 0.25], [-0.4, 0.6, 0.2, 0.2]])
+    axis, dist, theta = light_geometry(x, [C.SphereLight((0.2, 2.5, 0.1), 0.6, 1.0)])
+    lv = C.shadow_leaves(x, axis[:, 0], theta[:, 0], dist[:, 0], spheres, depth=6,
+                         mode="conservative")  # fmt: skip
+    assert len(set(lv.depth.tolist())) == 7  # leaves of every depth
+    _, th, _ = lv.geometry()
+    span = torch.tan(theta[:, 0]).double()[lv.point]
+    cap = 2 * math.pi * (1 - torch.cos(th.double()))
+    bound = 2 * math.pi * span**2 * 4.0 ** (-lv.depth.double())
+    assert bool((cap <= bound).all())
+    assert float((cap / bound).max()) > 0.9  # tight: cells near the centre reach 0.92-0.99998
+    peak = 10 ** (torch.rand(P, generator=torch.Generator().manual_seed(1)) * 6 - 4)  # 1e-4..100
+    span = torch.tan(theta[:, 0])
+    d = useful_depth(peak, span, 1e-3, 6)
+    doubled = 2 * peak.double() * 2 * math.pi * span.double() ** 2  # the bound at level 0, x 2
+    ok = d >= 0
+    assert bool((doubled[ok] / 4.0 ** d[ok].double() >= 1e-3).all())
+    assert bool((doubled[d < 6] / 4.0 ** (d[d < 6].double() + 1) < 1e-3).all())
+    assert int((~ok).sum()) > 0 and int((d == 6).sum()) > 0 and len(set(d.tolist())) > 4
+
+
+@pytest.mark.parametrize("fused", [False, True])
+@pytest.mark.parametrize("mode", ["aggressive", "conservative"])
+def test_culled_construction_changes_no_radiance(monkeypatch, tables, fused, mode):
+    """Cells whose products all fall below the threshold are not built: the radiance is the
+    one of the whole masks, exactly (the shading culls those products anyway), with fewer
+    leaves. The light is dim enough here that deep leaves are culled (the benchmark's case)."""
+    from lobelight.cosine import _visibility
+
+    x, n, wo = _plane_points(300, half=1.2)
+    spheres = torch.tensor([[0.0, 0.9, 0.0, 0.4], [0.5, 0.7, 0.3, 0.25], [-0.4, 0.6, 0.2, 0.2]])
+    light = C.SphereLight((0.2, 2.5, 0.1), 0.5, (0.8, 0.8, 0.8))
+    model = B.Sum(B.Lambert(0.6), B.Phong(0.1, 30.0))
+    kw = dict(spheres=spheres, depth=5, mode=mode, threshold=1e-3, tables=tables, fused=fused)
+    cut = C.shade_points(x, n, wo, model, light, **kw)
+    monkeypatch.setattr(_visibility, "useful_depth", lambda peak, span, t, d: torch.full_like(
+        peak, d, dtype=torch.long))  # fmt: skip
+    whole = C.shade_points(x, n, wo, model, light, **kw)
+    torch.testing.assert_close(cut.radiance, whole.radiance, rtol=0, atol=1e-7)
+    assert int(cut.leaves.sum()) < 0.7 * int(whole.leaves.sum())  # not vacuous
+    assert float((whole.radiance - C.shade_points(x, n, wo, model, light, **{
+        **kw, "spheres": None}).radiance).abs().max()) > 0.01  # fmt: skip
+
+
 def test_mask_full_cover_and_clipping():
     x = torch.zeros(3, 3)
     light_c = torch.tensor([0.0, 4.0, 0.0])

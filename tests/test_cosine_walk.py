@@ -77,6 +77,32 @@ def test_walk_finds_the_flat_lists_leaves(mode, depth):
     torch.testing.assert_close(ob, oa, rtol=1e-4, atol=1e-6)
 
 
+@pytest.mark.parametrize("mode", ["aggressive", "conservative"])
+def test_useful_depth_cuts_the_tree_alike(monkeypatch, mode):
+    """Cut short at a point's useful depth (``shadow_leaves(peak=, threshold=)``), a mask keeps
+    exactly its full mask's leaves of that depth or less, in the walk and in the flat lists
+    (partly covered cells at the cut are neither leaves nor split, as at an aggressive mask's
+    last level; -1 drops the point). The depths here are random per point, all of -1..depth."""
+    depth = 4
+    x, axis, theta, dist, spheres = _scene(1200, seed=11)
+    g = torch.Generator().manual_seed(3)
+    last = torch.randint(-1, depth + 1, (x.shape[0],), generator=g)
+    monkeypatch.setattr(_visibility, "useful_depth", lambda peak, span, t, d: last)
+    kw = dict(depth=depth, mode=mode)
+    cut = dict(peak=torch.ones(x.shape[0]), threshold=1.0)
+    full = _visibility.shadow_leaves(x, axis, theta, dist, spheres, **kw)
+    keep = full.depth <= last[full.point]
+    want = _cells(full._replace(point=full.point[keep], depth=full.depth[keep],
+                                u=full.u[keep], v=full.v[keep]))  # fmt: skip
+    flat = _visibility.shadow_leaves(x, axis, theta, dist, spheres, **kw, **cut)
+    with fusion(True):
+        walked = _visibility.shadow_leaves(x, axis, theta, dist, spheres, **kw, **cut)
+    assert len(want) > 1000 and int((~keep).sum()) > 1000  # not vacuous: both kinds abound
+    assert _cells(flat) == want
+    assert len(_cells(walked) ^ want) <= 3  # float64 inside the walk (see the test above)
+    torch.testing.assert_close(walked.count, torch.bincount(walked.point, minlength=len(x)))
+
+
 def test_points_with_many_leaves_are_walked_again(monkeypatch):
     """The first walk keeps ``_ROOM`` leaves per point; points with more are walked a second
     time straight into their rows. With room for 2, most shadowed points take that path."""

@@ -7,7 +7,11 @@
 * ``occluded``: 16,384 points (a 128 x 128 grid on the plane around the occluder's shadow),
   64 occluder spheres (a torus), one light, a diffuse material, visibility depth 5,
   aggressive masks, threshold 1e-3: 4.75-15.9 fps in the paper (depending on the shadow's
-  size).
+  size). The light is the scene's, at the brightness of the Monte Carlo score's scene (the
+  score scales it by 0.96 to make its brightest pixel the paper's 0.70): here the plane's
+  direct radiance peaks at 0.088, so the threshold culls the products of the deepest leaves,
+  and with them the construction of those cells (:func:`~._visibility.useful_depth`). The
+  same frame without a threshold is reported too (``threshold_0``).
 
 A frame is everything that depends on the scene's state: reflectance, light and visibility
 lobes, masks, products and integration (``shade_points``), not the G-buffer. Reported: best
@@ -79,6 +83,21 @@ def _sync(device: Any) -> None:
         torch.cuda.synchronize(device)
 
 
+def _frames(c: dict, lights, kw: dict, repeats: int, device: Any):
+    """One warm-up frame, then ``repeats`` timed ones: (last result, warm-up s, sorted s)."""
+    t0 = time.perf_counter()
+    res = shade_points(c["points"], c["normals"], c["wo"], c["brdf"], lights, **kw)
+    _sync(device)
+    warmup = time.perf_counter() - t0
+    times = []
+    for _ in range(max(1, int(repeats))):
+        t0 = time.perf_counter()
+        res = shade_points(c["points"], c["normals"], c["wo"], c["brdf"], lights, **kw)
+        _sync(device)
+        times.append(time.perf_counter() - t0)
+    return res, warmup, sorted(times)
+
+
 def bench_lobes(
     *,
     device: str = "cpu",
@@ -103,7 +122,8 @@ def bench_lobes(
     (from the best frame), products and leaves per point (mean, max), the goal and the
     paper's fps, per thread count and fusion setting under ``runs`` (with ``warmup_s``, the
     first frame: compile time for a fused run) and the best run's numbers at the top level;
-    and ``machine``
+    for ``occluded`` also ``threshold_0``, the fused frame with no threshold (nothing culled,
+    every leaf built); and ``machine``
     """
     from ..bench import machine
 
@@ -131,17 +151,7 @@ def bench_lobes(
                     fused=bool(fz),
                     device=dev,
                 )
-                t0 = time.perf_counter()
-                res = shade_points(c["points"], c["normals"], c["wo"], c["brdf"], lights, **kw)
-                _sync(device)
-                warmup = time.perf_counter() - t0
-                times = []
-                for _ in range(max(1, int(repeats))):
-                    t0 = time.perf_counter()
-                    res = shade_points(c["points"], c["normals"], c["wo"], c["brdf"], lights, **kw)
-                    _sync(device)
-                    times.append(time.perf_counter() - t0)
-                times.sort()
+                res, warmup, times = _frames(c, lights, kw, repeats, device)
                 runs.append(
                     {
                         "fused": bool(fz),
@@ -170,6 +180,18 @@ def bench_lobes(
             "paper_fps": PAPER_FPS[name],
             "runs": runs,
         }
+        if c["spheres"] is not None and True in fused:
+            # the same frame with no threshold: every leaf built and multiplied (the cost when
+            # nothing is dim enough to cull; the threshold also culls the masks' construction)
+            kw = dict(spheres=c["spheres"], depth=5, threshold=0.0, fused=True, device=dev)
+            res, _, times = _frames(c, lights, kw, repeats, device)
+            result[name]["threshold_0"] = {
+                "ms_best": 1e3 * times[0],
+                "ms_median": 1e3 * times[len(times) // 2],
+                "fps": 1.0 / times[0],
+                "leaves_per_point_mean": float(res.leaves.float().mean()),
+                "products_per_point_mean": float(res.products.float().mean()),
+            }
     return result
 
 

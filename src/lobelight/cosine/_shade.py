@@ -259,6 +259,10 @@ def _shade_chunk(
     feats = []
     if spheres is not None:
         axis, dist_l, theta = _geometry(x, centres, radii)  # (P, J, 3), (P, J), (P, J)
+        # the largest scale of the kept m_ij of each point and light bounds every product of
+        # its leaves: cells whose products all fall below the threshold are not built (the
+        # calibration wants every leaf)
+        peak = (m.scale.amax(-1) * keep).amax(1)  # (P, J)
         for j in range(J):  # lights: a small fixed count
             lv = shadow_leaves(
                 x,
@@ -270,6 +274,8 @@ def _shade_chunk(
                 mode=mode,
                 margin=margin,
                 exclude=exclude,
+                peak=None if features else peak[:, j],
+                threshold=threshold,
             )
             if lv.point.numel() == 0:
                 continue

@@ -39,7 +39,10 @@ neighbours in ``dist``).
 
 Everything is vectorised over flat lists of (cell, occluder) pairs; only the ``depth + 1``
 levels of the tree are a Python loop. The work per level is proportional to the number of
-cells that an occluder's outline crosses (penumbra), not to ``4^depth``. With fusion on and
+cells that an occluder's outline crosses (penumbra), not to ``4^depth``. Given the shading's
+threshold and a bound of the lobes the leaves will multiply, a point's tree stops at the
+deepest level whose products can pass the threshold (:func:`useful_depth`): the result is the
+same, and a dim light's penumbra costs a fraction of the cells. With fusion on and
 on the CPU, the same tree is walked point by point instead, compiled by numba
 (:mod:`._walk`: the flat lists' memory traffic is what bounds them there).
 """
@@ -135,6 +138,8 @@ def shadow_leaves(
     mode: str = "aggressive",
     margin: float = 1.0,
     exclude: torch.Tensor | None = None,
+    peak: torch.Tensor | None = None,
+    threshold: float = 0.0,
 ) -> Leaves:
     """Build the visibility masks of ``P`` points for one light and return their shadow leaves.
 
@@ -149,6 +154,10 @@ def shadow_leaves(
     mode : "aggressive" (drop partly covered cells at the maximal depth) or "conservative"
     margin : the square surrounds the cone of half-angle ``margin * theta``
     exclude : optional (P,) int64 index of a sphere each point must ignore (its own; -1: none)
+    peak, threshold : optional (P,) bound of the lobes that the leaves will multiply (their
+        largest scale) and the shading's threshold ``t``: cells whose every product is
+        certainly below ``t`` are not built (:func:`useful_depth`; the shading culls those
+        products anyway, so its result is the same)
 
     Returns
     -------
@@ -174,17 +183,20 @@ def shadow_leaves(
     if N == 0 or P == 0:
         return empty
     ex = exclude if exclude is not None else torch.full((P,), -1, dtype=torch.long, device=dev)
+    last = torch.full((P,), int(depth), dtype=torch.long, device=dev)
+    if peak is not None and threshold > 0:
+        last = useful_depth(peak, span, float(threshold), int(depth))
     if dev.type == "cpu" and fusion_enabled() and _walk.available():
         # compiled on the CPU: walked per point, depth-first (module _walk: the same tests)
         lp, ld, lu, lv, count = _walk.walk_leaves(
-            points, t, b, a, light_dist, span, spheres, ex,
+            points, t, b, a, light_dist, span, spheres, ex, last,
             depth=int(depth), conservative=mode == "conservative",
         )  # fmt: skip
         if lp.numel() == 0:
             return empty
         return Leaves(lp, ld, lu.to(dt), lv.to(dt), dist, k, t, b, a, count, grouped=True)
     # ---- clipping: dense (P, N) test, then a flat list of (point, occluder) pairs
-    keep = _clip(points, a, light_dist, span, spheres, ex)  # (P, N)
+    keep = _clip(points, a, light_dist, span, spheres, ex) & (last >= 0).unsqueeze(1)  # (P, N)
     pp, pn = keep.nonzero(as_tuple=True)  # (Q,) pairs
     if pp.numel() == 0:
         return empty
@@ -201,15 +213,20 @@ def shadow_leaves(
         covered, partial, partial_pair = _cell_tests(
             cu, cv, k, cell_pt, 0.5 / 2**level, pair_cell, pq, pair_src
         )  # (C,), (C,), (Q,)
-        last = level == int(depth)
-        leaf = covered | partial if (last and mode == "conservative") else covered
-        ids = leaf.nonzero(as_tuple=True)[0]
+        # a point's cells below its useful depth are not built; at that depth (short of the
+        # maximal one) only covered cells count, as at an aggressive mask's last level
+        lim = last[cell_pt]  # (C,)
+        final = level == int(depth)
+        leaf = covered | partial if (final and mode == "conservative") else covered
+        partial = partial & (lim > level)
+        partial_pair = partial_pair & partial[pair_cell]
+        ids = (leaf & (lim >= level)).nonzero(as_tuple=True)[0]
         if ids.numel():
             leaves_pt.append(cell_pt[ids])
             leaves_depth.append(torch.full((ids.numel(),), level, dtype=torch.long, device=dev))
             leaves_u.append(cu[ids])
             leaves_v.append(cv[ids])
-        if last:
+        if final:
             break
         # ---- subdivide the partly covered cells; carry their touching pairs to the children
         parents = partial.nonzero(as_tuple=True)[0]  # (C',)
@@ -225,6 +242,34 @@ def shadow_leaves(
     ld = torch.cat(leaves_depth)
     lu, lv = torch.cat(leaves_u), torch.cat(leaves_v)
     return Leaves(lp, ld, lu, lv, dist, k, t, b, a, torch.bincount(lp, minlength=P))
+
+
+def useful_depth(peak: torch.Tensor, span: torch.Tensor, threshold: float, depth: int):
+    """The deepest level whose shadow leaves can pass the shading's threshold, per point.
+
+    A leaf's product with a lobe ``m`` (``m <= peak`` everywhere) is ``∫ m c_k <= peak ∫ c_k``,
+    and ``∫ c_k`` is at most its bounding cap's solid angle (the scale of :func:`cap_lobe`;
+    the cell's own is smaller). The cap's radius is at most the cell's half-diagonal on the
+    tangent plane, ``sqrt(2) span 2^-d`` at level ``d`` (the gnomonic map from the plane at
+    distance 1 to the sphere shortens every length), so ``∫ c_k <= pi rho^2 = 2 pi span^2
+    4^-d``. Where twice that bound is below the threshold every product of the level is
+    culled, by any table (the factor 2 covers the table's error, ~1e-5 of an integral), and so
+    is every product below it: those cells need not be built. The paper culls products after
+    computing them and finds the masks' construction then bounds the frame rate (its Figure
+    16: half the products culled, +2 fps); this bound culls the construction too.
+
+    Parameters
+    ----------
+    peak : (P,) the largest colour scale of the lobes the leaves multiply (0: all culled)
+    span : (P,) the square's half-width in tangent units;  threshold : ``t`` > 0
+
+    Returns
+    -------
+    (P,) int64 in ``-1..depth`` (-1: not even the whole square can pass)
+    """
+    bound = (4 * math.pi) * peak.double() * span.double() ** 2 / float(threshold)  # at d = 0
+    d = torch.floor(torch.log2(bound.clamp_min(1e-300)) / 2)  # 4^d <= bound
+    return d.clamp(-1, int(depth)).long()
 
 
 @kernel

@@ -13,7 +13,9 @@ float64 and without roots where squares compare exactly; they find the same cell
 lists run in float64 (tested). Two shortcuts change the work, not the result: a cell's bounding
 cap is computed only when a touch test needs it, and in aggressive mode the children of a cell
 one level above the last are tested together on the 3 x 3 corners they share (only covered
-cells count there). Leaves come out grouped by point (the flat lists group them by depth);
+cells count there). A point's useful depth (:func:`~._visibility.useful_depth`: below it every
+product would fall under the shading's threshold) ends its walk early, that level then playing
+the last level's part. Leaves come out grouped by point (the flat lists group them by depth);
 shading sums over them, so the order does not matter. Their lobes are built afterwards in torch
 (:meth:`~._visibility.Leaves.geometry`), vectorised.
 
@@ -164,12 +166,14 @@ def _covered_children(x0, y0, dx, lists, row, npart, cones):
 
 @_njit()
 def _walk_point(
-    p, points, t, b, a, light_dist, span, spheres_t, exclude, depth, conservative, start, limit,
-    leaf_u, leaf_v, leaf_level, ok, cones, lists, nlist, su, sv, sl,
+    p, points, t, b, a, light_dist, span, spheres_t, exclude, last, depth, conservative, start,
+    limit, leaf_u, leaf_v, leaf_level, ok, cones, lists, nlist, su, sv, sl,
 ):  # fmt: skip
     """Walk one point's quad-tree depth-first; write its first ``limit`` leaves' square
     coordinates and depths to rows ``start...`` of ``leaf_u``, ``leaf_v``, ``leaf_level``.
 
+    ``last[p]`` (<= depth) is the point's deepest useful level (-1: none): below it nothing is
+    built, and at it only covered cells count (as at an aggressive mask's last level).
     Returns the number of leaves (all of them, also past ``limit``). Scratch (a lane's, reused
     point after point): ok (N,), cones (N, 5), lists (depth + 2, N), nlist (depth + 2,), the
     stack su, sv, sl (4 depth + 5,).
@@ -177,6 +181,11 @@ def _walk_point(
     (``lists[level + 1]``): a depth-first walk finishes a cell's subtree before it reaches the
     cell's next sibling, the only other writer of that list.
     """
+    final = min(last[p], depth)
+    if final < 0:
+        return 0
+    # only covered cells count at the last level built: aggressive, or cut short of depth
+    only_covered = not conservative or final < depth
     nk = _cones(
         points[p], t[p], b[p], a[p], light_dist[p], span[p], spheres_t, exclude[p], ok, cones
     )
@@ -243,7 +252,7 @@ def _walk_point(
                 leaf_v[start + count] = v
                 leaf_level[start + count] = level
             count += 1
-        elif npart > 0 and level + 1 == depth and not conservative:
+        elif npart > 0 and level + 1 == final and only_covered:
             # the children are the last level, where only covered cells count: test them here,
             # on the 3 x 3 corners they share, rather than one by one
             mask = _covered_children(x0, y0, dx, lists, level + 1, npart, cones)
@@ -253,9 +262,9 @@ def _walk_point(
                     if count < limit:
                         leaf_u[start + count] = u + (hh if c & 1 else -hh)
                         leaf_v[start + count] = v + (hh if c & 2 else -hh)
-                        leaf_level[start + count] = depth
+                        leaf_level[start + count] = level + 1
                     count += 1
-        elif npart > 0 and level < depth:
+        elif npart > 0 and level < final:
             nlist[level + 1] = npart
             hh = 0.5 * h
             # pushed in reverse so that they pop in the flat lists' child order
@@ -275,7 +284,7 @@ _ROOM = 64  # leaves kept per point by the first walk (the benchmark's mean is 1
 
 @_njit(parallel=True)
 def _walk_all(
-    points, t, b, a, light_dist, span, spheres_t, exclude, depth, conservative, limit,
+    points, t, b, a, light_dist, span, spheres_t, exclude, last, depth, conservative, limit,
     leaf_u, leaf_v, leaf_level, fixed,
 ):  # fmt: skip
     """Walk every point (its leaves to rows ``p * limit...``, or to ``fixed[p]...`` where
@@ -301,7 +310,7 @@ def _walk_all(
                     continue
                 start, room = (p * limit, limit) if not fixed.shape[0] else (fixed[p], 1 << 62)
                 counts[p] = _walk_point(
-                    p, points, t, b, a, light_dist, span, spheres_t, exclude, depth,
+                    p, points, t, b, a, light_dist, span, spheres_t, exclude, last, depth,
                     conservative, start, room, leaf_u, leaf_v, leaf_level, ok, cones, lists,
                     nlist, su, sv, sl,
                 )  # fmt: skip
@@ -325,7 +334,9 @@ def _gather(counts, offsets, limit, leaf_u, leaf_v, leaf_level, out_point, out_u
                     out_level[o + r] = leaf_level[p * limit + r]
 
 
-def walk_leaves(points, t, b, a, light_dist, span, spheres, exclude, *, depth, conservative):
+def walk_leaves(
+    points, t, b, a, light_dist, span, spheres, exclude, last=None, *, depth, conservative
+):
     """Shadow leaves of all points, walked per point (module docstring).
 
     Each point is walked once, keeping up to ``_ROOM`` leaves; the few points with more are
@@ -336,6 +347,8 @@ def walk_leaves(points, t, b, a, light_dist, span, spheres, exclude, *, depth, c
     points, t, b, a : (P, 3) CPU tensors, the points and their light frames
     light_dist, span : (P,) distance to the light, half-width of the square (tangent units)
     spheres : (N, 4);  exclude : (P,) int64 (-1: none)
+    last : optional (P,) int64, each point's deepest useful level (-1: none; default: depth;
+        :func:`~._visibility.useful_depth`)
     depth : maximal depth;  conservative : keep partly covered cells of the last level
 
     Returns
@@ -348,8 +361,12 @@ def walk_leaves(points, t, b, a, light_dist, span, spheres, exclude, *, depth, c
     f64 = [np.ascontiguousarray(z.detach().cpu().numpy(), dtype=np.float64)
            for z in (points, t, b, a, light_dist, span, spheres.T)]  # fmt: skip
     ex = np.ascontiguousarray(exclude.detach().cpu().numpy(), dtype=np.int64)
-    args = (*f64, ex, int(depth), bool(conservative))
     P = points.shape[0]
+    if last is None:
+        lim = np.full(P, int(depth), dtype=np.int64)
+    else:
+        lim = np.ascontiguousarray(last.detach().cpu().numpy(), dtype=np.int64)
+    args = (*f64, ex, lim, int(depth), bool(conservative))
     leaf_u, leaf_v = np.empty(P * _ROOM, np.float32), np.empty(P * _ROOM, np.float32)
     leaf_level = np.empty(P * _ROOM, dtype=np.int8)
     counts = _walk_all(*args, _ROOM, leaf_u, leaf_v, leaf_level, np.empty(0, dtype=np.int64))
