@@ -228,6 +228,32 @@ def test_shadowed_points_match_monte_carlo(tables):
     assert float(got.radiance[umbra].double().mean()) < 0.3 * float(free[umbra].mean())
 
 
+@pytest.mark.parametrize("fused", [False, True])
+def test_two_lights_shadow_as_the_sum_of_each(tables, fused):
+    """Light is additive: with two lights and occluders, each light's products and shadow
+    leaves are its own, so the radiance is the sum of the two one-light renders (threshold 0:
+    nothing culled; exact up to float rounding wherever neither sum was clamped at 0). Before
+    the ninth session the second light's masks were built from the first light's leaves."""
+    x, n, wo = _plane_points(200, half=1.2)
+    spheres = torch.tensor([[0.0, 0.9, 0.0, 0.4], [0.5, 0.7, 0.3, 0.25], [-0.4, 0.6, 0.2, 0.2]])
+    lights = [
+        C.SphereLight((0.2, 2.5, 0.1), 0.5, (3.0, 3.0, 3.0)),
+        C.SphereLight((-1.0, 3.0, 0.6), 0.3, (6.0, 5.0, 4.0)),
+    ]
+    model = B.Sum(B.Lambert(0.6), B.Phong(0.1, 30.0))
+    kw = dict(spheres=spheres, threshold=0.0, tables=tables, fused=fused)
+    both = C.shade_points(x, n, wo, model, lights, **kw)
+    each = [C.shade_points(x, n, wo, model, lt, **kw) for lt in lights]
+    free = [C.shade_points(x, n, wo, model, lt, tables=tables) for lt in lights]
+    for e, f in zip(each, free, strict=True):  # every light casts shadows here
+        assert int((e.radiance.amax(-1) < 0.5 * f.radiance.amax(-1)).sum()) > 10
+    ok = (each[0].radiance > 0).all(-1) & (each[1].radiance > 0).all(-1)
+    assert int(ok.sum()) > 100
+    total = each[0].radiance + each[1].radiance
+    torch.testing.assert_close(both.radiance[ok], total[ok], rtol=1e-5, atol=1e-6)
+    assert torch.equal(both.leaves, each[0].leaves + each[1].leaves)
+
+
 def test_threshold_culls_products(tables):
     x, n, wo = _plane_points(64)
     spheres = torch.tensor([[0.0, 0.9, 0.0, 0.4], [0.5, 0.7, 0.3, 0.25]])
@@ -321,12 +347,17 @@ def test_useful_depth_bounds_every_leaf_product():
 def test_culled_construction_changes_no_radiance(monkeypatch, tables, fused, mode):
     """Cells whose products all fall below the threshold are not built: the radiance is the
     one of the whole masks, exactly (the shading culls those products anyway), with fewer
-    leaves. The light is dim enough here that deep leaves are culled (the benchmark's case)."""
+    leaves. One light is dim enough that deep leaves are culled (the benchmark's case)."""
     from lobelight.cosine import _visibility
 
     x, n, wo = _plane_points(300, half=1.2)
     spheres = torch.tensor([[0.0, 0.9, 0.0, 0.4], [0.5, 0.7, 0.3, 0.25], [-0.4, 0.6, 0.2, 0.2]])
-    light = C.SphereLight((0.2, 2.5, 0.1), 0.5, (0.8, 0.8, 0.8))
+    # two lights, a dim one (deep cells culled) and a brighter one (fewer culled): each light's
+    # masks get its own bound
+    light = [
+        C.SphereLight((0.2, 2.5, 0.1), 0.5, (0.8, 0.8, 0.8)),
+        C.SphereLight((-1.0, 3.0, 0.6), 0.3, (20.0, 18.0, 16.0)),
+    ]
     model = B.Sum(B.Lambert(0.6), B.Phong(0.1, 30.0))
     kw = dict(spheres=spheres, depth=5, mode=mode, threshold=1e-3, tables=tables, fused=fused)
     cut = C.shade_points(x, n, wo, model, light, **kw)

@@ -283,7 +283,8 @@ def _shade_chunk(
             # one product per (leaf, reflectance lobe) whose m_ij survived the threshold
             products += lv.count * keep[:, :, j].sum(-1)
             cell = leaf_scale == "cell"
-            axis, theta, omega = lv.geometry(solid_angle=cell)  # (L, 3), (L,), (L,)
+            # the leaves' lobes (named apart from the lights' axis and theta of the loop)
+            l_axis, l_theta, l_omega = lv.geometry(solid_angle=cell)  # (L, 3), (L,), (L,)
             # eq. (39)'s weights per point and depth first (P x (depth + 1) lookups), gathered
             # per leaf in the products' loop; calibration wants the unweighted values
             wp = None
@@ -292,9 +293,9 @@ def _shade_chunk(
             val = _shadow_products(
                 lv.point,
                 lv.depth,
-                axis,
-                theta,
-                omega,
+                l_axis,
+                l_theta,
+                l_omega,
                 wp,
                 m.axis.movedim(-1, 0).reshape(3, -1),
                 m.exponent.reshape(-1),
