@@ -248,15 +248,16 @@ def useful_depth(peak: torch.Tensor, span: torch.Tensor, threshold: float, depth
     """The deepest level whose shadow leaves can pass the shading's threshold, per point.
 
     A leaf's product with a lobe ``m`` (``m <= peak`` everywhere) is ``∫ m c_k <= peak ∫ c_k``,
-    and ``∫ c_k`` is at most its bounding cap's solid angle (the scale of :func:`cap_lobe`;
-    the cell's own is smaller). The cap's radius is at most the cell's half-diagonal on the
-    tangent plane, ``sqrt(2) span 2^-d`` at level ``d`` (the gnomonic map from the plane at
-    distance 1 to the sphere shortens every length), so ``∫ c_k <= pi rho^2 = 2 pi span^2
-    4^-d``. Where twice that bound is below the threshold every product of the level is
-    culled, by any table (the factor 2 covers the table's error, ~1e-5 of an integral), and so
-    is every product below it: those cells need not be built. The paper culls products after
-    computing them and finds the masks' construction then bounds the frame rate (its Figure
-    16: half the products culled, +2 fps); this bound culls the construction too.
+    and ``∫ c_k`` is at most its bounding cap's solid angle (the scale of
+    :func:`~._light.cap_lobe`; the cell's own is smaller). The cap's radius is at most the
+    cell's half-diagonal on the tangent plane, ``sqrt(2) span 2^-d`` at level ``d`` (the
+    gnomonic map from the plane at distance 1 to the sphere shortens every length), so
+    ``∫ c_k <= pi rho^2 = 2 pi span^2 4^-d``. Where twice that bound is below the threshold
+    every product of the level is culled, whatever the table's rounding (the factor 2 covers
+    its error: 3e-6 of an integral on average, 4e-4 at most), and so is every product below
+    it: those cells need not be built. The paper culls products after computing them and
+    finds the masks' construction then bounds the frame rate (its Figure 16: half the
+    products culled, +2 fps); this bound culls the construction too.
 
     Parameters
     ----------
