@@ -228,19 +228,27 @@ def test_shadowed_points_match_monte_carlo(tables):
     assert float(got.radiance[umbra].double().mean()) < 0.3 * float(free[umbra].mean())
 
 
+_CLUSTER = torch.tensor([[0.0, 0.9, 0.0, 0.4], [0.5, 0.7, 0.3, 0.25], [-0.4, 0.6, 0.2, 0.2]])
+
+
+def _two_lights_scene(P: int, radiance_a, radiance_b):
+    """Plane points under a cluster of three spheres, two lights of the given radiances, a
+    glossy material."""
+    x, n, wo = _plane_points(P, half=1.2)
+    lights = [
+        C.SphereLight((0.2, 2.5, 0.1), 0.5, radiance_a),
+        C.SphereLight((-1.0, 3.0, 0.6), 0.3, radiance_b),
+    ]
+    return x, n, wo, _CLUSTER, lights, B.Sum(B.Lambert(0.6), B.Phong(0.1, 30.0))
+
+
 @pytest.mark.parametrize("fused", [False, True])
 def test_two_lights_shadow_as_the_sum_of_each(tables, fused):
     """Light is additive: with two lights and occluders, each light's products and shadow
     leaves are its own, so the radiance is the sum of the two one-light renders (threshold 0:
     nothing culled; exact up to float rounding wherever neither sum was clamped at 0). Before
     the ninth session the second light's masks were built from the first light's leaves."""
-    x, n, wo = _plane_points(200, half=1.2)
-    spheres = torch.tensor([[0.0, 0.9, 0.0, 0.4], [0.5, 0.7, 0.3, 0.25], [-0.4, 0.6, 0.2, 0.2]])
-    lights = [
-        C.SphereLight((0.2, 2.5, 0.1), 0.5, (3.0, 3.0, 3.0)),
-        C.SphereLight((-1.0, 3.0, 0.6), 0.3, (6.0, 5.0, 4.0)),
-    ]
-    model = B.Sum(B.Lambert(0.6), B.Phong(0.1, 30.0))
+    x, n, wo, spheres, lights, model = _two_lights_scene(200, (3.0, 3.0, 3.0), (6.0, 5.0, 4.0))
     kw = dict(spheres=spheres, threshold=0.0, tables=tables, fused=fused)
     both = C.shade_points(x, n, wo, model, lights, **kw)
     each = [C.shade_points(x, n, wo, model, lt, **kw) for lt in lights]
@@ -321,7 +329,7 @@ def test_useful_depth_bounds_every_leaf_product():
 
     P = 400
     x, _, _ = _plane_points(P, half=1.2)
-    spheres = torch.tensor([[0.0, 0.9, 0.0, 0.4], [0.5, 0.7, 0.3, 0.25], [-0.4, 0.6, 0.2, 0.2]])
+    spheres = _CLUSTER
     axis, dist, theta = light_geometry(x, [C.SphereLight((0.2, 2.5, 0.1), 0.6, 1.0)])
     lv = C.shadow_leaves(x, axis[:, 0], theta[:, 0], dist[:, 0], spheres, depth=6,
                          mode="conservative")  # fmt: skip
@@ -350,15 +358,9 @@ def test_culled_construction_changes_no_radiance(monkeypatch, tables, fused, mod
     leaves. One light is dim enough that deep leaves are culled (the benchmark's case)."""
     from lobelight.cosine import _visibility
 
-    x, n, wo = _plane_points(300, half=1.2)
-    spheres = torch.tensor([[0.0, 0.9, 0.0, 0.4], [0.5, 0.7, 0.3, 0.25], [-0.4, 0.6, 0.2, 0.2]])
     # two lights, a dim one (deep cells culled) and a brighter one (fewer culled): each light's
     # masks get its own bound
-    light = [
-        C.SphereLight((0.2, 2.5, 0.1), 0.5, (0.8, 0.8, 0.8)),
-        C.SphereLight((-1.0, 3.0, 0.6), 0.3, (20.0, 18.0, 16.0)),
-    ]
-    model = B.Sum(B.Lambert(0.6), B.Phong(0.1, 30.0))
+    x, n, wo, spheres, light, model = _two_lights_scene(300, (0.8,) * 3, (20.0, 18.0, 16.0))
     kw = dict(spheres=spheres, depth=5, mode=mode, threshold=1e-3, tables=tables, fused=fused)
     cut = C.shade_points(x, n, wo, model, light, **kw)
     monkeypatch.setattr(_visibility, "useful_depth", lambda peak, span, t, d: torch.full_like(
