@@ -18,22 +18,30 @@ def run(capsys, *argv) -> tuple[int, dict]:
 
 
 def test_bake_info_render_compare(tmp_path, capsys):
+    import cv2
+
     model = tmp_path / "s.npz"
-    code, bake = run(capsys, "bake", "sphere:1", "-o", model)
+    env = tmp_path / "sky.hdr"  # the model's default lighting, given to the bake
+    sky = np.random.default_rng(0).uniform(0.1, 2.0, (16, 32, 3)).astype(np.float32)
+    assert cv2.imwrite(str(env), sky)
+    code, bake = run(capsys, "bake", "sphere:1", "--env", env, "-o", model)
     assert code == 0 and model.is_file()
     assert not list(tmp_path.glob("*.ckpt*"))  # the checkpoint is gone once the model is whole
     assert {"model", "vertices", "bytes", "relative_l2_error_mean", "seconds"} <= set(bake)
     assert bake["vertices"] == 42 and bake["bytes"] == model.stat().st_size
+    assert bake["environment"] == str(env.resolve())
 
     code, info = run(capsys, "info", model)
     assert code == 0 and info["vertices"] == 42 and info["views"] == 92
     assert info["n_lobes"] == 1 and info["provenance"]["scene"] == "sphere1"
+    assert info["provenance"]["environment"] == str(env.resolve())
 
     png = tmp_path / "r.png"
     code, r = run(
         capsys, "render", model, "-o", png, "--width", 40, "--height", 30, "--base-res", 32
     )
     assert code == 0 and r["output"] == str(png)
+    assert r["environment"] == str(env.resolve())  # the bake's, without --env
     img = np.asarray(Image.open(png))
     assert img.shape == (30, 40, 3) and img.std() > 5  # a picture, not a flat fill
     exr = tmp_path / "r.exr"
@@ -99,6 +107,7 @@ def test_bake_info_render_compare(tmp_path, capsys):
     "argv, what",
     [
         (["bake", "no/such/mesh.ply"], "no/such/mesh.ply"),
+        (["bake", "sphere:1", "--env", "no/such/sky.hdr"], "no/such/sky.hdr"),
         (["info", "missing.npz"], "missing.npz"),
         (["render", "missing.npz"], "missing.npz"),
         (["view", "missing.npz"], "view"),

@@ -10,6 +10,7 @@ problem); 130 interrupted (Ctrl-C; a bake resumes from its checkpoint when run a
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import math
 import os
@@ -80,15 +81,22 @@ def _camera_from(text: str | None, provenance: dict, mesh):
     return _default_camera(mesh)
 
 
+def _env_source(path: str | None, provenance: dict | None = None) -> str:
+    """The environment a command uses: ``--env``, else the model's stored one (a scene file's
+    or ``bake --env``'s) while its file exists, else ``"builtin"``."""
+    if path:
+        return str(path)
+    stored = (provenance or {}).get("environment", "builtin")
+    if isinstance(stored, str) and stored != "builtin" and Path(stored).is_file():
+        return stored
+    return "builtin"
+
+
 def _env(path: str | None, provenance: dict | None = None):
     from .envmap import builtin, load
 
-    if path:
-        return load(path)
-    stored = (provenance or {}).get("environment", "builtin")
-    if isinstance(stored, str) and stored != "builtin" and Path(stored).is_file():
-        return load(stored)
-    return builtin()
+    source = _env_source(path, provenance)
+    return builtin() if source == "builtin" else load(source)
 
 
 # --------------------------------------------------------------------------------------------
@@ -101,6 +109,11 @@ def _cmd_bake(args) -> dict:
 
     prog = _Progress(not args.json)
     sc = load(args.scene, device=args.device)
+    if args.env:  # the model's default lighting (render, view, compare), as a scene file's
+        from .envmap import load as load_env
+
+        load_env(args.env)  # checked at the door: missing, unreadable, NaN/Inf, bad shape
+        sc = dataclasses.replace(sc, environment=str(Path(args.env).resolve()))
     out = Path(args.output) if args.output else Path(f"{Path(str(args.scene)).stem}.lobelight.npz")
     out = Path(str(out).replace(":", "-"))
     ckpt = out.with_name(out.name + ".ckpt")
@@ -123,6 +136,7 @@ def _cmd_bake(args) -> dict:
         "command": "bake",
         "model": str(out),
         "scene": sc.name,
+        "environment": sc.environment,
         "vertices": sc.mesh.n_vertices,
         "n_lobes": args.lobes,
         "bytes": info["bytes"],
@@ -195,6 +209,7 @@ def _cmd_render(args) -> dict:
     return {
         "command": "render",
         "output": str(out),
+        "environment": _env_source(args.env, m.provenance),
         "backend": backend,
         "size": [args.width, args.height],
         "exposure": exposure,
@@ -472,6 +487,11 @@ def _parser() -> argparse.ArgumentParser:
         "built-in name (knot, knot:2, sphere:3)",
     )
     b.add_argument("-o", "--output", help="model file (default: NAME.lobelight.npz)")
+    b.add_argument(
+        "--env",
+        help=".hdr/.exr environment that render, view and compare use by default (the model "
+        "itself relights under any; default: the scene file's, else the built-in sky)",
+    )
     b.add_argument("--lobes", type=int, default=1, choices=[1, 2, 3], help="Gaussians per view")
     b.add_argument(
         "--indirect-paths",
