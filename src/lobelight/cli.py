@@ -219,11 +219,14 @@ def _cmd_render(args) -> dict:
 
 
 def _cmd_view(args) -> dict:
+    from .model import load
     from .render._window import view
 
+    m = load(args.model)  # checked before a window opens; its stored environment is the default
     return view(
-        args.model, env=_env(args.env), width=args.width, height=args.height, sun=not args.no_sun
-    )
+        m, env=_env(args.env, m.provenance), width=args.width, height=args.height,
+        sun=not args.no_sun,
+    )  # fmt: skip
 
 
 def _cmd_compare(args) -> dict:

@@ -48,15 +48,17 @@ def _open_window(width: int, height: int, title: str):
 
 
 def view(model_path, *, env, width: int = 1024, height: int = 768, sun: bool = True) -> dict:
-    """Open the window and run until it is closed; returns frames drawn and the mean fps."""
+    """Open the window and run until it is closed; returns frames drawn and the mean fps.
+
+    ``model_path``: a model file, or a loaded :class:`~lobelight.model.Model`."""
     glfw, win = _open_window(width, height, "lobelight")
     import moderngl
 
-    from ..model import load
+    from ..model import Model, load
     from ._renderer import Renderer
 
     try:
-        model = load(model_path)
+        model = model_path if isinstance(model_path, Model) else load(model_path)
         ctx = moderngl.create_context()
         fb_w, fb_h = glfw.get_framebuffer_size(win)
         ren = Renderer(model, env, fb_w, fb_h, backend="gl", ctx=ctx, sun=sun)
