@@ -6,6 +6,7 @@ import json
 
 import numpy as np
 import pytest
+import torch
 from PIL import Image
 
 from lobelight.cli import main
@@ -148,3 +149,16 @@ def test_a_reader_that_stops_early_is_not_an_error(tmp_path):
     err = p.stderr.read().decode()
     assert p.wait(timeout=120) == 0, err
     assert "Traceback" not in err
+
+
+def test_reference_reports_progress_per_batch():
+    """The path tracer's ``progress`` (the CLI's bars for compare and demo) follows its batches
+    of samples, and changes no sample."""
+    from lobelight import reference, scene
+
+    sc = scene.builtin("sphere", subdivisions=0)
+    calls = []
+    kw = dict(width=12, height=9, spp=5, batch_spp=2, seed=3)
+    img = reference.render(sc, progress=lambda *a: calls.append(a), **kw)
+    assert calls == [("reference", 2, 5), ("reference", 4, 5), ("reference", 5, 5)]
+    assert torch.equal(img, reference.render(sc, **kw))

@@ -635,6 +635,17 @@ def test_version_or_parameter_mismatch_rebuilds(tmp_path):
     assert C.load_tables(path).params == other
 
 
+def test_build_reports_progress_and_is_unchanged_by_it():
+    """``progress(stage, done, total)`` after each chunk of fits, up to every fit; the tables
+    are the same bits with and without it."""
+    calls = []
+    t = C.build_tables(SMALL, chunk=512, progress=lambda *a: calls.append(a))
+    total = t.info["product_fits"]
+    assert len(calls) == -(-total // 512) and {c[0] for c in calls} == {"lobe tables"}
+    assert [c[1] for c in calls] == sorted(c[1] for c in calls) and calls[-1][1:] == (total,) * 2
+    assert torch.equal(t.product_table, C.build_tables(SMALL, chunk=512).product_table)
+
+
 @pytest.mark.parametrize("damage", ["garbage", "truncated", "missing", "shape", "header"])
 def test_corrupt_file_raises_naming_it(tmp_path, damage):
     path = tmp_path / "tables.npz"

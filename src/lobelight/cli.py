@@ -220,8 +220,9 @@ def _cmd_render(args) -> dict:
 
 def _cmd_view(args) -> dict:
     from .model import load
-    from .render._window import view
+    from .render._window import require_display, view
 
+    require_display()  # no model is loaded where no window can open
     m = load(args.model)  # checked before a window opens; its stored environment is the default
     return view(
         m, env=_env(args.env, m.provenance), width=args.width, height=args.height,
@@ -261,6 +262,7 @@ def _cmd_compare(args) -> dict:
             out=args.out,
             device=args.device,
             sun=not args.no_sun,
+            progress=_Progress(not args.json),
         ),
     }
 
@@ -293,7 +295,12 @@ def _cmd_lobes_demo(args) -> dict:
     return {
         "command": "lobes-demo",
         **lobes_demo(
-            args.out, frames=args.frames, size=args.size, device=args.device, fused=args.fused
+            args.out,
+            frames=args.frames,
+            size=args.size,
+            device=args.device,
+            fused=args.fused,
+            progress=_Progress(not args.json),
         ),
     }
 
@@ -379,6 +386,7 @@ def _cmd_demo(args) -> dict:
         baselines=("linear",),
         out=out / "compare",
         sun=not args.no_sun,
+        progress=prog,
     )
     total = time.perf_counter() - t0
     rows = "\n".join(

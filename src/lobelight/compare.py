@@ -147,6 +147,7 @@ def compare(
     device=None,
     seed: int = 0,
     sun: bool = True,
+    progress=None,
 ) -> dict[str, Any]:
     """Render ``scene``'s model and the baselines, score them against the reference.
 
@@ -161,6 +162,7 @@ def compare(
     sun : shade the map's sun per pixel with shadows (:class:`Lighting`: its diffuse light,
         and its glossy light where the BRDF allows); the paper's lighting (the sun in the SH
         diffuse and in the Gaussians' lighting) is then scored too, as ``ours_sh_diffuse``
+    progress : optional ``progress(stage, done, total)`` for the reference renders
 
     Returns
     -------
@@ -202,11 +204,17 @@ def compare(
     ref_env = env if light_rotation is None else env.rotate(rot)
     t = time.perf_counter()
     kw = dict(width=width, height=height, spp=spp, max_depth=2, seed=seed, jitter=False)
-    ref_full, err_full = reference.render(scene, ref_env, camera, return_stderr=True, **kw)
+
+    def step(name):  # one progress bar per reference image
+        return None if progress is None else (lambda _, done, total: progress(name, done, total))
+
+    ref_full, err_full = reference.render(
+        scene, ref_env, camera, return_stderr=True, progress=step("reference"), **kw
+    )
     dark = dataclasses.replace(scene.materials, diffuse=torch.zeros_like(scene.materials.diffuse))
     glossy_scene = dataclasses.replace(scene, materials=dark)
     ref_glossy, err_glossy = reference.render(
-        glossy_scene, ref_env, camera, return_stderr=True, **kw
+        glossy_scene, ref_env, camera, return_stderr=True, progress=step("reference, glossy"), **kw
     )
     timings["reference"] = time.perf_counter() - t
     mask = mask.cpu()

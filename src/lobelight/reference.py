@@ -189,6 +189,7 @@ def render(
     batch_spp: int | None = None,
     return_stderr: bool = False,
     jitter: bool = True,
+    progress=None,
 ):
     """Render an image by path tracing.
 
@@ -200,6 +201,8 @@ def render(
     return_stderr : also return the per-pixel standard error of the mean
     jitter : spread each pixel's samples over the pixel (box filter); False traces every
         sample through the pixel centre, as a rasteriser shades (for pixel-exact comparisons)
+    progress : optional ``progress(stage, done, total)`` called after each batch of samples
+        (``stage`` "reference", counting samples per pixel)
 
     Returns
     -------
@@ -251,6 +254,8 @@ def render(
         s1 += val.sum(0)
         s2 += (val * val).sum(0)
         done += k
+        if progress is not None:
+            progress("reference", done, spp)
     mean = s1 / spp
     img = mean.reshape(height, width, 3)
     if not return_stderr:

@@ -24,6 +24,7 @@ from ..errors import InputError
 from ._light import SphereLight
 from ._scene import _TILT, default_scene, gbuffer, rotation_about_y
 from ._shade import shade_points
+from ._tables import get_tables
 
 __all__ = ["false_colour", "lobes_demo"]
 
@@ -67,11 +68,13 @@ def lobes_demo(
     depth: int = 5,
     threshold: float = 1e-3,
     fused: bool = False,
+    progress=None,
 ) -> dict:
     """Render ``frames`` frames of ``size x size`` into the folder ``out``.
 
     ``fused`` shades with the compiled kernels (:mod:`._fused`): worth its compile time (up to a
-    minute, once per process) for long sequences or large frames.
+    minute, once per process) for long sequences or large frames. ``progress(stage, done,
+    total)``, optional, follows the tables' build (the first run on a machine) and the frames.
 
     Returns
     -------
@@ -84,6 +87,7 @@ def lobes_demo(
         raise InputError("size", f"must be >= 8, got {size!r}")
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
+    get_tables(device=device, progress=progress)  # built once per machine, then read
     base = default_scene()
     light0 = base.lights[0]
     paths, images, shade_s, total_s, prods = [], [], [], [], []
@@ -138,6 +142,8 @@ def lobes_demo(
             product_img = out / "products_frame_000.png"
             _save_png(false_colour(counts.reshape(H, W)), product_img)
         shade_s.append(t2 - t1)
+        if progress is not None:
+            progress("frames", f + 1, int(frames))
         total_s.append(time.perf_counter() - t0)
     gif = None
     try:

@@ -300,9 +300,9 @@ def _default_chunk(device: torch.device) -> int:
     return 4096 if device.type == "cpu" else 1 << 17
 
 
-def _fit_flat(e1, e2, alpha, *, nodes: int, chunk: int | None = None):
+def _fit_flat(e1, e2, alpha, *, nodes: int, chunk: int | None = None, progress=None):
     """:func:`_fit_chunk` over (m,) float64 entries in chunks. Entries at ``alpha = pi`` (empty
-    lune) get ``q = 0``, ``e_r = e1 + e2``."""
+    lune) get ``q = 0``, ``e_r = e1 + e2``. ``progress(stage, done, total)`` after each chunk."""
     m = e1.numel()
     chunk = chunk or _default_chunk(e1.device)
     out = [torch.empty(m, dtype=_F64, device=e1.device) for _ in range(5)]
@@ -319,6 +319,8 @@ def _fit_flat(e1, e2, alpha, *, nodes: int, chunk: int | None = None):
         out[3][sl] = torch.where(empty, 0.0, rel)
         out[4][sl] = torch.where(empty, -math.inf, mass)
         unconverged += bad
+        if progress is not None:
+            progress("lobe tables", min(i + chunk, m), m)
     return (*out, unconverged)
 
 
@@ -659,6 +661,7 @@ def build_tables(
     device: Any = "cpu",
     chunk: int | None = None,
     threads: int | None = 1,
+    progress=None,
 ) -> LobeTables:
     """Fit every table entry (float64, vectorised, in cache-sized chunks) on ``device``.
 
@@ -671,6 +674,7 @@ def build_tables(
         build is thousands of small tensor operations, for which a second thread gains little
         on an idle machine and, measured on the shared 2-core machine, costs 5-20x when other
         processes keep the cores busy.
+    progress : optional ``progress(stage, done, total)`` after each chunk of product fits
 
     Returns
     -------
@@ -679,10 +683,10 @@ def build_tables(
     p = params or TableParams()
     dev = torch.device(device)
     with _cpu_threads(threads if dev.type == "cpu" else None):
-        return _build(p, dev, chunk)
+        return _build(p, dev, chunk, progress)
 
 
-def _build(p: TableParams, dev: torch.device, chunk: int | None) -> LobeTables:
+def _build(p: TableParams, dev: torch.device, chunk: int | None, progress=None) -> LobeTables:
     t0 = time.perf_counter()
     ex = p.exponent_nodes(device=dev)  # (n,)
     angles = p.angle_nodes(device=dev)  # (na,)
@@ -693,7 +697,9 @@ def _build(p: TableParams, dev: torch.device, chunk: int | None) -> LobeTables:
     e1 = ex[r].repeat_interleave(na - 1)  # (pairs * (na - 1),) pair-major
     e2 = ex[c].repeat_interleave(na - 1)
     al = inner.repeat(pairs)
-    _, q, e, _, mass, bad = _fit_flat(e1, e2, al, nodes=p.quad_nodes, chunk=chunk)
+    _, q, e, _, mass, bad = _fit_flat(
+        e1, e2, al, nodes=p.quad_nodes, chunk=chunk, progress=progress
+    )
     rho = torch.log((e + 1) / (e1 + e2 + 1))
     # log(∫ c1 c2 / ∫ c_r), with ∫ c_r = peak q 2 pi / (e_r + 1)
     ratio = mass - torch.log(q) - _LOG_2PI + torch.log(e + 1)
@@ -844,7 +850,11 @@ _MEMO: dict[tuple, LobeTables] = {}
 
 
 def get_tables(
-    *, path: str | os.PathLike | None = None, params: TableParams | None = None, device: Any = None
+    *,
+    path: str | os.PathLike | None = None,
+    params: TableParams | None = None,
+    device: Any = None,
+    progress=None,
 ) -> LobeTables:
     """The tables, from memory, else from the disk cache, else built (and cached) now.
 
@@ -856,6 +866,7 @@ def get_tables(
     path : the ``.npz`` (default :func:`default_path`)
     params : grid resolution (default :class:`TableParams`)
     device : where the returned tensors live (default CPU)
+    progress : optional ``progress(stage, done, total)`` while the tables are built
     """
     p = params or TableParams()
     path = Path(path) if path is not None else default_path()
@@ -870,7 +881,7 @@ def get_tables(
         if version == FORMAT_VERSION and stored == p.to_dict():
             tables = _from_arrays(arrays, stored, path)
     if tables is None:
-        tables = build_tables(p)
+        tables = build_tables(p, progress=progress)
         save_tables(tables, path)
     tables = tables.to(dev)
     _MEMO[key] = tables

@@ -21,7 +21,9 @@ __all__ = ["view"]
 _OFFSCREEN = "render offscreen instead: lobelight render MODEL -o image.png"
 
 
-def _open_window(width: int, height: int, title: str):
+def require_display():
+    """glfw, or one clear error when no window can be opened here (checked before a model is
+    loaded)."""
     try:
         import glfw
     except ImportError:
@@ -32,6 +34,11 @@ def _open_window(width: int, height: int, title: str):
         raise InputError(
             "view", f"no display to open a window on (DISPLAY is not set); {_OFFSCREEN}"
         )
+    return glfw
+
+
+def _open_window(width: int, height: int, title: str):
+    glfw = require_display()
     if not glfw.init():
         raise InputError("view", f"cannot initialise the window system; {_OFFSCREEN}")
     glfw.window_hint(glfw.CONTEXT_VERSION_MAJOR, 3)
