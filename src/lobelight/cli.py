@@ -29,6 +29,8 @@ class _Progress:
     """``progress(stage, done, total)`` callbacks drawn as tqdm bars on stderr (rates, ETA);
     silent with ``--json`` or when stderr is not a terminal."""
 
+    UNITS = {"frames": "frame", "lobe tables": "fit"}  # what a stage counts (else chunks)
+
     def __init__(self, enabled: bool):
         self.enabled = enabled and sys.stderr.isatty()
         self.bars: dict[str, object] = {}
@@ -40,7 +42,8 @@ class _Progress:
 
         bar = self.bars.get(stage)
         if bar is None:
-            bar = self.bars[stage] = tqdm(total=total, desc=stage, unit="chunk", leave=False)
+            unit = "spp" if stage.startswith("reference") else self.UNITS.get(stage, "chunk")
+            bar = self.bars[stage] = tqdm(total=total, desc=stage, unit=unit, leave=False)
         bar.n = done
         bar.refresh()
         if done >= total:
