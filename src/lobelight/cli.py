@@ -17,6 +17,7 @@ import os
 import sys
 import time
 from pathlib import Path
+from typing import ClassVar
 
 __all__ = ["main"]
 
@@ -29,7 +30,7 @@ class _Progress:
     """``progress(stage, done, total)`` callbacks drawn as tqdm bars on stderr (rates, ETA);
     silent with ``--json`` or when stderr is not a terminal."""
 
-    UNITS = {"frames": "frame", "lobe tables": "fit"}  # what a stage counts (else chunks)
+    UNITS: ClassVar[dict[str, str]] = {"frames": "frame", "lobe tables": "fit"}  # else chunks
 
     def __init__(self, enabled: bool):
         self.enabled = enabled and sys.stderr.isatty()
