@@ -30,7 +30,10 @@ class _Progress:
     """``progress(stage, done, total)`` callbacks drawn as tqdm bars on stderr (rates, ETA);
     silent with ``--json`` or when stderr is not a terminal."""
 
-    UNITS: ClassVar[dict[str, str]] = {"frames": "frame", "lobe tables": "fit"}  # else chunks
+    # what a stage counts (else chunks)
+    UNITS: ClassVar[dict[str, str]] = {
+        "frames": "frame", "lobe tables": "fit", "reference": "spp", "reference, glossy": "spp",
+    }  # fmt: skip
 
     def __init__(self, enabled: bool):
         self.enabled = enabled and sys.stderr.isatty()
@@ -43,7 +46,7 @@ class _Progress:
 
         bar = self.bars.get(stage)
         if bar is None:
-            unit = "spp" if stage.startswith("reference") else self.UNITS.get(stage, "chunk")
+            unit = self.UNITS.get(stage, "chunk")
             bar = self.bars[stage] = tqdm(total=total, desc=stage, unit=unit, leave=False)
         bar.n = done
         bar.refresh()
