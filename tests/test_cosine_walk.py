@@ -133,9 +133,8 @@ def test_walk_finds_the_flat_lists_leaves(mode, depth):
     assert bool((walked.point[1:] >= walked.point[:-1]).all())
     # the leaves' float32 solid angles (the shading's) sum as float64 ones of the same cells:
     # relative error of a few float32 roundings per leaf
-    same = torch.tensor(
-        [a == b for a, b in zip(_cells_per_point(flat, n), _cells_per_point(walked, n))]
-    )
+    cf, cw = _cells_per_point(flat, n), _cells_per_point(walked, n)
+    same = torch.tensor([a == b for a, b in zip(cf, cw, strict=True)])
     gb = walked.geometry()
     assert bool(torch.isfinite(gb[1]).all()) and bool((gb[1] > 0).all())
     oa = _solid_angle(flat, flat, n)
