@@ -10,6 +10,7 @@ from collections.abc import Callable
 import torch
 
 from .. import __version__
+from ..progress import resolve
 from ..scene import Scene
 from ._floodfill import fit_mesh
 from ._objective import Weights
@@ -27,13 +28,17 @@ def fit_model(
     batch: int | None = None,
     indirect_paths: int = 0,
     relax: bool = True,
-    progress: Callable[[str, int, int], None] | None = None,
+    progress: bool | Callable[[str, int, int], None] | None = True,
     seed: int = 0,
     checkpoint: str | os.PathLike | None = None,
     shadows: bool = True,
 ):
     """Fit the glossy transport of every vertex with ``n_lobes`` Gaussians per view, and its
     SH diffuse transfer (:func:`fit_mesh`), and wrap the result as a model.
+
+    ``progress``: True reports each stage on stderr (bars on a terminal, plain lines
+    elsewhere: :mod:`lobelight.progress`), None or False is silent, a callable
+    ``progress(stage, done, total)`` is called after each chunk.
 
     Returns
     -------
@@ -54,7 +59,7 @@ def fit_model(
         indirect_paths=indirect_paths,
         relax=relax,
         device=device,
-        progress=progress,
+        progress=resolve(progress),
         seed=seed,
         checkpoint=checkpoint,
         shadows=shadows,
