@@ -334,6 +334,23 @@ def _need(cond: bool, name: str, problem: str) -> None:
         raise InputError(name, problem)
 
 
+def _is_zip(path: Path) -> bool:
+    """Whether the file starts as a zip archive (a model file is an ``.npz``)."""
+    try:
+        with path.open("rb") as f:
+            return f.read(4) in (b"PK\x03\x04", b"PK\x05\x06")
+    except OSError:
+        return False
+
+
+def _not_a_model(path: Path) -> str:
+    """The problem with a file that is not a model, with what to do when it is a mesh/scene."""
+    ext = path.suffix.lower()
+    if ext in (".ply", ".obj", ".stl", ".glb", ".gltf", ".off", ".toml", ".json"):
+        return f"not a lobelight model ({ext} is a mesh or scene: bake it first, lobelight bake)"
+    return "not a lobelight model file (not an .npz archive)"
+
+
 def load(path, *, device=None) -> Model:
     """Read and check a model file.
 
@@ -347,6 +364,7 @@ def load(path, *, device=None) -> Model:
     name = str(p)
     if not p.is_file():
         raise InputError(name, "no such file")
+    _need(_is_zip(p), name, _not_a_model(p))
     try:
         z = np.load(p, allow_pickle=False)
         # a bare .npy file loads as an array: not an archive of arrays
