@@ -35,6 +35,7 @@ import dataclasses
 import json
 import math
 import os
+import tempfile
 import time
 from pathlib import Path
 from typing import Any
@@ -43,12 +44,39 @@ import torch
 
 from . import reference, sh, sphere
 from .camera import Camera
+from .progress import resolve
 from .raycast import RayCaster
 from .render import Lighting, Renderer, as_rotation, auto_exposure, save_image
 from .render._gl import gl_available
 from .transport import Transport
 
+#: The factor of the difference images.
+DIFF_SCALE = 4
+
 __all__ = ["compare", "psnr", "psnr_display", "relative_l2"]
+
+
+#: What each score and picture of a comparison means (also in ``compare.json``).
+LEGEND = {
+    "psnr_display": "dB, displayed images: both with the reference's exposure, clipped to "
+    "[0, 1], sRGB-encoded, peak 1; what a viewer compares",
+    "psnr": "dB, linear radiance, peak = the reference's brightest object pixel (a sun's "
+    "reflection makes it large and this figure generous)",
+    "rel_l2": "|ours - reference| / |reference|, linear radiance over object pixels",
+    "reference_noise": "the reference's mean standard error / its mean (Monte Carlo noise)",
+    "reference_noise_psnr": "dB, the linear PSNR that the reference's own noise allows: scores "
+    "near it are limited by the reference, not the model (raise --spp)",
+    "diff images": f"|image - reference| x {DIFF_SCALE} over object pixels, at the "
+    "reference's exposure",
+}
+
+
+def _noise_psnr(ref: torch.Tensor, stderr: torch.Tensor, mask: torch.Tensor) -> float:
+    """The linear PSNR of a perfect image against a reference with per-pixel standard errors
+    ``stderr``: ``peak^2 / mean(stderr^2)`` over ``mask``."""
+    var = float((stderr[mask].double() ** 2).mean())
+    peak = float(ref[mask].double().max())
+    return math.inf if var == 0 else 10 * math.log10(peak * peak / var)
 
 
 def psnr(img: torch.Tensor, ref: torch.Tensor, mask: torch.Tensor) -> float:
@@ -147,7 +175,7 @@ def compare(
     device=None,
     seed: int = 0,
     sun: bool = True,
-    progress=None,
+    progress=True,
 ) -> dict[str, Any]:
     """Render ``scene``'s model and the baselines, score them against the reference.
 
@@ -162,7 +190,8 @@ def compare(
     sun : shade the map's sun per pixel with shadows (:class:`Lighting`: its diffuse light,
         and its glossy light where the BRDF allows); the paper's lighting (the sun in the SH
         diffuse and in the Gaussians' lighting) is then scored too, as ``ours_sh_diffuse``
-    progress : optional ``progress(stage, done, total)`` for the reference renders
+    progress : True (stderr), None/False (silent) or ``progress(stage, done, total)``, for
+        the fit and the reference renders (:mod:`lobelight.progress`)
 
     Returns
     -------
@@ -171,13 +200,14 @@ def compare(
     """
     from .fit import fit_model
 
+    progress = resolve(progress)
     t0 = time.perf_counter()
     timings: dict[str, float] = {}
     env = scene.load_environment() if env is None else env
     rot = as_rotation(light_rotation)
     camera = scene.camera
     if model is None:
-        model = fit_model(scene, n_lobes, device=device)
+        model = fit_model(scene, n_lobes, device=device, progress=progress)
         timings["fit"] = time.perf_counter() - t0
     lighting = Lighting(env, base_res=base_res, device=model.device, sun=sun)
     # the paper's lighting (all of it in the SH diffuse), sharing the prefiltered chain
@@ -251,7 +281,9 @@ def compare(
         elif name == "sh10":
             g = sh_glossy(scene, model, lighting, camera, rot, tri, bary)
         elif name == "no_visibility":
-            nv = fit_model(scene, model.n_lobes, device=model.device, shadows=False)
+            nv = fit_model(
+                scene, model.n_lobes, device=model.device, shadows=False, progress=progress
+            )
             r2 = Renderer(nv, plain, width, height, backend=backend)  # no shadows at all
             g = r2.render(camera, rot, diffuse=False, background=False).cpu()
             # unshadowed diffuse as well: plain environment mapping has no visibility at all
@@ -289,7 +321,9 @@ def compare(
             "irradiance": lighting.sun.irradiance.tolist(),
         },
         "table": rows,
+        "legend": LEGEND,
         "reference_noise": noise,
+        "reference_noise_psnr": _noise_psnr(ref_full, err_full, mask),
         "object_pixels": int(mask.sum()),
         "seconds": {**timings, "total": time.perf_counter() - t0},
     }
@@ -306,13 +340,14 @@ def _write(out: Path, images: dict, mask, result: dict) -> dict[str, str]:
         paths[k] = str(save_image(out / f"{k}.png", img, exposure=exposure))
         if k in ("ours", "reference"):
             save_image(out / f"{k}.exr", img)
-    # difference images, scaled by 4 so that small errors show
+    # difference images, scaled so that small errors show (LEGEND)
     for k in ("ours", "ours_sh_diffuse", "linear", "no_visibility", "sh10"):
         if k in images:
-            diff = (images[k] - images["reference"]).abs() * mask[..., None] * 4
+            diff = (images[k] - images["reference"]).abs() * mask[..., None] * DIFF_SCALE
             paths[f"diff_{k}"] = str(save_image(out / f"diff-{k}.png", diff, exposure=exposure))
     result = {**result, "images": paths}
-    tmp = out / "compare.json.tmp"
-    tmp.write_text(json.dumps(result, indent=2))
+    fd, tmp = tempfile.mkstemp(dir=out, prefix=".compare.json.", suffix=".tmp")
+    with os.fdopen(fd, "w") as f:
+        f.write(json.dumps(result, indent=2, default=str))
     os.replace(tmp, out / "compare.json")
     return paths
