@@ -5,15 +5,43 @@
 - :class:`Mesh` welded, cleaned triangles with area-weighted vertex normals and CSR adjacency;
   :func:`load_mesh` / :func:`mesh_from_arrays` check their input and name the problem.
 - :class:`Materials` Lambert albedo plus one specular model of :mod:`lobelight.brdf` with
-  per-vertex parameters; :func:`uniform` and :func:`gradient` build them from plain specs.
+  per-vertex parameters; :func:`uniform` and :func:`gradient` build them from plain specs,
+  :func:`parse_material` from a one-line spec (``"ggx:alpha=0.1,diffuse=0.5"``).
+
+The scene-file format is described in docs/scene-format.md.
 """
 
-from ._materials import SPECULAR_MODELS, Materials, gradient, uniform
-from ._mesh import Mesh, load_mesh, mesh_from_arrays, triangle_areas
-from ._scene import BUILTIN_SCENES, Scene, builtin, load
+from ._materials import (
+    LOBE_PARAMS,
+    MODEL_PARAMS,
+    SPECULAR_MODELS,
+    Materials,
+    gradient,
+    material_table,
+    parse_material,
+    uniform,
+)
+from ._mesh import MESH_SUFFIXES, Mesh, load_mesh, mesh_from_arrays, triangle_areas
+from ._scene import (
+    BARE_MESH_MATERIAL,
+    BUILTIN_SCENES,
+    GRADIENT_KEYS,
+    SCENE_FILE_MATERIAL,
+    SCENE_KEYS,
+    Scene,
+    builtin,
+    load,
+)
 
 __all__ = [
+    "BARE_MESH_MATERIAL",
     "BUILTIN_SCENES",
+    "GRADIENT_KEYS",
+    "LOBE_PARAMS",
+    "MESH_SUFFIXES",
+    "MODEL_PARAMS",
+    "SCENE_FILE_MATERIAL",
+    "SCENE_KEYS",
     "SPECULAR_MODELS",
     "Materials",
     "Mesh",
@@ -22,7 +50,9 @@ __all__ = [
     "gradient",
     "load",
     "load_mesh",
+    "material_table",
     "mesh_from_arrays",
+    "parse_material",
     "triangle_areas",
     "uniform",
 ]

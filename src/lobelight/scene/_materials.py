@@ -11,26 +11,63 @@ Material specs (scene files, built-ins) are plain mappings::
 
     {"diffuse": [0.7, 0.6, 0.1], "model": "ggx", "specular": [0.9, 0.9, 0.9], "alpha": 0.05}
 
-``model`` may be omitted (or "none") for a purely diffuse material. A gradient blends two specs
-along a direction: colours linearly, positive shape parameters (exponents, roughness)
-geometrically, which is how their perceived sharpness changes.
+``model`` may be omitted (or "none") for a purely diffuse material; :data:`MODEL_PARAMS` lists
+the other keys of each model. A gradient blends two specs along a direction: colours linearly,
+positive shape parameters (exponents, roughness) geometrically, which is how their perceived
+sharpness changes. :func:`parse_material` reads the same spec from a one-line string (a bare
+mesh's ``--material``), e.g. ``"ggx:alpha=0.1,specular=0.04,diffuse=0.5,0.5,0.5"``.
 """
 
 from __future__ import annotations
 
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any
 
+import numpy as np
 import torch
 
 from .. import brdf as _brdf
 from ..errors import InputError
 
-__all__ = ["SPECULAR_MODELS", "Materials", "gradient", "uniform"]
+__all__ = [
+    "LOBE_PARAMS",
+    "MODEL_PARAMS",
+    "SPECULAR_MODELS",
+    "Materials",
+    "gradient",
+    "material_table",
+    "parse_material",
+    "uniform",
+]
 
 #: Specular models a material may use (keys of :func:`lobelight.brdf.from_dict`).
 SPECULAR_MODELS = ("phong", "blinn_phong", "ward", "lafortune", "ggx", "beckmann")
+_NUMBER, _COLOUR, _LOBES = "number", "colour", "lobes"
+_MICROFACET = {
+    "alpha": _NUMBER,
+    "alpha_u": _NUMBER,
+    "alpha_v": _NUMBER,
+    "eta": _COLOUR,
+    "k": _COLOUR,
+    "specular": _COLOUR,
+}
+#: The keys of a material spec besides ``diffuse`` and ``model``, per specular model (the
+#: arguments of its :mod:`lobelight.brdf` constructor), and what each takes: ``"number"`` one
+#: number, ``"colour"`` one number (grey) or an RGB triple, ``"lobes"`` a list of
+#: :data:`LOBE_PARAMS` tables.
+MODEL_PARAMS: dict[str, dict[str, str]] = {
+    "phong": {"specular": _COLOUR, "exponent": _NUMBER},
+    "blinn_phong": {"specular": _COLOUR, "exponent": _NUMBER},
+    "ward": {"specular": _COLOUR, "alpha_x": _NUMBER, "alpha_y": _NUMBER},
+    "lafortune": {"lobes": _LOBES},
+    "ggx": _MICROFACET,
+    "beckmann": _MICROFACET,
+}
+#: The keys of one Lafortune lobe and what each takes (as :data:`MODEL_PARAMS`).
+LOBE_PARAMS = {"cx": _NUMBER, "cy": _NUMBER, "cz": _NUMBER, "exponent": _NUMBER, "rho": _COLOUR}
+#: Names a material spec string may give for a material with no specular lobe.
+_DIFFUSE_MODELS = ("diffuse", "none")
 #: Parameters interpolated geometrically in a gradient (all others linearly).
 _GEOMETRIC = {"exponent", "alpha", "alpha_u", "alpha_v", "alpha_x", "alpha_y"}
 
@@ -151,7 +188,51 @@ def _split_spec(spec: Mapping[str, Any], name: str) -> tuple[torch.Tensor, str, 
         raise InputError(f"{name}.model", f"unknown model {model!r}; use one of {SPECULAR_MODELS}")
     if model == "none" and spec:
         raise InputError(f"{name}.{sorted(spec)[0]}", "given without a specular model")
+    if model != "none":
+        _check_counts(spec, MODEL_PARAMS[model], name, model)
+        lobes = spec.get("lobes")
+        if isinstance(lobes, Sequence) and not isinstance(lobes, str):
+            for j, lobe in enumerate(lobes):
+                if isinstance(lobe, Mapping):  # other shapes: the BRDF names the problem
+                    _check_counts(lobe, LOBE_PARAMS, f"{name}.lobes[{j}]", "a lobe")
     return diffuse, model, spec
+
+
+def _shape(value: Any) -> tuple[int, ...] | None:
+    """The array shape of a number, list or array; None for what is neither (left to the BRDF
+    to name), without converting values (an integer beyond the float range stays one)."""
+    if isinstance(value, torch.Tensor | np.ndarray):
+        return tuple(value.shape)
+    if isinstance(value, str | bytes | Mapping):
+        return None
+    if isinstance(value, Sequence):
+        if not value:
+            return (0,)
+        inner = {_shape(v) for v in value}
+        return (len(value), *inner.pop()) if len(inner) == 1 and None not in inner else None
+    return ()
+
+
+def _check_counts(params: Mapping[str, Any], known: Mapping[str, str], name: str, of: str) -> None:
+    """Every key of ``params`` is one of ``known`` and holds one number (or RGB triple)."""
+    for key, value in params.items():
+        if key not in known:
+            raise InputError(
+                f"{name}.{key}", f"is not a parameter of {of} (known: {', '.join(known)})"
+            )
+        shape, kind = _shape(value), known[key]
+        if shape is None or kind == _LOBES:
+            continue
+        if kind == _NUMBER and shape != ():
+            raise InputError(f"{name}.{key}", f"takes one number, got {_count(shape)}")
+        if kind == _COLOUR and shape not in ((), (3,)):
+            raise InputError(
+                f"{name}.{key}", f"takes one number or an RGB triple, got {_count(shape)}"
+            )
+
+
+def _count(shape: tuple[int, ...]) -> str:
+    return f"{shape[0]} values" if len(shape) == 1 else f"an array of shape {shape}"
 
 
 def _make(model: str, params: Mapping[str, Any], name: str) -> _brdf.BRDF:
@@ -213,3 +294,168 @@ def gradient(
         else:
             params[key] = (1 - tt) * va + tt * vb
     return Materials(diffuse, _make(model, params, name))
+
+
+# --------------------------------------------------------------------------------------------
+# one-line material specs
+
+
+def material_table(spec: str, *, what: str = "--material") -> dict[str, Any]:
+    """The material table (as a scene file's ``[material]``) that a one-line spec stands for.
+
+    ``spec`` is ``[MODEL:]KEY=VALUES,KEY=VALUES,...`` where ``VALUES`` is one number or several
+    separated by commas (a comma followed by a number continues the previous key). ``MODEL`` is
+    a specular model of :data:`SPECULAR_MODELS`, or ``diffuse`` / ``none`` for no specular lobe
+    (then ``color`` is another name for ``diffuse``); without it the spec may name it as
+    ``model=NAME`` and is diffuse otherwise. A bare ``MODEL`` takes that model's defaults. The
+    keys are those of :data:`MODEL_PARAMS` plus ``diffuse``; a Lafortune lobe is
+    ``lobe=cx,cy,cz,exponent,rho`` (7 numbers for an RGB ``rho``), once per lobe. Examples::
+
+        "ggx:alpha=0.05,specular=0.9,0.8,0.6"      -> a coloured GGX metal (black diffuse)
+        "ggx:alpha=0.1,specular=0.04,diffuse=0.5"   -> grey plastic
+        "diffuse=0.7,0.7,0.7" or "diffuse:color=0.7" -> Lambert only
+        "phong:exponent=100,specular=0.5,diffuse=0.2,0.3,0.6"
+        "lafortune:diffuse=0.3,lobe=-1,-1,1,30,0.6,lobe=0,0,1,5,0.05"
+
+    Values are checked by :func:`parse_material` (or :func:`uniform`), as a scene file's are;
+    here only the syntax, the model and the keys are.
+
+    Raises
+    ------
+    InputError
+        naming ``what`` for an empty spec, an unknown model or key, a repeated key, a value
+        that is not a number, or a lobe without 5 or 7 numbers.
+    """
+    if not isinstance(spec, str):
+        raise InputError(what, f"must be a string, got {type(spec).__name__}")
+    text = spec.strip()
+    if not text:
+        raise InputError(what, "is empty; give e.g. 'ggx:alpha=0.1,diffuse=0.5'")
+    head, colon, rest = text.partition(":")
+    if colon and "=" not in head:  # MODEL:KEY=VALUES,...
+        model, body = head.strip().lower(), rest
+    elif "=" in text:  # KEY=VALUES,...
+        model, body = "", text
+    else:  # a bare model name
+        model, body = text.lower(), ""
+    items = _spec_items(body, what) if body.strip() else {}
+    if "model" in items:
+        given = items.pop("model")
+        if model and given != model:
+            raise InputError(what, f"names the model twice ({model!r} and {given!r})")
+        model = str(given)
+    if model in _DIFFUSE_MODELS or not model:
+        model = "none"
+        known_keys = {"diffuse", "color"}
+    elif model in SPECULAR_MODELS:
+        known_keys = {"diffuse", *MODEL_PARAMS[model]} - {"lobes"}
+        if model == "lafortune":
+            known_keys.add("lobe")
+    else:
+        known = ", ".join((*SPECULAR_MODELS, *_DIFFUSE_MODELS))
+        raise InputError(what, f"unknown model {model!r}; use one of {known}")
+    for key in items:
+        if key not in known_keys:
+            of = "a diffuse material" if model == "none" else model
+            raise InputError(
+                what, f"unknown key {key!r} for {of} (known: {', '.join(sorted(known_keys))})"
+            )
+    if "color" in items:  # the diffuse model's one colour
+        if "diffuse" in items:
+            raise InputError(what, "gives both color and diffuse")
+        items["diffuse"] = items.pop("color")
+    table: dict[str, Any] = {}
+    if "diffuse" in items:
+        table["diffuse"] = _one_or_list(items.pop("diffuse"))
+    if model != "none":
+        table["model"] = model
+    lobes = items.pop("lobe", None)
+    if lobes is not None:
+        table["lobes"] = [_lobe(v, j, what) for j, v in enumerate(lobes)]
+    table.update({k: _one_or_list(v) for k, v in items.items()})
+    return table
+
+
+def _spec_items(text: str, what: str) -> dict[str, Any]:
+    """``key=v,v,key=v`` -> ``{key: [v, v], ...}`` (``lobe`` may repeat: a list of lists;
+    ``model`` keeps its name)."""
+    items: dict[str, Any] = {}
+    key = None
+    for token in (t.strip() for t in text.split(",")):
+        if "=" in token:
+            key, _, value = (part.strip() for part in token.partition("="))
+            key = key.lower()
+            if not key:
+                raise InputError(what, f"a value without a key in {token!r}")
+            if key == "model":
+                if not value:
+                    raise InputError(what, "model= needs a model name")
+                items["model"] = value.lower()
+                key = None  # the model takes one name, not numbers
+                continue
+            if key in items and key != "lobe":
+                raise InputError(what, f"gives {key!r} twice")
+            if key == "lobe":
+                items.setdefault("lobe", []).append([])
+        elif not token:
+            raise InputError(what, f"an empty item in {text.strip()!r} (a comma too many?)")
+        elif key is None:
+            raise InputError(what, f"{token!r} is not KEY=VALUE (e.g. 'alpha=0.1')")
+        else:
+            value = token
+        try:
+            number = float(value)
+        except ValueError:
+            raise InputError(what, f"{key}: {value!r} is not a number") from None
+        if key == "lobe":
+            items["lobe"][-1].append(number)
+        else:
+            items.setdefault(key, []).append(number)
+    return items
+
+
+def _one_or_list(values: list[float]) -> float | list[float]:
+    """One number as a number (as a scene file writes it), several as a list."""
+    return values[0] if len(values) == 1 else values
+
+
+def _lobe(values: list[float], j: int, what: str) -> dict[str, Any]:
+    if len(values) not in (5, 7):
+        raise InputError(
+            what,
+            f"lobe {j + 1} takes 5 numbers (cx, cy, cz, exponent, rho) or 7 (an RGB rho), "
+            f"got {len(values)}",
+        )
+    cx, cy, cz, exponent, *rho = values
+    return {"cx": cx, "cy": cy, "cz": cz, "exponent": exponent, "rho": _one_or_list(rho)}
+
+
+def parse_material(
+    spec: str | Mapping[str, Any], n_vertices: int = 1, *, what: str | None = None
+) -> Materials:
+    """The materials of ``n_vertices`` vertices from a one-line spec (:func:`material_table`)
+    or a material table, with the checks of a scene file's ``[material]``.
+
+    Parameters
+    ----------
+    spec : ``"ggx:alpha=0.1,specular=0.04,diffuse=0.5"`` or a mapping with the keys of a scene
+        file's ``[material]`` table
+    n_vertices : vertices that get it (one by default: the spec checked on its own)
+    what : the input errors name (default ``"--material"`` for a string, ``"material"`` for a
+        mapping)
+
+    Raises
+    ------
+    InputError
+        naming ``what`` and the problem: an unknown model or key, a wrong number of values, a
+        value out of range (colours in [0, 1], exponents and roughness >= 0) or missing.
+    """
+    if what is None:
+        what = "--material" if isinstance(spec, str) else "material"
+    table = material_table(spec, what=what) if isinstance(spec, str) else spec
+    try:
+        return uniform(table, n_vertices, name=what)
+    except InputError as exc:  # "--material: alpha: must be >= 0", not "--material.alpha: ..."
+        if exc.what.startswith(f"{what}."):
+            raise InputError(what, f"{exc.what[len(what) + 1 :]}: {exc.problem}") from None
+        raise

@@ -1,10 +1,11 @@
 """Scenes: a mesh, its per-vertex materials, an environment and a camera.
 
-Scene files are TOML (or JSON with the same keys); paths inside are relative to the file::
+Scene files are TOML (or JSON with the same keys); paths inside are relative to the file. The
+format, key by key, is in docs/scene-format.md; in short::
 
     name = "bunny on a table"
     mesh = "bunny.ply"            # OBJ, PLY, STL, glTF/GLB, OFF
-    environment = "studio.hdr"    # a file, or "builtin"
+    environment = "studio.hdr"    # a file, a bundled map's name, or "builtin"
 
     [material]                    # one material everywhere ...
     diffuse = [0.6, 0.5, 0.4]
@@ -30,6 +31,7 @@ Built-in scenes (:func:`builtin`) need no files at all.
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import math
 from collections.abc import Mapping
@@ -41,14 +43,36 @@ import numpy as np
 import torch
 
 from ..camera import Camera
+from ..data import envmap_names, envmap_path
 from ..errors import InputError
 from . import _shapes
-from ._materials import Materials, gradient, uniform
+from ._materials import Materials, gradient, parse_material, uniform
 from ._mesh import MESH_SUFFIXES, Mesh, load_mesh, mesh_from_arrays
 
-__all__ = ["BUILTIN_SCENES", "Scene", "builtin", "load"]
+__all__ = [
+    "BARE_MESH_MATERIAL",
+    "BUILTIN_SCENES",
+    "GRADIENT_KEYS",
+    "SCENE_FILE_MATERIAL",
+    "SCENE_KEYS",
+    "Scene",
+    "builtin",
+    "load",
+]
 
-_KEYS = {"name", "mesh", "environment", "material", "gradient", "camera"}
+#: The top-level keys of a scene file.
+SCENE_KEYS = ("name", "mesh", "environment", "material", "gradient", "camera")
+#: The keys of a scene file's ``[gradient]`` table.
+GRADIENT_KEYS = ("axis", "from", "to")
+#: The material of a bare mesh file (a ``[material]`` table): grey diffuse plus a GGX lobe.
+BARE_MESH_MATERIAL = {
+    "diffuse": [0.4, 0.4, 0.4],
+    "model": "ggx",
+    "specular": [0.8, 0.8, 0.8],
+    "alpha": 0.15,
+}
+#: The material of a scene file with neither ``[material]`` nor ``[gradient]``: grey Lambert.
+SCENE_FILE_MATERIAL = {"diffuse": [0.5, 0.5, 0.5]}
 
 
 @dataclass(eq=False)
@@ -220,9 +244,10 @@ def _read_description(p: Path) -> dict[str, Any]:
         raise InputError(str(p), f"not a valid scene file: {exc}") from None
     if not isinstance(data, dict):
         raise InputError(str(p), "a scene file must hold a table of keys")
-    unknown = set(data) - _KEYS
+    unknown = set(data) - set(SCENE_KEYS)
     if unknown:
-        raise InputError(str(p), f"unknown key {sorted(unknown)[0]!r}; known: {sorted(_KEYS)}")
+        known = sorted(SCENE_KEYS)
+        raise InputError(str(p), f"unknown key {sorted(unknown)[0]!r}; known: {known}")
     return data
 
 
@@ -254,21 +279,40 @@ def _default_camera(mesh: Mesh) -> Camera:
     return Camera.look_at(origin, centre, fov=40.0)
 
 
-def load(path_or_name, *, device=None) -> Scene:
+def load(path_or_name, *, device=None, material=None) -> Scene:
     """A scene from a built-in name, a scene file (``.toml``/``.json``) or a bare mesh file.
 
-    A bare mesh gets a default glossy material (grey diffuse + GGX, alpha 0.15), the built-in
+    A bare mesh gets :data:`BARE_MESH_MATERIAL` (grey diffuse + GGX, alpha 0.15), the built-in
     environment, and a camera that frames it.
+
+    Parameters
+    ----------
+    path_or_name : a built-in scene name (``"knot"``, ``"sphere:3"``), a scene file or a mesh
+    device : where the scene's tensors go (default: the CPU)
+    material : None, a material spec string (:func:`parse_material`, e.g.
+        ``"ggx:alpha=0.05,specular=0.9,0.8,0.6"``) or a mapping with the keys of a scene file's
+        ``[material]``: one material on every vertex in place of the scene's own (a bare
+        mesh's default, a scene file's ``[material]`` or ``[gradient]``, a built-in's)
 
     Raises
     ------
     InputError
-        naming the file (or key inside it) that is missing or wrong.
+        naming the file (or key inside it) that is missing or wrong; for a bad ``material``
+        spec string, naming ``--material``.
     """
+    # a bad override is reported before any file is read: it is the quickest thing to fix
+    override = None if material is None else parse_material(material)
+    sc = _load(path_or_name)
+    if override is not None:
+        n = sc.mesh.n_vertices
+        sc = dataclasses.replace(sc, materials=override.take(torch.zeros(n, dtype=torch.int64)))
+    return sc.to(device) if device is not None else sc
+
+
+def _load(path_or_name) -> Scene:
     s = str(path_or_name)
     if s.partition(":")[0] in BUILTIN_SCENES and not Path(s).exists():
-        sc = builtin(s)
-        return sc.to(device) if device is not None else sc
+        return builtin(s)
     p = Path(s)
     if not p.exists():
         raise InputError(
@@ -277,14 +321,8 @@ def load(path_or_name, *, device=None) -> Scene:
     suffix = p.suffix.lower()
     if suffix in MESH_SUFFIXES:
         mesh = load_mesh(p)
-        spec = {
-            "diffuse": [0.4, 0.4, 0.4],
-            "model": "ggx",
-            "specular": [0.8, 0.8, 0.8],
-            "alpha": 0.15,
-        }
-        sc = Scene(mesh, uniform(spec, mesh.n_vertices), "builtin", _default_camera(mesh), p.stem)
-        return sc.to(device) if device is not None else sc
+        mats = uniform(BARE_MESH_MATERIAL, mesh.n_vertices)
+        return Scene(mesh, mats, "builtin", _default_camera(mesh), p.stem)
     if suffix not in (".toml", ".json"):
         raise InputError(s, f"unknown scene format {suffix!r}: use .toml, .json or a mesh file")
     d = _read_description(p)
@@ -303,24 +341,39 @@ def load(path_or_name, *, device=None) -> Scene:
         mats = _materials(d, mesh)
     except InputError as exc:
         raise InputError(f"{s}: {exc.what}", exc.problem) from None
-    env = d.get("environment", "builtin")
-    if env != "builtin":
-        env_path = _entry_path(p, s, d, "environment")
-        if not env_path.is_file():
-            raise InputError(f"{s}: environment", f"no such file {env_path}")
-        env = str(env_path)
+    env = _environment(p, s, d)
     cam = _camera(d["camera"], f"{s}: camera") if "camera" in d else _default_camera(mesh)
-    sc = Scene(mesh, mats, env, cam, d.get("name", p.stem))
-    return sc.to(device) if device is not None else sc
+    return Scene(mesh, mats, env, cam, d.get("name", p.stem))
+
+
+def _environment(p: Path, s: str, d: dict[str, Any]) -> str:
+    """The scene file's ``environment``: "builtin", or the path of a file next to the scene
+    file or, when there is none of that name, of the bundled map with that stem."""
+    env = d.get("environment", "builtin")
+    if env == "builtin":
+        return env
+    env_path = _entry_path(p, s, d, "environment")
+    if env_path.is_file():
+        return str(env_path)
+    bundled = envmap_path(env)
+    if bundled is not None:
+        return str(bundled)
+    raise InputError(
+        f"{s}: environment",
+        f"no such file {env_path}, and not a bundled map ({', '.join(envmap_names())})",
+    )
 
 
 def _materials(d: dict[str, Any], mesh: Mesh) -> Materials:
     """The scene file's ``[material]`` or ``[gradient]`` on ``mesh``."""
     if "gradient" not in d:
-        return uniform(d.get("material", {"diffuse": [0.5, 0.5, 0.5]}), mesh.n_vertices)
+        return uniform(d.get("material", SCENE_FILE_MATERIAL), mesh.n_vertices)
     g = d["gradient"]
     if not isinstance(g, Mapping) or "from" not in g or "to" not in g:
         raise InputError("gradient", "needs 'from' and 'to' materials (and 'axis')")
+    unknown = sorted(set(g) - set(GRADIENT_KEYS))
+    if unknown:
+        raise InputError(f"gradient.{unknown[0]}", f"unknown key; known: {list(GRADIENT_KEYS)}")
     try:
         axis = torch.as_tensor(g.get("axis", [0.0, 1.0, 0.0]), dtype=torch.float64)
     except (TypeError, ValueError, RuntimeError, OverflowError):
