@@ -83,7 +83,13 @@ def direction_to_face_uv(dirs):
     -------
     face : (...) int64 in 0..5;  u, v : (...) in [-1, 1]
     """
-    x, y, z = dirs.unbind(-1)
+    return _major_axis(*dirs.unbind(-1))
+
+
+def _major_axis(
+    x: torch.Tensor, y: torch.Tensor, z: torch.Tensor
+) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """:func:`direction_to_face_uv` of a direction given as its three ``(...)`` components."""
     ax, ay, az = x.abs(), y.abs(), z.abs()
     is_x = (ax >= ay) & (ax >= az)
     is_y = ~is_x & (ay >= az)
@@ -92,13 +98,66 @@ def direction_to_face_uv(dirs):
         torch.where(x >= 0, 0, 1),
         torch.where(is_y, torch.where(y >= 0, 2, 3), torch.where(z >= 0, 4, 5)),
     ).long()
-    ma = torch.where(is_x, ax, torch.where(is_y, ay, az)).clamp_min(torch.finfo(dirs.dtype).tiny)
+    ma = torch.where(is_x, ax, torch.where(is_y, ay, az)).clamp_min(torch.finfo(x.dtype).tiny)
     # sc, tc per face from GL table 8.19
     sc = torch.where(
         is_x, torch.where(x >= 0, -z, z), torch.where(is_y, x, torch.where(z >= 0, x, -x))
     )
     tc = torch.where(is_x, -y, torch.where(is_y, torch.where(y >= 0, z, -z), -y))
     return face, sc / ma, tc / ma
+
+
+#: Where face ``f``'s coordinates go in its directions (the table in the module docstring):
+#: ``(axis, sign)`` of the normal, of ``u`` and of ``v``.
+_FACE_AXES = (
+    ((0, 1), (2, -1), (1, -1)),
+    ((0, -1), (2, 1), (1, -1)),
+    ((1, 1), (0, 1), (2, 1)),
+    ((1, -1), (0, 1), (2, -1)),
+    ((2, 1), (0, 1), (1, -1)),
+    ((2, -1), (0, -1), (1, -1)),
+)
+
+
+def _face_point(face: int, n: torch.Tensor, u: torch.Tensor, v: torch.Tensor) -> list[torch.Tensor]:
+    """Components ``[x, y, z]`` of the point ``n`` along face ``face``'s normal, at ``(u, v)``.
+
+    With ``n = 1`` this is :func:`face_uv_to_direction` for one face, component by component and
+    bit for bit (only signs change), without building the other five faces' candidates.
+    """
+    comp: list[torch.Tensor] = [n, n, n]
+    for (axis, sign), val in zip(_FACE_AXES[face], (n, u, v), strict=True):
+        comp[axis] = val if sign > 0 else -val
+    return comp
+
+
+def _nearest_texel(x: torch.Tensor, y: torch.Tensor, z: torch.Tensor, res: int) -> torch.Tensor:
+    """Flat index into ``(6, res, res)`` of the texel each direction falls in, ``(...)`` int64."""
+    face, u, v = _major_axis(x, y, z)
+    col = ((u + 1) * 0.5 * res).floor_().long().clamp_(0, res - 1)
+    row = ((v + 1) * 0.5 * res).floor_().long().clamp_(0, res - 1)
+    return (face * res + row) * res + col
+
+
+def _face_plane_texels(
+    face: int, n: torch.Tensor, u: torch.Tensor, v: torch.Tensor, res: int
+) -> torch.Tensor:
+    """Texel (flat index into ``(6, res, res)``) that each point of face ``face``'s frame falls in.
+
+    The point is ``n`` along the face's normal at face coordinates ``(u, v)`` (``n = 1``: the
+    face's plane, extended past the face). ``n, u, v`` broadcast to ``(...)``; returns ``(...)``
+    int64. The work is a few dozen elementwise operations per point, done in cache-sized pieces
+    because it is bound by memory traffic, not arithmetic.
+    """
+    n, u, v = torch.broadcast_tensors(n, u, v)
+    shape = u.shape
+    n, u, v = n.reshape(-1), u.reshape(-1), v.reshape(-1)
+    out = torch.empty(u.numel(), dtype=torch.long, device=u.device)
+    step = 1 << 16
+    for a in range(0, u.numel(), step):
+        sl = slice(a, a + step)
+        out[sl] = _nearest_texel(*_face_point(face, n[sl], u[sl], v[sl]), res)
+    return out.reshape(shape)
 
 
 def texel_uv(res: int, *, device=None, dtype=torch.float32) -> torch.Tensor:
@@ -141,19 +200,15 @@ def _check_cube(cube: torch.Tensor, name: str = "cube") -> None:
 def _pad_plan(res: int, pad: int, device: torch.device) -> torch.Tensor:
     """Flat texel index of every texel of the padded faces, ``(6 n^2,)`` int64 (n = res + 2 pad).
 
-    Depends on the resolution only, so it is computed once (the direction round trip in float64
-    costs far more than the gather it drives).
+    Depends on the resolution only, so it is kept between calls. Built in float64 on the CPU,
+    one face at a time (``O(6 n^2)`` elementwise work), then moved to ``device``.
     """
-    k = torch.arange(-pad, res + pad, device=device, dtype=torch.float64)
+    k = torch.arange(-pad, res + pad, dtype=torch.float64)
     c = (2 * k + 1) / res - 1  # extended texel centres
-    v, u = torch.meshgrid(c, c, indexing="ij")
-    n = res + 2 * pad
-    face = torch.arange(6, device=device).reshape(6, 1, 1).expand(6, n, n)
-    d = face_uv_to_direction(face, u.expand(6, n, n), v.expand(6, n, n))
-    f2, u2, v2 = direction_to_face_uv(d)
-    j = ((u2 + 1) * 0.5 * res).floor().long().clamp(0, res - 1)
-    i = ((v2 + 1) * 0.5 * res).floor().long().clamp(0, res - 1)
-    return ((f2 * res + i) * res + j).reshape(-1)
+    v, u = c[:, None], c[None, :]  # (n, 1) rows follow v, (1, n) columns u
+    one = torch.ones((), dtype=torch.float64)
+    idx = [_face_plane_texels(f, one, u, v, res) for f in range(6)]
+    return torch.stack(idx).reshape(-1).to(device)
 
 
 def pad_seamless(cube: torch.Tensor, pad: int = 1) -> torch.Tensor:

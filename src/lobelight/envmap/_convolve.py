@@ -51,6 +51,8 @@ SHARPEN = 0.09
 SH_BAND_EPS = 1e-5
 #: Sub-samples per axis when area-averaging a border texel from a neighbouring face.
 HALO_SUBSAMPLES = 4
+#: Border widths for which the halo's sources are computed: pads rounded up to a multiple.
+HALO_PAD_STEP = 16
 
 
 # --------------------------------------------------------------------------------------------
@@ -71,6 +73,29 @@ def _solid_angles(res: int, lo: int, hi: int, device) -> torch.Tensor:
     return (a[1:, 1:] - a[:-1, 1:] - a[1:, :-1] + a[:-1, :-1]).abs()
 
 
+@lru_cache(maxsize=4)
+def _halo_sources(res: int, pad: int) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """Border texels of the extended faces and the sub-samples' source texels, on the CPU.
+
+    Returns
+    -------
+    rows, cols : (B,) int64 border texels of the ``(n, n)`` grid, ``n = res + 2 pad``, row-major
+    src : (6, B, S*S) int64 flat indices into ``(6, res, res)``
+    """
+    k = torch.arange(-pad, res + pad)
+    inside = (k >= 0) & (k < res)
+    border = ~(inside[:, None] & inside[None, :])  # (n, n)
+    rows, cols = border.nonzero(as_tuple=True)
+    s = HALO_SUBSAMPLES
+    sub = (torch.arange(s, dtype=torch.float64) + 0.5) / s  # (S,)
+    # sub-sample face coordinates of every border texel, broadcast to (B, S, S)
+    v = 2 * (rows[:, None, None] - pad + sub[None, :, None]) / res - 1
+    u = 2 * (cols[:, None, None] - pad + sub[None, None, :]) / res - 1
+    one = torch.ones((), dtype=torch.float64)
+    src = [cubemap._face_plane_texels(f, one, u, v, res).reshape(-1, s * s) for f in range(6)]
+    return rows, cols, torch.stack(src)
+
+
 @lru_cache(maxsize=32)
 def _halo_plan(res: int, pad: int, device: torch.device) -> tuple[torch.Tensor, torch.Tensor]:
     """Where each border texel of the extended faces takes its value from.
@@ -80,30 +105,24 @@ def _halo_plan(res: int, pad: int, device: torch.device) -> tuple[torch.Tensor, 
     sub-samples of the texels they fall in: an area average, without the blur of a bilinear
     resampling (which smears a bright texel across the border by a third of a texel).
 
+    A texel's sources do not depend on ``pad``, so the plan is cut out of the one for ``pad``
+    rounded up to a multiple of ``HALO_PAD_STEP`` (the cascade's increments at one resolution
+    share it).
+
     Returns
     -------
     dst : (H,) int64 flat indices into ``(6, n, n)`` with ``n = res + 2 pad``
     src : (H, S*S) int64 flat indices into ``(6, res, res)``
     """
     n = res + 2 * pad
-    k = torch.arange(-pad, res + pad, device=device)
-    inside = (k >= 0) & (k < res)
-    border = ~(inside[:, None] & inside[None, :])  # (n, n)
-    rows, cols = border.nonzero(as_tuple=True)
-    s = HALO_SUBSAMPLES
-    sub = (torch.arange(s, device=device, dtype=torch.float64) + 0.5) / s  # (S,)
-    # sub-sample face coordinates of every border texel: (B, S, S)
-    v = (2 * (rows[:, None, None] - pad + sub[None, :, None]) / res - 1).expand(-1, s, s)
-    u = (2 * (cols[:, None, None] - pad + sub[None, None, :]) / res - 1).expand(-1, s, s)
-    dst, src = [], []
-    for f in range(6):
-        d = cubemap.face_uv_to_direction(torch.full_like(u, f, dtype=torch.long), u, v)
-        g, gu, gv = cubemap.direction_to_face_uv(d)
-        col = ((gu + 1) * res / 2).floor().long().clamp(0, res - 1)
-        row = ((gv + 1) * res / 2).floor().long().clamp(0, res - 1)
-        src.append((g * res * res + row * res + col).reshape(-1, s * s))
-        dst.append(f * n * n + rows * n + cols)
-    return torch.cat(dst), torch.cat(src)
+    big = -(-pad // HALO_PAD_STEP) * HALO_PAD_STEP
+    rows, cols, src = _halo_sources(res, big)
+    off = big - pad
+    keep = (rows >= off) & (rows < off + n) & (cols >= off) & (cols < off + n)
+    cell = (rows[keep] - off) * n + (cols[keep] - off)  # (H/6,) in row-major order
+    dst = (torch.arange(6)[:, None] * (n * n) + cell).reshape(-1)
+    src = src[:, keep].reshape(-1, src.shape[-1])
+    return dst.to(device), src.to(device)
 
 
 def extend(level: torch.Tensor, pad: int) -> torch.Tensor:
@@ -133,24 +152,16 @@ def _unfold_plan(res: int, pad: int, device: torch.device) -> torch.Tensor:
     and unresampled. The four corner blocks, which no face occupies (three faces, not four, meet
     at a cube corner), get -1. Every texel within ``pad`` texels of a face thus appears once.
     """
-    n = res + 2 * pad
-    c = _coords(res, -pad, res + pad, device)
-    v, u = torch.meshgrid(c, c, indexing="ij")
+    c = _coords(res, -pad, res + pad, torch.device("cpu"))
+    v, u = c[:, None], c[None, :]  # (n, 1), (1, n)
     ex_u = (u.abs() - 1).clamp_min(0)
     ex_v = (v.abs() - 1).clamp_min(0)
-    corner = (ex_u > 0) & (ex_v > 0)
-    out = []
-    for f in range(6):
-        fid = torch.full_like(u, f, dtype=torch.long)
-        on_face = cubemap.face_uv_to_direction(fid, u.clamp(-1, 1), v.clamp(-1, 1))
-        normal = cubemap.face_uv_to_direction(fid[:1, :1], u[:1, :1] * 0, v[:1, :1] * 0)
-        d = on_face - normal * (ex_u + ex_v)[..., None]  # onto the neighbour's plane
-        g, gu, gv = cubemap.direction_to_face_uv(d)
-        col = ((gu + 1) * res / 2).floor().long().clamp(0, res - 1)
-        row = ((gv + 1) * res / 2).floor().long().clamp(0, res - 1)
-        idx = g * res * res + row * res + col
-        out.append(torch.where(corner, torch.full_like(idx, -1), idx).reshape(n, n))
-    return torch.stack(out)
+    corner = (ex_u > 0) & (ex_v > 0)  # (n, n)
+    # folding onto the neighbour's plane: the point on the face's edge, moved in along the normal
+    depth = 1 - (ex_u + ex_v)
+    uc, vc = u.clamp(-1, 1), v.clamp(-1, 1)
+    out = [cubemap._face_plane_texels(f, depth, uc, vc, res) for f in range(6)]
+    return torch.stack(out).masked_fill_(corner, -1).to(device)
 
 
 # --------------------------------------------------------------------------------------------
@@ -319,51 +330,21 @@ def anisotropic_increment(level: torch.Tensor, lam: float) -> torch.Tensor:
 # exact paths for coarse resolutions
 
 
-def _reach(
-    dirs: torch.Tensor, r0: int, c0: int, bs: int, w: int, cos_cut: float, margin: float
-) -> torch.Tensor:
-    """Offsets ``(di + w, dj + w)`` within ``w`` that some texel of a block needs, ``(n, 2)``.
-
-    A texel needs the offsets whose texel lies within the window angle (``cos_cut``) of it. For a
-    fixed offset the angle it spans shrinks monotonically away from the face centre, so over a
-    block it is smallest on the block's boundary: testing the boundary texels, with ``margin``
-    (radians) of slack for the sampling, finds every needed offset (across face edges, where
-    the net continues with the neighbour's texels, tests/test_convolve.py checks the result
-    against the dense sum with bright texels on edges and corners). The set is an ellipse
-    stretched toward the corners, about half the disk a worst-case radius would give.
-
-    Parameters
-    ----------
-    dirs : (3, n, n) texel directions of the padded grid;  ``r0, c0`` : block origin in it.
-    """
-    edge = torch.arange(bs, device=dirs.device)
-    last = torch.full_like(edge, bs - 1)
-    first = torch.zeros_like(edge)
-    br = torch.cat([first, last, edge, edge]) + r0  # boundary rows and columns, (4 bs,)
-    bc = torch.cat([edge, edge, first, last]) + c0
-    k = torch.arange(-w, w + 1, device=dirs.device)
-    di, dj = torch.meshgrid(k, k, indexing="ij")
-    di, dj = di.reshape(-1, 1), dj.reshape(-1, 1)  # ((2w+1)^2, 1)
-    own = dirs[:, br, bc]  # (3, 4 bs)
-    nb = dirs[:, br + di, bc + dj]  # (3, (2w+1)^2, 4 bs)
-    best = (own[:, None] * nb).sum(0).amax(1)  # ((2w+1)^2,)
-    keep = best > math.cos(min(math.pi, math.acos(max(-1.0, min(1.0, cos_cut))) + margin))
-    return torch.stack([di[keep, 0] + w, dj[keep, 0] + w], 1)
-
-
-def windowed_increment(level: torch.Tensor, lam_inc: float, *, blocks: int = 4) -> torch.Tensor:
+def windowed_increment(level: torch.Tensor, lam_inc: float, *, block: int = 8) -> torch.Tensor:
     """Exact convolution of a cube map with a narrow vMF of sharpness ``lam_inc``.
 
     Each face is padded with its neighbours' real texels (:func:`_unfold_plan`), so every output
     texel sees a window of the map's own texels around it. The sum uses the exact kernel
     ``exp(lam (mu.w - 1))`` with the true directions and exact solid angles of those texels, so
     it equals the dense sum up to the kernel's weight beyond ``WINDOW_SIGMAS`` (measured 1e-4
-    relative). The face is cut into ``blocks x blocks`` regions whose window is sized to their
-    smallest texels (texels shrink by up to 3x toward the corners).
+    relative). The face is cut into ``block x block`` texel blocks whose window is sized to their
+    smallest texels (texels shrink by up to 3x toward the corners); each block's sum is one
+    matrix product, ``(block^2, window texels) @ (window texels, 6 faces x 4 channels)``.
 
     Parameters
     ----------
     level : (6, R, R, 3) normalised radiance
+    block : side of the output blocks, in texels (at most R)
 
     Returns
     -------
@@ -372,20 +353,14 @@ def windowed_increment(level: torch.Tensor, lam_inc: float, *, blocks: int = 4) 
     res = level.shape[1]
     dev, dt = level.device, level.dtype
     sigma = 1 / math.sqrt(lam_inc)
+    bs = min(block, res)
+    blocks = res // bs
     # radial angular size of a texel at face point p: (2/R) / (1 + |p|^2); per block use the
     # block's outer corner (its smallest texels) to size the window in texels
-    bs = res // blocks
     edges = torch.linspace(-1, 1, blocks + 1, dtype=torch.float64)
-    far = torch.maximum(edges[:-1].abs(), edges[1:].abs())  # (blocks,) farthest |coord| per block
-    wins = [
-        [
-            math.ceil(
-                WINDOW_SIGMAS * sigma / ((2 / res) / (1 + float(far[i]) ** 2 + float(far[j]) ** 2))
-            )
-            for j in range(blocks)
-        ]
-        for i in range(blocks)
-    ]
+    far = torch.maximum(edges[:-1].abs(), edges[1:].abs()) ** 2  # (blocks,)
+    wins = torch.ceil(WINDOW_SIGMAS * sigma / ((2 / res) / (1 + far[:, None] + far[None, :])))
+    wins = wins.long().tolist()  # (blocks, blocks) window half-widths
     pad = max(max(r) for r in wins)
     if pad > res:
         raise ValueError(f"kernel too wide for windowed convolution at resolution {res}")
@@ -394,35 +369,26 @@ def windowed_increment(level: torch.Tensor, lam_inc: float, *, blocks: int = 4) 
     idx = idx.clamp_min(0)
     # The padded net of every face is the same set of texels up to the cube's rotations, so the
     # kernel (which needs only dot products) and the solid angles are those of face 0 for all.
-    dirs = cubemap.texel_directions(res, device=dev, dtype=dt).reshape(-1, 3)[idx[0]]
-    dirs = dirs.permute(2, 0, 1)[:, None].contiguous()  # (3, 1, n, n) true directions
+    dirs = cubemap.texel_directions(res, device=dev, dtype=dt).reshape(-1, 3)[idx[0]]  # (n, n, 3)
     om = cubemap.texel_solid_angles(res, device=dev, dtype=dt).reshape(-1)[idx[0]] * valid[0]
     vals = level.reshape(-1, 3)[idx] * valid[..., None]  # (6, n, n, 3)
-    f = torch.cat([(vals * om[..., None]).permute(3, 0, 1, 2), om.expand(1, 6, -1, -1)], 0)
-    out = torch.empty(4, 6, res, res, device=dev, dtype=dt)
+    # (n, n, 6, 4): radiance x solid angle and the solid angle, each texel's faces side by side
+    f = torch.cat([vals * om[..., None], om.expand(6, -1, -1)[..., None]], -1).permute(1, 2, 0, 3)
+    out = torch.empty(res, res, 6, 4, device=dev, dtype=dt)
     cos_cut = math.cos(min(math.pi, WINDOW_SIGMAS * sigma))
-    margin = 2 / res  # a texel's largest angular size: the bound below checks block edges
     for bi in range(blocks):
         for bj in range(blocks):
             w = wins[bi][bj]
             r0, c0 = pad + bi * bs, pad + bj * bs  # block origin in the extended grid
-            mu = dirs[:, :, r0 : r0 + bs, c0 : c0 + bs]  # (3, 1, bs, bs)
-            # all window offsets at once: (.., 2w+1, 2w+1, bs, bs) views, no copies
             rows, cols = slice(r0 - w, r0 + bs + w), slice(c0 - w, c0 + bs + w)
-            win = (slice(None), slice(None), rows, cols)
-            dwin = dirs[win].unfold(2, bs, 1).unfold(3, bs, 1)
-            fwin = f[win].unfold(2, bs, 1).unfold(3, bs, 1)
-            disk = _reach(dirs[:, 0], r0, c0, bs, w, cos_cut, margin)  # (n_off, 2) offsets + w
-            acc = torch.zeros(4, 6, bs, bs, device=dev, dtype=dt)
-            step = max(1, (1 << 22) // (24 * bs * bs))  # bounded memory: ~16 M values a chunk
-            for o in range(0, disk.shape[0], step):
-                oi, oj = disk[o : o + step, 0], disk[o : o + step, 1]
-                dot = (mu[:, 0, None] * dwin[:, 0, oi, oj]).sum(0)  # (chunk, bs, bs)
-                # beyond the window radius the kernel is below exp(-WINDOW_SIGMAS^2 / 2)
-                g = torch.where(dot > cos_cut, torch.exp((dot - 1) * lam_inc), 0.0)
-                acc += (fwin[:, :, oi, oj] * g).sum(2)
-            out[:, :, bi * bs : (bi + 1) * bs, bj * bs : (bj + 1) * bs] = acc
-    return (out[:3] / out[3:4]).permute(1, 2, 3, 0).contiguous()
+            mu = dirs[r0 : r0 + bs, c0 : c0 + bs].reshape(-1, 3)  # (P, 3) output texels
+            dot = mu @ dirs[rows, cols].reshape(-1, 3).T  # (P, Q) with the window's texels
+            # beyond the window radius the kernel is below exp(-WINDOW_SIGMAS^2 / 2)
+            cut = dot <= cos_cut
+            g = dot.sub_(1).mul_(lam_inc).exp_().masked_fill_(cut, 0)
+            acc = g @ f[rows, cols].reshape(-1, 24)  # (P, 24)
+            out[r0 - pad : r0 - pad + bs, c0 - pad : c0 - pad + bs] = acc.reshape(bs, bs, 6, 4)
+    return (out[..., :3] / out[..., 3:]).permute(2, 0, 1, 3).contiguous()
 
 
 def dense_increment(level: torch.Tensor, lam: float, *, chunk: int = 2048) -> torch.Tensor:
