@@ -83,6 +83,7 @@ from typing import Any, NamedTuple
 import numpy as np
 import torch
 
+from .. import _cache
 from .._backend import dispatch
 from ..errors import InputError
 from ..sphere import _check_vec, _float
@@ -729,9 +730,9 @@ def _build(p: TableParams, dev: torch.device, chunk: int | None, progress=None) 
 
 
 def cache_dir() -> Path:
-    """``$LOBELIGHT_CACHE`` if set, else ``~/.cache/lobelight``."""
-    env = os.environ.get("LOBELIGHT_CACHE")
-    return Path(env).expanduser() if env else Path.home() / ".cache" / "lobelight"
+    """lobelight's cache folder, :func:`lobelight._cache.cache_dir` (``$LOBELIGHT_CACHE`` if set,
+    else the platform's user cache folder)."""
+    return _cache.cache_dir()
 
 
 def default_path() -> Path:
