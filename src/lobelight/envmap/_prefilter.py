@@ -37,12 +37,20 @@ How the levels are built (see :mod:`._convolve` for each operator)
     spherical-harmonic band factors. Every stored level then gets a small sharpening, the
     reconstruction prefilter that makes bilinear lookup of a 2.5-texel Gaussian accurate to
     0.8 % instead of 2 %.
+
+Cache
+    :func:`prefilter` keeps chains on disk (:mod:`._chain_cache`), keyed by a hash of the map and
+    of the settings, so a map is prefiltered once per machine: by default an EnvMap's chain,
+    ``cache=`` chooses otherwise.
 """
 
 from __future__ import annotations
 
+import logging
 import math
+import os
 from dataclasses import dataclass, field
+from pathlib import Path
 
 import numpy as np
 import torch
@@ -50,9 +58,11 @@ import torch
 from .. import cubemap
 from .._backend import as_tensor
 from ..errors import InputError
-from . import _convolve
+from . import _chain_cache, _convolve
 
-__all__ = ["TEXELS_PER_SIGMA", "Prefiltered", "prefilter"]
+__all__ = ["CHAIN_VERSION", "TEXELS_PER_SIGMA", "Prefiltered", "clear_memory_caches", "prefilter"]
+
+logger = logging.getLogger(__name__)
 
 #: Gaussian standard deviation, in texels at the centre of a face, of every level's phase 0.
 TEXELS_PER_SIGMA = 2.5
@@ -229,6 +239,59 @@ def _inverse_langevin(a: float) -> float:
     return math.sqrt(lo * hi)
 
 
+#: Version of what :func:`prefilter` computes, part of every cache key: bumped whenever a change
+#: to the algorithm changes the levels (the constants above and in :mod:`._convolve` are in the
+#: key by value, so changing one of them needs no bump).
+CHAIN_VERSION = 1
+
+
+def _description(kind: str, base_res: int, phases: int) -> dict:
+    """Everything besides the source's values that a chain's levels depend on (the cache key)."""
+    return {
+        "chain_version": CHAIN_VERSION,
+        "source": kind,
+        "base_res": base_res,
+        "phases": phases,
+        "constants": {
+            "TEXELS_PER_SIGMA": TEXELS_PER_SIGMA,
+            "SHARPEN_MIN_RES": SHARPEN_MIN_RES,
+            "SH_MAX_RES": SH_MAX_RES,
+            "SEPARABLE_MIN_RES": SEPARABLE_MIN_RES,
+            "PASS_SIGMAS": _convolve.PASS_SIGMAS,
+            "WINDOW_SIGMAS": _convolve.WINDOW_SIGMAS,
+            "SHARPEN": _convolve.SHARPEN,
+            "SH_BAND_EPS": _convolve.SH_BAND_EPS,
+            "HALO_SUBSAMPLES": _convolve.HALO_SUBSAMPLES,
+        },
+    }
+
+
+def _folder(cache, is_map: bool) -> Path | None:
+    """Where the chain is cached (None: not at all) for the ``cache`` argument of prefilter."""
+    if cache is None:
+        cache = is_map
+    if cache is False:
+        return None
+    if cache is True:
+        return _chain_cache.default_folder()
+    if isinstance(cache, (str, os.PathLike)):
+        return Path(cache)
+    raise InputError("cache", f"must be None, a bool or a folder, got {cache!r}")
+
+
+def clear_memory_caches() -> None:
+    """Forget the index plans and SH bases kept in memory between calls (a fresh process's
+    state, for timing a cold start)."""
+    for fn in (
+        _convolve._halo_plan,
+        _convolve._halo_sources,
+        _convolve._unfold_plan,
+        _convolve._basis,
+        cubemap._pad_plan,
+    ):
+        fn.cache_clear()
+
+
 def prefilter(
     env,
     *,
@@ -236,8 +299,9 @@ def prefilter(
     phases: int = 4,
     blend: str = "l2",
     device=None,
+    cache=None,
 ) -> Prefiltered:
-    """Build the Gaussian-prefiltered chain of an environment.
+    """Build the Gaussian-prefiltered chain of an environment, or read it from the disk cache.
 
     Parameters
     ----------
@@ -247,6 +311,13 @@ def prefilter(
     phases : levels per mip resolution (sharpness ratio ``4**(1/phases)`` between levels).
     blend : "moment" or "l2" (see :meth:`Prefiltered.level_coords`).
     device : torch device for the computation and the result (default: the env's).
+    cache : where the levels are kept between processes (:mod:`._chain_cache`): None (the
+        default) caches an EnvMap's chain in ``lobelight._cache.cache_dir() / "prefilter"`` and
+        not a raw cube map's; True caches either there, a folder caches either in that folder,
+        False never reads or writes a cache. The key is a hash of the map's values, layout,
+        dtype and shape and of ``base_res``, ``phases`` and the algorithm's version and
+        constants; ``blend`` is not in it (it only weights levels at lookup), nor ``device``
+        (entries are stored from the CPU and loaded onto ``device``).
 
     Returns
     -------
@@ -259,30 +330,65 @@ def prefilter(
     if blend not in ("moment", "l2"):
         raise InputError("blend", f"must be 'moment' or 'l2', got {blend!r}")
     name = getattr(env, "name", "envmap")
-    if hasattr(env, "to_cubemap"):
+    is_map = hasattr(env, "to_cubemap")
+    folder = _folder(cache, is_map)
+    if is_map:
         if device is not None:
             env = env.to(device)
+        source, kind = env.data, f"envmap:{env.layout}"
+    else:
+        env = as_tensor(env, device=device, dtype=torch.float32)
+        source, kind = env, "cube"
+        shape = tuple(env.shape)
+        finer = env.ndim == 4 and env.shape[0] == 6 and env.shape[1] > base_res
+        if shape != (6, base_res, base_res, 3) and not finer:
+            raise InputError(
+                "env", f"expected a (6, {base_res}, {base_res}, 3) cube map, got {shape}"
+            )
+    if folder is not None:
+        description = _description(kind, base_res, phases)
+        key = _chain_cache.chain_key(source, description)
+        path = folder / f"{key}.npz"
+        hit = _chain_cache.read_chain(path, key, _resolutions(base_res, phases))
+        if hit is not None:
+            dev = source.device
+            lambdas = torch.from_numpy(hit[0]).to(dev)
+            levels = [torch.from_numpy(lv).to(dev) for lv in hit[1]]
+            return Prefiltered(
+                levels=levels, lambdas=lambdas, phases=phases, blend=blend, name=name
+            )
+    if is_map:
         base = env.to_cubemap(base_res)
     else:
-        base = as_tensor(env, device=device, dtype=torch.float32)
-        if tuple(base.shape) != (6, base_res, base_res, 3):
-            if base.ndim == 4 and base.shape[0] == 6 and base.shape[1] > base_res:
-                base = _downsample_to(base, base_res)
-            else:
-                raise InputError(
-                    "env",
-                    f"expected a (6, {base_res}, {base_res}, 3) cube map, got {tuple(base.shape)}",
-                )
-    base = base.to(torch.float32)
+        base = env if env.shape[1] == base_res else _downsample_to(env, base_res)
+    levels, lambdas = _build(base.to(torch.float32), base_res, phases)
+    if folder is not None:
+        try:
+            _chain_cache.write_chain(path, key, description, lambdas, levels)
+        except OSError as exc:  # a cache that cannot be written only costs the next run time
+            logger.warning("could not write the prefiltered chain to %s: %s", path, exc)
+    return Prefiltered(levels=levels, lambdas=lambdas, phases=phases, blend=blend, name=name)
+
+
+def _resolutions(base_res: int, phases: int) -> list[int]:
+    """Face resolution of every level: ``phases`` levels per mip, ``base_res`` down to 1."""
+    n_mips = int(math.log2(base_res)) + 1
+    return [base_res >> (k // phases) for k in range(n_mips * phases)]
+
+
+def _build(
+    base: torch.Tensor, base_res: int, phases: int
+) -> tuple[list[torch.Tensor], torch.Tensor]:
+    """The levels of the chain of a ``(6, base_res, base_res, 3)`` float32 cube map and their
+    ``(K,)`` float64 sharpness, on the cube's device."""
     if not bool(torch.isfinite(base).all()):
         raise InputError("env", "cube map has NaN or Inf values")
     dev = base.device
-    n_mips = int(math.log2(base_res)) + 1
+    res_of = _resolutions(base_res, phases)
+    n_levels = len(res_of)
     rho = 4 ** (1 / phases)
     lam0 = (base_res / (2 * TEXELS_PER_SIGMA)) ** 2
-    n_levels = n_mips * phases
     lambdas = lam0 * rho ** -torch.arange(n_levels, dtype=torch.float64)
-    res_of = [base_res >> (k // phases) for k in range(n_levels)]
 
     def mc(lam: float) -> float:  # mean cosine of a vMF: widths compose by multiplying it
         return float(_langevin(torch.tensor(lam, dtype=torch.float64)))
@@ -325,6 +431,4 @@ def prefilter(
             levels[k] = lv
     # Reconstruction prefilter for the bilinear lookup (replaces a bilinear-variance fudge).
     levels = [_convolve.sharpen(lv) if lv.shape[1] >= SHARPEN_MIN_RES else lv for lv in levels]
-    return Prefiltered(
-        levels=levels, lambdas=lambdas.to(dev), phases=phases, blend=blend, name=name
-    )
+    return levels, lambdas.to(dev)

@@ -1,0 +1,133 @@
+"""Prefiltered chains kept on disk, so that a map is prefiltered once per machine.
+
+Layout: one uncompressed ``.npz`` (no pickles) per chain, ``<folder>/<key>.npz`` with the folder
+``lobelight._cache.cache_dir() / "prefilter"`` by default, holding
+
+- ``header``: a JSON string, the key and what it was computed from (:func:`chain_key`);
+- ``lambdas``: ``(K,)`` float64, the levels' sharpness;
+- ``level_00`` ... ``level_{K-1}``: ``(6, R_k, R_k, 3)`` float32, the levels as computed (float32
+  because that is what the chain holds, so a cached chain equals a fresh one bit for bit; float16
+  would halve the bytes but overflows above 65504, below an unclipped sun's radiance).
+
+The key is a sha256 over a JSON description (this module's :data:`FORMAT_VERSION`, the source's
+kind, dtype and shape, and the chain's settings, which include the prefilter's own version and
+numerical constants) followed by the source's float32 bytes. Reading checks everything it reads
+(zip CRCs, the key, the level count, shapes, dtypes, finiteness); an entry that fails, or cannot
+be read at all, is a miss: the chain is computed again and the entry rewritten. Entries are
+written atomically (:func:`lobelight._cache.atomic_writer`), so concurrent writers of one key
+leave one whole entry, and deleting any of them, or the folder, at any time is harmless.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import logging
+import os
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+
+from .._cache import UNREADABLE, atomic_writer, cache_dir
+
+__all__ = ["FORMAT_VERSION", "chain_key", "default_folder", "read_chain", "write_chain"]
+
+#: Layout of the stored file; bumped when it changes (the key changes with it).
+FORMAT_VERSION = 1
+
+logger = logging.getLogger(__name__)
+
+
+def default_folder() -> Path:
+    """``cache_dir() / "prefilter"``, where :func:`lobelight.envmap.prefilter` keeps chains."""
+    return cache_dir() / "prefilter"
+
+
+def chain_key(source: torch.Tensor, description: dict[str, Any]) -> str:
+    """Hex sha256 naming the chain of ``source`` (any shape and dtype) built as ``description``.
+
+    ``description`` (JSON-serialisable) holds everything besides the source's values that the
+    levels depend on; the source's dtype and shape are added here.
+    """
+    arr = source.detach().to("cpu", torch.float32).contiguous().numpy()
+    head = {
+        **description,
+        "format": FORMAT_VERSION,
+        "dtype": str(source.dtype),
+        "shape": list(arr.shape),
+    }
+    h = hashlib.sha256(json.dumps(head, sort_keys=True).encode())
+    h.update(b"\0")
+    h.update(arr.reshape(-1).view(np.uint8))
+    return h.hexdigest()
+
+
+def read_chain(
+    path: str | os.PathLike, key: str, resolutions: list[int]
+) -> tuple[np.ndarray, list[np.ndarray]] | None:
+    """``(lambdas (K,) float64, levels [(6, R_k, R_k, 3) float32])`` from an entry, or None.
+
+    None when the file is missing, unreadable or not exactly the chain ``key`` with levels at
+    ``resolutions`` (``K`` of them).
+    """
+    path = Path(path)
+    try:
+        z = np.load(path, allow_pickle=False)
+    except FileNotFoundError:
+        return None
+    except UNREADABLE as exc:
+        logger.info("ignoring the unreadable prefilter cache entry %s (%r)", path, exc)
+        return None
+    if not isinstance(z, np.lib.npyio.NpzFile):  # a bare .npy file loads as one array
+        logger.info("ignoring %s: not a prefilter cache entry", path)
+        return None
+    try:
+        with z:
+            return _check(z, key, resolutions)
+    except UNREADABLE as exc:
+        logger.info("ignoring the unreadable prefilter cache entry %s (%r)", path, exc)
+        return None
+
+
+def _check(z, key: str, resolutions: list[int]) -> tuple[np.ndarray, list[np.ndarray]] | None:
+    header = z["header"]
+    if header.dtype.kind != "U" or header.ndim != 0:
+        return None
+    head = json.loads(header.item())
+    if not isinstance(head, dict) or head.get("key") != key:
+        return None
+    lambdas = z["lambdas"]
+    if lambdas.dtype != np.float64 or lambdas.shape != (len(resolutions),):
+        return None
+    levels = []
+    for k, res in enumerate(resolutions):
+        lv = z[f"level_{k:02d}"]
+        if lv.dtype != np.float32 or lv.shape != (6, res, res, 3) or not np.isfinite(lv).all():
+            return None
+        levels.append(lv)
+    return lambdas, levels
+
+
+def write_chain(
+    path: str | os.PathLike,
+    key: str,
+    description: dict[str, Any],
+    lambdas: torch.Tensor,
+    levels: list[torch.Tensor],
+) -> None:
+    """Store a chain as ``path`` (atomically; the folder is created). Raises OSError on failure.
+
+    Parameters
+    ----------
+    lambdas : (K,) sharpness;  levels : K tensors (6, R_k, R_k, 3), any device
+    """
+    arrays = {
+        "header": np.array(json.dumps({**description, "key": key}, sort_keys=True)),
+        "lambdas": lambdas.detach().to("cpu", torch.float64).numpy(),
+    }
+    for k, lv in enumerate(levels):
+        arrays[f"level_{k:02d}"] = lv.detach().to("cpu", torch.float32).numpy()
+    with atomic_writer(path) as f:
+        np.savez(f, **arrays)
