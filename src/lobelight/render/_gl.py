@@ -86,7 +86,7 @@ def _program(
 def create_context():
     """A headless OpenGL 3.3+ context: EGL (Mesa llvmpipe here, the NVIDIA driver on GPUs)."""
     try:
-        import moderngl
+        import moderngl  # optional (the gl extra)
     except ImportError:
         raise InputError(
             "moderngl", "is not installed: pip install 'lobelight[gl]' (or use backend='torch')"
@@ -147,7 +147,7 @@ def _atlas(pf: Prefiltered) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
 def upload_prefiltered(ctx, pf: Prefiltered):
     """The prefiltered chain as one atlas texture, and the uniforms ``prefiltered.glsl`` reads
     (bind the texture to the unit of its ``atlas`` sampler)."""
-    import moderngl
+    import moderngl  # optional (the gl extra)
 
     atlas, rows, res = _atlas(pf)
     tex = ctx.texture((atlas.shape[1], atlas.shape[0]), 4, atlas.tobytes(), dtype="f4")
@@ -173,7 +173,7 @@ def upload_geodesic(ctx):
     -------
     planes buffer, candidate texture, ``{"CAND_RES": ..., "CAND_TEXELS": ...}``
     """
-    import moderngl
+    import moderngl  # optional (the gl extra)
 
     planes, faces = sphere._face_planes(torch.float32, torch.device("cpu"))
     pl = torch.cat([planes.T.reshape(180, 3, 3), faces.reshape(180, 3, 1).float()], -1)
@@ -197,10 +197,19 @@ def set_uniforms(prog, values: dict) -> None:
 
 
 class GLRenderer:
-    """Shader implementation behind :class:`lobelight.render.Renderer` (``backend="gl"``)."""
+    """Shader implementation behind :class:`lobelight.render.Renderer` (``backend="gl"``).
 
-    def __init__(self, model, lighting: Lighting, width: int, height: int, *, ctx=None):
-        import moderngl
+    ``offsets`` ``(S, 2)``: the sub-pixel sample positions in ``[0, 1)`` (x right, y down) of
+    each frame (:func:`lobelight.render.sample_offsets`); default the pixel centre. With more
+    than one, each sample is a pass with the image shifted by its offset (the ``jitter``
+    uniform), added into :attr:`color` with weight ``1 / S``: the frame is the box-filtered
+    average of the samples and its alpha the fraction of them on the object.
+    """
+
+    def __init__(
+        self, model, lighting: Lighting, width: int, height: int, *, ctx=None, offsets=None
+    ):
+        import moderngl  # optional (the gl extra)
 
         self.ctx = ctx if ctx is not None else create_context()
         self.own_ctx = ctx is None
@@ -236,6 +245,7 @@ class GLRenderer:
         )
         self.bg_prog = _program(ctx, "background")
         self.tm_prog = _program(ctx, "tonemap")
+        self.acc_prog = _program(ctx, "accumulate")
 
         # Gaussians: record (v, j, k) -> texels 2r, 2r + 1 with r = (v J + j) N + k
         g = model.gaussians
@@ -316,16 +326,37 @@ class GLRenderer:
         self.quad = ctx.buffer(quad.tobytes())
         self.bg_vao = ctx.vertex_array(self.bg_prog, [(self.quad, "2f", "in_xy")])
         self.tm_vao = ctx.vertex_array(self.tm_prog, [(self.quad, "2f", "in_xy")])
+        self.acc_vao = ctx.vertex_array(self.acc_prog, [(self.quad, "2f", "in_xy")])
         # a texture (not a renderbuffer) so that the window's tone-mapping pass can read it
         self.color = ctx.texture((self.width, self.height), 4, dtype="f4")
         self.depth = ctx.depth_renderbuffer((self.width, self.height))
         self.fbo = ctx.framebuffer([self.color], self.depth)
+        # the per-sample pass's target when there are several samples (made on first use)
+        self._pass_color = self._pass_fbo = None
+        self.set_offsets(offsets)
         center = model.mesh.vertices.mean(0)
         self.center = center.detach().cpu().numpy()
         self.radius = float((model.mesh.vertices - center).norm(dim=-1).max())
 
+    def set_offsets(self, offsets=None) -> None:
+        """The sub-pixel sample positions ``(S, 2)`` of the next frames (None: the centre)."""
+        off = np.full((1, 2), 0.5) if offsets is None else np.asarray(offsets, np.float64)
+        if off.ndim != 2 or off.shape[1] != 2 or off.shape[0] < 1:
+            raise InputError("offsets", f"expected (S, 2) sub-pixel positions, got {off.shape}")
+        if not bool(np.all((off >= 0) & (off < 1))):
+            raise InputError("offsets", "sub-pixel positions must lie in [0, 1)")
+        self.offsets = off
+        if off.shape[0] > 1 and self._pass_fbo is None:
+            self._pass_color = self.ctx.texture((self.width, self.height), 4, dtype="f4")
+            self._pass_fbo = self.ctx.framebuffer([self._pass_color], self.depth)
+
+    def _jitter(self, offset) -> tuple[float, float]:
+        """The NDC shift that puts the sample at ``offset`` (x right, y down) under the pixel
+        centre (GL's y runs up)."""
+        return (2.0 * (0.5 - offset[0]) / self.width, 2.0 * (offset[1] - 0.5) / self.height)
+
     def _data_texture(self, img: np.ndarray):
-        import moderngl
+        import moderngl  # optional (the gl extra)
 
         t = self.ctx.texture(
             (img.shape[1], img.shape[0]), 4, img.astype(np.float32).tobytes(), dtype="f4"
@@ -351,31 +382,17 @@ class GLRenderer:
         background: bool = True,
         fbo=None,
     ) -> None:
-        """Render a frame into ``fbo`` (default the renderer's float framebuffer)."""
-        import moderngl
+        """Render a frame into ``fbo`` (default the renderer's float framebuffer), one pass per
+        sample of :attr:`offsets`."""
+        import moderngl  # optional (the gl extra)
 
         ctx = self.ctx
-        fbo = fbo or self.fbo
-        fbo.use()
-        ctx.viewport = (0, 0, self.width, self.height)
-        if background:  # the background pass writes every pixel: clear the depth alone
-            # (moderngl applies a framebuffer's colour mask when it is bound)
-            fbo.color_mask = (False, False, False, False)
-            fbo.use()
-            fbo.clear(depth=1.0)
-            fbo.color_mask = (True, True, True, True)
-            fbo.use()
-        else:
-            fbo.clear(0.0, 0.0, 0.0, 0.0, depth=1.0)
+        out = fbo or self.fbo
         r = rot.detach().cpu().numpy().astype(np.float32)
         rt_bytes = r.tobytes()  # row-major R is column-major R^T: the shaders' rot_t
         if background:
-            ctx.disable(moderngl.DEPTH_TEST)
             self._camera_uniforms(self.bg_prog, camera)
             self.bg_prog["rot_t"].write(rt_bytes)
-            self.env_cube.use(4)
-            self.bg_vao.render(moderngl.TRIANGLE_STRIP)
-        ctx.enable(moderngl.DEPTH_TEST)
         p = self.prog
         self._camera_uniforms(p, camera)
         eye = np.asarray(camera.origin, np.float64)
@@ -389,8 +406,50 @@ class GLRenderer:
         )
         p["parts"].value = (float(diffuse), float(glossy))
         self._sun_pass(rot, on=diffuse or (glossy and self.sun_glossy))
+        n = self.offsets.shape[0]
+        if n == 1:
+            self._draw_sample(out, self._jitter(self.offsets[0]), background)
+            return
+        out.use()
+        ctx.viewport = (0, 0, self.width, self.height)
+        out.clear(0.0, 0.0, 0.0, 0.0)
+        self.acc_prog["image"].value = 7
+        self.acc_prog["weight"].value = 1.0 / n
+        for offset in self.offsets:
+            self._draw_sample(self._pass_fbo, self._jitter(offset), background)
+            out.use()
+            ctx.viewport = (0, 0, self.width, self.height)
+            ctx.disable(moderngl.DEPTH_TEST)
+            ctx.enable(moderngl.BLEND)
+            ctx.blend_func = moderngl.ONE, moderngl.ONE
+            ctx.blend_equation = moderngl.FUNC_ADD
+            self._pass_color.use(7)
+            self.acc_vao.render(moderngl.TRIANGLE_STRIP)
+            ctx.disable(moderngl.BLEND)
+
+    def _draw_sample(self, fbo, jitter: tuple[float, float], background: bool) -> None:
+        """One sample of every pixel into ``fbo``: background, then the object (the uniforms
+        but ``jitter`` are set by :meth:`draw`)."""
+        import moderngl  # optional (the gl extra)
+
+        ctx = self.ctx
         fbo.use()
         ctx.viewport = (0, 0, self.width, self.height)
+        if background:  # the background pass writes every pixel: clear the depth alone
+            # (moderngl applies a framebuffer's colour mask when it is bound)
+            fbo.color_mask = (False, False, False, False)
+            fbo.use()
+            fbo.clear(depth=1.0)
+            fbo.color_mask = (True, True, True, True)
+            fbo.use()
+            ctx.disable(moderngl.DEPTH_TEST)
+            self.bg_prog["jitter"].value = jitter
+            self.env_cube.use(4)
+            self.bg_vao.render(moderngl.TRIANGLE_STRIP)
+        else:
+            fbo.clear(0.0, 0.0, 0.0, 0.0, depth=1.0)
+        ctx.enable(moderngl.DEPTH_TEST)
+        self.prog["jitter"].value = jitter
         self.shadow_tex.use(6)
         self.gauss_tex.use(0)
         self.diff_tex.use(1)
@@ -401,7 +460,7 @@ class GLRenderer:
 
     def _sun_pass(self, rot: torch.Tensor, *, on: bool) -> None:
         """Set the sun's uniforms and render its shadow map (when the lighting has a sun)."""
-        import moderngl
+        import moderngl  # optional (the gl extra)
 
         p = self.prog
         sun = self.lighting.sun
@@ -438,7 +497,7 @@ class GLRenderer:
 
     def present(self, screen, *, exposure: float = 0.0, curve: str = "srgb") -> None:
         """Tone-map the last frame onto ``screen`` (a window's framebuffer)."""
-        import moderngl
+        import moderngl  # optional (the gl extra)
 
         screen.use()
         self.ctx.disable(moderngl.DEPTH_TEST)
@@ -449,13 +508,17 @@ class GLRenderer:
         self.tm_vao.render(moderngl.TRIANGLE_STRIP)
 
     def read(self) -> tuple[torch.Tensor, torch.Tensor]:
-        """The float framebuffer as ``(H, W, 3)`` radiance and ``(H, W)`` object mask."""
+        """The float framebuffer as ``(H, W, 3)`` radiance and ``(H, W)`` float32 coverage (the
+        fraction of the pixel's samples on the object)."""
         raw = self.fbo.read(components=4, dtype="f4")
         img = np.frombuffer(raw, np.float32).reshape(self.height, self.width, 4)[::-1]
         img = torch.from_numpy(img.copy())
-        return img[..., :3].contiguous(), img[..., 3] > 0.5
+        return img[..., :3].contiguous(), img[..., 3].contiguous()
 
     def release(self) -> None:
+        for o in (self._pass_fbo, self._pass_color):
+            if o is not None:
+                o.release()
         for o in (
             self.vao,
             self.shadow_vao,
@@ -467,6 +530,7 @@ class GLRenderer:
             self.sbo,
             self.bg_vao,
             self.tm_vao,
+            self.acc_vao,
             self.vbo,
             self.ibo,
             self.quad,
@@ -482,6 +546,7 @@ class GLRenderer:
             self.prog,
             self.bg_prog,
             self.tm_prog,
+            self.acc_prog,
         ):
             o.release()
         if self.own_ctx:

@@ -195,6 +195,7 @@ def render_torch(
     background: bool = True,
     pixels: torch.Tensor | None = None,
     caster: RayCaster | None = None,
+    offsets=None,
 ) -> tuple[torch.Tensor, torch.Tensor]:
     """Render by ray casting and the two stages.
 
@@ -202,26 +203,44 @@ def render_torch(
     ----------
     pixels : optional (P, 2) int (row, column): shade only these
     caster : the mesh's ray caster, to reuse its BVH across frames (built here when None)
+    offsets : optional (S, 2) sub-pixel sample positions in [0, 1) (x right, y down), default
+        the pixel centre; the pixel is the mean of its samples (a box filter), as the shader
+        path's passes, cast one sample of every pixel at a time (memory of one frame)
 
     Returns
     -------
-    image : (H, W, 3), or (P, 3) for ``pixels``;  mask : (H, W) or (P,) bool, object coverage
+    image : (H, W, 3), or (P, 3) for ``pixels``;  coverage : (H, W) or (P,) float32, the
+    fraction of the samples that hit the object
     """
     dev = model.device
-    o, d = camera.rays(width, height)  # (H, W, 3)
-    if pixels is not None:
-        px = torch.as_tensor(pixels).long().cpu()
-        o, d = o[px[:, 0], px[:, 1]], d[px[:, 0], px[:, 1]]
-    shape = d.shape[:-1]
-    o, d = o.reshape(-1, 3), d.reshape(-1, 3)
+    off = torch.full((1, 2), 0.5, dtype=torch.float64) if offsets is None else offsets
+    off = torch.as_tensor(off, dtype=torch.float64).cpu()
+    if off.ndim != 2 or off.shape[1] != 2 or off.shape[0] < 1:
+        raise InputError("offsets", f"expected (S, 2) sub-pixel positions, got {tuple(off.shape)}")
+    px = None if pixels is None else torch.as_tensor(pixels).long().cpu()
     caster = RayCaster(model.mesh, offset=0.0) if caster is None else caster
-    tri, _, bary = caster.first_hit(o, d)
-    hit = tri >= 0
-    vd = vertex_stage(model, lighting, camera.origin, rot)
-    img = torch.zeros(o.shape[0], 3, device=dev)
-    if background:
-        img[~hit.to(dev)] = lighting.background(d[~hit].to(dev), rot).to(dev, torch.float32)
-    img[hit.to(dev)] = pixel_stage(
-        model, lighting, vd, tri[hit], bary[hit], rot, diffuse=diffuse, glossy=glossy, caster=caster
-    )
-    return img.reshape(*shape, 3), hit.reshape(shape)
+    vd = vertex_stage(model, lighting, camera.origin, rot)  # the same for every sample
+    img = cov = None
+    for offset in off:
+        o, d = camera.rays(width, height, offsets=offset.expand(height, width, 2))  # (H, W, 3)
+        if px is not None:
+            o, d = o[px[:, 0], px[:, 1]], d[px[:, 0], px[:, 1]]
+        shape = d.shape[:-1]
+        o, d = o.reshape(-1, 3), d.reshape(-1, 3)
+        tri, _, bary = caster.first_hit(o, d)
+        hit = tri >= 0
+        one = torch.zeros(o.shape[0], 3, device=dev)
+        if background:
+            one[~hit.to(dev)] = lighting.background(d[~hit].to(dev), rot).to(dev, torch.float32)
+        one[hit.to(dev)] = pixel_stage(
+            model, lighting, vd, tri[hit], bary[hit], rot, diffuse=diffuse, glossy=glossy,
+            caster=caster,
+        )  # fmt: skip
+        if img is None:
+            img, cov = one, hit.float()
+        else:
+            img, cov = img + one, cov + hit.float()
+    n = off.shape[0]
+    if n > 1:  # the sum of the samples over their count (exact for one sample)
+        img, cov = img / n, cov / n
+    return img.reshape(*shape, 3), cov.reshape(shape)

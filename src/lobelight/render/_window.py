@@ -2,7 +2,8 @@
 
 Left-drag orbits the camera, right-drag turns the lighting, the wheel zooms; ``d``/``g``/``b``
 show the diffuse part, the glossy part or both; ``+``/``-`` change the exposure, ``t`` toggles
-the ACES curve, ``Esc`` quits. The title shows the frame rate.
+the ACES curve, ``a`` switches anti-aliasing between the renderer's samples per pixel and one,
+``Esc`` quits. The title shows the frame rate and the samples per pixel.
 """
 
 from __future__ import annotations
@@ -15,6 +16,9 @@ import numpy as np
 
 from ..camera import Camera
 from ..errors import InputError
+from ..model import Model, load
+from ._lighting import as_rotation
+from ._renderer import Renderer, sample_offsets
 
 __all__ = ["view"]
 
@@ -25,7 +29,7 @@ def require_display():
     """glfw, or one clear error when no window can be opened here (checked before a model is
     loaded)."""
     try:
-        import glfw
+        import glfw  # optional (the gl extra)
     except ImportError:
         raise InputError(
             "view", f"needs glfw (pip install 'lobelight[gl]'); {_OFFSCREEN}"
@@ -54,21 +58,27 @@ def _open_window(width: int, height: int, title: str):
     return glfw, win
 
 
-def view(model_path, *, env, width: int = 1024, height: int = 768, sun: bool = True) -> dict:
+def view(
+    model_path,
+    *,
+    env,
+    width: int = 1024,
+    height: int = 768,
+    sun: bool = True,
+    samples: int = 4,
+) -> dict:
     """Open the window and run until it is closed; returns frames drawn and the mean fps.
 
-    ``model_path``: a model file, or a loaded :class:`~lobelight.model.Model`."""
+    ``model_path``: a model file, or a loaded :class:`~lobelight.model.Model`; ``samples``:
+    samples per pixel while anti-aliasing is on (the ``a`` key)."""
     glfw, win = _open_window(width, height, "lobelight")
-    import moderngl
-
-    from ..model import Model, load
-    from ._renderer import Renderer
+    import moderngl  # optional (the gl extra)
 
     try:
         model = model_path if isinstance(model_path, Model) else load(model_path)
         ctx = moderngl.create_context()
         fb_w, fb_h = glfw.get_framebuffer_size(win)
-        ren = Renderer(model, env, fb_w, fb_h, backend="gl", ctx=ctx, sun=sun)
+        ren = Renderer(model, env, fb_w, fb_h, backend="gl", ctx=ctx, sun=sun, samples=samples)
         verts = model.mesh.vertices
         centre = ((verts.amin(0) + verts.amax(0)) / 2).tolist()
         radius = float((verts - verts.mean(0)).norm(dim=-1).max())
@@ -80,6 +90,7 @@ def view(model_path, *, env, width: int = 1024, height: int = 768, sun: bool = T
             "exposure": 0.0,
             "parts": (True, True),
             "aces": False,
+            "samples": ren.samples,
             "drag": None,
             "last": (0.0, 0.0),
         }
@@ -119,14 +130,15 @@ def view(model_path, *, env, width: int = 1024, height: int = 768, sun: bool = T
                 st["exposure"] -= 0.5
             elif key == glfw.KEY_T:
                 st["aces"] = not st["aces"]
+            elif key == glfw.KEY_A:
+                st["samples"] = 1 if st["samples"] > 1 else ren.samples
+                ren._gl.set_offsets(sample_offsets(st["samples"]))
 
         glfw.set_mouse_button_callback(win, on_button)
         glfw.set_cursor_pos_callback(win, on_move)
         glfw.set_scroll_callback(win, on_scroll)
         glfw.set_key_callback(win, on_key)
         frames, t0, tick, shown = 0, time.perf_counter(), time.perf_counter(), 0
-        from ._lighting import as_rotation
-
         while not glfw.window_should_close(win):
             cp, sp = math.cos(st["pitch"]), math.sin(st["pitch"])
             eye = np.array(centre) + st["dist"] * np.array(
@@ -145,7 +157,9 @@ def view(model_path, *, env, width: int = 1024, height: int = 768, sun: bool = T
             if now - tick > 0.5:
                 fps = (frames - shown) / (now - tick)
                 glfw.set_window_title(
-                    win, f"lobelight  {fps:.1f} fps  exposure {st['exposure']:+.1f}"
+                    win,
+                    f"lobelight  {fps:.1f} fps  exposure {st['exposure']:+.1f}  "
+                    f"{st['samples']} sample(s)/pixel",
                 )
                 tick, shown = now, frames
         ren.close()

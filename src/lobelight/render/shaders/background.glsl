@@ -20,10 +20,12 @@ uniform vec3 cam_up;
 uniform vec3 cam_dir;
 uniform vec2 tan_half;
 uniform mat3 rot_t;
+uniform vec2 jitter;  // the sample's shift from the pixel centre (NDC), as in prt.glsl
 out vec4 frag;
 
 void main() {
-    vec3 d = normalize(-v_ndc.x * tan_half.x * cam_left + v_ndc.y * tan_half.y * cam_up + cam_dir);
+    vec2 ndc = v_ndc - jitter;  // the sample point this pixel centre stands for
+    vec3 d = normalize(-ndc.x * tan_half.x * cam_left + ndc.y * tan_half.y * cam_up + cam_dir);
     frag = vec4(textureLod(env, rot_t * d, 0.0).rgb, 0.0);
 }
 

@@ -27,6 +27,7 @@ uniform vec3 cam_up;
 uniform vec3 cam_dir;
 uniform vec2 tan_half;         // tan of the half field of view along x and y
 uniform vec2 depth_range;      // near, far
+uniform vec2 jitter;           // the sample's shift from the pixel centre, in NDC units
 
 out vec3 v_e[NL];        // carried light
 out float v_live[NL];    // 1 if the vertex's lobe is live (carries light), else 0
@@ -91,7 +92,10 @@ void main() {
     vec3 q = in_pos - eye;
     float zc = dot(q, cam_dir);
     float n = depth_range.x, fa = depth_range.y;
-    gl_Position = vec4(-dot(q, cam_left) / tan_half.x, dot(q, cam_up) / tan_half.y,
+    // the image moves by the sample's offset so that the pixel centres see the sample points
+    // (Renderer's supersampling; zero for one sample per pixel)
+    gl_Position = vec4(-dot(q, cam_left) / tan_half.x + jitter.x * zc,
+                       dot(q, cam_up) / tan_half.y + jitter.y * zc,
                        zc * (fa + n) / (fa - n) - 2.0 * fa * n / (fa - n), zc);
 }
 
