@@ -7,12 +7,15 @@ import os
 import tempfile
 from pathlib import Path
 
+import cv2
 import numpy as np
+import OpenEXR
 import torch
+from PIL import Image
 
 from ..errors import InputError
 
-__all__ = ["auto_exposure", "save_image", "tonemap"]
+__all__ = ["auto_exposure", "check_output_path", "save_image", "tonemap", "write_atomically"]
 
 CURVES = ("srgb", "aces")
 
@@ -56,37 +59,47 @@ def tonemap(img, *, exposure: float = 0.0, curve: str = "srgb") -> np.ndarray:
     return (np.clip(s, 0, 1) * 255 + 0.5).astype(np.uint8)
 
 
-def save_image(path, img, *, exposure: float = 0.0, curve: str = "srgb") -> Path:
-    """Write ``(H, W, 3)`` radiance: ``.png`` tone-mapped, ``.exr``/``.hdr`` linear; atomically."""
+#: Image types :func:`save_image` writes: tone-mapped 8-bit, and linear float.
+DISPLAY_TYPES = (".png", ".jpg", ".jpeg")
+LINEAR_TYPES = (".exr", ".hdr")
+#: JPEG quality (Pillow's scale, 1..95): no visible loss on renders
+JPEG_QUALITY = 95
+
+
+def check_type(path, types: tuple[str, ...]) -> Path:
+    """``path`` as a Path if its extension is one of ``types`` (case-insensitive), else an
+    :class:`InputError` naming it and the types."""
     p = Path(path)
     ext = p.suffix.lower()
-    if ext not in (".png", ".exr", ".hdr"):
+    if ext not in types:
         kind = ext or "(none)"
-        raise InputError(str(p), f"unsupported image type {kind!r}: use .png, .exr, .hdr")
-    if not p.parent.is_dir():
-        raise InputError(str(p), f"the directory {str(p.parent)!r} does not exist")
-    x = _np(img)
-    if x.ndim != 3 or x.shape[-1] != 3:
-        raise InputError("image", f"expected (H, W, 3), got {x.shape}")
-    fd, tmp = tempfile.mkstemp(dir=p.parent, prefix=f".{p.name}.", suffix=f".tmp{ext}")
+        raise InputError(str(p), f"unsupported image type {kind!r}: use {', '.join(types)}")
+    return p
+
+
+def check_output_path(path, *, types: tuple[str, ...] = DISPLAY_TYPES + LINEAR_TYPES) -> Path:
+    """``path`` as a Path if an image can be written there, else an :class:`InputError` naming
+    it: its extension is one of ``types`` (case-insensitive), it is not a directory, and its
+    directory exists and is writable. Nothing is written; callers check before rendering."""
+    p = check_type(path, types)
+    if p.is_dir():
+        raise InputError(str(p), "is a directory, not an image file name")
+    parent = p.parent
+    if not parent.is_dir():
+        raise InputError(str(p), f"the directory {str(parent)!r} does not exist")
+    if not os.access(parent, os.W_OK | os.X_OK):
+        raise InputError(str(p), f"the directory {str(parent)!r} is not writable")
+    return p
+
+
+def write_atomically(path, write) -> Path:
+    """Call ``write(tmp)`` on a temporary file next to ``path``, then move it onto ``path``
+    (readers never see a half-written file), with the usual permissions."""
+    p = Path(path)
+    fd, tmp = tempfile.mkstemp(dir=p.parent, prefix=f".{p.name}.", suffix=f".tmp{p.suffix}")
     os.close(fd)
     try:
-        if ext == ".png":
-            from PIL import Image
-
-            Image.fromarray(tonemap(x, exposure=exposure, curve=curve)).save(tmp, format="PNG")
-        elif ext == ".hdr":
-            import cv2
-
-            ok, enc = cv2.imencode(".hdr", np.ascontiguousarray(x[..., ::-1]))
-            if not ok:
-                raise InputError(str(p), "OpenCV could not encode the image")
-            Path(tmp).write_bytes(enc.tobytes())
-        else:
-            import OpenEXR
-
-            header = {"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage}
-            OpenEXR.File(header, {"RGB": np.ascontiguousarray(x)}).write(tmp)
+        write(tmp)
         # mkstemp makes owner-only files: give the image the usual permissions
         mask = os.umask(0)
         os.umask(mask)
@@ -96,3 +109,36 @@ def save_image(path, img, *, exposure: float = 0.0, curve: str = "srgb") -> Path
         if os.path.exists(tmp):
             os.unlink(tmp)
     return p
+
+
+def save_image(path, img, *, exposure: float = 0.0, curve: str = "srgb") -> Path:
+    """Write ``(H, W, 3)`` radiance atomically: ``.png`` and ``.jpg``/``.jpeg`` (quality 95)
+    tone-mapped (:func:`tonemap`), ``.exr`` (float32, ZIP) and ``.hdr`` linear.
+
+    The path is checked first (:func:`check_output_path`); returns it as a Path.
+    """
+    p = check_output_path(path)
+    ext = p.suffix.lower()
+    if curve not in CURVES:
+        raise InputError("curve", f"must be one of {CURVES}, got {curve!r}")
+    x = _np(img)
+    if x.ndim != 3 or x.shape[-1] != 3:
+        raise InputError("image", f"expected (H, W, 3), got {x.shape}")
+
+    def write(tmp: str) -> None:
+        if ext in DISPLAY_TYPES:
+            im = Image.fromarray(tonemap(x, exposure=exposure, curve=curve))
+            if ext == ".png":
+                im.save(tmp, format="PNG")
+            else:
+                im.save(tmp, format="JPEG", quality=JPEG_QUALITY)
+        elif ext == ".hdr":
+            ok, enc = cv2.imencode(".hdr", np.ascontiguousarray(x[..., ::-1]))
+            if not ok:
+                raise InputError(str(p), "OpenCV could not encode the image")
+            Path(tmp).write_bytes(enc.tobytes())
+        else:
+            header = {"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage}
+            OpenEXR.File(header, {"RGB": np.ascontiguousarray(x)}).write(tmp)
+
+    return write_atomically(p, write)
