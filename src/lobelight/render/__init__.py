@@ -1,15 +1,22 @@
 """Real-time rendering of fitted models (Green et al. 2006, section 5).
 
-- :class:`Renderer` ``(model, env, width, height, *, backend="gl"|"torch", base_res, device)``;
-  :meth:`Renderer.render` ``(camera, light_rotation=None, *, diffuse, glossy, background,
-  return_mask) -> (H, W, 3)`` linear radiance, float32 (a torch tensor on the CPU for
-  ``"gl"``, on ``device`` for ``"torch"``).
+- :class:`Renderer` ``(model, env, width, height, *, backend="gl"|"torch", base_res, device,
+  sun, samples=4)``; :meth:`Renderer.render` ``(camera, light_rotation=None, *, diffuse,
+  glossy, background, return_mask) -> (H, W, 3)`` linear radiance, float32, non-negative (a
+  torch tensor on the CPU for ``"gl"``, on ``device`` for ``"torch"``); ``return_mask=True``
+  adds the bool mask of pixels entirely on the object, ``"coverage"`` its float fraction.
+- Anti-aliasing: ``samples`` per pixel at :func:`sample_offsets` (a stratified n-rooks
+  pattern), averaged; both backends shade the same points (the shader path one pass per
+  sample with the image shifted, the torch path one ray per sample).
 - Backends: ``"gl"`` runs ``shaders/prt.glsl`` through moderngl (EGL headless; Mesa llvmpipe on
   a CPU, the NVIDIA driver on a GPU); ``"torch"`` does the same stages in torch on any device
   (``_torch.py``, by ray casting), and is what the shaders are tested against.
 - :class:`Lighting` an environment ready to render: prefiltered chain, SH projection, rotation.
 - :func:`tonemap` exposure, ``"srgb"`` or ``"aces"``, to 8-bit; :func:`auto_exposure`;
-  :func:`save_image` (``.png`` tone-mapped, ``.exr``/``.hdr`` linear), atomically.
+  :func:`save_image` (``.png``/``.jpg`` tone-mapped, ``.exr``/``.hdr`` linear), atomically;
+  :func:`check_output_path` the checks it makes first, for callers to make before rendering.
+- :func:`turntable` frames over a full turn of the camera (or the light), one exposure, and a
+  GIF or WebP animation of them; :func:`orbit` one camera of it.
 - :class:`GLSGBRDFRenderer` the SG-mixture BRDF method (and FIS-40) in GLSL
   (``_gl_sgbrdf.py``, ``shaders/sgbrdf.glsl``); :func:`bench_gl` times the two.
 - :class:`Camera` Mitsuba 3's perspective sensor (re-exported from :mod:`lobelight.camera`).
@@ -18,8 +25,9 @@
 from ..camera import Camera
 from ._gl_sgbrdf import GLSGBRDFRenderer, bench_gl
 from ._lighting import Lighting, as_rotation
-from ._renderer import Renderer
-from ._tonemap import auto_exposure, save_image, tonemap
+from ._renderer import Renderer, sample_offsets
+from ._tonemap import auto_exposure, check_output_path, save_image, tonemap
+from ._turntable import orbit, turntable
 
 __all__ = [
     "Camera",
@@ -29,6 +37,10 @@ __all__ = [
     "as_rotation",
     "auto_exposure",
     "bench_gl",
+    "check_output_path",
+    "orbit",
+    "sample_offsets",
     "save_image",
     "tonemap",
+    "turntable",
 ]
