@@ -3,8 +3,14 @@
 Commands: ``demo``, ``bake``, ``info``, ``render``, ``view``, ``compare``, ``compare-brdf``,
 ``figure5``, ``lobes-demo``, ``bench``.
 
-Exit codes: 0 success; 1 unexpected error; 2 bad input (one line naming the input and the
-problem); 130 interrupted (Ctrl-C; a bake resumes from its checkpoint when run again).
+Every command takes ``--json`` (stdout carries only the JSON summary, or a JSON error object),
+``--device`` and ``--quiet``. Progress goes to stderr: bars on a terminal, plain lines at most
+every few seconds elsewhere (:mod:`lobelight.progress`). Flags share their names across
+commands: ``-o/--output``, ``--width/--height``, ``--spp``, ``--sun/--no-sun``, ``--backend``;
+older spellings (``--out``, ``--ref-spp``) are kept as aliases.
+
+Exit codes: 0 success; 1 unexpected error; 2 bad input (one line on stderr naming the input and
+the problem); 130 interrupted (Ctrl-C; a bake resumes from its checkpoint when run again).
 """
 
 from __future__ import annotations
@@ -14,10 +20,13 @@ import dataclasses
 import json
 import math
 import os
+import re
 import sys
 import time
 from pathlib import Path
-from typing import ClassVar
+
+from .errors import InputError
+from .progress import Reporter
 
 __all__ = ["main"]
 
@@ -26,62 +35,36 @@ __all__ = ["main"]
 # feedback
 
 
-class _Progress:
-    """``progress(stage, done, total)`` callbacks drawn as tqdm bars on stderr (rates, ETA);
-    silent with ``--json`` or when stderr is not a terminal."""
-
-    # what a stage counts (else chunks)
-    UNITS: ClassVar[dict[str, str]] = {
-        "frames": "frame", "lobe tables": "fit", "reference": "spp", "reference, glossy": "spp",
-    }  # fmt: skip
-
-    def __init__(self, enabled: bool):
-        self.enabled = enabled and sys.stderr.isatty()
-        self.bars: dict[str, object] = {}
-
-    def __call__(self, stage: str, done: int, total: int) -> None:
-        if not self.enabled:
-            return
-        from tqdm import tqdm
-
-        bar = self.bars.get(stage)
-        if bar is None:
-            unit = self.UNITS.get(stage, "chunk")
-            bar = self.bars[stage] = tqdm(total=total, desc=stage, unit=unit, leave=False)
-        bar.n = done
-        bar.refresh()
-        if done >= total:
-            bar.close()
-
-    def note(self, text: str) -> None:
-        if self.enabled:
-            print(text, file=sys.stderr)
+def _progress(args) -> Reporter | None:
+    """The commands' progress reporter: stderr, silent with ``--quiet``."""
+    return None if args.quiet else Reporter()
 
 
-def _device(args) -> str:
-    return args.device
+def _note(args, text: str) -> None:
+    if not args.quiet:
+        print(f"lobelight: {text}", file=sys.stderr, flush=True)
 
 
 def _camera_from(text: str | None, provenance: dict, mesh):
     from .camera import Camera
-    from .errors import InputError
 
     if text:
         try:
             parts = [[float(x) for x in p.split(",")] for p in text.split(":")]
             origin, target = parts[0], parts[1]
             fov = parts[2][0] if len(parts) > 2 else 40.0
-            assert len(origin) == 3 and len(target) == 3
-        except (ValueError, IndexError, AssertionError):
-            raise InputError(
-                "--camera", f"expected 'ox,oy,oz:tx,ty,tz[:fov]', got {text!r}"
-            ) from None
+            ok = len(origin) == 3 and len(target) == 3 and len(parts) <= 3
+            ok = ok and all(math.isfinite(v) for v in (*origin, *target, fov))
+        except (ValueError, IndexError):
+            ok = False
+        if not ok:
+            raise InputError("--camera", f"expected 'ox,oy,oz:tx,ty,tz[:fov]', got {text!r}")
         return Camera.look_at(origin, target, fov=fov)
     cam = provenance.get("camera")
     if isinstance(cam, dict):
         try:
             return Camera(**{k: (tuple(v) if isinstance(v, list) else v) for k, v in cam.items()})
-        except (TypeError, InputError):
+        except (TypeError, ValueError, InputError):
             pass
     from .scene._scene import _default_camera
 
@@ -89,8 +72,9 @@ def _camera_from(text: str | None, provenance: dict, mesh):
 
 
 def _env_source(path: str | None, provenance: dict | None = None) -> str:
-    """The environment a command uses: ``--env``, else the model's stored one (a scene file's
-    or ``bake --env``'s) while its file exists, else ``"builtin"``."""
+    """The environment a command uses: ``--env`` (a file, ``builtin`` or a bundled map's name),
+    else the model's stored one (a scene file's or ``bake --env``'s) while its file exists, else
+    ``"builtin"``."""
     if path:
         return str(path)
     stored = (provenance or {}).get("environment", "builtin")
@@ -99,33 +83,79 @@ def _env_source(path: str | None, provenance: dict | None = None) -> str:
     return "builtin"
 
 
+def _env_file(source: str) -> str:
+    """``source`` as a file path: a bundled map's name resolves to its file."""
+    from .data import envmap_path
+
+    if source != "builtin" and not Path(source).exists():
+        bundled = envmap_path(source)
+        if bundled is not None:
+            return str(bundled)
+    return source
+
+
 def _env(path: str | None, provenance: dict | None = None):
     from .envmap import builtin, load
 
     source = _env_source(path, provenance)
-    return builtin() if source == "builtin" else load(source)
+    return builtin() if source == "builtin" else load(_env_file(source))
 
 
-# --------------------------------------------------------------------------------------------
-# commands
+def _check_output(path: str | os.PathLike) -> Path:
+    """An image path checked before any work: a known extension, an existing writable folder."""
+    from .render import check_output_path
+
+    return check_output_path(path)
+
+
+def _size(args) -> tuple[int, int]:
+    """``--width``/``--height``, or ``--size N`` / ``--size WxH`` (both checked)."""
+    w, h = args.width, args.height
+    if getattr(args, "size", None):
+        m = re.fullmatch(r"(\d+)(?:[xX](\d+))?", args.size)
+        if not m:
+            raise InputError("--size", f"expected N or WxH, got {args.size!r}")
+        w = int(m.group(1))
+        h = int(m.group(2) or m.group(1))
+    for name, v in (("--width", w), ("--height", h)):
+        if not 1 <= v <= 16384:
+            raise InputError(name, f"must be 1..16384 pixels, got {v}")
+    return w, h
+
+
+def _model_path(scene: str, output: str | None) -> Path:
+    out = Path(output) if output else Path(f"{Path(str(scene)).stem}.lobelight.npz")
+    out = Path(str(out).replace(":", "-"))
+    if out.is_dir():
+        raise InputError(str(out), "is a directory: name the model file (-o DIR/NAME.npz)")
+    if not out.parent.is_dir():
+        raise InputError(str(out), f"the directory {str(out.parent)!r} does not exist")
+    if not os.access(out.parent, os.W_OK):
+        raise InputError(str(out), f"the directory {str(out.parent)!r} is not writable")
+    return out
 
 
 def _cmd_bake(args) -> dict:
     from .fit import fit_model
     from .scene import load
 
-    prog = _Progress(not args.json)
-    sc = load(args.scene, device=args.device)
+    out = _model_path(args.scene, args.output)  # checked before any work
+    if args.indirect_paths < 0:
+        raise InputError("--indirect-paths", f"must be >= 0, got {args.indirect_paths}")
+    prog = _progress(args)
+    sc = load(args.scene, device=args.device, material=args.material)
     if args.env:  # the model's default lighting (render, view, compare), as a scene file's
         from .envmap import load as load_env
 
-        load_env(args.env)  # checked at the door: missing, unreadable, NaN/Inf, bad shape
-        sc = dataclasses.replace(sc, environment=str(Path(args.env).resolve()))
-    out = Path(args.output) if args.output else Path(f"{Path(str(args.scene)).stem}.lobelight.npz")
-    out = Path(str(out).replace(":", "-"))
+        env_file = _env_file(args.env)
+        if args.env != "builtin":
+            load_env(env_file)  # checked at the door: missing, unreadable, NaN/Inf, bad shape
+            env_file = str(Path(env_file).resolve())
+        sc = dataclasses.replace(sc, environment=env_file)
     ckpt = out.with_name(out.name + ".ckpt")
     if ckpt.exists():
-        prog.note(f"resuming from {ckpt}")
+        _note(args, f"resuming from {ckpt}")
+    _note(args, f"baking {sc.name}: {sc.mesh.n_vertices} vertices, {args.lobes} Gaussian(s)/view")
     t0 = time.perf_counter()
     m = fit_model(
         sc,
@@ -144,6 +174,7 @@ def _cmd_bake(args) -> dict:
         "model": str(out),
         "scene": sc.name,
         "environment": sc.environment,
+        "material": sc.materials.model,
         "vertices": sc.mesh.n_vertices,
         "n_lobes": args.lobes,
         "bytes": info["bytes"],
@@ -180,11 +211,38 @@ def _cmd_info(args) -> dict:
     }
 
 
+def _exposure(text: str) -> float | None:
+    """``--exposure``: stops, or None for ``auto``."""
+    if text == "auto":
+        return None
+    try:
+        v = float(text)
+    except ValueError:
+        v = math.nan
+    if not math.isfinite(v):
+        raise InputError("--exposure", f"expected stops (a finite number) or 'auto', got {text!r}")
+    return v
+
+
 def _cmd_render(args) -> dict:
     from .model import load
-    from .render import Renderer, auto_exposure, save_image
+    from .render import Renderer, auto_exposure, save_image, turntable
     from .render._gl import gl_available
 
+    width, height = _size(args)
+    exposure = _exposure(args.exposure)
+    if args.rotate is not None and not math.isfinite(args.rotate):
+        raise InputError("--rotate", f"must be a finite angle in degrees, got {args.rotate}")
+    if args.turntable is not None:
+        if args.turntable < 1:
+            raise InputError("--turntable", f"must be >= 1 frames, got {args.turntable}")
+        out_dir = Path(args.output)
+        if out_dir.suffix and not out_dir.is_dir():
+            raise InputError(str(out_dir), "--turntable writes frames into a folder: -o DIR")
+        if not out_dir.parent.is_dir():
+            raise InputError(str(out_dir), f"the directory {str(out_dir.parent)!r} does not exist")
+    else:
+        _check_output(args.output)
     m = load(args.model, device=args.device)
     env = _env(args.env, m.provenance)
     cam = _camera_from(args.camera, m.provenance, m.mesh)
@@ -195,30 +253,56 @@ def _cmd_render(args) -> dict:
     with Renderer(
         m,
         env,
-        args.width,
-        args.height,
+        width,
+        height,
         backend=backend,
         base_res=args.base_res,
-        sun=not args.no_sun,
+        sun=args.sun,
+        samples=args.samples,
     ) as ren:
         t1 = time.perf_counter()
-        img, mask = ren.render(
-            cam,
-            args.rotate,
+        parts = dict(
             diffuse=args.parts in ("both", "diffuse"),
             glossy=args.parts in ("both", "glossy"),
-            background=not args.no_background,
-            return_mask=True,
+            background=args.background,
         )
+        if args.turntable is not None:
+            out_dir = Path(args.output)
+            out_dir.mkdir(exist_ok=True)
+            spin = turntable(
+                ren,
+                cam,
+                args.turntable,
+                out_dir,
+                exposure=exposure,
+                curve=args.tonemap,
+                rotate=args.spin,
+                progress=_progress(args),
+                **parts,
+            )
+            t2 = time.perf_counter()
+            return {
+                "command": "render",
+                "output": str(out_dir),
+                **{k: v for k, v in spin.items() if k != "seconds"},
+                "environment": _env_source(args.env, m.provenance),
+                "backend": backend,
+                "size": [width, height],
+                "seconds_setup": t1 - t0,
+                "seconds_render": t2 - t1,
+            }
+        img, mask = ren.render(cam, args.rotate, return_mask=True, **parts)
         t2 = time.perf_counter()
-    exposure = auto_exposure(img, mask) if args.exposure == "auto" else float(args.exposure)
+    if exposure is None:
+        exposure = auto_exposure(img, mask)
     out = save_image(args.output, img, exposure=exposure, curve=args.tonemap)
     return {
         "command": "render",
         "output": str(out),
         "environment": _env_source(args.env, m.provenance),
         "backend": backend,
-        "size": [args.width, args.height],
+        "size": [width, height],
+        "samples": args.samples,
         "exposure": exposure,
         "seconds_setup": t1 - t0,
         "seconds_render": t2 - t1,
@@ -231,10 +315,8 @@ def _cmd_view(args) -> dict:
 
     require_display()  # no model is loaded where no window can open
     m = load(args.model)  # checked before a window opens; its stored environment is the default
-    return view(
-        m, env=_env(args.env, m.provenance), width=args.width, height=args.height,
-        sun=not args.no_sun,
-    )  # fmt: skip
+    width, height = _size(args)
+    return view(m, env=_env(args.env, m.provenance), width=width, height=height, sun=args.sun)
 
 
 def _cmd_compare(args) -> dict:
@@ -242,11 +324,10 @@ def _cmd_compare(args) -> dict:
     from .model import load as load_model
     from .scene import load
 
+    width, height = _size(args)
     sc = load(args.scene, device=args.device)
     model = load_model(args.model, device=args.device) if args.model else None
     if model is not None and model.mesh.n_vertices != sc.mesh.n_vertices:
-        from .errors import InputError
-
         raise InputError(
             args.model,
             f"has {model.mesh.n_vertices} vertices, the scene "
@@ -259,41 +340,53 @@ def _cmd_compare(args) -> dict:
             model=model,
             n_lobes=args.lobes,
             env=_env(args.env) if args.env else None,
-            width=args.width,
-            height=args.height,
+            width=width,
+            height=height,
             spp=args.spp,
             light_rotation=args.rotate,
             backend=args.backend,
             baselines=tuple(args.baselines),
             base_res=args.base_res,
-            out=args.out,
+            out=args.output,
             device=args.device,
-            sun=not args.no_sun,
-            progress=_Progress(not args.json),
+            sun=args.sun,
+            progress=_progress(args),
         ),
     }
 
 
 def _cmd_compare_brdf(args) -> dict:
+    from .render._gl import gl_available
     from .sgbrdf import compare_brdf
 
+    size = _square(args, "compare-brdf")
+    backend = {"torch": "torch", "gl": "both", "both": "both"}.get(args.backend)
+    if backend is None:  # auto
+        backend = "both" if gl_available() else "torch"
     return {
         "command": "compare-brdf",
         **compare_brdf(
-            args.out,
-            env=args.env,
-            size=args.size,
-            ref_spp=args.ref_spp,
+            args.output,
+            env=_env_file(args.env) if args.env else None,
+            size=size,
+            ref_spp=args.spp,
             device=args.device,
-            backend=args.backend,
+            backend=backend,
         ),
     }
+
+
+def _square(args, command: str) -> int:
+    w, h = _size(args)
+    if w != h:
+        raise InputError("--size", f"{command} renders square images: give one number, got {w}x{h}")
+    return w
 
 
 def _cmd_figure5(args) -> dict:
     from .figure5 import figure5
 
-    return {"command": "figure5", **figure5(args.out, device=args.device)}
+    return {"command": "figure5", **figure5(args.output, device=args.device)}
 
 
 def _cmd_lobes_demo(args) -> dict:
@@ -302,12 +395,12 @@ def _cmd_lobes_demo(args) -> dict:
     return {
         "command": "lobes-demo",
         **lobes_demo(
-            args.out,
+            args.output,
             frames=args.frames,
-            size=args.size,
+            size=_square(args, "lobes-demo"),
             device=args.device,
             fused=args.fused,
-            progress=_Progress(not args.json),
+            progress=_progress(args),
         ),
     }
 
@@ -344,117 +437,22 @@ def _cmd_bench(args) -> dict:
 
 
 def _cmd_demo(args) -> dict:
-    """Bake the built-in scene, render it under the sky and a turned sky, score it against the
-    path tracer, and write a Markdown report."""
-    import torch
+    from .demo import demo
 
-    from .compare import compare
-    from .envmap import builtin
-    from .fit import fit_model
-    from .render import Renderer, auto_exposure, save_image
-    from .render._gl import gl_available
-    from .scene import load
-
-    prog = _Progress(not args.json)
-    out = Path(args.out)
-    out.mkdir(parents=True, exist_ok=True)
-    t0 = time.perf_counter()
-    sc = load(args.scene, device=args.device)
-    env = builtin()
-    prog.note(f"baking {sc.name} ({sc.mesh.n_vertices} vertices, {args.lobes} Gaussian(s)/view)")
-    model = fit_model(
-        sc, args.lobes, device=args.device, progress=prog, checkpoint=out / "model.ckpt"
-    )
-    info = model.save(out / "model.lobelight.npz")
-    (out / "model.ckpt").unlink(missing_ok=True)
-    t_bake = time.perf_counter() - t0
-    backend = "gl" if gl_available() else "torch"
-    stills = {}
-    t1 = time.perf_counter()
-    with Renderer(model, env, args.width, args.height, backend=backend, sun=not args.no_sun) as ren:
-        for label, rot in (("sky", None), ("sky-turned-120", 120.0)):
-            img, mask = ren.render(sc.camera, rot, return_mask=True)
-            stills[label] = str(
-                save_image(out / f"{label}.png", img, exposure=auto_exposure(img, mask))
-            )
-        t_frame = time.perf_counter()
-        ren.render(sc.camera, 30.0)
-        t_frame = time.perf_counter() - t_frame
-    t_render = time.perf_counter() - t1
-    prog.note("path tracing the reference")
-    cmp = compare(
-        sc,
-        model=model,
-        env=env,
-        width=args.width // 2,
-        height=args.height // 2,
-        spp=args.spp,
-        backend=backend,
-        baselines=("linear",),
-        out=out / "compare",
-        sun=not args.no_sun,
-        progress=prog,
-    )
-    total = time.perf_counter() - t0
-    rows = "\n".join(
-        f"| {r['method']} | {r['component']} | {r['psnr']:.2f} | {r['psnr_display']:.2f} "
-        f"| {r['rel_l2']:.4f} |"
-        for r in cmp["table"]
-    )
-    sky, turned = Path(stills["sky"]).name, Path(stills["sky-turned-120"]).name
-    frame = f"{t_render:.2f} (one frame {t_frame * 1e3:.1f} ms)"
-    report = f"""# lobelight demo: {sc.name}
-
-{sc.mesh.n_vertices} vertices, {model.n_lobes} Gaussian(s) per view, 92 views, built-in sky.
-
-![under the sky]({sky}) ![the sky turned 120 degrees]({turned})
-
-| step | seconds |
-|---|---|
-| bake (transport + fit) | {t_bake:.1f} |
-| renders ({backend}, {args.width}x{args.height}) | {frame} |
-| reference path tracing ({args.spp} spp) | {cmp["seconds"]["reference"]:.1f} |
-| total | {total:.1f} |
-
-Model file: `model.lobelight.npz`, {info["bytes"] / 1e6:.2f} MB.
-
-Against the Monte Carlo reference (direct lighting, pixel centres, object pixels;
-`compare/` holds the images and `compare.json`):
-
-| method | component | PSNR, linear (dB) | PSNR, displayed (dB) | relative L2 |
-|---|---|---|---|---|
-{rows}
-
-Reference noise (mean standard error / mean): {cmp["reference_noise"]["full"]:.3f}.
-`linear` is the cross-fading baseline (radiance blended across views and vertices).
-`ours_sh_diffuse` is ours with the paper's diffuse term alone (the whole sky, sun included, in
-order-5 SH per vertex, and in the Gaussians' lighting); `ours` takes the sun out of the
-lighting and shades its diffuse and glossy light per pixel with a shadow map and the material's
-BRDF (`--no-sun` turns that off).
-"""
-    tmp = out / "report.md.tmp"
-    tmp.write_text(report)
-    tmp.replace(out / "report.md")
-    gpu = torch.cuda.is_available()
+    width, height = _size(args)
     return {
         "command": "demo",
-        "out": str(out),
-        "report": str(out / "report.md"),
-        "model": str(out / "model.lobelight.npz"),
-        "stills": stills,
-        "backend": backend,
-        "table": cmp["table"],
-        "seconds": {
-            "bake": t_bake,
-            "render": t_render,
-            "frame": t_frame,
-            "reference": cmp["seconds"]["reference"],
-            "total": total,
-        },
-        "gpu": "a CUDA GPU is available: add --device cuda"
-        if gpu
-        else "CPU only; on a GPU (--device cuda) the bake is ~10x faster or more (one H100: "
-        "20.6 s for the benchmark bake this kind of 2-core CPU does in 204 s, docs/benchmarks.md)",
+        **demo(
+            args.output,
+            scene=args.scene,
+            n_lobes=args.lobes,
+            width=width,
+            height=height,
+            spp=args.spp,
+            sun=args.sun,
+            device=args.device,
+            progress=_progress(args),
+        ),
     }
 
 
@@ -462,55 +460,123 @@ BRDF (`--no-sun` turns that off).
 # parser
 
 
+class _UsageError(Exception):
+    """A command line argparse cannot parse: reported as bad input (exit 2)."""
+
+
+class _Parser(argparse.ArgumentParser):
+    def error(self, message: str):  # argparse prints usage and exits; we report one line
+        raise _UsageError(f"{self.prog}: {message}")
+
+
+class _Help(argparse.ArgumentDefaultsHelpFormatter):
+    """Shows each flag's default (where it has one) after its help."""
+
+    def _get_help_string(self, action):
+        if action.default in (None, False) or action.default is argparse.SUPPRESS:
+            return action.help
+        return super()._get_help_string(action)
+
+
 def _parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(
+    p = _Parser(
         prog="lobelight",
         description="Relight 3D objects under HDR environment lighting with spherical lobes.",
         epilog="Exit codes: 0 ok, 1 unexpected error, 2 bad input, 130 interrupted.",
     )
     p.add_argument("--version", action="version", version=f"lobelight {_version()}")
-    sub = p.add_subparsers(dest="command", required=True, metavar="COMMAND")
+    sub = p.add_subparsers(dest="command", required=True, metavar="COMMAND", parser_class=_Parser)
 
     def cmd(name, fn, help):
-        sp = sub.add_parser(name, help=help, description=help)
-        sp.add_argument("--json", action="store_true", help="print a machine-readable summary")
-        sp.add_argument("--device", default="cpu", help="torch device (cpu, cuda, cuda:1, ...)")
+        sp = sub.add_parser(name, help=help, description=help, formatter_class=_Help)
+        sp.add_argument(
+            "--json",
+            action="store_true",
+            help="print a machine-readable summary on stdout (errors too, as JSON)",
+        )
+        sp.add_argument(
+            "--device", default="cpu", help="torch device of the heavy work (cpu, cuda, cuda:1)"
+        )
+        sp.add_argument("-q", "--quiet", action="store_true", help="no progress on stderr")
         sp.set_defaults(run=fn)
         return sp
 
-    def size(sp, w=512, h=512):
-        sp.add_argument("--width", type=int, default=w)
-        sp.add_argument("--height", type=int, default=h)
+    def output(sp, default, what):
+        sp.add_argument("-o", "--output", "--out", default=default, help=what)
 
-    def no_sun(sp):
+    def size(sp, w=512, h=512):
+        sp.add_argument("--width", type=int, default=w, help="image width in pixels")
+        sp.add_argument("--height", type=int, default=h, help="image height in pixels")
+        sp.add_argument("--size", help="N or WxH: sets --width and --height together")
+
+    def square(sp, n):
+        sp.set_defaults(width=n, height=n)
+        sp.add_argument("--size", default=str(n), help="image size in pixels (square)")
+
+    def sun(sp, default=True):
         sp.add_argument(
-            "--no-sun",
-            action="store_true",
-            help="keep the sun in the SH diffuse and the Gaussians' lighting (the paper's terms) "
-            "instead of a per-pixel shadow-mapped light",
+            "--sun",
+            action=argparse.BooleanOptionalAction,
+            default=default,
+            help="shade the map's sun per pixel with a shadow map (--no-sun: the paper's terms, "
+            "the sun in the SH diffuse and the Gaussians' lighting)",
+        )
+
+    def lobes(sp):
+        sp.add_argument(
+            "--lobes", type=int, default=1, choices=[1, 2, 3], help="Gaussians per view"
+        )
+
+    def backend(sp):
+        sp.add_argument(
+            "--backend",
+            choices=["auto", "gl", "torch"],
+            default="auto",
+            help="renderer: GLSL through EGL, or the torch path (auto: gl where a context opens)",
+        )
+
+    def base_res(sp, default=256):
+        sp.add_argument(
+            "--base-res",
+            type=int,
+            default=default,
+            help="face resolution of the sharpest prefiltered level (a power of two)",
+        )
+
+    def spp(sp, default):
+        sp.add_argument(
+            "--spp", "--ref-spp", type=int, default=default, help="reference samples per pixel"
+        )
+
+    def env(sp, what):
+        sp.add_argument(
+            "--env",
+            help=f".hdr/.exr file, a bundled map's name ({_bundled()}) or 'builtin'; {what}",
         )
 
     d = cmd("demo", _cmd_demo, "bake the built-in scene, render it, score it, write a report")
-    d.add_argument("--out", default="lobelight-demo", help="output folder")
-    d.add_argument("--scene", default="knot", help="scene to bake (default: the built-in knot)")
-    d.add_argument("--lobes", type=int, default=1, choices=[1, 2, 3])
-    d.add_argument("--spp", type=int, default=64, help="reference samples per pixel")
-    size(d, 320, 240)
-    no_sun(d)
+    output(d, "lobelight-demo", "output folder")
+    d.add_argument("--scene", default="knot", help="scene to bake")
+    lobes(d)
+    spp(d, 64)
+    size(d, 960, 540)
+    sun(d)
 
     b = cmd("bake", _cmd_bake, "fit a model of a mesh or scene (resumes if interrupted)")
     b.add_argument(
         "scene",
-        help="mesh (.ply .obj .stl .glb .off), scene (.toml .json) or a "
+        help="mesh (.ply .obj .stl .glb .off), scene (.toml .json; docs/scene-format.md) or a "
         "built-in name (knot, knot:2, sphere:3)",
     )
-    b.add_argument("-o", "--output", help="model file (default: NAME.lobelight.npz)")
+    output(b, None, "model file (default: NAME.lobelight.npz)")
+    env(b, "the lighting render, view and compare use by default (default: the scene file's, "
+        "else the built-in sky; the model relights under any)")  # fmt: skip
     b.add_argument(
-        "--env",
-        help=".hdr/.exr environment that render, view and compare use by default (the model "
-        "itself relights under any; default: the scene file's, else the built-in sky)",
+        "--material",
+        help="a bare mesh's material, e.g. 'ggx:alpha=0.05,specular=0.9,0.8,0.6' or "
+        "'diffuse:color=0.7' (the keys of a scene file's [material]; docs/scene-format.md)",
     )
-    b.add_argument("--lobes", type=int, default=1, choices=[1, 2, 3], help="Gaussians per view")
+    lobes(b)
     b.add_argument(
         "--indirect-paths",
         type=int,
@@ -518,24 +584,49 @@ def _parser() -> argparse.ArgumentParser:
         help="paths per vertex and view for indirect glossy (0: direct only)",
     )
     b.add_argument("--float16", action="store_true", help="store half floats (half the size)")
-    b.add_argument("--seed", type=int, default=0)
+    b.add_argument("--seed", type=int, default=0, help="seed of the fit's random starts")
 
     i = cmd("info", _cmd_info, "describe a model file")
-    i.add_argument("model")
+    i.add_argument("model", help="a model file written by bake")
 
-    r = cmd("render", _cmd_render, "render a model to an image (.png, .exr, .hdr)")
-    r.add_argument("model")
-    r.add_argument("-o", "--output", default="render.png")
-    r.add_argument("--env", help=".hdr/.exr environment (default: the model's, else the sky)")
+    r = cmd("render", _cmd_render, "render a model to an image (.png .jpg .exr .hdr)")
+    r.add_argument("model", help="a model file written by bake")
+    output(r, "render.png", "image (.png/.jpg tone-mapped, .exr/.hdr linear), or a folder with "
+           "--turntable")  # fmt: skip
+    env(r, "default: the model's, else the built-in sky")
     r.add_argument("--camera", help="'ox,oy,oz:tx,ty,tz[:fov]' (default: the scene's)")
     r.add_argument("--rotate", type=float, default=None, help="turn the lighting (degrees)")
-    r.add_argument("--parts", choices=["both", "diffuse", "glossy"], default="both")
-    r.add_argument("--no-background", action="store_true")
-    no_sun(r)
-    r.add_argument("--exposure", default="auto", help="stops, or 'auto'")
-    r.add_argument("--tonemap", choices=["srgb", "aces"], default="srgb")
-    r.add_argument("--backend", choices=["auto", "gl", "torch"], default="auto")
-    r.add_argument("--base-res", type=int, default=256, help="sharpest prefiltered level")
+    r.add_argument(
+        "--parts", choices=["both", "diffuse", "glossy"], default="both", help="what to shade"
+    )
+    r.add_argument(
+        "--background",
+        action=argparse.BooleanOptionalAction,
+        default=True,
+        help="draw the environment behind the object",
+    )
+    sun(r)
+    r.add_argument("--exposure", default="auto", help="stops, or 'auto' (the object's pixels)")
+    r.add_argument(
+        "--tonemap", choices=["srgb", "aces"], default="srgb", help="display curve (.png, .jpg)"
+    )
+    backend(r)
+    base_res(r)
+    r.add_argument(
+        "--samples", type=int, default=4, help="anti-aliasing samples per pixel (1: none)"
+    )
+    r.add_argument(
+        "--turntable",
+        type=int,
+        metavar="N",
+        help="render N frames around the object into the folder -o, and an animated GIF",
+    )
+    r.add_argument(
+        "--spin",
+        choices=["camera", "light"],
+        default="camera",
+        help="what --turntable turns",
+    )
     size(r)
 
     v = cmd(
@@ -544,28 +635,29 @@ def _parser() -> argparse.ArgumentParser:
         "interactive window: drag to orbit, right-drag to turn the "
         "light, wheel to zoom, d/g/b diffuse/glossy/both, +/- exposure",
     )
-    v.add_argument("model")
-    v.add_argument("--env")
-    no_sun(v)
+    v.add_argument("model", help="a model file written by bake")
+    env(v, "default: the model's, else the built-in sky")
+    sun(v)
     size(v, 1024, 768)
 
     c = cmd("compare", _cmd_compare, "score a model against the path tracer and baselines")
     c.add_argument("scene", help="the scene (fitted here unless --model is given)")
     c.add_argument("--model", help="a model file of that scene")
-    c.add_argument("--lobes", type=int, default=1, choices=[1, 2, 3])
-    c.add_argument("--env")
-    c.add_argument("--out", default="lobelight-compare")
-    c.add_argument("--spp", type=int, default=1024, help="reference samples per pixel")
-    c.add_argument("--rotate", type=float, default=None)
-    c.add_argument("--backend", choices=["auto", "gl", "torch"], default="auto")
+    lobes(c)
+    env(c, "default: the scene's")
+    output(c, "lobelight-compare", "output folder (images, compare.json)")
+    spp(c, 1024)
+    c.add_argument("--rotate", type=float, default=None, help="turn the lighting (degrees)")
+    backend(c)
     c.add_argument(
         "--baselines",
         nargs="*",
         default=["linear", "no_visibility", "sh10"],
         choices=["linear", "no_visibility", "sh10"],
+        help="the paper's baselines to score as well",
     )
-    c.add_argument("--base-res", type=int, default=256, help="sharpest prefiltered level")
-    no_sun(c)
+    base_res(c)
+    sun(c)
     size(c, 192, 144)
 
     cb = cmd(
@@ -573,28 +665,29 @@ def _parser() -> argparse.ArgumentParser:
         _cmd_compare_brdf,
         "SG-mixture BRDFs vs filtered importance sampling, Wang 2009 and the reference",
     )
-    cb.add_argument("--out", default="lobelight-compare-brdf")
-    cb.add_argument("--env", help=".hdr/.exr environment")
-    cb.add_argument("--size", type=int, default=128, help="image size (the sphere fills it)")
-    cb.add_argument("--ref-spp", type=int, default=4096, help="reference samples per pixel")
+    output(cb, "lobelight-compare-brdf", "output folder")
+    env(cb, "default: the built-in sky")
+    square(cb, 128)
+    spp(cb, 4096)
     cb.add_argument(
         "--backend",
-        choices=["torch", "both"],
-        default="torch",
-        help="'both' also renders ours and FIS-40 with the GLSL shaders (PSNR and fps rows)",
+        choices=["auto", "gl", "torch", "both"],
+        default="auto",
+        help="gl (or both) also renders ours and FIS-40 with the GLSL shaders (PSNR and fps "
+        "rows); auto: where a context opens",
     )
 
     f = cmd("figure5", _cmd_figure5, "the paper's Figure 5: Gaussians vs Haar vs SH")
-    f.add_argument("--out", default="lobelight-figure5")
+    output(f, "lobelight-figure5", "output folder")
 
     ld = cmd(
         "lobes-demo",
         _cmd_lobes_demo,
         "cosine lobes: a moving light and occluder with soft shadows, to PNGs and a GIF",
     )
-    ld.add_argument("--out", default="lobelight-lobes")
-    ld.add_argument("--frames", type=int, default=24)
-    ld.add_argument("--size", type=int, default=256)
+    output(ld, "lobelight-lobes", "output folder")
+    ld.add_argument("--frames", type=int, default=24, help="frames of the animation")
+    square(ld, 256)
     ld.add_argument(
         "--fused",
         action="store_true",
@@ -605,12 +698,13 @@ def _parser() -> argparse.ArgumentParser:
     be.add_argument(
         "what",
         choices=["prefilter", "transport", "fit", "render", "lobe-tables", "lobes", "brdf-fit"],
+        help="which benchmark",
     )
     be.add_argument("--scene", default="knot:2", help="scene of transport/fit (knot:2: 11.5K)")
-    be.add_argument("--lobes", type=int, default=1)
+    lobes(be)
     be.add_argument("--material", default="ward", help="brdf-fit material (ward, ward_aniso)")
-    be.add_argument("--base-res", type=int, default=512)
-    be.add_argument("--backend", choices=["auto", "gl", "torch"], default="auto")
+    base_res(be, 512)
+    backend(be)
     be.add_argument(
         "--repeats",
         type=int,
@@ -618,13 +712,14 @@ def _parser() -> argparse.ArgumentParser:
         help="timed repeats (default: prefilter 3 builds, lobes 20 frames: on a shared "
         "machine the best of a few frames is mostly noise)",
     )
-    be.add_argument(
-        "--sun",
-        action="store_true",
-        help="render: shade the sky's sun per pixel; the light turns every frame, so its "
-        "shadow map is redrawn every frame (the worst case)",
-    )
+    sun(be, default=False)
     return p
+
+
+def _bundled() -> str:
+    from .data import envmap_names
+
+    return ", ".join(envmap_names())
 
 
 def _version() -> str:
@@ -639,25 +734,96 @@ def _plain(x):
     return x
 
 
+def _cell(v) -> str:
+    return f"{v:.4g}" if isinstance(v, float) else str(v)
+
+
+def _print_text(summary: dict) -> None:
+    """A summary for people: tables as aligned columns, mappings indented, one line each."""
+    for k, v in summary.items():
+        if isinstance(v, list) and v and all(isinstance(r, dict) for r in v):
+            cols = list(v[0])
+            cells = [cols] + [[_cell(r.get(c, "")) for c in cols] for r in v]
+            widths = [max(len(row[i]) for row in cells) for i in range(len(cols))]
+            print(f"{k}:")
+            for row in cells:
+                print("  " + "  ".join(c.ljust(w) for c, w in zip(row, widths, strict=True)))
+        elif isinstance(v, dict):
+            print(f"{k}:")
+            for kk, vv in v.items():
+                print(f"  {kk}: {_cell(vv)}")
+        else:
+            print(f"{k}: {_cell(v)}")
+
+
+# options whose values may start with '-' (a camera below the origin, a negative angle)
+_SIGNED = ("--camera", "--rotate", "--exposure")
+_NUMBERISH = re.compile(r"-[\d.]")
+
+
+def _join_signed(argv: list[str]) -> list[str]:
+    """``--camera -1.6,0.7,-2.6:...`` as ``--camera=-1.6,...``, which argparse would otherwise
+    read as an unknown option."""
+    out: list[str] = []
+    i = 0
+    while i < len(argv):
+        a = argv[i]
+        if a in _SIGNED and i + 1 < len(argv) and _NUMBERISH.match(argv[i + 1]):
+            out.append(f"{a}={argv[i + 1]}")
+            i += 2
+            continue
+        out.append(a)
+        i += 1
+    return out
+
+
+def _check_device(text: str) -> str:
+    import torch
+
+    try:
+        dev = torch.device(text)
+    except (RuntimeError, ValueError):
+        raise InputError("--device", f"not a torch device: {text!r} (cpu, cuda, cuda:1)") from None
+    if dev.type == "cuda" and not torch.cuda.is_available():
+        raise InputError("--device", f"{text!r}: this torch has no CUDA device")
+    if dev.type not in ("cpu", "cuda"):
+        raise InputError("--device", f"{text!r}: lobelight runs on cpu or cuda")
+    return text
+
+
+def _fail(json_mode: bool, what: str, problem: str, code: int) -> int:
+    """Report an error: one line on stderr, and the JSON error object on stdout under --json."""
+    print(f"lobelight: error: {what}: {problem}" if what else f"lobelight: error: {problem}",
+          file=sys.stderr)  # fmt: skip
+    if json_mode:
+        err = {"error": {"code": code, "input": what, "problem": problem}}
+        print(json.dumps(err, indent=2))
+    return code
+
+
 def main(argv: list[str] | None = None) -> int:
     """Run the CLI; returns the exit code (0 ok, 1 unexpected error, 2 bad input, 130 Ctrl-C)."""
-    from .errors import InputError
-
-    args = _parser().parse_args(argv)
+    argv = _join_signed(list(sys.argv[1:] if argv is None else argv))
+    json_mode = "--json" in argv
     try:
+        args = _parser().parse_args(argv)
+    except _UsageError as e:
+        return _fail(json_mode, "", str(e), 2)
+    try:
+        args.device = _check_device(args.device)
         summary = args.run(args)
     except InputError as e:
-        print(f"lobelight: error: {e}", file=sys.stderr)
-        return 2
+        return _fail(args.json, e.what, e.problem, 2)
     except KeyboardInterrupt:
         print("lobelight: interrupted (a bake resumes when run again)", file=sys.stderr)
+        if args.json:
+            print(json.dumps({"error": {"code": 130, "input": "", "problem": "interrupted"}}))
         return 130
     try:
         if args.json:
             print(json.dumps(summary, indent=2, default=_plain))
         else:
-            for k, v in summary.items():
-                print(f"{k}: {v}")
+            _print_text(summary)
         sys.stdout.flush()
     except BrokenPipeError:
         # the reader went away (`lobelight info m.npz | head -1`): its choice, not an error;

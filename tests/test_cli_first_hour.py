@@ -1,0 +1,206 @@
+"""What a new user meets first: progress on any stream, errors as one line (and as JSON under
+``--json``), flags that parse as written, inputs checked before work, help for every flag."""
+
+from __future__ import annotations
+
+import argparse
+import io
+import json
+
+import pytest
+
+from lobelight import cli, progress
+from lobelight.cli import main
+
+
+class _Clock:
+    def __init__(self):
+        self.t = 1000.0
+
+    def __call__(self) -> float:
+        return self.t
+
+
+def test_progress_off_a_terminal_is_plain_lines_at_most_every_interval(monkeypatch):
+    """On a stream that is not a terminal: a line when a stage starts, at most one per
+    ``interval`` while it runs, one when it ends (with its time); no bar escape codes."""
+    clock = _Clock()
+    monkeypatch.setattr(progress.time, "monotonic", clock)
+    out = io.StringIO()
+    rep = progress.Reporter(out, interval=5.0)
+    for done in range(1, 101):  # 100 chunks, 0.2 s apart: 20 s in all
+        clock.t += 0.2
+        rep("fit", done, 100)
+    lines = out.getvalue().splitlines()
+    assert lines[0].startswith("lobelight: fit: 1/100 chunks")
+    assert lines[-1].startswith("lobelight: fit: 100/100 chunks (100 %), done in")
+    # 20 s at one line per 5 s: the first, three in between (at 5, 10, 15 s), the last
+    assert 4 <= len(lines) <= 6, lines
+    assert "\r" not in out.getvalue() and "\x1b" not in out.getvalue()
+    # a stage that starts later reports from its own start
+    rep("relax", 0, 3)
+    assert out.getvalue().splitlines()[-1] == "lobelight: relax: 0/3 chunks (0 %)"
+
+
+def test_progress_argument_forms():
+    assert progress.resolve(None) is None and progress.resolve(False) is None
+    assert isinstance(progress.resolve(True), progress.Reporter)
+    fn = lambda *a: None  # noqa: E731
+    assert progress.resolve(fn) is fn
+    with pytest.raises(TypeError, match="progress"):
+        progress.resolve("yes")
+
+
+def test_the_bake_reports_progress_without_a_terminal(capsys):
+    """The API's default: plain lines on stderr (pytest's capture is not a terminal)."""
+    from lobelight import fit, scene
+
+    fit.fit_model(scene.builtin("sphere", subdivisions=0), 1)
+    err = capsys.readouterr().err
+    assert "lobelight: fit:" in err and "done in" in err
+
+
+def _json_error(capsys, argv) -> tuple[int, dict, list[str]]:
+    code = main([*argv, "--json"])
+    cap = capsys.readouterr()
+    return code, json.loads(cap.out), cap.err.strip().splitlines()
+
+
+@pytest.mark.parametrize(
+    "argv, what",
+    [
+        (["info", "missing.npz"], "missing.npz"),
+        (["render", "missing.npz", "--exposure", "abc"], "--exposure"),
+        (["render", "missing.npz", "--exposure", "nan"], "--exposure"),
+        (["render", "missing.npz", "--rotate", "nan"], "--rotate"),
+        (["info", "missing.npz", "--device", "bogus"], "--device"),
+        (["bake", "sphere:1", "--indirect-paths", "-1"], "--indirect-paths"),
+        (["render", "missing.npz", "--size", "12x"], "--size"),
+    ],
+)
+def test_errors_under_json_are_json_on_stdout_and_one_line_on_stderr(capsys, argv, what):
+    code, out, err = _json_error(capsys, argv)
+    assert code == 2 and out["error"]["code"] == 2
+    assert what in out["error"]["input"] + out["error"]["problem"]
+    assert len(err) == 1 and err[0].startswith("lobelight: error:") and what in err[0]
+
+
+def test_a_command_line_argparse_rejects_is_bad_input_too(capsys):
+    code, out, err = _json_error(capsys, ["render"])  # the model is missing
+    assert code == 2 and "model" in out["error"]["problem"]
+    assert len(err) == 1 and err[0].startswith("lobelight: error:")
+    assert main(["render", "m.npz", "--no-such-flag"]) == 2
+    assert len(capsys.readouterr().err.strip().splitlines()) == 1
+
+
+def test_cuda_without_cuda_is_bad_input(capsys):
+    import torch
+
+    if torch.cuda.is_available():
+        pytest.skip("this machine has CUDA")
+    assert main(["info", "missing.npz", "--device", "cuda"]) == 2
+    assert "CUDA" in capsys.readouterr().err
+
+
+def test_info_on_a_mesh_says_it_is_not_a_model(tmp_path, capsys):
+    mesh = tmp_path / "mesh.obj"
+    mesh.write_text("v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n")
+    assert main(["info", str(mesh)]) == 2
+    err = capsys.readouterr().err
+    assert "not a lobelight model" in err and "bake" in err and "pickle" not in err
+
+
+def test_a_camera_below_the_origin_parses():
+    """``--camera -1.6,0.7,-2.6:0,0,0`` (argparse would read the value as an option)."""
+    argv = cli._join_signed(["render", "m.npz", "--camera", "-1.6,0.7,-2.6:0,0,0:35",
+                             "--rotate", "-30"])  # fmt: skip
+    args = cli._parser().parse_args(argv)
+    assert args.camera == "-1.6,0.7,-2.6:0,0,0:35" and args.rotate == -30.0
+    cam = cli._camera_from(args.camera, {}, None)
+    assert cam.origin == pytest.approx((-1.6, 0.7, -2.6)) and cam.fov == pytest.approx(35)
+
+
+def test_bake_checks_its_output_before_any_work(tmp_path, capsys, monkeypatch):
+    """A missing folder or a folder as the model path: exit 2 before the transport runs."""
+    from lobelight import fit
+
+    def no_fit(*a, **k):
+        raise AssertionError("the fit ran before the output was checked")
+
+    monkeypatch.setattr(fit, "fit_model", no_fit)
+    for out in (tmp_path / "missing" / "m.npz", tmp_path):
+        assert main(["bake", "sphere:1", "-o", str(out)]) == 2
+        err = capsys.readouterr().err.strip().splitlines()
+        assert len(err) == 1 and str(out) in err[0]
+    assert not list(tmp_path.iterdir())  # nothing half-written
+
+
+def _subparsers():
+    p = cli._parser()
+    sub = next(a for a in p._actions if isinstance(a, argparse._SubParsersAction))
+    return sub.choices
+
+
+def test_every_flag_has_help_text():
+    for name, sp in _subparsers().items():
+        for action in sp._actions:
+            if isinstance(action, argparse._HelpAction):
+                continue
+            assert action.help, f"lobelight {name}: {action.option_strings or action.dest}"
+
+
+def test_flag_names_are_shared_across_commands():
+    """The same option means the same thing everywhere; old spellings still parse."""
+    cmds = _subparsers()
+    for name, sp in cmds.items():
+        opts = {o for a in sp._actions for o in a.option_strings}
+        assert {"--json", "--device", "--quiet"} <= opts, name
+        if "--out" in opts or "--output" in opts:
+            assert {"-o", "--output", "--out"} <= opts, name
+        assert "--ref-spp" not in opts or "--spp" in opts, name
+        assert "--no-sun" not in opts or "--sun" in opts, name
+    args = cli._parser().parse_args(["compare-brdf", "--out", "x", "--ref-spp", "8"])
+    assert args.output == "x" and args.spp == 8
+    args = cli._parser().parse_args(["bench", "render", "--sun"])
+    assert args.sun is True
+    with pytest.raises(cli._UsageError):  # --lobes is 1-3 everywhere
+        cli._parser().parse_args(["bench", "fit", "--lobes", "5"])
+
+
+@pytest.fixture(scope="module")
+def tiny_model(tmp_path_factory):
+    from lobelight import fit, scene
+
+    path = tmp_path_factory.mktemp("model") / "m.npz"
+    fit.fit_model(scene.builtin("sphere", subdivisions=0), 1, progress=None).save(path)
+    return path
+
+
+def test_render_checks_its_output_before_rendering(tiny_model, tmp_path, capsys, monkeypatch):
+    from lobelight import render
+
+    def no_render(*a, **k):
+        raise AssertionError("rendered before the output was checked")
+
+    monkeypatch.setattr(render.Renderer, "__init__", no_render)
+    for out in (tmp_path / "x.bmp", tmp_path / "missing" / "x.png", tmp_path):
+        assert main(["render", str(tiny_model), "-o", str(out)]) == 2
+        err = capsys.readouterr().err.strip().splitlines()
+        assert len(err) == 1 and str(out) in err[0]
+
+
+def test_render_writes_jpeg_and_a_turntable(tiny_model, tmp_path, capsys):
+    from PIL import Image
+
+    small = ["--size", "40x30", "--base-res", "32", "--backend", "torch"]
+    jpg = tmp_path / "r.jpg"
+    assert main(["render", str(tiny_model), "-o", str(jpg), *small, "--json"]) == 0
+    assert json.loads(capsys.readouterr().out)["output"] == str(jpg)
+    assert Image.open(jpg).format == "JPEG" and Image.open(jpg).size == (40, 30)
+    frames = tmp_path / "spin"
+    argv = ["render", str(tiny_model), "-o", str(frames), "--turntable", "3", *small, "--json"]
+    assert main(argv) == 0
+    capsys.readouterr()
+    assert len(list(frames.glob("frame_*.png"))) == 3
+    gif = Image.open(frames / "frames.gif")
+    assert gif.n_frames == 3
