@@ -559,7 +559,7 @@ def _parser() -> argparse.ArgumentParser:
     d.add_argument("--scene", default="knot", help="scene to bake")
     lobes(d)
     spp(d, 64)
-    size(d, 960, 540)
+    size(d, 960, 720)
     sun(d)
 
     b = cmd("bake", _cmd_bake, "fit a model of a mesh or scene (resumes if interrupted)")

@@ -36,7 +36,7 @@ def demo(
     scene: str = "knot",
     n_lobes: int = 1,
     width: int = 960,
-    height: int = 540,
+    height: int = 720,
     spp: int = 64,
     sun: bool = True,
     device=None,
