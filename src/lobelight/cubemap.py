@@ -122,8 +122,9 @@ _FACE_AXES = (
 def _face_point(face: int, n: torch.Tensor, u: torch.Tensor, v: torch.Tensor) -> list[torch.Tensor]:
     """Components ``[x, y, z]`` of the point ``n`` along face ``face``'s normal, at ``(u, v)``.
 
-    With ``n = 1`` this is :func:`face_uv_to_direction` for one face, component by component and
-    bit for bit (only signs change), without building the other five faces' candidates.
+    Each component is ``n``, ``u`` or ``v`` up to its sign, so with ``n = 1`` this equals
+    :func:`face_uv_to_direction` for one face bit for bit, without building the other five
+    faces' candidates.
     """
     comp: list[torch.Tensor] = [n, n, n]
     for (axis, sign), val in zip(_FACE_AXES[face], (n, u, v), strict=True):
