@@ -1,42 +1,61 @@
-"""Shared test fixtures: seeded randomness, devices, and the project's shared data folder.
+"""Shared test fixtures: seeded randomness, devices, the bundled data, and a private cache.
 
 Tolerances used across tests live in :data:`TOL` so that their justification is in one place;
 tests that need a tighter or looser bound say why next to the assertion.
+
+The suite writes only under temporary folders: before anything imports lobelight (or numba, or
+Mitsuba's Dr.Jit), every on-disk cache is pointed into one folder made for this session, which
+is removed when the session ends. Every file the tests read is in the repository (the package's
+bundled maps, ``examples/``, ``tests/data/``) or made by the test itself.
 """
 
 from __future__ import annotations
 
+import atexit
 import os
-import random
+import shutil
+import tempfile
 from pathlib import Path
 
-import numpy as np
-import pytest
-import torch
-from hypothesis import assume
-from hypothesis import strategies as st
+# A private cache for the whole session, set at import: numba reads NUMBA_CACHE_DIR when it is
+# first imported, and lobelight reads LOBELIGHT_CACHE whenever it looks for its cache (the
+# cosine-lobe tables, the prefiltered chains). Never the user's ~/.cache, ~/.drjit or the
+# package's __pycache__ (numba's default), whatever the environment says.
+SESSION_TMP = Path(tempfile.mkdtemp(prefix="lobelight-tests-"))
+atexit.register(shutil.rmtree, SESSION_TMP, ignore_errors=True)
+for _var, _sub in [
+    ("LOBELIGHT_CACHE", "lobelight"),  # lobelight._cache.cache_dir()
+    ("NUMBA_CACHE_DIR", "numba"),  # the compiled visibility walk (cosine._walk, cache=True)
+    ("DRJIT_CACHE_DIR", "drjit"),  # Mitsuba's kernel cache (else ~/.drjit)
+    ("MPLCONFIGDIR", "matplotlib"),  # matplotlib's font cache (else ~/.cache/matplotlib)
+]:
+    os.environ[_var] = str(SESSION_TMP / _sub)
+
+import random  # noqa: E402 - after the cache variables above
+
+import numpy as np  # noqa: E402
+import pytest  # noqa: E402
+import torch  # noqa: E402
+from hypothesis import assume  # noqa: E402
+from hypothesis import strategies as st  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
+DATA = Path(__file__).resolve().parent / "data"  # small test files (licenses: LICENSES.md)
 
 
-def shared_dir() -> Path | None:
-    """The project's read-only ``shared/`` folder (papers, data), or None when absent.
+def _bundled_envmaps() -> list[Path]:
+    from lobelight.data import envmap_names, envmap_path
 
-    Looked up from ``LOBELIGHT_SHARED`` and then next to the repository (``../shared``), so the
-    package also tests standalone: tests that need it skip with a reason.
-    """
-    env = os.environ.get("LOBELIGHT_SHARED")
-    for cand in ([Path(env)] if env else []) + [ROOT / "shared", ROOT.parent / "shared"]:
-        if (cand / "data").is_dir():
-            return cand
-    return None
+    return [envmap_path(n) for n in envmap_names()]
 
 
-SHARED = shared_dir()
-ENVMAP_DIR = SHARED / "data" / "envmaps" if SHARED else None
-REAL_ENVMAPS = sorted(ENVMAP_DIR.rglob("*.hdr")) if ENVMAP_DIR else []
+#: The real HDR maps that ship with the package (CC0): the park with its small unclipped sun
+#: and the studio's softboxes, 512 x 256 each.
+REAL_ENVMAPS = _bundled_envmaps()
+assert len(REAL_ENVMAPS) >= 2, REAL_ENVMAPS
 
-needs_shared = pytest.mark.skipif(SHARED is None, reason="../shared (real data) is not present")
+#: Spot (public domain, 2,930 vertices), as the examples use it.
+SPOT = ROOT / "examples" / "spot.obj"
 
 
 # Two threads at most: CI machines have 2 cores, and oversubscription makes torch 10-50x slower

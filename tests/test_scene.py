@@ -9,7 +9,7 @@ import pytest
 import torch
 import trimesh
 
-from conftest import SHARED, needs_shared
+from conftest import SPOT
 from lobelight import scene
 from lobelight.errors import InputError
 from lobelight.scene import _mesh
@@ -84,12 +84,66 @@ def test_load_formats(tmp_path, ext):
     assert sc.materials.model == "ggx" and sc.materials.n_vertices == m.n_vertices
 
 
-@needs_shared
-def test_load_shared_meshes():
-    for name in ("spot_triangulated.obj", "suzanne.obj"):
-        m = scene.load_mesh(SHARED / "data" / "meshes" / name)
-        assert m.n_faces > 100
-        assert torch.allclose(m.normals.norm(dim=1), torch.ones(m.n_vertices), atol=1e-5)
+def _edge_face_counts(faces: torch.Tensor) -> np.ndarray:
+    """How many faces use each undirected edge."""
+    f = faces.numpy()
+    e = np.sort(np.concatenate([f[:, [0, 1]], f[:, [1, 2]], f[:, [2, 0]]]), axis=1)
+    return np.unique(e, axis=0, return_counts=True)[1]
+
+
+def test_load_spot():
+    # Spot (examples/, public domain): 2,930 positions stored with 3,225 UV corners, so the OBJ's
+    # seams must weld back to one vertex per position; the mesh is closed
+    m = scene.load_mesh(SPOT)
+    assert (m.n_vertices, m.n_faces) == (2930, 5856)
+    assert torch.allclose(m.normals.norm(dim=1), torch.ones(m.n_vertices), atol=1e-5)
+    assert bool((_edge_face_counts(m.faces) == 2).all())  # watertight, edge-manifold
+    # wound outwards (positive enclosed volume), and the vertex normals follow the winding
+    t = m.vertices.double()[m.faces]
+    cross = torch.linalg.cross(t[:, 1] - t[:, 0], t[:, 2] - t[:, 0])
+    assert float((t[:, 0] * cross).sum()) / 6 > 0
+    agree = (m.normals.double()[m.faces].mean(1) * cross).sum(1) > 0
+    assert float(agree.double().mean()) > 0.99
+
+
+def _untidy_obj() -> str:
+    """An OBJ like the ones artists export: off-centre, quads and triangles, texture and normal
+    indices, a vertex stored twice (a seam), an open boundary, a fin on a non-manifold edge,
+    and a separate small part (an "eye")."""
+    lines = []
+    for j in range(4):  # a 5 x 4 grid of vertices, bent into a shallow trough
+        for i in range(5):
+            x = i * 0.5
+            lines.append(f"v {x - 3.0:.4f} {0.2 * (x - 1.0) ** 2:.4f} {4.0 + 0.5 * j:.4f}")
+    lines += ["v -2.0 1.0 4.5"]  # 21: the fin's apex
+    lines += ["v -1.0 2.0 5.0", "v -0.8 2.0 5.0", "v -0.9 2.2 5.0", "v -0.9 2.1 5.2"]  # 22-25
+    lines += [lines[2].replace("v ", "v  ")]  # 26: vertex 3 again (the same position)
+    lines += [f"vt {u / 4:.3f} {w / 3:.3f}" for w in range(4) for u in range(5)] + ["vn 0 1 0"]
+    for j in range(3):
+        for i in range(4):
+            a = 1 + i + 5 * j
+            quad = [a, a + 1, a + 6, a + 5]
+            uv = list(quad)
+            if (i, j) == (2, 0):
+                quad[0] = 26  # this quad uses the seam's copy of vertex 3
+            lines.append("f " + " ".join(f"{v}/{t}/1" for v, t in zip(quad, uv, strict=True)))
+    lines.append("f 2 8 21")  # on the edge 2-8, already shared by two quads' triangles
+    lines += ["f 22 23 24", "f 22 25 23", "f 23 25 24", "f 24 25 22"]  # the eye
+    return "\n".join(lines) + "\n"
+
+
+def test_load_an_untidy_obj(tmp_path):
+    p = tmp_path / "untidy.obj"
+    p.write_text(_untidy_obj())
+    m = scene.load_mesh(p)
+    # quads split in two, the seam welded (26 stored), nothing dropped: 5 x 4 + 1 + 4 vertices
+    assert (m.n_vertices, m.n_faces) == (25, 12 * 2 + 1 + 4)
+    assert torch.allclose(m.normals.norm(dim=1), torch.ones(m.n_vertices), atol=1e-5)
+    counts = _edge_face_counts(m.faces)
+    assert (counts == 1).sum() > 0 and (counts == 3).sum() >= 1  # open, and the fin is kept
+    # positions as stored (not centred or rescaled)
+    torch.testing.assert_close(m.vertices.amin(0), torch.tensor([-3.0, 0.0, 4.0]))
+    torch.testing.assert_close(m.vertices.amax(0), torch.tensor([-0.8, 2.2, 5.5]))
 
 
 def test_bad_meshes(tmp_path, monkeypatch):

@@ -11,7 +11,7 @@ import math
 import pytest
 import torch
 
-from conftest import REAL_ENVMAPS, needs_shared
+from conftest import REAL_ENVMAPS
 from lobelight import brdf, cubemap, envmap, reference, scene, sh, sphere, transport
 from lobelight.scene import Materials, Scene
 
@@ -193,13 +193,8 @@ def test_indirect_glossy_against_path_tracing():
     assert bool(((got - ref).abs() <= tol).all()), (got, ref, tol)
 
 
-@needs_shared
-@pytest.mark.parametrize(
-    "path",
-    # the all-frequency cases: a small unclipped sun, and a studio softbox
-    [p for p in REAL_ENVMAPS if p.stem in ("rooitou_park_1k", "studio_small_03_1k")],
-    ids=lambda p: p.name,
-)
+# the all-frequency cases (the bundled maps): a small unclipped sun, and a studio softbox
+@pytest.mark.parametrize("path", REAL_ENVMAPS, ids=lambda p: p.name)
 def test_direct_glossy_with_real_map_matches_reference(path):
     sc = scene.builtin("knot")
     env = envmap.load(path)
