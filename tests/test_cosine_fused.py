@@ -4,7 +4,8 @@ Fusion must change speed only: the compiled kernels run the same arithmetic as t
 so the two agree to float32 rounding (the compiler may reorder and contract operations). The
 references here are the eager results of the same call; the eager path itself is tested against
 closed forms and Monte Carlo in ``test_cosine_lighting.py``. One compile of every kernel costs
-about a minute on the 2-core CI machine, so all fused checks share one module fixture.
+about a minute on the 2-core CI machine, so all fused checks share one module fixture, and the
+tests that use it run in the slow stage (``-m slow``).
 """
 
 from __future__ import annotations
@@ -53,6 +54,7 @@ def runs():
     return out
 
 
+@pytest.mark.slow
 def test_fused_shading_equals_eager(runs):
     """Radiance to float32 rounding of the scene's scale (1e-5 of the maximum, absolute, and a
     1e-4 relative allowance); products and leaves exactly (integer decisions on the same
@@ -68,6 +70,7 @@ def test_fused_shading_equals_eager(runs):
         assert int((fused.leaves != eager.leaves).sum()) <= 3
 
 
+@pytest.mark.slow
 def test_occluded_runs_are_not_vacuous(runs):
     for eager, _, _ in runs[:2]:
         assert int((eager.leaves > 0).sum()) > 30

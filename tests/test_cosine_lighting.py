@@ -228,6 +228,10 @@ def test_shadowed_points_match_monte_carlo(tables):
     assert float(got.radiance[umbra].double().mean()) < 0.3 * float(free[umbra].mean())
 
 
+# Eager, and fused (torch.compile: about half a minute of compiling per new kernel shape on a
+# 2-core CPU, so the slow stage; test_cosine_fused checks fused against eager shading too).
+FUSED = [False, pytest.param(True, marks=pytest.mark.slow)]
+
 _CLUSTER = torch.tensor([[0.0, 0.9, 0.0, 0.4], [0.5, 0.7, 0.3, 0.25], [-0.4, 0.6, 0.2, 0.2]])
 
 
@@ -242,7 +246,7 @@ def _two_lights_scene(P: int, radiance_a, radiance_b):
     return x, n, wo, _CLUSTER, lights, B.Sum(B.Lambert(0.6), B.Phong(0.1, 30.0))
 
 
-@pytest.mark.parametrize("fused", [False, True])
+@pytest.mark.parametrize("fused", FUSED)
 def test_two_lights_shadow_as_the_sum_of_each(tables, fused):
     """Light is additive: with two lights and occluders, each light's products and shadow
     leaves are its own, so the radiance is the sum of the two one-light renders (threshold 0:
@@ -350,7 +354,7 @@ def test_useful_depth_bounds_every_leaf_product():
     assert int((~ok).sum()) > 0 and int((d == 6).sum()) > 0 and len(set(d.tolist())) > 4
 
 
-@pytest.mark.parametrize("fused", [False, True])
+@pytest.mark.parametrize("fused", FUSED)
 @pytest.mark.parametrize("mode", ["aggressive", "conservative"])
 def test_culled_construction_changes_no_radiance(monkeypatch, tables, fused, mode):
     """Cells whose products all fall below the threshold are not built: the radiance is the

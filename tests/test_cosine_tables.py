@@ -11,7 +11,8 @@ References are independent of the code under test:
   Levenberg-Marquardt on ``(p, e)`` (the paper's method) for the product fit;
 * quasi-uniform (Fibonacci) sphere sums for L2 residuals.
 
-The default tables are built once per test session into a temporary cache (~10-20 s here).
+The default tables are built once per test session into the session's temporary cache (~10-20 s
+here) and shared with the other modules.
 """
 
 from __future__ import annotations
@@ -44,10 +45,11 @@ SMALL = C.TableParams(
 
 
 @pytest.fixture(scope="module")
-def tables(tmp_path_factory):
-    """The default tables, built once into a temporary cache (not the user's)."""
-    path = tmp_path_factory.mktemp("lobe-cache") / "cosine-tables.npz"
-    t = C.get_tables(path=path)
+def tables():
+    """The default tables from the session's private cache (conftest sets ``LOBELIGHT_CACHE``
+    to a temporary folder, never the user's): built once per session, here or by another
+    module that shades with them, and read back from the file."""
+    t = C.get_tables()
     assert t.info["unconverged_fits"] == 0
     return t
 
