@@ -243,8 +243,11 @@ def bench_render(
     base_res: int = 256,
     min_seconds: float = 1.0,
     sun: bool = False,
+    samples: int = 1,
 ) -> dict:
     """Frames per second of the renderer for each model size, lobe count and square image size.
+
+    ``samples``: anti-aliasing samples per pixel (each a full shading pass; 1 times one pass).
 
     With ``sun`` the sky's sun is shaded per pixel with a shadow map; every timed frame turns
     the light, so the map is redrawn every frame (a still light reuses it for free).
@@ -265,7 +268,7 @@ def bench_render(
         for n in lobes:
             model = synthetic_model(v, n)
             for s in sizes:
-                ren = Renderer(model, light, s, s, backend=backend)
+                ren = Renderer(model, light, s, s, backend=backend, samples=samples)
                 ren.render(cam, 10.0)  # warm-up: shader compilation, uploads
                 if backend == "gl":
                     draw = _time_gl(ren._gl, cam, frames, min_seconds)
@@ -283,6 +286,7 @@ def bench_render(
                     "vertices": model.mesh.n_vertices,
                     "n_lobes": n,
                     "size": s,
+                    "samples": samples,
                     "fps": 1 / draw["throughput"],
                     "ms_per_frame": 1e3 * draw["throughput"],
                     "fps_with_readback": 1 / full,

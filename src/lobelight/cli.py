@@ -231,6 +231,8 @@ def _cmd_render(args) -> dict:
 
     width, height = _size(args)
     exposure = _exposure(args.exposure)
+    if not 1 <= args.samples <= 256:
+        raise InputError("--samples", f"must be 1..256 samples per pixel, got {args.samples}")
     if args.rotate is not None and not math.isfinite(args.rotate):
         raise InputError("--rotate", f"must be a finite angle in degrees, got {args.rotate}")
     if args.turntable is not None:
@@ -268,7 +270,6 @@ def _cmd_render(args) -> dict:
         )
         if args.turntable is not None:
             out_dir = Path(args.output)
-            out_dir.mkdir(exist_ok=True)
             spin = turntable(
                 ren,
                 cam,
@@ -277,6 +278,7 @@ def _cmd_render(args) -> dict:
                 exposure=exposure,
                 curve=args.tonemap,
                 rotate=args.spin,
+                light_rotation=args.rotate,
                 progress=_progress(args),
                 **parts,
             )
@@ -419,7 +421,9 @@ def _cmd_bench(args) -> dict:
         return bench.bench_fit(scene=args.scene, n_lobes=args.lobes, device=args.device)
     if w == "render":
         return bench.bench_render(
-            backend=args.backend if args.backend != "auto" else "gl", sun=args.sun
+            backend=args.backend if args.backend != "auto" else "gl",
+            sun=args.sun,
+            samples=args.samples,
         )
     if w == "lobe-tables":
         from .cosine import bench_tables
@@ -548,6 +552,14 @@ def _parser() -> argparse.ArgumentParser:
             "--spp", "--ref-spp", type=int, default=default, help="reference samples per pixel"
         )
 
+    def samples(sp, default):
+        sp.add_argument(
+            "--samples",
+            type=int,
+            default=default,
+            help="anti-aliasing samples per pixel, each a full shading pass (1: none)",
+        )
+
     def env(sp, what):
         sp.add_argument(
             "--env",
@@ -612,9 +624,7 @@ def _parser() -> argparse.ArgumentParser:
     )
     backend(r)
     base_res(r)
-    r.add_argument(
-        "--samples", type=int, default=4, help="anti-aliasing samples per pixel (1: none)"
-    )
+    samples(r, 4)
     r.add_argument(
         "--turntable",
         type=int,
@@ -713,6 +723,7 @@ def _parser() -> argparse.ArgumentParser:
         "machine the best of a few frames is mostly noise)",
     )
     sun(be, default=False)
+    samples(be, 1)
     return p
 
 

@@ -218,7 +218,8 @@ def compare(
     )
     if backend == "auto":
         backend = "gl" if gl_available() else "torch"
-    ren = Renderer(model, lighting, width, height, backend=backend)
+    # one sample per pixel, at its centre, as the reference traces (jitter=False below)
+    ren = Renderer(model, lighting, width, height, backend=backend, samples=1)
     t = time.perf_counter()
     full, mask = ren.render(camera, rot, return_mask=True)
     glossy = ren.render(camera, rot, diffuse=False)
@@ -227,7 +228,7 @@ def compare(
     timings["ours"] = time.perf_counter() - t
     full_sh = None
     if plain is not lighting:
-        with Renderer(model, plain, width, height, backend=backend) as r_sh:
+        with Renderer(model, plain, width, height, backend=backend, samples=1) as r_sh:
             full_sh = r_sh.render(camera, rot)
 
     # references: the environment is turned by rotating the map itself (independent of ours)
@@ -284,7 +285,7 @@ def compare(
             nv = fit_model(
                 scene, model.n_lobes, device=model.device, shadows=False, progress=progress
             )
-            r2 = Renderer(nv, plain, width, height, backend=backend)  # no shadows at all
+            r2 = Renderer(nv, plain, width, height, backend=backend, samples=1)  # no shadows
             g = r2.render(camera, rot, diffuse=False, background=False).cpu()
             # unshadowed diffuse as well: plain environment mapping has no visibility at all
             d2 = r2.render(camera, rot, glossy=False, background=False).cpu()
