@@ -6,7 +6,7 @@ tests that need a tighter or looser bound say why next to the assertion.
 The suite writes only under temporary folders: before anything imports lobelight (or numba, or
 Mitsuba's Dr.Jit), every on-disk cache is pointed into one folder made for this session, which
 is removed when the session ends. Every file the tests read is in the repository (the package's
-bundled maps, ``examples/``, ``tests/data/``) or made by the test itself.
+bundled maps, ``examples/``) or made by the test itself.
 """
 
 from __future__ import annotations
@@ -19,8 +19,9 @@ from pathlib import Path
 
 # A private cache for the whole session, set at import: numba reads NUMBA_CACHE_DIR when it is
 # first imported, and lobelight reads LOBELIGHT_CACHE whenever it looks for its cache (the
-# cosine-lobe tables, the prefiltered chains). Never the user's ~/.cache, ~/.drjit or the
-# package's __pycache__ (numba's default), whatever the environment says.
+# cosine-lobe tables, the prefiltered chains); hypothesis looks for its folder on first use.
+# Never the user's ~/.cache, ~/.drjit, the package's __pycache__ (numba's default) or the
+# working folder (hypothesis's), whatever the environment says.
 SESSION_TMP = Path(tempfile.mkdtemp(prefix="lobelight-tests-"))
 atexit.register(shutil.rmtree, SESSION_TMP, ignore_errors=True)
 for _var, _sub in [
@@ -28,6 +29,7 @@ for _var, _sub in [
     ("NUMBA_CACHE_DIR", "numba"),  # the compiled visibility walk (cosine._walk, cache=True)
     ("DRJIT_CACHE_DIR", "drjit"),  # Mitsuba's kernel cache (else ~/.drjit)
     ("MPLCONFIGDIR", "matplotlib"),  # matplotlib's font cache (else ~/.cache/matplotlib)
+    ("HYPOTHESIS_STORAGE_DIRECTORY", "hypothesis"),  # its example database (else ./.hypothesis)
 ]:
     os.environ[_var] = str(SESSION_TMP / _sub)
 
@@ -40,7 +42,6 @@ from hypothesis import assume  # noqa: E402
 from hypothesis import strategies as st  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
-DATA = Path(__file__).resolve().parent / "data"  # small test files (licenses: LICENSES.md)
 
 
 def _bundled_envmaps() -> list[Path]:

@@ -114,15 +114,17 @@ def test_bake_info_render_compare(tmp_path, capsys):
         (["view", "missing.npz"], "view"),
     ],
 )
-def test_bad_input_exits_2_with_one_line(capsys, argv, what):
+def test_bad_input_exits_2_with_one_line(capsys, tmp_path, monkeypatch, argv, what):
+    monkeypatch.chdir(tmp_path)  # relative paths (and any default output) land in tmp_path
     assert main(argv) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and what in err[0] and err[0].startswith("lobelight: error:")
 
 
-def test_render_rejects_a_bad_camera(tmp_path, capsys):
+def test_render_rejects_a_bad_camera(tmp_path, capsys, monkeypatch):
     from lobelight import fit, scene
 
+    monkeypatch.chdir(tmp_path)  # render's default output would go to the working folder
     m = fit.fit_model(scene.builtin("sphere", subdivisions=0), 1)
     m.save(tmp_path / "m.npz")
     assert main(["render", str(tmp_path / "m.npz"), "--camera", "1,2:3"]) == 2
@@ -144,6 +146,7 @@ def test_a_reader_that_stops_early_is_not_an_error(tmp_path):
         [sys.executable, "-c", code, "info", str(path), "--json"],
         stdout=subprocess.PIPE,
         stderr=subprocess.PIPE,
+        cwd=tmp_path,
     )
     p.stdout.close()  # the reader is gone before anything is written
     err = p.stderr.read().decode()
