@@ -196,7 +196,8 @@ def _sphere_scene(
     if model not in shape:
         raise InputError("model", f"built-in sphere supports {sorted(shape)}, got {model!r}")
     spec = {"diffuse": [0.1, 0.1, 0.1], "model": model, "specular": [0.8, 0.8, 0.8], **shape[model]}
-    cam = Camera.look_at((0.0, 0.0, 4.0), (0.0, 0.0, 0.0), fov=35.0)
+    # across the smaller side: the whole sphere in frame at any aspect
+    cam = Camera.look_at((0.0, 0.0, 4.0), (0.0, 0.0, 0.0), fov=35.0, fov_axis="smaller")
     return Scene(mesh, uniform(spec, mesh.n_vertices), "builtin", cam, mesh.name)
 
 
@@ -276,7 +277,8 @@ def _default_camera(mesh: Mesh) -> Camera:
     radius = 0.5 * mesh.scale
     dist = radius / math.sin(math.radians(20)) * 1.05  # fit the bounding sphere in 40 degrees
     origin = [centre[0], centre[1] + 0.3 * dist, centre[2] + dist]
-    return Camera.look_at(origin, centre, fov=40.0)
+    # 40 degrees across the image's smaller side, so the sphere fits at any aspect
+    return Camera.look_at(origin, centre, fov=40.0, fov_axis="smaller")
 
 
 def load(path_or_name, *, device=None, material=None) -> Scene:
