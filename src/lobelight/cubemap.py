@@ -135,8 +135,10 @@ def _face_point(face: int, n: torch.Tensor, u: torch.Tensor, v: torch.Tensor) ->
 def _nearest_texel(x: torch.Tensor, y: torch.Tensor, z: torch.Tensor, res: int) -> torch.Tensor:
     """Flat index into ``(6, res, res)`` of the texel each direction falls in, ``(...)`` int64."""
     face, u, v = _major_axis(x, y, z)
-    col = ((u + 1) * 0.5 * res).floor_().long().clamp_(0, res - 1)
-    row = ((v + 1) * 0.5 * res).floor_().long().clamp_(0, res - 1)
+    # |u|, |v| <= 1 (a minor component over the major one), so rounding toward zero is the
+    # floor (and torch's floor goes to the thread pool even for small tensors)
+    col = ((u + 1) * 0.5 * res).long().clamp_(0, res - 1)
+    row = ((v + 1) * 0.5 * res).long().clamp_(0, res - 1)
     return (face * res + row) * res + col
 
 
@@ -147,14 +149,19 @@ def _face_plane_texels(
 
     The point is ``n`` along the face's normal at face coordinates ``(u, v)`` (``n = 1``: the
     face's plane, extended past the face). ``n, u, v`` broadcast to ``(...)``; returns ``(...)``
-    int64. The work is a few dozen elementwise operations per point, done in cache-sized pieces
-    because it is bound by memory traffic, not arithmetic.
+    int64.
+
+    The work is a few dozen elementwise operations per point, done in pieces of ``2^14`` points:
+    small enough to stay in cache (the work is bound by memory traffic, not arithmetic) and to
+    keep torch's elementwise operations on the calling thread (below its parallel grain size of
+    ``2^15`` elements), since on a busy machine waiting for a pool thread costs milliseconds per
+    operation.
     """
     n, u, v = torch.broadcast_tensors(n, u, v)
     shape = u.shape
     n, u, v = n.reshape(-1), u.reshape(-1), v.reshape(-1)
     out = torch.empty(u.numel(), dtype=torch.long, device=u.device)
-    step = 1 << 16
+    step = 1 << 14
     for a in range(0, u.numel(), step):
         sl = slice(a, a + step)
         out[sl] = _nearest_texel(*_face_point(face, n[sl], u[sl], v[sl]), res)
