@@ -7,6 +7,7 @@ the key, the round trip, recovery from damaged entries and the file handling.
 from __future__ import annotations
 
 import multiprocessing
+import os
 import shutil
 
 import numpy as np
@@ -286,3 +287,21 @@ def test_atomic_writer_leaves_nothing_on_error(tmp_path):
         raise RuntimeError("interrupted")
     assert target.read_bytes() == b"old"
     assert sorted(tmp_path.iterdir()) == [target]
+
+
+def test_the_folder_stays_under_its_cap_least_recently_used_first(cache_root, monkeypatch):
+    """With room for two entries, a third evicts the one used longest ago (a read counts as a
+    use), never the one just written."""
+    maps = [_env(seed=s) for s in range(3)]
+    prefilter(maps[0], base_res=RES)
+    size = _entries(cache_root)[0].stat().st_size
+    monkeypatch.setenv("LOBELIGHT_CACHE_MAX_MB", str(2.5 * size / 2**20))
+    prefilter(maps[1], base_res=RES)
+    first, second = sorted(_entries(cache_root), key=lambda p: p.stat().st_mtime)
+    os_times = {first: 1_000_000.0, second: 2_000_000.0}  # map 0 older than map 1
+    for p, t in os_times.items():
+        os.utime(p, (t, t))
+    prefilter(maps[0], base_res=RES)  # a read: map 0 is now the more recently used
+    prefilter(maps[2], base_res=RES)  # a write past the cap: map 1 goes
+    left = {p.name for p in _entries(cache_root)}
+    assert len(left) == 2 and second.name not in left and first.name in left

@@ -16,6 +16,10 @@ numerical constants) followed by the source's float32 bytes. Reading checks ever
 be read at all, is a miss: the chain is computed again and the entry rewritten. Entries are
 written atomically (:func:`lobelight._cache.atomic_writer`), so concurrent writers of one key
 leave one whole entry, and deleting any of them, or the folder, at any time is harmless.
+
+The folder is kept under a size cap (:func:`max_bytes`: ``$LOBELIGHT_CACHE_MAX_MB``, default
+2048 MB; a base-512 chain takes about 100 MB): after each write the least recently used entries
+go first (a read marks an entry used by touching its modification time).
 """
 
 from __future__ import annotations
@@ -32,12 +36,57 @@ import torch
 
 from .._cache import UNREADABLE, atomic_writer, cache_dir
 
-__all__ = ["FORMAT_VERSION", "chain_key", "default_folder", "read_chain", "write_chain"]
+__all__ = [
+    "FORMAT_VERSION",
+    "chain_key",
+    "default_folder",
+    "max_bytes",
+    "read_chain",
+    "trim",
+    "write_chain",
+]
 
 #: Layout of the stored file; bumped when it changes (the key changes with it).
 FORMAT_VERSION = 1
 
 logger = logging.getLogger(__name__)
+
+
+#: The cap of the cache folder unless ``$LOBELIGHT_CACHE_MAX_MB`` says otherwise.
+DEFAULT_MAX_MB = 2048
+
+
+def max_bytes() -> int:
+    """The size cap of the chain folder, in bytes (module docstring)."""
+    text = os.environ.get("LOBELIGHT_CACHE_MAX_MB", "")
+    try:
+        mb = float(text) if text else DEFAULT_MAX_MB
+    except ValueError:
+        logger.warning("LOBELIGHT_CACHE_MAX_MB=%r is not a number: using %d", text, DEFAULT_MAX_MB)
+        mb = DEFAULT_MAX_MB
+    return max(int(mb * 2**20), 0)
+
+
+def trim(folder: str | os.PathLike, limit: int, *, keep: str | os.PathLike | None = None) -> None:
+    """Delete the least recently used entries of ``folder`` until they sum to at most ``limit``
+    bytes; ``keep`` (the entry just written) goes last. Entries that vanish meanwhile (another
+    process trimming) are skipped."""
+    entries = []
+    for p in Path(folder).glob("*.npz"):
+        try:
+            st = p.stat()
+        except OSError:
+            continue
+        entries.append((p == Path(keep) if keep is not None else False, st.st_mtime, st.st_size, p))
+    total = sum(e[2] for e in entries)
+    for _, _, size, p in sorted(entries, key=lambda e: (e[0], e[1])):
+        if total <= limit:
+            break
+        try:
+            p.unlink()
+        except OSError:
+            continue
+        total -= size
 
 
 def default_folder() -> Path:
@@ -85,10 +134,21 @@ def read_chain(
         return None
     try:
         with z:
-            return _check(z, key, resolutions)
+            got = _check(z, key, resolutions)
+        if got is not None:
+            _touch(path)
+        return got
     except UNREADABLE as exc:
         logger.info("ignoring the unreadable prefilter cache entry %s (%r)", path, exc)
         return None
+
+
+def _touch(path: Path) -> None:
+    """Mark an entry used (its modification time), for :func:`trim`'s order."""
+    try:
+        os.utime(path)
+    except OSError:
+        pass
 
 
 def _check(z, key: str, resolutions: list[int]) -> tuple[np.ndarray, list[np.ndarray]] | None:
@@ -131,3 +191,4 @@ def write_chain(
         arrays[f"level_{k:02d}"] = lv.detach().to("cpu", torch.float32).numpy()
     with atomic_writer(path) as f:
         np.savez(f, **arrays)
+    trim(Path(path).parent, max_bytes(), keep=path)
