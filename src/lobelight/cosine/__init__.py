@@ -9,8 +9,9 @@ Lobes (:mod:`._lobe`)
     lobe's axis, in closed form), :func:`product_integral` (``∫ c1 c2``, exact up to quadrature).
 
 Tables (:mod:`._tables`)
-    :func:`get_tables` loads the tables from the disk cache (``$LOBELIGHT_CACHE`` or
-    ``~/.cache/lobelight``), building them once (seconds) when missing or of another version;
+    :func:`get_tables` loads the tables from the disk cache (:func:`lobelight._cache.cache_dir`:
+    ``$LOBELIGHT_CACHE``, else the platform's user cache folder), building them once
+    (seconds) when missing or of another version;
     :class:`LobeTables` looks up the product lobe (``partial scale, exponent``) and the
     spherical-cap exponent, trilinearly, on any device. :func:`product` multiplies two lobes
     given by axes, exponents and scales (the paper's L2-best scale, or with

@@ -61,10 +61,10 @@ Spherical-cap table (paper section 5.2)
 
 No integral table: ``∫ max(a.w, 0)^e dw = 2 pi / (e + 1)`` exactly (:func:`~._lobe.integral`).
 
-Cache. :func:`get_tables` keeps one ``.npz`` (no pickles) under ``$LOBELIGHT_CACHE`` or
-``~/.cache/lobelight``, holding a format version and the grid parameters; it rebuilds the file
-when either differs, writes it atomically, and reports a corrupt file as an
-:class:`~lobelight.errors.InputError` naming it.
+Cache. :func:`get_tables` keeps one ``.npz`` (no pickles) in :func:`lobelight._cache.cache_dir`
+(``$LOBELIGHT_CACHE``, else the platform's user cache folder), holding a format version and
+the grid parameters; it rebuilds the file when either differs, writes it atomically, and
+reports a corrupt file as an :class:`~lobelight.errors.InputError` naming it.
 """
 
 from __future__ import annotations
