@@ -85,6 +85,14 @@ def tiny_table_params():
 
 
 @pytest.fixture(scope="session")
+def builtin_sky():
+    """The built-in sky at its default 512 x 1024 (seconds to make): one for the session."""
+    from lobelight import envmap
+
+    return envmap.builtin()
+
+
+@pytest.fixture(scope="session")
 def tiny_table_path(tmp_path_factory) -> Path:
     """A saved table file of :func:`tiny_table_params`, built once for the whole session."""
     from lobelight import cosine

@@ -59,8 +59,8 @@ def test_camera_rays_match_mitsuba_sensor():
         np.testing.assert_allclose(np.cross(along, d[py, px].numpy()), 0, atol=1e-5)
 
 
-def test_env_sampler_is_unbiased_for_the_map_power():
-    env = envmap.builtin()  # a very bright small sun: the case importance sampling is for
+def test_env_sampler_is_unbiased_for_the_map_power(builtin_sky):
+    env = builtin_sky  # a very bright small sun: the case importance sampling is for
     s = reference.EnvSampler(env, res=64)
     g = torch.Generator().manual_seed(0)
     d, pdf = s.sample(torch.rand(200000, 3, generator=g))
@@ -72,14 +72,14 @@ def test_env_sampler_is_unbiased_for_the_map_power():
 
 
 @pytest.mark.parametrize("max_depth", [2, 3])
-def test_reference_agrees_with_mitsuba(tmp_path, max_depth):
+def test_reference_agrees_with_mitsuba(tmp_path, builtin_sky, max_depth):
     """Mean absolute difference within 3 Monte Carlo standard errors, over the image and over
     four horizontal bands (a wrong orientation, camera, BRDF or MIS weight shows in a band)."""
     from lobelight.mitsuba_export import load_mitsuba, scene_dict
 
     m = load_mitsuba()
     sc = _sphere_on_ground()
-    env = envmap.builtin()
+    env = builtin_sky
     env_path = envmap.save(env, tmp_path / "env.exr")
     w, h, spp = 48, 36, 256
     ours, se = reference.render(

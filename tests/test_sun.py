@@ -17,8 +17,15 @@ needs_gl = pytest.mark.skipif(not gl_available(), reason="no headless OpenGL con
 
 
 @pytest.fixture(scope="module")
-def sky():
-    return envmap.builtin()
+def sky(builtin_sky):
+    return builtin_sky
+
+
+@pytest.fixture(scope="module")
+def sun_light(sky):
+    """The sky's lighting with the sun taken out (base 16): one for the module, as a viewer
+    keeps one for every frame (its chains are built on first use and kept)."""
+    return render.Lighting(sky, base_res=16, sun=True)
 
 
 def dark_model(sc) -> Model:
@@ -72,13 +79,13 @@ def test_diffuse_lighting_without_the_sun_plus_the_sun_is_the_whole(sky):
     torch.testing.assert_close(split.sun_direction(rot), rot @ split.sun.direction)
 
 
-def test_sun_on_a_convex_sphere_is_lambert_without_shadows(sky):
+def test_sun_on_a_convex_sphere_is_lambert_without_shadows(sun_light):
     # a convex mesh casts no shadow on itself: every point facing the sun gets
     # albedo / pi E cos exactly, cos with the interpolated normal. Independently of the
     # renderer: the radial normal at the ray's hit point
     sc = scene.builtin("sphere", subdivisions=4)
     m = dark_model(sc)
-    light = render.Lighting(sky, base_res=16, sun=True)
+    light = sun_light
     cam = render.Camera.look_at((0.3, 0.8, 3.0), (0.0, 0.0, 0.0), fov=40)
     ren = render.Renderer(m, light, 64, 48, backend="torch")
     img, mask = ren.render(cam, 25.0, background=False, glossy=False, return_mask=True)
@@ -104,13 +111,13 @@ def test_sun_on_a_convex_sphere_is_lambert_without_shadows(sky):
 
 
 @needs_gl
-def test_shadow_map_matches_shadow_rays_on_the_knot(sky):
+def test_shadow_map_matches_shadow_rays_on_the_knot(sun_light):
     # the shader's shadow map against the torch path's shadow rays: they can differ only where
     # a pixel's footprint straddles a shadow edge (the map's 2x2 filtering, its texel size);
     # measured 0.6 % of the object pixels on knot:2 at 192x144
     sc = scene.builtin("knot")
     m = dark_model(sc)
-    light = render.Lighting(sky, base_res=16, sun=True)
+    light = sun_light
     out = {}
     for backend in ("gl", "torch"):
         with render.Renderer(m, light, 128, 96, backend=backend) as ren:
@@ -135,11 +142,11 @@ def test_shadow_map_matches_shadow_rays_on_the_knot(sky):
 
 
 @needs_gl
-def test_the_shadow_map_follows_the_turning_light(sky):
+def test_the_shadow_map_follows_the_turning_light(sun_light):
     # the map is re-rendered only when the sun's direction changes: turning away and back
     # gives the first frame again, and the turned frame differs
     sc = scene.builtin("knot")
-    light = render.Lighting(sky, base_res=16, sun=True)
+    light = sun_light
     with render.Renderer(dark_model(sc), light, 64, 48, backend="gl") as ren:
         a = ren.render(sc.camera, 30.0, background=False)
         b = ren.render(sc.camera, 100.0, background=False)
@@ -169,7 +176,7 @@ _SPECULARS = {
 
 @needs_gl
 @pytest.mark.parametrize("name", sorted(_SPECULARS))
-def test_sun_glossy_shader_matches_the_torch_brdf(sky, name):
+def test_sun_glossy_shader_matches_the_torch_brdf(sun_light, name):
     # the shader's BRDFs (prt.glsl) against lobelight.brdf's, which tests/test_brdf.py checks
     # against Mitsuba 3: a model with no Gaussians and no SH, so its glossy image is the sun's
     # glossy reflection alone. A convex sphere casts no shadow; float32 GLSL against float32
@@ -178,7 +185,7 @@ def test_sun_glossy_shader_matches_the_torch_brdf(sky, name):
     sc = scene.builtin("sphere", subdivisions=4)
     sc = _with_specular(sc, _SPECULARS[name](sc.mesh.n_vertices))
     m = dark_model(sc)
-    light = render.Lighting(sky, base_res=16, sun=True)
+    light = sun_light
     cam = render.Camera.look_at((0.3, 0.8, 3.0), (0.0, 0.0, 0.0), fov=40)
     out = {}
     for backend in ("gl", "torch"):
