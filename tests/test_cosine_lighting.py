@@ -228,8 +228,8 @@ def test_shadowed_points_match_monte_carlo(tables):
     assert float(got.radiance[umbra].double().mean()) < 0.3 * float(free[umbra].mean())
 
 
-# Eager, and fused (torch.compile: about half a minute of compiling per new kernel shape on a
-# 2-core CPU, so the slow stage; test_cosine_fused checks fused against eager shading too).
+# Eager, and fused (torch.compile: about 45 s of compiling each on a quiet 2-core machine with
+# a cold inductor cache, so the slow stage; test_cosine_fused checks fused against eager too).
 FUSED = [False, pytest.param(True, marks=pytest.mark.slow)]
 
 _CLUSTER = torch.tensor([[0.0, 0.9, 0.0, 0.4], [0.5, 0.7, 0.3, 0.25], [-0.4, 0.6, 0.2, 0.2]])
