@@ -1,6 +1,6 @@
 """lobelight: real-time, all-frequency relighting with spherical lobes.
 
-Modules follow the pipeline (see DESIGN.md in the project's shared notes):
+Modules follow the pipeline (conventions: docs/conventions.md):
 
 - :mod:`lobelight.sphere`   directions: the 92 geodesic views, Fibonacci and local sets, rotations
 - :mod:`lobelight.cubemap`  cube-map texel directions, exact solid angles, seamless sampling

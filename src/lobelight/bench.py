@@ -172,7 +172,7 @@ def bench_transport(
 
 
 def bench_fit(*, scene: str = "knot:2", n_lobes: int = 1, device: str = "cpu") -> dict:
-    """Transport and fit of a whole model (the issue's 10K-vertex, 92-view, N = 1 benchmark).
+    """Transport and fit of a whole model (a 10K-vertex, 92-view, N = 1 model).
 
     ``knot:2`` has 11,457 vertices (10,368 of them glossy, as the 12,769-vertex ``knot:3`` of
     the earlier, coarser-tubed knot had); seconds are also given per 10K vertices.

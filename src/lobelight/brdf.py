@@ -1,12 +1,12 @@
 """Vectorised BRDFs on any torch device: evaluation, sampling densities and importance sampling.
 
-Conventions (DESIGN.md): directions are unit ``(..., 3)`` tensors in the **world** frame, all
-pointing **away** from the surface: ``wi`` towards the light, ``wo`` towards the viewer, ``n``
-the shading normal. Batch shapes broadcast. Every model works in the local frame ``(t, b, n)``
-with the normal as **z**: ``t`` is the optional tangent argument (orthonormalised against
-``n``; it sets the ``x`` axis of anisotropic models) or, when it is None, the deterministic
-tangent of :func:`lobelight.sphere.frame`; ``b = n x t``. Below, ``x, y, z`` are local
-coordinates and ``pos(c)^e`` is ``c^e`` for ``c > 0`` and 0 otherwise.
+Conventions (``docs/conventions.md``): directions are unit ``(..., 3)`` tensors in the world
+frame, all pointing **away** from the surface: ``wi`` towards the light, ``wo`` towards the
+viewer, ``n`` the shading normal. Batch shapes broadcast. Every model works in the local frame
+``(t, b, n)`` with the normal as **z**: ``t`` is the optional tangent argument (orthonormalised
+against ``n``; it sets the ``x`` axis of anisotropic models) or, when it is None, the
+deterministic tangent of :func:`lobelight.sphere.frame`; ``b = n x t``. Below, ``x, y, z`` are
+local coordinates and ``pos(c)^e`` is ``c^e`` for ``c > 0`` and 0 otherwise.
 
 Every method returns 0 (value, density and sample weight) where ``n.wi <= 0`` or ``n.wo <= 0``:
 the models are one-sided reflectors.

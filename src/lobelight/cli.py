@@ -84,14 +84,11 @@ def _env_source(path: str | None, provenance: dict | None = None) -> str:
 
 
 def _env_file(source: str) -> str:
-    """``source`` as a file path: a bundled map's name resolves to its file."""
-    from .data import envmap_path
+    """``source`` as a file path (a bundled map's name resolves to its file); unresolved, as
+    given, so that the loader names what is missing."""
+    from .data import resolve_envmap
 
-    if source != "builtin" and not Path(source).exists():
-        bundled = envmap_path(source)
-        if bundled is not None:
-            return str(bundled)
-    return source
+    return resolve_envmap(source) or source
 
 
 def _env(path: str | None, provenance: dict | None = None):

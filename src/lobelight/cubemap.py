@@ -1,6 +1,6 @@
 """Cube maps: face conventions, texel directions, exact solid angles, seamless sampling.
 
-Layout (DESIGN.md): a cube map is a ``(6, R, R, C)`` array in OpenGL face order
+Layout (docs/conventions.md): a cube map is a ``(6, R, R, C)`` array in OpenGL face order
 +X, -X, +Y, -Y, +Z, -Z. Row ``i`` of a face is the GL texture coordinate ``t`` and column ``j``
 is ``s``, so a face uploads to ``glTexImage2D(GL_TEXTURE_CUBE_MAP_POSITIVE_X + f, ...)`` as it is.
 With face coordinates ``u = 2 s - 1`` and ``v = 2 t - 1`` in ``[-1, 1]`` the direction of a point

@@ -27,7 +27,7 @@ Functions (:func:`transport_functions`)
 
 Representation and error
 ------------------------
-Every function is tabulated at the texel centres of a ``(6, R, R)`` cube map (DESIGN.md layout,
+Every function is tabulated at the texel centres of a ``(6, R, R)`` cube map (conventions.md,
 default ``R = 256``); every error is the solid-angle-weighted quadrature over all ``6 R^2``
 texels (exact texel solid angles), in float64. All three methods are measured against the same
 table. ``docs/figure5.md`` shows that the numbers hardly move between ``R = 128, 256, 512``.
@@ -50,7 +50,7 @@ Gaussians
     peak of the positive residual, from several starts (different widths, the residual's
     centroid, a seeded random one), all fitted at once as a batch on an adaptive quadrature of
     64^2 cells per face where the function is non-zero and coarse blocks elsewhere ("sample a
-    lobe where it lives", DESIGN.md); the best start is polished on the full-resolution texels
+    lobe where it lives"); the best start is polished on the full-resolution texels
     (again only where the function lives). Every candidate is scored on the full cube map with
     its weights re-solved there (non-negative least squares), and the best is kept, including
     the ``K - 1`` fit with an unused lobe, so the error never grows with ``K``.

@@ -3,7 +3,7 @@ Hanrahan (2003), "All-frequency shadows using non-linear wavelet lighting approx
 
 Transform
 ---------
-Each face of a ``(6, R, R, C)`` cube map (DESIGN.md layout, ``R`` a power of two) gets the
+Each face of a ``(6, R, R, C)`` cube map (docs/conventions.md layout, ``R`` a power of two) gets the
 orthonormal 2D *nonstandard* Haar decomposition, channels independently. One level maps every
 2 x 2 block ``[[p00, p01], [p10, p11]]`` (rows ``i``, columns ``j``) to::
 

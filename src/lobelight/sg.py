@@ -1,10 +1,11 @@
 """Spherical Gaussians: evaluation, integrals, products, vMF densities and simple fits.
 
-Convention (DESIGN.md): ``G(w; mu, lam) = exp(lam (mu.w - 1))`` with unit mean ``mu``, sharpness
-``lam > 0`` and peak 1; ``lam = 1/sigma**2`` links it to the papers' standard deviation. Shapes
-broadcast over leading dimensions: directions and means are ``(..., 3)``, sharpness ``(...)``,
-RGB (or any channel) weights ``(..., C)``; a mixture of ``N`` lobes puts ``N`` before the
-vector axis: means ``(..., N, 3)``, sharpness ``(..., N)``, weights ``(..., N, C)``.
+Convention (``docs/conventions.md``): ``G(w; mu, lam) = exp(lam (mu.w - 1))`` with unit mean
+``mu``, sharpness ``lam > 0`` and peak 1; ``lam = 1/sigma**2`` links it to the papers' standard
+deviation. Shapes broadcast over leading dimensions: directions and means are ``(..., 3)``,
+sharpness ``(...)``, RGB (or any channel) weights ``(..., C)``; a mixture of ``N`` lobes puts
+``N`` before the vector axis: means ``(..., N, 3)``, sharpness ``(..., N)``,
+weights ``(..., N, C)``.
 
 Numerics, for ``lam`` from 1e-3 to 1e5 in float32:
 
@@ -163,7 +164,7 @@ def inner_product(mu1, lam1, mu2, lam2, /):
 
 @dispatch
 def sigma_to_sharpness(sigma, /):
-    """``lam = 1 / sigma**2`` (DESIGN.md), ``sigma`` in radians. (...) -> (...)."""
+    """``lam = 1 / sigma**2`` (conventions.md), ``sigma`` in radians. (...) -> (...)."""
     sigma = _float(sigma)
     return 1 / (sigma * sigma)
 

@@ -2,10 +2,10 @@
 
 Conventions
 -----------
-*Order.* "Order n" means bands ``l = 0 .. n-1``, ``n**2`` coefficients (DESIGN.md: order 5 = 25).
+*Order.* "Order n" means bands ``l = 0 .. n-1``, ``n**2`` coefficients (conventions.md: 25).
 Coefficient ``k`` holds band ``l`` and index ``m`` (``-l <= m <= l``) with ``k = l*l + l + m``.
 
-*Axes.* Directions are unit vectors in the world frame (right-handed, +Y up, DESIGN.md). The SH
+*Axes.* Directions are unit vectors in the world frame (right-handed, +Y up, conventions.md). The SH
 **polar axis is +Z** (world z), as in the mathematical literature, scipy and sphericart:
 ``cos(theta) = z`` and ``phi = atan2(y, x)``. The basis is just a set of polynomials in
 ``(x, y, z)``, so which axis is "up" in the scene does not matter for projection, rotation or
@@ -274,7 +274,7 @@ def project_cubemap(cube, order):
 
     Parameters
     ----------
-    cube : (6, R, R, C) cube map (DESIGN.md layout)
+    cube : (6, R, R, C) cube map (conventions.md layout)
     order : int >= 1
 
     Returns

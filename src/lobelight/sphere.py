@@ -1,6 +1,6 @@
 """Directions on the unit sphere: the 92 geodesic views, quadrature sets, frames and rotations.
 
-Conventions (DESIGN.md): directions are ``(..., 3)`` float arrays, unit length, world frame,
+Conventions (conventions.md): directions are ``(..., 3)`` float arrays, unit length, world frame,
 right-handed, +Y up. Array functions take numpy arrays or torch tensors (numpy in, numpy out;
 tensors keep dtype and device, see :mod:`lobelight._backend`). Functions that take no array
 (``geodesic_views``, ``fibonacci``, ``random_rotation``) return torch tensors and take

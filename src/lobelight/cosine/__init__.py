@@ -21,7 +21,7 @@ Tables (:mod:`._tables`)
     :func:`build_tables`, :func:`save_tables`, :func:`load_tables` and :func:`bench_tables`
     complete the set.
 
-Direct lighting with soft shadows (issue 7; method note ``docs/cosine-lobes.md``)
+Direct lighting with soft shadows (method note ``docs/cosine-lobes.md``)
     :class:`SphereLight` (centre, radius, RGB radiance) is one cap lobe per point
     (:func:`light_lobes`; its scale makes the lobe's integral the cap's solid angle, the paper's
     scale 1 is off by -6.9..+4 %); :func:`brdf_lobes` turns Lambert, Phong and Lafortune

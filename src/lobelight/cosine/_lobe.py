@@ -1,6 +1,6 @@
 """Cosine lobes ``c(w) = s max(a.w, 0)^e``: evaluation, closed-form integrals, the product peak.
 
-Convention (DESIGN.md and the paper, eq. 4): ``a`` is a **unit** axis, ``s`` the scale and
+Convention (docs/conventions.md and the paper, eq. 4): ``a`` is a **unit** axis, ``s`` the scale and
 ``e >= 0`` the exponent. Where a model writes a lobe with a non-unit vector, as Lafortune's
 ``max(M v . w, 0)^e`` (paper eq. 30), the length goes into the scale: ``|M v|^e``
 (:func:`from_vector`). At ``e = 0`` the lobe is the indicator of the open hemisphere around

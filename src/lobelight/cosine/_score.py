@@ -1,4 +1,4 @@
-"""The scored comparison of issue 7, part 4: lobes against Monte Carlo, table against quadrature.
+"""The scored comparison of the cosine lobes: lobes against Monte Carlo, table against quadrature.
 
 1. **Image**: the paper's kind of scene (:func:`~._scene.default_scene`: a plane, a torus
    approximated by 64 spheres, one spherical light, direct lighting only), every pixel of a

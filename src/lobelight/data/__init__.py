@@ -1,14 +1,15 @@
 """Data that ships with the package: small real HDR environment maps (CC0, see LICENSES.md).
 
 :func:`envmap_path` resolves a bundled map by its stem (``"rooitou_park_512"``);
-:func:`envmap_names` lists them.
+:func:`envmap_names` lists them; :func:`resolve_envmap` is the one rule for a name a user gives
+(``"builtin"``, a file, or a bundled map's stem).
 """
 
 from __future__ import annotations
 
 from pathlib import Path
 
-__all__ = ["DEFAULT_ENVMAP", "envmap_names", "envmap_path"]
+__all__ = ["DEFAULT_ENVMAP", "envmap_names", "envmap_path", "resolve_envmap"]
 
 _ENVMAPS = Path(__file__).resolve().parent / "envmaps"
 
@@ -26,3 +27,16 @@ def envmap_path(name: str) -> Path | None:
     """The file of the bundled map ``name`` (its stem), or None when there is none by that name."""
     p = _ENVMAPS / f"{name}.hdr"
     return p if name and "/" not in name and p.is_file() else None
+
+
+def resolve_envmap(source: str, *, relative_to: str | Path | None = None) -> str | None:
+    """The environment a user names: ``"builtin"`` as it is; a file (relative to the folder
+    ``relative_to``, else the working directory) when one exists; else the bundled map with that
+    stem; None when it is none of these."""
+    if source == "builtin":
+        return source
+    path = Path(relative_to) / source if relative_to is not None else Path(source)
+    if path.is_file():
+        return str(path.resolve() if relative_to is not None else path)
+    bundled = envmap_path(source)
+    return str(bundled) if bundled is not None else None

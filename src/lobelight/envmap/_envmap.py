@@ -1,7 +1,7 @@
 """Environment maps: distant lighting, the radiance arriving from each direction.
 
-Conventions (DESIGN.md): directions are ``(..., 3)`` in the world frame, right-handed, +Y up;
-radiance is linear RGB float32. An :class:`EnvMap` holds one of two layouts.
+Conventions (``docs/conventions.md``): directions are ``(..., 3)`` in the world frame,
+right-handed, +Y up; radiance is linear RGB float32. An :class:`EnvMap` holds one of two layouts.
 
 ``"latlong"`` — an ``(H, W, 3)`` image read exactly as Mitsuba 3's ``envmap`` emitter reads it
 (``src/emitters/envmap.cpp``, identity ``to_world``), so that a reference render of the same file

@@ -1,7 +1,7 @@
 """What the fit sees of a transport function: directions, quadrature weights, values.
 
 Each (vertex, view) transport function is sampled on two sets that together form one quadrature
-rule of the sphere (Green et al.'s "arbitrary bandwidth" needs the sharp part resolved; DESIGN.md):
+rule of the sphere (Green et al.'s "arbitrary bandwidth" needs the sharp part resolved):
 
 local
     A cap grid (:func:`lobelight.sphere.local_grid`) around the glossy lobe, sized to it. The

@@ -15,7 +15,7 @@ For one vertex, all J views and N Gaussians per view ``(w_k, mu_k, sigma_k)``:
 ``S`` (eq. 10) spatial arrangement against already-processed neighbouring vertices ``s``:
     ``sum_{k1<k2} sum_s max(-<dmu_x, dmu_s>, 0)^3`` with ``dmu = mu_k1 - mu_k2``. The i3D text cubes
     the dot product; the squared form of the report cannot be negative and would penalise
-    consistent arrangements too (DESIGN.md), so the cube it is.
+    consistent arrangements too, so the cube it is.
 
 ``M``, ``V`` and ``S`` are averaged over views (not summed) so that their weights do not depend
 on how many views a vertex has.

@@ -43,7 +43,7 @@ import numpy as np
 import torch
 
 from ..camera import Camera
-from ..data import envmap_names, envmap_path
+from ..data import envmap_names, resolve_envmap
 from ..errors import InputError
 from . import _shapes
 from ._materials import Materials, gradient, parse_material, uniform
@@ -355,11 +355,9 @@ def _environment(p: Path, s: str, d: dict[str, Any]) -> str:
     if env == "builtin":
         return env
     env_path = _entry_path(p, s, d, "environment")
-    if env_path.is_file():
-        return str(env_path)
-    bundled = envmap_path(env)
-    if bundled is not None:
-        return str(bundled)
+    found = resolve_envmap(env, relative_to=p.parent)
+    if found is not None:
+        return found
     raise InputError(
         f"{s}: environment",
         f"no such file {env_path}, and not a bundled map ({', '.join(envmap_names())})",

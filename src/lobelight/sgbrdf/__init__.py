@@ -1,6 +1,6 @@
 """BRDFs as spherical-Gaussian mixtures fitted by EM, rendered with prefiltered lighting.
 
-The second method of DESIGN.md (papers/gmm-spherical-gaussians-em.txt): for a set of fixed view
+The second of lobelight's methods (SG mixtures of BRDFs fitted by EM): for a set of fixed view
 directions ``o_j`` in the tangent frame, ``rho(i, o_j) (n.i)`` is fitted once per material as a
 mixture of ``N`` (8) spherical Gaussians; at render time each pixel interpolates the lobes for
 its view, rotates them to the world and integrates each against the environment in one lookup.

@@ -2,7 +2,7 @@
 
 The model (the EM paper, eqs. 1-5) is ``p(x) = sum_k alpha_k g(x; mu_k, kappa_k)`` with the vMF
 density ``g = C(kappa) exp(kappa (mu.x - 1))``, ``C(kappa) = kappa / (2 pi (1 - exp(-2 kappa)))``
-(DESIGN.md: the SG of sharpness ``kappa`` normalised by its integral). Data are directions with
+(conventions.md: the SG of sharpness ``kappa`` normalised by its integral). Data are directions with
 non-negative weights: drawn samples have weight 1; weighted samples (quadrature points or
 importance samples with values ``f / pdf``) make EM fit the density proportional to ``f``, i.e.
 minimise ``KL(f || p)``.

@@ -19,7 +19,7 @@ View sets (tangent frame: ``x`` = tangent, ``y`` = bitangent, ``z`` = normal)
 
 Parameter layout (a texture indexed by (view, lobe), the paper's sec. V)
     ``params[j, k] = (w_r, w_g, w_b, mu_x, mu_y, mu_z, kappa)``, ``(M, N, 7)`` float32: view
-    ``j``'s lobe ``k`` is the spherical Gaussian ``w exp(kappa (mu.i - 1))`` (DESIGN.md: peak
+    ``j``'s lobe ``k`` is the spherical Gaussian ``w exp(kappa (mu.i - 1))`` (conventions: peak
     ``w``, sharpness ``kappa`` = the vMF concentration), ``mu`` a unit vector in the tangent
     frame, so ``rho(i, o_j) (n.i) ~ sum_k w_jk G(i; mu_jk, kappa_jk)`` per RGB channel.
     With ``A_j`` the directional albedo and ``alpha_jk`` the EM mixture weights,
