@@ -309,14 +309,14 @@ def fit_mesh(
         if not all_neighbours:
             diffuse[vidx] = tr.diffuse(vidx, ddirs, dom)
             done[vidx] = True
-            axis, lam_est = lobe_estimate(tr, vidx, views)
+            axis, lam_est, scale = lobe_estimate(tr, vidx, views)
             gl = (lam_est > 0).any(1)
             glossy[vidx] = gl
             rest = ~gl
             if bool(rest.any()):  # no glossy transport: zero weights, means at the lobe axis
                 mu[vidx[rest]] = axis[rest][:, :, None].expand(-1, -1, n, -1)
                 lam[vidx[rest]], w[vidx[rest]], derr[vidx[rest]] = 1.0, 0.0, 0.0
-            lobe = (axis[gl], lam_est[gl])
+            lobe = (axis[gl], lam_est[gl], scale[gl])
         vidx = vidx[glossy[vidx]]
         if vidx.numel() == 0:
             return
