@@ -101,6 +101,7 @@ def initial_guess(
     lam_range=LAM_RANGE,
     nbr_views: torch.Tensor | None = None,
     solve: bool = True,
+    conserve: bool = True,
 ) -> Gaussians:
     """A starting point from the data alone.
 
@@ -118,9 +119,19 @@ def initial_guess(
     for _ in range(1, n):
         if nbr_views is not None:
             mus, lams = levenberg_marquardt(
-                data, mus, lams, nbr_views, Weights(), lam_range=lam_range, iters=8
+                data,
+                mus,
+                lams,
+                nbr_views,
+                Weights(),
+                lam_range=lam_range,
+                iters=8,
+                conserve=False,
             )
-        w = solve_weights(data, mus, lams)
+        # the greedy steps look for what the lobes so far leave unexplained: the plain L2
+        # residual, where one lobe held to all the light would smear over the sharp and the
+        # broad part alike
+        w = solve_weights(data, mus, lams, conserve=False)
         g = sg.evaluate(data.dirs[:, :, None], mus[:, :, :, None], lams[..., None])
         resid = (data.values - torch.einsum("bjns,bjnc->bjsc", g, w)).clamp_min(0)
         # moments of the squared residual: weighted by energy, not mass, so a small sharp peak
@@ -135,7 +146,7 @@ def initial_guess(
         mus, lams = _fill_empty(mus, lams, empty, nbr_views)
     if not solve:
         return Gaussians(torch.zeros(*lams.shape, 3, dtype=mus.dtype, device=mus.device), mus, lams)
-    return Gaussians(solve_weights(data, mus, lams), mus, lams)
+    return Gaussians(solve_weights(data, mus, lams, conserve=conserve), mus, lams)
 
 
 def _fill_empty(mu, lam, empty, nbr, *, sweeps: int = 30):
@@ -331,9 +342,10 @@ def objective(
     weights: Weights,
     nbr_mu: torch.Tensor | None = None,
     nbr_mask: torch.Tensor | None = None,
+    conserve: bool = True,
 ) -> tuple[torch.Tensor, dict[str, torch.Tensor]]:
     """Per-vertex objective (B,) and its terms, with the weights solved for."""
-    w = solve_weights(data, mu, lam)
+    w = solve_weights(data, mu, lam, conserve=conserve)
     terms = {
         "D": data_term(data, w, mu, lam),
         "M": mean_term(mu, nbr_views),
@@ -365,6 +377,7 @@ def fit_batch(
     method: str = "lm",
     iters: int | None = None,
     lr: float = 0.05,
+    conserve: bool = True,
 ) -> tuple[Gaussians, dict[str, torch.Tensor]]:
     """Minimise eq. (6) for a batch of independent vertices: a local optimiser over the means
     and widths, then :func:`relabel` over the order of each view's Gaussians.
@@ -379,6 +392,8 @@ def fit_batch(
     method : "lm" (batched Levenberg-Marquardt, :mod:`._lm`; default) or "adam" (autograd
         on the same objective: slower, kept as an independent check of the LM steps)
     iters : iterations (default 20 for LM, 150 for Adam)
+    conserve : the weights keep each view's light, the integral of its data
+        (:func:`._objective.solve_gram`: what a long-tailed lobe's L2 fit loses)
 
     Returns
     -------
@@ -387,7 +402,14 @@ def fit_batch(
     weights = Weights() if weights is None else weights
     g0 = init
     if g0 is None:
-        g0 = initial_guess(data, n, lam_range=lam_range, nbr_views=nbr_views, solve=method != "lm")
+        g0 = initial_guess(
+            data,
+            n,
+            lam_range=lam_range,
+            nbr_views=nbr_views,
+            solve=method != "lm",
+            conserve=conserve,
+        )
     if method == "lm":
         st: dict = {}
         mu, lam = levenberg_marquardt(
@@ -401,6 +423,7 @@ def fit_batch(
             lam_range=lam_range,
             iters=20 if iters is None else iters,
             state=st,
+            conserve=conserve,
         )
         g = relabel(
             Gaussians(st["w"], mu, lam),
@@ -433,18 +456,18 @@ def fit_batch(
     for _ in range(iters):
         opt.zero_grad()
         mu, lam = p.decode()
-        total, _ = objective(data, mu, lam, nbr_views, weights, nbr_mu, nbr_mask)
+        total, _ = objective(data, mu, lam, nbr_views, weights, nbr_mu, nbr_mask, conserve)
         (total + p.penalty()).sum().backward()
         opt.step()
         sched.step()
     with torch.no_grad():
         mu, lam = p.decode(clamp=True)
         g = relabel(
-            Gaussians(solve_weights(data, mu, lam), mu, lam),
+            Gaussians(solve_weights(data, mu, lam, conserve=conserve), mu, lam),
             nbr_views,
             weights=weights,
             nbr_mu=nbr_mu,
             nbr_mask=nbr_mask,
         )
-        _, terms = objective(data, g.mu, g.lam, nbr_views, weights, nbr_mu, nbr_mask)
+        _, terms = objective(data, g.mu, g.lam, nbr_views, weights, nbr_mu, nbr_mask, conserve)
     return g, terms
