@@ -13,10 +13,9 @@ Residuals of a view ``v`` (their squares sum to that view's share of the objecti
   are solved exactly for the current means and widths (variable projection), by default under
   the constraint that the lobes carry the data's light (:func:`._objective.solve_gram`), and
   held fixed in the Jacobian (Kaufman's simplification, which keeps Gauss-Newton's
-  convergence); under the constraint it is the light each lobe carries under the quadrature,
-  ``w_k sum_s W_s G_k(omega_s)``, that is held, which makes the held-weights gradient the exact
-  one (the constraint's multiplier acts on the carried light alone, and that sums to the data's
-  light whatever the step).
+  convergence); under the constraint it is the light each lobe carries, ``w_k Z(lam_k)``, that
+  is held, which makes the held-weights gradient the exact one (the constraint's multiplier
+  acts on the carried light alone, and that sums to the data's light whatever the step).
 - ``M``: ``sqrt(beta / J) (normalise(avg_r mu_k^r) - mu_k)`` per Gaussian (3 residuals);
 - ``V``: ``sqrt(gamma / J) (avg_r sigma_k^r - sigma_k) / avg_r sigma_k^r``;
 - ``S``: ``sqrt(delta / J) max(-<dmu_x, dmu_s>, 0)^(3/2)`` per pair of Gaussians and processed
@@ -38,7 +37,7 @@ import torch
 
 from .. import sphere
 from ._data import FitData
-from ._objective import Weights, _neighbour_mean, _pair_diffs, solve_gram
+from ._objective import Weights, _neighbour_mean, _pair_diffs, conserve_factor, solve_gram
 
 __all__ = ["levenberg_marquardt"]
 
@@ -150,31 +149,23 @@ def levenberg_marquardt(
         gw = g64 * w64
         a_ = torch.bmm(gw, g64.transpose(1, 2))  # (P, N, N)
         rhs = torch.bmm(gw, vals64)  # (P, N, 3)
-        mass = gw.sum(-1)  # (P, N) sum_s W_s G_k
         w_ = solve_gram(
-            a_[:, None],
-            rhs[:, None],
-            lam_a[:, None],
-            no_below,
-            light,
-            conserve=conserve,
-            mass=mass[:, None],
+            a_[:, None], rhs[:, None], lam_a[:, None], no_below, light, conserve=conserve
         )[:, 0]
-        mean = torch.bmm(gw, dirs64) / mass.clamp_min(1e-300)[..., None]  # (P, N, 3)
         quad = torch.einsum("pkc,pkl,plc->p", w_, a_, w_)
         d_a = (t2 - 2 * (w_ * rhs).sum((-1, -2)) + quad).clamp_min(0) * inv_e_a
         d_cost = unpack(d_a)  # (B, J)
         mb = torch.nn.functional.normalize(_neighbour_mean(mu_, nbr_views), dim=-1)
         sb = _neighbour_mean(lam_.rsqrt(), nbr_views)
         cost = d_cost + _reg_cost(mu_, lam_, mb, sb, c, nbr_mu, mask)
-        return g_, cm1_, w_.to(dt), cost.sum(1), d_cost.sum(1), mean.to(dt)
+        return g_, cm1_, w_.to(dt), cost.sum(1), d_cost.sum(1)
 
     sq_n = (wts_a * inv_e_a[:, None]).sqrt()[:, None]  # (P, 1, S) residual scale
     dflat = dirs_a.transpose(1, 2)  # (P, 3, S)
     vals_t = vals_a.transpose(1, 2)  # (P, 3, S)
     mask = None if nbr_mask is None else nbr_mask.to(dt)
     mu, lam = mu.clone(), lam.clone()
-    g, cm1, w, cost0, d0, gmean = evaluate(mu, lam)
+    g, cm1, w, cost0, d0 = evaluate(mu, lam)
     jac = torch.empty(p_n, n, 3, n_s, dtype=dt, device=mu.device)  # reused every iteration
     for _ in range(iters):
         mbar = torch.nn.functional.normalize(_neighbour_mean(mu, nbr_views), dim=-1)
@@ -183,24 +174,20 @@ def levenberg_marquardt(
         t, s, _ = sphere.frame(mu)  # (B, J, N, 3) each
         # tangent components of the sample directions, by matmul: (P, N, S) each
         lam_a, sigma_a = pack(lam), pack(sigma)  # (P, N)
-        pt, ps = pack(t), pack(s)
-        tw = torch.bmm(pt, dflat)
-        sw = torch.bmm(ps, dflat)
-        zrow = cm1
-        if conserve:
-            # the carried light e_k = w_k sum_s W_s G_k held: w_k G_k = e_k G_k / sum_s W_s G_k,
-            # whose derivatives are G's less their W G-weighted mean over the samples, i.e.
-            # the direction products less those of the lobe's quadrature-mean direction
-            tw = tw - (pt * gmean).sum(-1, keepdim=True)
-            sw = sw - (ps * gmean).sum(-1, keepdim=True)
-            zrow = zrow - ((pack(mu) * gmean).sum(-1, keepdim=True) - 1)
+        tw = torch.bmm(pack(t), dflat)
+        sw = torch.bmm(pack(s), dflat)
         # scaled Jacobian rows d (w_k G_k) / d (a, b, z)_k / w_k * sqrt(W_s / E), in place:
-        # dG/da = G lam sigma (t.w), dG/db = G lam sigma (s.w), dG/dz = G lam (mu.w - 1)
+        # dG/da = G lam sigma (t.w), dG/db = G lam sigma (s.w), dG/dz = G lam (mu.w - 1), and
+        # with the light conserved, w_k = e_k / Z(lam_k) with the carried light e_k held, so
+        # the z row gains G kappa (:func:`._objective.conserve_factor`)
         gs = g * sq_n
         q = gs * (lam_a * sigma_a)[..., None]
         torch.mul(q, tw, out=jac[:, :, 0])
         torch.mul(q, sw, out=jac[:, :, 1])
-        torch.mul(gs, zrow * lam_a[..., None], out=jac[:, :, 2])
+        zrow = cm1 * lam_a[..., None]
+        if conserve:
+            zrow = zrow + conserve_factor(lam_a)[..., None]
+        torch.mul(gs, zrow, out=jac[:, :, 2])
         jr = jac.reshape(p_n, 3 * n, n_s)
         ww = torch.bmm(w, w.transpose(1, 2))  # (P, N, N)
         h = torch.bmm(jr, jr.transpose(1, 2)).reshape(p_n, n, 3, n, 3)
@@ -249,7 +236,7 @@ def levenberg_marquardt(
             mu + sigma[..., None] * (step[..., :1] * t + step[..., 1:2] * s), dim=-1
         )
         lam1 = (lam * torch.exp(step[..., 2])).clamp(*lam_range)
-        g1, cm11, w1, cost1, d1, gmean1 = evaluate(mu1, lam1)
+        g1, cm11, w1, cost1, d1 = evaluate(mu1, lam1)
         ok = (cost1 <= cost0)[:, None]  # (B, 1): whole vertices step or stay
         ok_a = ok[vertex_of]  # (P, 1)
         mu = torch.where(ok[..., None, None], mu1, mu)
@@ -257,7 +244,6 @@ def levenberg_marquardt(
         g = torch.where(ok_a[..., None], g1, g)
         cm1 = torch.where(ok_a[..., None], cm11, cm1)
         w = torch.where(ok_a[..., None], w1, w)
-        gmean = torch.where(ok_a[..., None], gmean1, gmean)
         cost0 = torch.where(ok[:, 0], cost1, cost0)
         d0 = torch.where(ok[:, 0], d1, d0)
         damp = torch.where(ok, damp / 3, damp * 4).clamp(1e-9, 1e9)

@@ -87,16 +87,26 @@ def solve_weights(
     gw = g * data.weights[:, :, None]
     a = torch.einsum("bjks,bjls->bjkl", gw, g)  # (B, J, N, N)
     rhs = torch.einsum("bjks,bjsc->bjkc", gw, data.values)  # (B, J, N, 3)
-    mass = gw.sum(-1)  # (B, J, N) sum_s W_s G_k
-    return solve_gram(
-        a, rhs, lam, data.below, light_of(data), ridge=ridge, conserve=conserve, mass=mass
-    )
+    return solve_gram(a, rhs, lam, data.below, light_of(data), ridge=ridge, conserve=conserve)
 
 
 def light_of(data: FitData) -> torch.Tensor:
     """``int max(T, 0)`` per vertex, view and channel, (B, J, 3): the light of
     :func:`solve_gram`."""
     return (data.weights[..., None] * data.values.clamp_min(0)).sum(2)
+
+
+def conserve_factor(lam: torch.Tensor) -> torch.Tensor:
+    """``-d ln Z / d ln lam = 1 - 2 lam / (exp(2 lam) - 1)`` for ``Z`` the SG integral, (...).
+
+    With a lobe's carried light ``w Z(lam)`` held, ``d w / d ln lam`` is ``w`` times this: the
+    term a width step adds to the Jacobian of the constrained fit (:mod:`._lm`). 1 for sharp
+    lobes (``Z ~ 2 pi / lam``), 0 at ``lam = 0``.
+    """
+    x = 2 * lam
+    small = x < 1e-6
+    safe = torch.where(small, torch.ones_like(x), x)
+    return torch.where(small, x / 2, 1 - safe / torch.expm1(safe))
 
 
 def solve_gram(
@@ -108,19 +118,17 @@ def solve_gram(
     *,
     ridge: float = 1e-9,
     conserve: bool = True,
-    mass: torch.Tensor | None = None,
 ) -> torch.Tensor:
     """The weights of :func:`solve_weights` from its normal equations.
 
-    ``conserve``: the least-squares weights under the constraint ``sum_k w_kc m_k = light_c``
-    with ``m_k = sum_s W_s G_k(omega_s)`` each lobe's integral under the sample quadrature
-    (``mass``; default the exact ``Z(lam_k)``) (Lagrange: ``w = A^-1 (b - nu m)``, ``nu`` per
-    channel), negative ones clamped to 0 and the rest scaled to the light again. The
-    quadrature's own integral makes the constraint hold exactly for any data a mixture
-    represents, whatever the quadrature's error (a broad lobe's value across a cap's edge is
-    integrated to a few per cent): the L2 optimum is then unchanged by it. Where the samples
-    resolve the lobes (the fit moves them there), ``m_k`` is ``Z(lam_k)`` to the quadrature's
-    accuracy, so the rendered light ``w Z`` is the data's.
+    ``conserve``: the least-squares weights under the constraint ``sum_k w_kc Z(lam_k) =
+    light_c``, the lobes' exact integrals (Lagrange: ``w = A^-1 (b - nu Z)``, ``nu`` per
+    channel), negative ones clamped to 0 and the rest scaled to the light again. The rendered
+    light ``w Z`` is then the data's. Constraining each lobe's integral under the sample
+    quadrature instead, ``sum_s W_s G_k``, would leave the L2 optimum of data a mixture
+    represents exactly untouched by the quadrature's error, but where the samples do not
+    resolve a lobe (a round Gaussian over a grazing view's sliver of samples) its rendered
+    light strays: measured on GGX 0.02, 5.7 % mean and +24 % at the 95th percentile.
 
     Why the constraint: the transport's L2 optimum follows its peak, and a long-tailed lobe
     (GGX, Beckmann; visibility cuts) carries much of its light in tails one Gaussian does not:
@@ -138,7 +146,6 @@ def solve_gram(
     ----------
     a : (B, J, N, N) ``int G_k G_l``;  rhs : (B, J, N, 3) ``int G_k T``;  lam : (B, J, N)
     below : (B, J) views below the horizon;  light : (B, J, 3) from :func:`light_of`
-    mass : optional (B, J, N) the lobes' quadrature integrals
 
     Returns
     -------
@@ -160,8 +167,7 @@ def solve_gram(
     if not conserve:
         w = torch.linalg.solve(a64, rhs64).clamp_min(0)
         return torch.minimum(w, cap).to(rhs.dtype)
-    z = exact if mass is None else mass.double()
-    z = torch.where(bad[..., 0], exact, z).clamp_min(1e-300)
+    z = exact
     lit = torch.where(bad[..., 0], torch.zeros_like(light), light).double()  # (B, J, 3)
     sol = torch.linalg.solve(a64, torch.cat([rhs64, z[..., None]], -1))  # (B, J, N, 4)
     ab, az = sol[..., :3], sol[..., 3:]  # A^-1 b, A^-1 Z
