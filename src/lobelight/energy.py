@@ -337,18 +337,21 @@ def prefilter_check(
 
     smooth_map = smooth(d).reshape(6, res, res, 1).expand(6, res, res, 3).float()
     src = torch.nn.functional.normalize(torch.tensor([0.3, 0.8, 0.5], dtype=torch.float64), dim=0)
-    # the disc on the cube map by 4 x 4 sub-texel coverage (its texels' exact content)
+    # the disc on the cube map by 4 x 4 sub-texel coverage (its texels' exact content), over
+    # the texels whose centre lies within the disc's radius and a texel diagonal of it
+    near = (d @ src) > math.cos(math.radians(1.0) + 3 / res)  # (D,)
     sub = (torch.arange(4, dtype=torch.float64) + 0.5) / 4 - 0.5
-    f, u, v = cubemap.direction_to_face_uv(d.float())
+    f, u, v = cubemap.direction_to_face_uv(d[near].float())
     h = 2 / res
     su, sv = torch.meshgrid(sub, sub, indexing="ij")
-    pu = u.double()[:, None] + h * su.reshape(-1)[None]  # (D, 16)
+    pu = u.double()[:, None] + h * su.reshape(-1)[None]  # (D', 16)
     pv = v.double()[:, None] + h * sv.reshape(-1)[None]
     pts = cubemap.face_uv_to_direction(f[:, None].expand_as(pu), pu, pv).double()
-    pts = torch.nn.functional.normalize(pts, dim=-1)  # (D, 16, 3)
+    pts = torch.nn.functional.normalize(pts, dim=-1)  # (D', 16, 3)
     inside = (pts @ src) > math.cos(math.radians(1.0))
-    cover = inside.double().mean(-1)  # (D,)
-    om = cubemap.texel_solid_angles(res).reshape(-1).double()
+    cover = torch.zeros(d.shape[0], dtype=torch.float64)
+    cover[near] = inside.double().mean(-1)
+    om = cubemap.texel_solid_angles(res).reshape(-1).double()[near]
     disc_map = (1000 * cover).reshape(6, res, res, 1).expand(6, res, res, 3).float()
     pf_s = envmap.prefilter(smooth_map, base_res=res)
     pf_d = envmap.prefilter(disc_map, base_res=res)
@@ -363,8 +366,8 @@ def prefilter_check(
         # source: axes within 3 widths of it (the lobes that see it)
         kick = torch.randn(64, 3, generator=gen).double() * (3 / math.sqrt(lam)) / math.sqrt(3)
         ax = torch.nn.functional.normalize(src + kick, dim=-1)
-        g = torch.exp(lam * ((pts @ ax.T) - 1))  # (D, 16, 64) the SG over each texel
-        exact = (g.mean(1) * (1000 * cover * om)[:, None]).sum(0)  # (64,)
+        g = torch.exp(lam * ((pts @ ax.T) - 1))  # (D', 16, 64) the SG over each texel
+        exact = (g.mean(1) * (1000 * cover[near] * om)[:, None]).sum(0)  # (64,)
         got = pf_d.integrate(ax.float(), torch.full((64,), lam))[:, 0].double()
         keep = exact > 1e-6 * exact.max()
         out["source"][str(lam)] = summary((got / exact)[keep])
@@ -388,9 +391,16 @@ def energy_study(
     environment: bool = True,
     progress=None,
 ) -> dict:
-    """The whole study: a sphere (no occlusion) and the knot (self-occlusion and its ground),
-    each as a GGX and a Beckmann metal at each roughness, ``vertices`` vertices each, and the
-    prefiltered lookup (:func:`prefilter_check`). A ``--json``-able dict."""
+    """The whole study: the prefiltered lookup (:func:`prefilter_check`, at the renderer's
+    default base resolution 128 and at 512), then a sphere (no occlusion) and the knot
+    (self-occlusion and its ground), each as a GGX and a Beckmann metal at each roughness,
+    ``vertices`` vertices each. A ``--json``-able dict; ``progress(result)`` is called with the
+    result so far after each step."""
+    res: dict = {"n_lobes": n_lobes, "conserve": conserve, "prefilter": [], "cases": []}
+    for base in (128, 512):
+        res["prefilter"].append(prefilter_check(base_res=base))
+        if progress is not None:
+            progress(res)
     sphere_sc = scene.builtin("sphere", subdivisions=2)
     knot_sc = scene.builtin("knot")
     knot_ids = torch.arange(2592)  # the tube's vertices (72 x 36); the ground follows
@@ -404,7 +414,6 @@ def energy_study(
         env = envmap.load(str(path))
         pf = envmap.prefilter(env, base_res=128)
     white = _constant_prefiltered(128)
-    cases = []
     for name, sc, vidx in shapes:
         for model in models:
             for alpha in alphas:
@@ -418,15 +427,10 @@ def energy_study(
                     white=white,
                 )
                 r.update(shape=name, model=model, alpha=alpha)
-                cases.append(r)
+                res["cases"].append(r)
                 if progress is not None:
-                    progress(r)
-    return {
-        "n_lobes": n_lobes,
-        "conserve": conserve,
-        "cases": cases,
-        "prefilter": [prefilter_check(base_res=128), prefilter_check(base_res=512)],
-    }
+                    progress(res)
+    return res
 
 
 def _line(r: dict) -> str:
@@ -447,16 +451,21 @@ def main(argv=None) -> int:
     ap.add_argument("--no-conserve", action="store_true", help="plain L2 weights")
     ap.add_argument("--no-environment", action="store_true", help="skip step (f)")
     args = ap.parse_args(argv)
-    res = energy_study(
+
+    def report(res: dict) -> None:
+        if res["cases"]:
+            print(_line(res["cases"][-1]), flush=True)
+        if args.json:  # after every step: a long study stopped halfway keeps what it measured
+            with open(args.json, "w") as f:
+                json.dump(res, f, indent=1)
+
+    energy_study(
         vertices=args.vertices,
         n_lobes=args.lobes,
         conserve=not args.no_conserve,
         environment=not args.no_environment,
-        progress=lambda r: print(_line(r), flush=True),
+        progress=report,
     )
-    if args.json:
-        with open(args.json, "w") as f:
-            json.dump(res, f, indent=1)
     return 0
 
 
