@@ -314,7 +314,7 @@ def study_case(
 
 
 def prefilter_check(
-    *, base_res: int = 128, lams=(1.0, 4.0, 16.0, 64.0, 256.0), seed: int = 0
+    *, base_res: int = 128, lams=(1.0, 4.0, 16.0, 64.0, 256.0, 1024.0, 4096.0), seed: int = 0
 ) -> dict:
     """``Prefiltered.integrate`` against the exact SG integral, per ``lam``.
 
@@ -322,8 +322,9 @@ def prefilter_check(
     integral by :func:`reference_rule`), and a small bright source, a disc of 1 degree radius
     and radiance 1000 on a black map (exactly: the cube map's own texels, each integrated
     against the SG by a 4 x 4 sub-texel rule). Lobes at random axes; for the source, axes
-    within 3 lobe widths of it. ``lams`` beyond the chain's largest (``lam_max``) are looked
-    up at its sharpest level. Returns per ``lam`` the ratio summaries.
+    about 3 lobe widths from it (a Gaussian offset). ``lams`` beyond the chain's largest
+    (``lam_max``; 655 at 128, 10486 at 512) are looked up at its sharpest level, and the chain's
+    largest is always checked too. Returns per ``lam`` the ratio summaries.
     """
     from . import cubemap
 
@@ -356,7 +357,7 @@ def prefilter_check(
     pf_s = envmap.prefilter(smooth_map, base_res=res)
     pf_d = envmap.prefilter(disc_map, base_res=res)
     out: dict = {"base_res": res, "lam_max": pf_s.lam_max, "smooth": {}, "source": {}}
-    for lam in lams:
+    for lam in sorted({*map(float, lams), pf_s.lam_max}):
         axes = torch.nn.functional.normalize(torch.randn(64, 3, generator=gen), dim=-1).double()
         rd, rw = reference_rule(axes, n_s=12, n_phi=96)
         exact = sg.evaluate(rd, axes[:, None], torch.tensor(lam, dtype=torch.float64)) * rw
