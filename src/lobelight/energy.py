@@ -13,8 +13,6 @@ Per (vertex, view) glossy transport ``T(w) = f_s(w, v) V(w) max(n.w, 0)``, the s
     environment, against (c);
 (e) the light of the Gaussians interpolated to views between the stored ones (the renderer's
     blend of carried light, :func:`lobelight.model.blend_lobes`), against (a) at those views;
-(f) the radiance of the fitted lobes under a real map (:meth:`Prefiltered.integrate`) against
-    the quadrature of ``T L``;
 
 and, apart from any mesh, :func:`prefilter_check`: ``Prefiltered.integrate`` against the
 exact SG integral of a smooth map and of a small bright source from ``lam = 1`` to the chain's
@@ -30,7 +28,6 @@ import json
 import math
 import sys
 import time
-from importlib import resources
 
 import torch
 
@@ -168,7 +165,8 @@ def reference_integral(
     **rule,
 ) -> torch.Tensor:
     """``int T`` per vertex and view by :func:`reference_rule`, ``(B, J, 3)``, and with
-    ``env`` also ``int T L`` (stacked first: ``(2, B, J, 3)``); ``batch`` vertices at a time
+    ``env`` also ``int T L`` (stacked first: ``(2, B, J, 3)``; the rule resolves the transport,
+    not a map's small bright lights: use a smooth ``env``); ``batch`` vertices at a time
     (``batch x J x K`` directions in memory)."""
     out = []
     for s in range(0, vidx.shape[0], batch):
@@ -248,12 +246,10 @@ def study_case(
     *,
     n_lobes: int = 1,
     conserve: bool = True,
-    env: envmap.EnvMap | None = None,
-    prefiltered: envmap.Prefiltered | None = None,
     white: envmap.Prefiltered | None = None,
     seed: int = 0,
 ) -> dict:
-    """Steps (a)-(f) of the module docstring for some vertices of one scene, all 92 views.
+    """Steps (a)-(e) of the module docstring for some vertices of one scene, all 92 views.
 
     Ratios are taken over the (vertex, view) functions carrying at least 2 % of light (above
     the horizon, and not all but wholly occluded: a lobe inside an occluder leaks a few
@@ -264,8 +260,7 @@ def study_case(
     nbr = sphere.geodesic_neighbor_table()
     tr = transport.Transport(sc)
     t0 = time.perf_counter()
-    both = reference_integral(tr, vidx, views, env=env if prefiltered is not None else None)
-    ref = both[..., 0] if both.ndim == 3 else both[0, ..., 0]  # (B, J); grey metals
+    ref = reference_integral(tr, vidx, views)[..., 0]  # (B, J); grey metals: one channel
     t1 = time.perf_counter()
     data = fit.gather(tr, vidx, views)
     g, terms = fit.fit_batch(data, n_lobes, nbr, conserve=conserve)
@@ -305,11 +300,6 @@ def study_case(
     graz_i = ok_i & ((rnd[None] * tr.mesh.normals[vidx][:, None]).sum(-1) < 0.2)
     out["interpolated_over_truth"] = summary((blend / ref_i)[ok_i])
     out["interpolated_over_truth_grazing"] = summary((blend / ref_i)[graz_i])
-    if both.ndim == 4:  # (f): radiance under a real map
-        b, j, k = g.lam.shape
-        lum = prefiltered.integrate(g.mu.reshape(-1, 3), g.lam.reshape(-1)).reshape(b, j, k, 3)
-        got_l = (lum * g.w).sum((-1, -2))
-        out["radiance_over_truth"] = summary((got_l / both[1].sum(-1))[ok])
     return out
 
 
@@ -389,7 +379,6 @@ def energy_study(
     vertices: int = 8,
     n_lobes: int = 1,
     conserve: bool = True,
-    environment: bool = True,
     progress=None,
 ) -> dict:
     """The whole study: the prefiltered lookup (:func:`prefilter_check`, at the renderer's
@@ -409,11 +398,6 @@ def energy_study(
         ("sphere", sphere_sc, _pick(sphere_sc, vertices)),
         ("knot", knot_sc, _pick(knot_sc, vertices, only=knot_ids)),
     ]
-    env = pf = None
-    if environment:
-        path = resources.files("lobelight.data") / "envmaps" / "studio_small_03_512.hdr"
-        env = envmap.load(str(path))
-        pf = envmap.prefilter(env, base_res=128)
     white = _constant_prefiltered(128)
     for name, sc, vidx in shapes:
         for model in models:
@@ -423,8 +407,6 @@ def energy_study(
                     vidx,
                     n_lobes=n_lobes,
                     conserve=conserve,
-                    env=env,
-                    prefiltered=pf,
                     white=white,
                 )
                 r.update(shape=name, model=model, alpha=alpha)
@@ -450,7 +432,6 @@ def main(argv=None) -> int:
     ap.add_argument("--vertices", type=int, default=8)
     ap.add_argument("--lobes", type=int, default=1)
     ap.add_argument("--no-conserve", action="store_true", help="plain L2 weights")
-    ap.add_argument("--no-environment", action="store_true", help="skip step (f)")
     args = ap.parse_args(argv)
 
     def report(res: dict) -> None:
@@ -464,7 +445,6 @@ def main(argv=None) -> int:
         vertices=args.vertices,
         n_lobes=args.lobes,
         conserve=not args.no_conserve,
-        environment=not args.no_environment,
         progress=report,
     )
     return 0
