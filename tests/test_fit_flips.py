@@ -107,17 +107,17 @@ def test_flood_fill_reorders_the_lobes_the_optimiser_hands_over(monkeypatch):
     fitted = fit.fit_mesh(sc, **kw)
     # regression: vertices of one wavefront once read each other's unfitted state (zero means)
     # as processed neighbours, and a vertex started from one lost both lobes (relative error
-    # squared 0.99 at 10 of these 40 vertices); measured now 0.06
-    assert float(fitted.data_error.max()) < 0.3
+    # squared 0.99 at 10 of these 40 vertices); measured now 7e-4
+    assert float(fitted.data_error.max()) < 0.01
     monkeypatch.setattr(_optimize, "relabel", lambda g, *args, **kwargs: g)
     unordered = fit.fit_mesh(sc, **kw)
-    # flipped (edge, view) pairs of Gaussians that carry light (count_flips). Measured 133
-    # without the reordering and 28 with it while every vertex started from a processed
-    # neighbour's lobes; since a view starts from the neighbour's lobes only where they fit its
-    # data better than the data's own guess (fit._floodfill._better_start), 17 without and 9
-    # with. The reordering still removes about half of what is left; 15 leaves room for the
-    # LM's small hand-overs (the counts move by a few with beta +-10 %)
-    assert fitted.flips_before < unordered.flips_before
+    # flipped (edge, view) pairs of Gaussians that carry light (count_flips). Measured 9 with
+    # the reordering and 9 without it: with the cap's rings graded from the lobe's peak the
+    # data resolve both lobes and a vertex started from its neighbour's lobes keeps them in
+    # order, so here the reordering has nothing left to mend (its action on swapped views and
+    # vertices is checked by the relabel tests above). It must never add flips, and 15 leaves
+    # room for the LM's small hand-overs (the counts move by a few with beta +-10 %)
+    assert fitted.flips_before <= unordered.flips_before
     assert fitted.flips_before <= 15
 
 
