@@ -43,7 +43,7 @@ from .errors import InputError
 from .fit import Gaussians, MeshFit
 from .scene import Materials, Mesh
 
-__all__ = ["FORMAT", "VERSION", "Model", "blend_lobes", "load", "save"]
+__all__ = ["FORMAT", "VERSION", "Model", "blend_lobes", "horizon_scale", "load", "save"]
 
 FORMAT = "lobelight-model"
 VERSION = 1
@@ -117,6 +117,35 @@ def blend_lobes(e, mu, sigma, b, *, frame=None):
     return e_out, mu, sigma
 
 
+def horizon_scale(views, normals, rows, idx, bary, view_dirs) -> torch.Tensor:
+    """The factor that makes a view blend ignore records below the vertex's horizon.
+
+    A stored view with ``n.v <= 0`` has no data (the fit gives it zero weight), not zero
+    light: a view direction just above the horizon blends such a record with the last views
+    above it, and counting the record as dark loses the light in proportion to its
+    barycentric weight (a third of a GGX metal's light at ``n.v < 0.2`` on a sphere). So for
+    a view direction above the horizon the carried light is averaged over the records above
+    it: each record's light is scaled by ``1 / sum(b over records above)``. Below the horizon
+    (seen only through interpolated normals at a silhouette) the records blend as they are,
+    fading to the dark records. The shader does the same with the flag stored next to each
+    record's mean.
+
+    Parameters
+    ----------
+    views : (J, 3);  normals : (V, 3);  rows, idx : (..., 3) vertex and view ids of the records
+    bary : (..., 3) their barycentric weights;  view_dirs : (..., 3) the blended view
+
+    Returns
+    -------
+    (...) scale of the blended light (1 below the horizon)
+    """
+    n = normals[rows[..., 0]]  # (..., 3)
+    above = (views[idx] * n[..., None, :]).sum(-1) > 0  # (..., 3)
+    say = (bary * above).sum(-1)
+    ok = ((view_dirs * n).sum(-1) > 0) & (say >= _MIN_SAY)
+    return torch.where(ok, 1.0 / torch.where(ok, say, torch.ones_like(say)), torch.ones_like(say))
+
+
 @dataclass(eq=False)
 class Model:
     """A fitted object: mesh, views, Gaussians per vertex and view, SH diffuse, materials.
@@ -176,6 +205,8 @@ class Model:
         rows = vid[..., None].expand_as(idx)
         lam = g.lam[rows, idx]  # (..., 3, N)
         e = g.w[rows, idx] * sg.integral(lam)[..., None]  # (..., 3, N, 3)
+        scale = horizon_scale(self.views, self.mesh.normals, rows, idx, bary, vd)
+        e = e * scale[..., None, None, None]
         e, mu, sigma = blend_lobes(e, g.mu[rows, idx], lam.rsqrt(), bary)
         lam = sigma.pow(-2)
         return Gaussians(e / sg.integral(lam)[..., None], mu, lam)

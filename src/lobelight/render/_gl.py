@@ -253,7 +253,10 @@ class GLRenderer:
         # the light each lobe carries (prt.glsl blends it, not the peak weight)
         e = (g.w.double() * sg.integral(g.lam.double())[..., None]).float()
         a = torch.cat([e, sigma], -1).reshape(-1, 4)  # (V J N, 4)
-        m = torch.cat([g.mu, torch.zeros_like(sigma)], -1).reshape(-1, 4)
+        # .w: the record's view is above the vertex's horizon (model.horizon_scale)
+        above = ((model.views[None] * model.mesh.normals[:, None]).sum(-1) > 0).float()  # (V, J)
+        above = above[:, :, None, None].expand(-1, -1, g.lam.shape[-1], 1)
+        m = torch.cat([g.mu, above], -1).reshape(-1, 4)
         rec = torch.stack([a, m], 1).reshape(-1, 4).detach().cpu().numpy()
         img, tw = _wrap(rec)
         dimg, tw2 = _wrap(

@@ -56,17 +56,20 @@ void main() {
     vec3 mirror = 2.0 * dot(in_normal, d) * in_normal - d;
     for (int k = 0; k < NL; ++k) {
         vec3 e = vec3(0.0), mu = vec3(0.0);
-        float sigma = 0.0, say = 0.0;
+        float sigma = 0.0, say = 0.0, above = 0.0;
         for (int c = 0; c < 3; ++c) {
             int r = 2 * ((v * 92 + views[c]) * NL + k);
             vec4 rec = texelFetch(gauss_tex, at(r), 0);
-            vec3 m = texelFetch(gauss_tex, at(r + 1), 0).xyz;
+            vec4 m = texelFetch(gauss_tex, at(r + 1), 0);  // mean, above-the-horizon flag
             float live = (rec.r + rec.g + rec.b) / 3.0 >= FLOOR ? b[c] : 0.0;
             e += b[c] * rec.rgb;
+            above += b[c] * m.w;
             say += live;
             sigma += live * rec.a;
-            mu += live * m;
+            mu += live * m.xyz;
         }
+        // the light averaged over the records above the horizon (model.horizon_scale)
+        e = dot(in_normal, d) > 0.0 && above >= MIN_SAY ? e / above : e;
         bool ok = say >= MIN_SAY;
         float live = ok && (e.r + e.g + e.b) / 3.0 >= FLOOR ? 1.0 : 0.0;
         v_e[k] = ok ? e : vec3(0.0);
