@@ -6,11 +6,14 @@ per material group (vertex normals included, so Mitsuba shades with the same smo
 ``envmap`` lighting, a ``perspective`` sensor with a box pixel filter (the reference renderer's
 pixel footprint) and the ``path`` integrator. Materials map one to one: Lambert -> ``diffuse``,
 GGX/Beckmann -> ``roughconductor`` (same parameters by construction of
-:mod:`lobelight.brdf`); a Lambert + microfacet sum has no exact Mitsuba counterpart, so such
-groups are refused rather than approximated.
+:mod:`lobelight.brdf`), and a Lambert + microfacet sum -> a ``blendbsdf`` of the two with their
+reflectances scaled by the blend weights, which is the sum exactly (:func:`_blend`; refused
+where the two parts add up to more than 1 in a channel, beyond Mitsuba's reflectance range).
+Other specular models have no Mitsuba counterpart and are refused rather than approximated.
 
-Mitsuba is optional (``pip install mitsuba``; the ``reference`` extra); only its ``scalar_*``
-variants are needed.
+Mitsuba is optional (``pip install mitsuba``; the ``reference`` extra). :func:`scene_dict`
+builds the scene in the variant that is set (``scalar_rgb`` when none is); any RGB variant
+renders it.
 """
 
 from __future__ import annotations
@@ -29,13 +32,17 @@ from .scene import Scene
 __all__ = ["load_mitsuba", "scene_dict"]
 
 
-def load_mitsuba(variant: str = "scalar_rgb"):
-    """Import Mitsuba and set a variant; InputError naming what is missing when it cannot."""
+def load_mitsuba(variant: str | None = "scalar_rgb"):
+    """Import Mitsuba and set ``variant`` (None: keep the variant that is set, else
+    ``scalar_rgb``); InputError naming what is missing when it cannot."""
     try:
         import mitsuba as mi
     except ImportError as exc:
         raise InputError("mitsuba", f"is not installed ({exc}); pip install mitsuba") from None
-    mi.set_variant(variant)
+    if variant is None:
+        variant = mi.variant() or "scalar_rgb"
+    if mi.variant() != variant:
+        mi.set_variant(variant)
     return mi
 
 
@@ -65,8 +72,8 @@ def _groups(scene: Scene) -> list[tuple[np.ndarray, dict]]:
         s = spec.take(torch.tensor([v0])) if spec is not None else None
         has_spec = s is not None and float(s.params.get("specular", torch.ones(1)).abs().max()) > 0
         if has_spec and float(d.max()) > 0:
-            raise InputError("materials", "Lambert + specular sums have no exact Mitsuba BSDF")
-        if has_spec:
+            out.append((fid, _blend(d, s)))
+        elif has_spec:
             out.append((fid, _microfacet(s)))
         else:
             out.append(
@@ -94,6 +101,33 @@ def _microfacet(s: _brdf.BRDF) -> dict:
     return d
 
 
+def _blend(diffuse: torch.Tensor, s: _brdf.BRDF) -> dict:
+    """Lambert ``diffuse`` (3,) plus the microfacet lobe ``s`` as Mitsuba's ``blendbsdf``.
+
+    ``(1 - w) diffuse(diffuse / (1 - w)) + w roughconductor(specular / w)`` equals the sum for
+    any weight ``w`` in (0, 1). ``w = max(specular) / (max(specular) + max(diffuse))`` keeps
+    both scaled reflectances within Mitsuba's [0, 1] whenever ``diffuse + specular <= 1`` in
+    every channel (``specular``: the lobe's factor, Mitsuba's ``specular_reflectance``), and
+    picks each part for sampling in proportion to its largest value.
+    """
+    micro = _microfacet(s)
+    d = diffuse.double().reshape(-1).expand(3)
+    spec = torch.tensor(micro["specular_reflectance"]["value"], dtype=torch.float64)  # (3,)
+    if bool((d + spec > 1 + 1e-6).any()):
+        raise InputError(
+            "materials",
+            f"Lambert {d.tolist()} + specular {spec.tolist()} exceed 1 in a channel: no exact "
+            "Mitsuba BSDF (blendbsdf reflectances are limited to [0, 1])",
+        )
+    w = float(spec.max() / (spec.max() + d.max()))
+    micro["specular_reflectance"] = {"type": "rgb", "value": (spec / w).clamp(0, 1).tolist()}
+    base = {
+        "type": "diffuse",
+        "reflectance": {"type": "rgb", "value": (d / (1 - w)).clamp(0, 1).tolist()},
+    }
+    return {"type": "blendbsdf", "weight": w, "bsdf_0": base, "bsdf_1": micro}
+
+
 def scene_dict(
     scene: Scene,
     env_path: str | Path,
@@ -105,6 +139,7 @@ def scene_dict(
     max_depth: int = 4,
     seed: int = 0,
     workdir: str | Path | None = None,
+    variant: str | None = None,
 ) -> dict:
     """A ``mi.load_dict`` scene equivalent to ours (PLY files are written to ``workdir``).
 
@@ -112,10 +147,11 @@ def scene_dict(
     ----------
     env_path : lat-long ``.exr``/``.hdr`` file of the lighting (Mitsuba's ``envmap``)
     max_depth : path length as Mitsuba counts it (2 = direct lighting)
+    variant : the Mitsuba variant to set (None: keep the one that is set, else ``scalar_rgb``)
     """
     import trimesh
 
-    mi = load_mitsuba()
+    mi = load_mitsuba(variant)
     cam = camera or scene.camera
     work = Path(workdir or tempfile.mkdtemp(prefix="lobelight-mi-"))
     v = scene.mesh.vertices.cpu().numpy().astype(np.float64)
