@@ -1,0 +1,361 @@
+"""The gallery (lobelight.gallery): its scores against hand-computed values, the references'
+manifest, the scene list, the Mitsuba export of its plastic, and one tiny run end to end.
+
+Every file is made here: a small icosphere written as OBJ and a small synthetic sky in a
+temporary data folder; references are synthetic (no Mitsuba render).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+from collections import Counter
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+
+from lobelight import envmap
+from lobelight import model as model_io
+from lobelight.compare import psnr_display
+from lobelight.errors import InputError
+from lobelight.gallery import (
+    MAPS,
+    MATERIALS,
+    SCENES,
+    GalleryScene,
+    ReferenceSettings,
+    _references,
+    add_arguments,
+    coverage_mask,
+    display_exposure,
+    energy_ratio,
+    geometry_sha256,
+    load_reference,
+    main_from_args,
+    noise_psnr_display,
+    prepare_mesh,
+    reference_status,
+    render_references,
+    run,
+    scene_hash,
+    score,
+    select,
+    summarise,
+    write_reference,
+)
+from lobelight.render import Lighting, Renderer, auto_exposure
+
+
+def _srgb(x: float) -> float:
+    x = min(max(x, 0.0), 1.0)
+    return 12.92 * x if x <= 0.0031308 else 1.055 * x ** (1 / 2.4) - 0.055
+
+
+def _grey(values) -> torch.Tensor:
+    """``(1, W, 3)`` grey pixels (luminance = value: the Rec. 709 weights sum to 1)."""
+    v = torch.tensor(values, dtype=torch.float32)
+    return v[None, :, None].expand(1, len(values), 3).clone()
+
+
+# --------------------------------------------------------------------------------------------
+# scores
+
+
+def test_display_exposure_is_the_reference_99th_percentile_over_the_mask():
+    # object pixels 0.01 .. 1.00; numpy's 99th percentile of 100 values interpolates between
+    # ranks 98 and 99: 0.99 + 0.01 (1.00 - 0.99) = 0.9901. The background (50) is not counted.
+    ref = _grey([0.01 * k for k in range(1, 101)] + [50.0] * 20)
+    mask = torch.zeros(1, 120, dtype=torch.bool)
+    mask[0, :100] = True
+    assert display_exposure(ref, mask) == pytest.approx(-math.log2(0.9901), rel=1e-6)
+    # a colour counts by its luminance: pure green at 1 has luminance 0.7152
+    green = torch.zeros(1, 1, 3)
+    green[..., 1] = 1.0
+    assert display_exposure(green, torch.ones(1, 1, dtype=torch.bool)) == pytest.approx(
+        -math.log2(0.7152), rel=1e-6
+    )
+
+
+def test_scores_match_hand_computed_values():
+    # three object pixels and one background pixel
+    ref = _grey([0.2, 0.4, 0.5, 8.0])
+    img = _grey([0.1, 0.4, 1.0, 0.0])
+    mask = torch.tensor([[True, True, True, False]])
+    p99 = 0.4 + 0.98 * (0.5 - 0.4)  # rank 1.98 of [0.2, 0.4, 0.5]
+    k = 1 / p99  # 2^exposure
+    err = [(_srgb(k * a) - _srgb(k * b)) ** 2 for a, b in [(0.1, 0.2), (0.4, 0.4), (1.0, 0.5)]]
+    psnr = 10 * math.log10(1 / (sum(err) / 3))
+    full = 10 * math.log10(1 / ((sum(err) + (_srgb(0.0) - _srgb(8.0 * k)) ** 2) / 4))
+    rel = math.sqrt(3 * (0.1**2 + 0 + 0.5**2)) / math.sqrt(3 * (0.2**2 + 0.4**2 + 0.5**2))
+    s = score(img, ref, mask)
+    assert s["exposure"] == pytest.approx(math.log2(k), rel=1e-9)
+    assert s["psnr_display"] == pytest.approx(psnr, rel=1e-6)
+    assert s["psnr_display_full"] == pytest.approx(full, rel=1e-6)
+    assert s["rel_l2"] == pytest.approx(rel, rel=1e-6)
+    assert s["energy_ratio"] == pytest.approx(1.5 / 1.1, rel=1e-6)
+    # a wrong mask (the background in) or a wrong exposure (compare's log-average key) differs
+    wrong_mask = score(img, ref, torch.ones_like(mask))
+    assert abs(wrong_mask["psnr_display"] - psnr) > 0.5
+    assert abs(wrong_mask["energy_ratio"] - 1.5 / 1.1) > 0.1
+    wrong_exposure = psnr_display(img, ref, mask, auto_exposure(ref, mask))
+    assert abs(wrong_exposure - psnr) > 0.5
+
+
+def test_energy_ratio_weighs_colour_by_luminance_and_ignores_the_background():
+    ref = torch.full((2, 2, 3), 0.5)
+    img = ref.clone()
+    img[..., 0] += 0.1  # red: luminance + 0.02126 per object pixel
+    img[1, 1] = 100.0  # a background pixel
+    mask = torch.tensor([[True, True], [True, False]])
+    assert energy_ratio(img, ref, mask) == pytest.approx((0.5 + 0.02126) / 0.5, rel=1e-6)
+
+
+def test_noise_psnr_is_the_reference_noise_through_the_display_slope():
+    ref = torch.full((2, 3, 3), 0.25)
+    stderr = torch.full((2, 3, 3), 0.01)
+    mask = torch.ones(2, 3, dtype=torch.bool)
+    # exposure 1: displayed 0.5, where sRGB's slope is 1.055 / 2.4 0.5^(1 / 2.4 - 1)
+    slope = 1.055 / 2.4 * 0.5 ** (1 / 2.4 - 1)
+    expected = -20 * math.log10(slope * 2 * 0.01)
+    assert noise_psnr_display(ref, stderr, mask, 1.0) == pytest.approx(expected, rel=1e-6)
+
+
+def test_summary_takes_the_median_and_the_worst_scene():
+    scores = {
+        "a": {"psnr_display": 30.0, "psnr_display_full": 20, "rel_l2": 0.1, "energy_ratio": 0.9},
+        "b": {"psnr_display": 40.0, "psnr_display_full": 25, "rel_l2": 0.05, "energy_ratio": 1.2},
+        "c": {"psnr_display": 35.0, "psnr_display_full": 22, "rel_l2": 0.2, "energy_ratio": 1.0},
+    }
+    s = summarise(scores)
+    assert s["median"]["psnr_display"] == 35.0 and s["median"]["rel_l2"] == 0.1
+    assert s["worst"]["psnr_display"] == {"scene": "a", "value": 30.0}
+    assert s["worst"]["rel_l2"]["scene"] == "c"
+    assert s["worst"]["energy_ratio"]["scene"] == "b"  # |ln 1.2| > |ln 0.9|
+
+
+# --------------------------------------------------------------------------------------------
+# the scene list
+
+
+def test_scene_list_covers_the_meshes_maps_and_materials():
+    assert len(SCENES) >= 16
+    assert len({s.name for s in SCENES}) == len(SCENES)
+    assert {s.mesh for s in SCENES} == {"bunny_hr.obj", "spot.obj", "teapot.obj", "suzanne.obj"}
+    assert set(MAPS) == {"park", "studio", "overcast", "grace"}
+    assert {s.envmap for s in SCENES} == set(MAPS.values())
+    assert {s.material for s in SCENES} == set(MATERIALS.values())
+    assert "alpha=0.03" in MATERIALS["sharp_metal"] and "alpha=0.25" in MATERIALS["rough_metal"]
+    # every bake under two maps or more; every (material, map) pair seen; maps used evenly
+    per_bake = Counter(s.bake for s in SCENES)
+    assert min(per_bake.values()) >= 2
+    pairs = {(s.material, s.envmap) for s in SCENES}
+    assert pairs == {(m, e) for m in MATERIALS.values() for e in MAPS.values()}
+    assert set(Counter(s.envmap for s in SCENES).values()) == {len(SCENES) // len(MAPS)}
+    # a bake's scenes agree on what the bake depends on
+    assert select() == list(SCENES)
+    assert all(s.max_vertices for s in SCENES if s.mesh == "bunny_hr.obj")
+    assert all(s.subdivisions >= 1 for s in SCENES if s.mesh == "suzanne.obj")
+
+
+def test_select_names_scenes_and_bakes_and_refuses_unknown_names():
+    assert [s.name for s in select(["teapot-diffuse"])] == [
+        "teapot-diffuse-park",
+        "teapot-diffuse-studio",
+    ]
+    with pytest.raises(InputError, match="no gallery scene or bake 'nope'"):
+        select(["nope"])
+
+
+# --------------------------------------------------------------------------------------------
+# a tiny data folder
+
+
+@pytest.fixture
+def data_dir(tmp_path) -> Path:
+    import trimesh
+
+    d = tmp_path / "data"
+    (d / "meshes").mkdir(parents=True)
+    (d / "envmaps").mkdir()
+    ball = trimesh.creation.icosphere(subdivisions=2, radius=3.0)  # scaled down when prepared
+    ball.export(d / "meshes" / "ball.obj")
+    # a small sky, bright at the zenith, with a small bright light (64 x 32: quick to prefilter)
+    sky = torch.linspace(1.0, 0.2, 32)[:, None, None].expand(32, 64, 3).clone()
+    sky[..., 0] *= 1.2
+    sky[4:6, 10:12] = 40.0
+    envmap.save(envmap.EnvMap(sky, layout="latlong"), d / "envmaps" / "sky.hdr")
+    return d
+
+
+BALL = GalleryScene("ball-diffuse-sky", "ball-diffuse", "ball.obj", "sky.hdr", "diffuse:color=0.7")
+BALL_2 = GalleryScene("ball-diffuse-sky-2", "ball-diffuse", "ball.obj", "sky.hdr", BALL.material)
+
+
+def _synthetic(refs, sc, data, settings, value=1.0):
+    """A constant reference with the scene's real mask and manifest entry."""
+    mesh = prepare_mesh(sc, data)
+    mask = coverage_mask(mesh, sc.view(), settings.width, settings.height)
+    img = np.full((settings.height, settings.width, 3), value, np.float32)
+    entry = {
+        "scene_hash": scene_hash(sc, data),
+        "geometry_sha256": geometry_sha256(mesh),
+        "settings": settings.to_dict(),
+        "variant": "synthetic",
+    }
+    return write_reference(refs, sc, img, np.zeros_like(img), mask.numpy(), entry=entry)
+
+
+def test_prepared_mesh_is_centred_with_diagonal_two(data_dir):
+    m = prepare_mesh(BALL, data_dir)
+    lo, hi = m.bounds
+    assert float((hi - lo).norm()) == pytest.approx(2.0, rel=1e-5)
+    assert float((lo + hi).abs().max()) < 1e-5
+    mask = coverage_mask(m, BALL.view(), 24, 24)
+    assert 0 < int(mask.sum()) < 24 * 24 and not bool(mask[0, 0])
+
+
+def test_bad_inputs_name_the_input(data_dir, monkeypatch):
+    monkeypatch.delenv("LOBELIGHT_DATA", raising=False)
+    with pytest.raises(InputError, match="--data"):
+        run([BALL], refs=data_dir, out=data_dir / "out")
+    with pytest.raises(InputError, match="--data: no such folder"):
+        run([BALL], data=data_dir / "nope", refs=data_dir, out=data_dir / "out")
+    missing = GalleryScene("x-sky", "x", "missing.obj", "sky.hdr", "diffuse:color=0.5")
+    with pytest.raises(InputError, match="x-sky: mesh"):
+        prepare_mesh(missing, data_dir)
+    with pytest.raises(InputError, match="ball-diffuse-sky: reference: missing"):
+        run([BALL], data=data_dir, refs=data_dir / "refs", out=data_dir / "out")
+
+
+def test_manifest_checksum_finds_a_corrupt_reference_and_it_is_rendered_again(
+    data_dir, tmp_path, monkeypatch
+):
+    refs = tmp_path / "refs"
+    settings = ReferenceSettings(spp=4, pass_spp=2, width=16, height=12)
+    for sc in (BALL, BALL_2):
+        _synthetic(refs, sc, data_dir, settings)
+        assert reference_status(refs, sc, data_dir, settings) == ("ok", "")
+    ref = load_reference(refs, BALL, data_dir)
+    assert ref.image.shape == (12, 16, 3) and ref.mask.dtype == torch.bool
+    # one flipped byte in the middle of the file
+    path = refs / "ball-diffuse-sky.npz"
+    raw = bytearray(path.read_bytes())
+    raw[len(raw) // 2] ^= 0xFF
+    path.write_bytes(bytes(raw))
+    assert reference_status(refs, BALL, data_dir)[0] == "corrupt"
+    with pytest.raises(InputError, match="ball-diffuse-sky: reference: corrupt"):
+        load_reference(refs, BALL, data_dir)
+    # other settings, or another material, make an entry stale
+    assert reference_status(refs, BALL_2, data_dir, ReferenceSettings())[0] == "stale"
+    other = GalleryScene(BALL_2.name, BALL_2.bake, "ball.obj", "sky.hdr", "diffuse:color=0.2")
+    assert reference_status(refs, other, data_dir)[0] == "stale"
+
+    rendered = []
+
+    class FakeMitsuba:
+        __version__ = "0-test"
+
+    def fake_render(mi, variant, scene, s, progress):
+        rendered.append(scene.name)
+        img = np.full((s.height, s.width, 3), 0.5, np.float32)
+        return img, np.zeros_like(img)
+
+    monkeypatch.setattr(_references, "_mitsuba", lambda v: (FakeMitsuba, "stub", ""))
+    monkeypatch.setattr(_references, "_render_mitsuba", fake_render)
+    out = render_references([BALL, BALL_2], data=data_dir, refs=refs, settings=settings)
+    assert rendered == ["ball-diffuse-sky"] and out["kept"] == ["ball-diffuse-sky-2"]
+    assert out["status"]["ball-diffuse-sky"].startswith("corrupt")
+    assert reference_status(refs, BALL, data_dir, settings) == ("ok", "")
+    manifest = json.loads((refs / "manifest.json").read_text())
+    entry = manifest["entries"]["ball-diffuse-sky"]
+    assert entry["settings"] == settings.to_dict() and entry["variant"] == "stub"
+    assert float(load_reference(refs, BALL, data_dir).image.mean()) == pytest.approx(0.5)
+
+
+def test_a_tiny_gallery_runs_end_to_end_and_resumes(data_dir, tmp_path):
+    refs, out = tmp_path / "refs", tmp_path / "out"
+    settings = ReferenceSettings(spp=4, pass_spp=2, width=40, height=32)
+    _synthetic(refs, BALL, data_dir, settings, value=1.0)
+    kw = dict(data=data_dir, refs=refs, out=out, samples=4, backend="torch", base_res=16)
+    first = run([BALL], progress=False, **kw)
+    s = first["scenes"]["ball-diffuse-sky"]
+    assert first["bakes"]["ball-diffuse"]["resumed"] is False
+    assert s["vertices"] == 162 and s["object_pixels"] > 100 and s["mask_partial_in_ours"] == 0
+    assert math.isfinite(s["psnr_display"]) and s["energy_ratio"] > 0
+    assert first["summary"]["worst"]["psnr_display"]["scene"] == "ball-diffuse-sky"
+    on_disk = json.loads((out / "gallery.json").read_text())
+    assert on_disk["scenes"]["ball-diffuse-sky"]["rel_l2"] == pytest.approx(s["rel_l2"])
+    from PIL import Image
+
+    assert Image.open(out / "ball-diffuse-sky.png").size == (3 * 40, 32)
+
+    # our own image as the reference: a second run loads the model and scores it perfect
+    m = model_io.load(out / "models" / "ball-diffuse.npz")
+    lighting = Lighting(envmap.load(data_dir / "envmaps" / "sky.hdr"), base_res=16, sun=True)
+    with Renderer(m, lighting, 40, 32, backend="torch", samples=4) as ren:
+        ours = ren.render(BALL.view()).numpy()
+    mesh = prepare_mesh(BALL, data_dir)
+    entry = {
+        "scene_hash": scene_hash(BALL, data_dir),
+        "geometry_sha256": geometry_sha256(mesh),
+        "settings": settings.to_dict(),
+    }
+    mask = coverage_mask(mesh, BALL.view(), 40, 32).numpy()
+    write_reference(refs, BALL, ours, np.zeros_like(ours), mask, entry=entry)
+    second = run([BALL], progress=False, **kw)
+    s2 = second["scenes"]["ball-diffuse-sky"]
+    assert second["bakes"]["ball-diffuse"]["resumed"] is True
+    assert s2["rel_l2"] == 0.0 and s2["energy_ratio"] == 1.0
+    assert s2["psnr_display"] is None  # infinite: identical images (null in strict JSON)
+
+
+# --------------------------------------------------------------------------------------------
+# the command line and the Mitsuba export of the plastic
+
+
+def test_arguments_fit_a_parser_that_has_the_common_flags(data_dir):
+    p = argparse.ArgumentParser()
+    p.add_argument("--json", action="store_true")
+    p.add_argument("--device", default="cpu")
+    add_arguments(p)
+    args = p.parse_args(["list", "--scenes", "teapot-diffuse", "--json"])
+    assert args.json and args.device == "cpu"
+    assert [s["name"] for s in main_from_args(args)["scenes"]] == [
+        "teapot-diffuse-park",
+        "teapot-diffuse-studio",
+    ]
+    args = p.parse_args(["references", "--data", str(data_dir / "nope")])
+    with pytest.raises(InputError, match="--data"):
+        main_from_args(args)
+
+
+def test_lambert_plus_ggx_exports_as_their_exact_sum():
+    """The plastic's Mitsuba blendbsdf evaluates to Lambert + GGX at 40 direction pairs."""
+    mi = pytest.importorskip("mitsuba", reason="mitsuba is not installed")
+    from lobelight.mitsuba_export import _blend
+    from lobelight.scene import parse_material
+
+    if mi.variant() != "scalar_rgb":
+        mi.set_variant("scalar_rgb")
+    mats = parse_material(MATERIALS["plastic"].replace("diffuse=0.5", "diffuse=0.6,0.3,0.1"))
+    bsdf = mi.load_dict(_blend(mats.diffuse[0], mats.specular))
+    g = torch.Generator().manual_seed(5)
+    d = torch.randn(2, 40, 3, generator=g, dtype=torch.float64)
+    d[..., 2] = d[..., 2].abs() + 0.05
+    wi, wo = torch.nn.functional.normalize(d, dim=-1).float()
+    n = torch.tensor([0.0, 0.0, 1.0]).expand(40, 3)
+    t = torch.tensor([1.0, 0.0, 0.0]).expand(40, 3)
+    ours = (mats.brdf().eval(wi, wo, n, t) * wi[:, 2:]).double().numpy()
+    ctx, ref = mi.BSDFContext(), []
+    for a in range(40):
+        si = mi.SurfaceInteraction3f()
+        si.wi = mi.Vector3f(*wo[a].tolist())  # Mitsuba's wi points to the viewer: our wo
+        si.sh_frame = mi.Frame3f(mi.Vector3f(0, 0, 1))
+        ref.append(list(bsdf.eval(ctx, si, mi.Vector3f(*wi[a].tolist()))))
+    np.testing.assert_allclose(ours, np.array(ref), rtol=1e-4, atol=1e-7)
+    too_bright = parse_material("ggx:alpha=0.1,specular=0.5,diffuse=0.6")
+    with pytest.raises(InputError, match="exceed 1"):
+        _blend(too_bright.diffuse[0], too_bright.specular)
