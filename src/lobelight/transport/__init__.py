@@ -5,15 +5,27 @@
   self-shadowed diffuse transfer as order-5 SH (:class:`TransportBatch`).
 - :class:`Transport` evaluates each part where a caller needs it (e.g. visibility and direct
   glossy on a dense local grid around a sharp lobe).
-- :func:`diffuse_interreflection` adds bounces of diffuse interreflection to the SH transfer.
+- :func:`diffuse_interreflection` adds bounces of diffuse interreflection to the SH transfer,
+  with the light the hit points' glossy lobes send (from their fitted Gaussians).
+- :data:`BOUNCES` and :data:`INDIRECT_PATHS` are a bake's defaults (docs/method.md).
 """
 
 from ._transport import (
+    BOUNCES,
     DIFFUSE_ORDER,
+    INDIRECT_PATHS,
     Transport,
     TransportBatch,
     diffuse_interreflection,
     sample,
 )
 
-__all__ = ["DIFFUSE_ORDER", "Transport", "TransportBatch", "diffuse_interreflection", "sample"]
+__all__ = [
+    "BOUNCES",
+    "DIFFUSE_ORDER",
+    "INDIRECT_PATHS",
+    "Transport",
+    "TransportBatch",
+    "diffuse_interreflection",
+    "sample",
+]
