@@ -30,7 +30,7 @@ from .. import cubemap, sphere
 from .._malloc import keep_freed_memory
 from ..errors import InputError
 from ..scene import Mesh, Scene
-from ..transport import DIFFUSE_ORDER, Transport
+from ..transport import BOUNCES, DIFFUSE_ORDER, INDIRECT_PATHS, Transport, diffuse_interreflection
 from ._data import gather, lobe_estimate
 from ._objective import Weights, flip_count, mixture, solve_weights
 from ._optimize import Gaussians, fit_batch, initial_guess
@@ -38,6 +38,9 @@ from ._relax import live_gaussians, reorder_mesh, separated_pairs, vertex_flips
 
 __all__ = ["MeshFit", "count_flips", "fit_mesh", "wavefronts"]
 
+#: Face resolution of the cube map the indirect glossy paths are binned on: at 16 paths per view,
+#: 8^2 halves the light's error per (vertex, view) against 16^2 bins (docs/method.md).
+INDIRECT_RES = 8
 #: Processed neighbours a vertex's S term reads (the rest of a high-valence fan is dropped).
 MAX_NEIGHBOURS = 8
 #: Lobes this many widths apart or more have an arrangement that a flip visibly breaks; closer
@@ -93,13 +96,15 @@ class MeshFit:
     Attributes
     ----------
     gaussians : Gaussians of all V vertices (w (V, J, N, 3), mu (V, J, N, 3), lam (V, J, N))
-    diffuse : (V, 25, 3) self-shadowed diffuse SH transfer
+    diffuse : (V, 25, 3) diffuse SH transfer, self-shadowed plus ``bounces`` bounces of
+        interreflection
     views : (J, 3) view directions
     data_error : (V,) relative L2 error squared of the glossy fit (D)
     flips_before, flips_after : flipped (edge, view) pairs before and after relaxation
     separated_flips_before, separated_flips_after : the same among lobes at least
         ``SEPARATED`` widths apart (:func:`count_flips`)
-    seconds : wall time per stage
+    seconds : wall time per stage: ``fit`` (including ``indirect_glossy``, the path tracing of
+        indirect glossy inside it), ``relax``, ``interreflection``
     """
 
     gaussians: Gaussians
@@ -218,7 +223,8 @@ def fit_mesh(
     views: torch.Tensor | None = None,
     weights: Weights | None = None,
     batch: int | None = None,
-    indirect_paths: int = 0,
+    indirect_paths: int = INDIRECT_PATHS,
+    bounces: int = BOUNCES,
     relax: bool = True,
     device=None,
     progress: Callable[[str, int, int], None] | None = None,
@@ -227,7 +233,8 @@ def fit_mesh(
     checkpoint_every: float = 30.0,
     shadows: bool = True,
 ) -> MeshFit:
-    """Fit N Gaussians per view to every vertex's glossy transport, and its SH diffuse transfer.
+    """Fit N Gaussians per view to every vertex's glossy transport, and its SH diffuse transfer,
+    both with interreflection.
 
     Parameters
     ----------
@@ -237,6 +244,9 @@ def fit_mesh(
         bytes. With ``n = 1`` there is no spatial term, vertices do not depend on each other
         and chunks run across wavefronts; with ``n >= 2`` a chunk stays inside one wavefront
     indirect_paths : paths per vertex and view for indirect glossy (0: direct glossy only)
+    bounces : bounces of diffuse interreflection added to the SH transfer once the glossy fit
+        is done (:func:`lobelight.transport.diffuse_interreflection`, carrying the light of
+        the hit points' diffuse and fitted glossy parts; 0: self-shadowed only)
     relax : run the relaxation pass (for n >= 2; nothing to relax for n = 1)
     progress : called as ``progress(stage, done, total)`` after each chunk
     checkpoint : a file to save the state to (atomically, at most every ``checkpoint_every``
@@ -259,6 +269,10 @@ def fit_mesh(
     batch = default_batch(dev, n) if batch is None else int(batch)
     if batch < 1:
         raise InputError("batch", f"must be a positive number of vertices, got {batch}")
+    for name, value in (("indirect_paths", indirect_paths), ("bounces", bounces)):
+        if isinstance(value, bool) or int(value) != value or value < 0:
+            raise InputError(name, f"must be a whole number >= 0 (0: off), got {value!r}")
+    indirect_paths, bounces = int(indirect_paths), int(bounces)
     mesh = tr.mesh
     views = sphere.geodesic_views(device=dev) if views is None else views.to(dev)
     nbr_views = sphere.geodesic_neighbor_table(device=dev)
@@ -291,20 +305,26 @@ def fit_mesh(
         "done": done,
         "glossy": glossy,
     }
-    key = _settings_key(scene, n, views, weights, batch, (indirect_paths, shadows), relax, seed)
+    key = _settings_key(
+        scene, n, views, weights, batch, (indirect_paths, bounces, shadows), relax, seed
+    )
     ckpt = Path(checkpoint) if checkpoint is not None else None
-    start = _resume(ckpt, key, state) if ckpt is not None else ("fit", 0, (0, 0))
+    start = _resume(ckpt, key, state) if ckpt is not None else _FRESH
+    stage0 = _STAGES.index(start[0])  # the stage the run (re)starts in
     last_save = time.perf_counter()
     before = start[2]  # (all flipped pairs, those of separated lobes), after the flood fill
+    after = start[3]  # the same after the relaxation
+    t_indirect = 0.0
 
     def save_state(stage: str, nxt: int, *, force: bool = False) -> None:
         nonlocal last_save
         if ckpt is None or (not force and time.perf_counter() - last_save < checkpoint_every):
             return
-        _save_checkpoint(ckpt, key, stage, nxt, state, before)
+        _save_checkpoint(ckpt, key, stage, nxt, state, before, after)
         last_save = time.perf_counter()
 
     def fit_chunk(i: int, vidx: torch.Tensor, *, all_neighbours: bool) -> None:
+        nonlocal t_indirect
         lobe = None
         if not all_neighbours:
             diffuse[vidx] = tr.diffuse(vidx, ddirs, dom)
@@ -326,8 +346,10 @@ def fit_mesh(
         if indirect_paths > 0:
             # seeded by chunk and pass, so a resumed run draws the same paths
             gen = torch.Generator().manual_seed(seed * 1_000_003 + 2 * i + int(all_neighbours))
-            ind = tr.indirect(vidx, views, paths=indirect_paths, res=16, generator=gen)
-        data = gather(tr, vidx, views, indirect=ind, lobe=lobe)
+            t = time.perf_counter()
+            ind = tr.indirect(vidx, views, paths=indirect_paths, res=INDIRECT_RES, generator=gen)
+            t_indirect += time.perf_counter() - t
+        data = gather(tr, vidx, views, indirect=ind, indirect_res=INDIRECT_RES, lobe=lobe)
         if all_neighbours:
             avail = glossy
         else:
@@ -376,19 +398,21 @@ def fit_mesh(
         mu[vidx], lam[vidx], w[vidx] = g.mu, g.lam, g.w
         derr[vidx] = terms["D"]
 
-    begin = start[1] if start[0] == "fit" else len(chunks)
+    # stages: the flood fill ("fit", by chunks), the relaxation ("relax", by chunks, then the
+    # reordering), the diffuse interreflection ("interreflection", one step: it needs every
+    # vertex's self-shadowed transfer and final Gaussians), then "done"
+    begin = start[1] if stage0 == 0 else len(chunks)
     for i in range(begin, len(chunks)):
         fit_chunk(i, chunks[i], all_neighbours=False)
         save_state("fit", i + 1, force=i + 1 == len(chunks))
         if progress is not None:
             progress("fit", i + 1, len(chunks))
     t1 = time.perf_counter()
-    g = Gaussians(w, mu, lam)
-    if start[0] == "fit":
-        before = _flips(mesh, g)
-    after = before
-    if relax and n > 1:
-        begin = start[1] if start[0] == "relax" else 0
+    if stage0 == 0:
+        before = _flips(mesh, Gaussians(w, mu, lam))
+        after = before
+    if relax and n > 1 and stage0 <= 1:
+        begin = start[1] if stage0 == 1 else 0
         for i in range(begin, len(chunks)):
             fit_chunk(i, chunks[i], all_neighbours=True)
             save_state("relax", i + 1, force=False)
@@ -397,10 +421,22 @@ def fit_mesh(
         # then the order of each vertex's Gaussians over the whole mesh, now that every
         # neighbour is final (the refit above moves lobes, and adds flips on its own)
         g = reorder_mesh(mesh, Gaussians(w, mu, lam), nbr_views, weights=weights)
+        w.copy_(g.w), mu.copy_(g.mu), lam.copy_(g.lam)
         after = _flips(mesh, g)
+    if stage0 <= 1:
+        save_state("interreflection", 0, force=True)
     t2 = time.perf_counter()
+    if stage0 <= 2 and bounces > 0:
+        # the hit points' glossy light comes from their fitted Gaussians (direct and indirect
+        # glossy): without it a diffuse floor by a metal wall lost 32-63 % of its light
+        lobes = (views, w, mu, lam) if bool(glossy.any()) else None
+        diffuse.copy_(
+            diffuse_interreflection(tr, diffuse, bounces=bounces, glossy=lobes, progress=progress)
+        )
+        save_state("done", 0, force=True)
+    t3 = time.perf_counter()
     return MeshFit(
-        gaussians=g,
+        gaussians=Gaussians(w, mu, lam),
         diffuse=diffuse,
         views=views,
         data_error=derr,
@@ -408,7 +444,12 @@ def fit_mesh(
         flips_after=after[0],
         separated_flips_before=before[1],
         separated_flips_after=after[1],
-        seconds={"fit": t1 - t0, "relax": t2 - t1},
+        seconds={
+            "fit": t1 - t0,
+            "indirect_glossy": t_indirect,
+            "relax": t2 - t1,
+            "interreflection": t3 - t2,
+        },
     )
 
 
@@ -426,11 +467,29 @@ def _settings_key(scene, n, views, weights, batch, indirect_paths, relax, seed) 
     return h.hexdigest()
 
 
+#: The stages of a fit, in order, as checkpoints name them.
+_STAGES = ("fit", "relax", "interreflection", "done")
+#: Where a run without a usable checkpoint starts: stage, next chunk, flips before and after.
+_FRESH = ("fit", 0, (0, 0), (0, 0))
+
+
 def _save_checkpoint(
-    path: Path, key: str, stage: str, nxt: int, state: dict, flips_before: tuple[int, int]
+    path: Path,
+    key: str,
+    stage: str,
+    nxt: int,
+    state: dict,
+    flips_before: tuple[int, int],
+    flips_after: tuple[int, int],
 ) -> None:
     arrays = {k: v.detach().cpu().numpy() for k, v in state.items()}
-    meta = {"key": key, "stage": stage, "next": nxt, "flips_before": list(flips_before)}
+    meta = {
+        "key": key,
+        "stage": stage,
+        "next": nxt,
+        "flips_before": list(flips_before),
+        "flips_after": list(flips_after),
+    }
     arrays["meta"] = np.frombuffer(json.dumps(meta).encode(), dtype=np.uint8)
     tmp = path.with_name(path.name + ".tmp")
     with open(tmp, "wb") as f:
@@ -439,14 +498,15 @@ def _save_checkpoint(
 
 
 def _resume(path: Path, key: str, state: dict) -> tuple:
-    """Load a matching checkpoint into ``state``; returns ``(stage, next chunk, flips)``."""
-    fresh = ("fit", 0, (0, 0))
+    """Load a matching checkpoint into ``state``; returns ``(stage, next chunk, flips before,
+    flips after)``."""
+    fresh = _FRESH
     if not path.is_file():
         return fresh
     try:
         with np.load(path, allow_pickle=False) as z:
             meta = json.loads(bytes(z["meta"]).decode())
-            if meta.get("key") != key:
+            if meta.get("key") != key or meta.get("stage") not in _STAGES:
                 return fresh  # another scene or other settings: start over
             loaded = {k: torch.from_numpy(z[k]) for k in state}
     except (OSError, ValueError, KeyError, EOFError):
@@ -458,4 +518,5 @@ def _resume(path: Path, key: str, state: dict) -> tuple:
         state[k].copy_(v.to(state[k].device, state[k].dtype))
     fb = meta.get("flips_before", [0, 0])
     fb = (int(fb), 0) if isinstance(fb, int) else (int(fb[0]), int(fb[1]))
-    return (str(meta["stage"]), int(meta["next"]), fb)
+    fa = meta.get("flips_after", [0, 0])
+    return (str(meta["stage"]), int(meta["next"]), fb, (int(fa[0]), int(fa[1])))

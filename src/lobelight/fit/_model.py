@@ -12,6 +12,7 @@ import torch
 from .. import __version__
 from ..progress import resolve
 from ..scene import Scene
+from ..transport import BOUNCES, INDIRECT_PATHS
 from ._floodfill import fit_mesh
 from ._objective import Weights
 
@@ -26,7 +27,8 @@ def fit_model(
     views: torch.Tensor | None = None,
     weights: Weights | None = None,
     batch: int | None = None,
-    indirect_paths: int = 0,
+    indirect_paths: int = INDIRECT_PATHS,
+    bounces: int = BOUNCES,
     relax: bool = True,
     progress: bool | Callable[[str, int, int], None] | None = True,
     seed: int = 0,
@@ -35,6 +37,11 @@ def fit_model(
 ):
     """Fit the glossy transport of every vertex with ``n_lobes`` Gaussians per view, and its
     SH diffuse transfer (:func:`fit_mesh`), and wrap the result as a model.
+
+    Interreflection is baked by default: ``indirect_paths`` paths per vertex and view of
+    indirect glossy, and ``bounces`` bounces of diffuse interreflection in the SH transfer
+    (:data:`lobelight.transport.INDIRECT_PATHS`, :data:`lobelight.transport.BOUNCES`); 0 turns
+    either off.
 
     ``progress``: True reports each stage on stderr (bars on a terminal, plain lines
     elsewhere: :mod:`lobelight.progress`), None or False is silent, a callable
@@ -57,6 +64,7 @@ def fit_model(
         weights=weights,
         batch=batch,
         indirect_paths=indirect_paths,
+        bounces=bounces,
         relax=relax,
         device=device,
         progress=resolve(progress),
@@ -74,7 +82,8 @@ def fit_model(
         "environment": scene.environment,
         "n_lobes": n_lobes,
         "weights": {"alpha": w.alpha, "beta": w.beta, "gamma": w.gamma, "delta": w.delta},
-        "indirect_paths": indirect_paths,
+        "indirect_paths": int(indirect_paths),
+        "bounces": int(bounces),
         "relax": relax,
         "shadows": shadows,
         "seed": seed,
