@@ -9,6 +9,7 @@ import pytest
 import torch
 from PIL import Image
 
+from lobelight import cli
 from lobelight.cli import main
 
 
@@ -36,6 +37,10 @@ def test_bake_info_render_compare(tmp_path, capsys):
     assert code == 0 and info["vertices"] == 42 and info["views"] == 92
     assert info["n_lobes"] == 1 and info["provenance"]["scene"] == "sphere1"
     assert info["provenance"]["environment"] == str(env.resolve())
+    # what was baked of interreflection: the defaults
+    assert (
+        info["interreflection"] == {"bounces": 4, "indirect_paths": 16} == bake["interreflection"]
+    )
 
     png = tmp_path / "r.png"
     code, r = run(
@@ -165,3 +170,11 @@ def test_reference_reports_progress_per_batch():
     img = reference.render(sc, progress=lambda *a: calls.append(a), **kw)
     assert calls == [("reference", 2, 5), ("reference", 4, 5), ("reference", 5, 5)]
     assert torch.equal(img, reference.render(sc, **kw))
+
+
+def test_the_bake_flags_default_to_the_bake_s_interreflection():
+    # the parser restates the defaults so that building it imports no torch
+    from lobelight import transport
+
+    args = cli._parser().parse_args(["bake", "sphere:1"])
+    assert args.bounces == transport.BOUNCES and args.indirect_paths == transport.INDIRECT_PATHS

@@ -28,6 +28,12 @@ from pathlib import Path
 from .errors import InputError
 from .progress import Reporter
 
+#: A bake's interreflection defaults, :data:`lobelight.transport.BOUNCES` and
+#: :data:`lobelight.transport.INDIRECT_PATHS`, restated so that building the parser imports no
+#: torch (tests/test_cli.py holds them equal).
+_BOUNCES = 4
+_INDIRECT_PATHS = 16
+
 __all__ = ["main"]
 
 
@@ -139,6 +145,8 @@ def _cmd_bake(args) -> dict:
     out = _model_path(args.scene, args.output)  # checked before any work
     if args.indirect_paths < 0:
         raise InputError("--indirect-paths", f"must be >= 0, got {args.indirect_paths}")
+    if args.bounces < 0:
+        raise InputError("--bounces", f"must be >= 0, got {args.bounces}")
     prog = _progress(args)
     sc = load(args.scene, device=args.device, material=args.material)
     if args.env:  # the model's default lighting (render, view, compare), as a scene file's
@@ -159,6 +167,7 @@ def _cmd_bake(args) -> dict:
         args.lobes,
         device=args.device,
         indirect_paths=args.indirect_paths,
+        bounces=args.bounces,
         progress=prog,
         seed=args.seed,
         checkpoint=ckpt,
@@ -174,6 +183,7 @@ def _cmd_bake(args) -> dict:
         "material": sc.materials.model,
         "vertices": sc.mesh.n_vertices,
         "n_lobes": args.lobes,
+        "interreflection": _interreflection(m.provenance),
         "bytes": info["bytes"],
         "records_kept": info["records"],
         "records_total": info["records_total"],
@@ -204,7 +214,17 @@ def _cmd_info(args) -> dict:
         "sh_coefficients": int(m.diffuse.shape[1]),
         "records_with_weight": int(live.sum()),
         "material": m.materials.model,
+        "interreflection": _interreflection(m.provenance),
         "provenance": m.provenance,
+    }
+
+
+def _interreflection(provenance: dict) -> dict:
+    """What a model baked of interreflection: diffuse bounces and indirect glossy paths (a
+    model from before interreflection was baked has no ``bounces``: none)."""
+    return {
+        "bounces": int(provenance.get("bounces", 0)),
+        "indirect_paths": int(provenance.get("indirect_paths", 0)),
     }
 
 
@@ -587,10 +607,18 @@ def _parser() -> argparse.ArgumentParser:
     )
     lobes(b)
     b.add_argument(
+        "--bounces",
+        type=int,
+        default=_BOUNCES,
+        help="bounces of diffuse interreflection in the SH transfer, carrying the diffuse and "
+        "glossy light of the points a vertex sees (0: self-shadowed only)",
+    )
+    b.add_argument(
         "--indirect-paths",
         type=int,
-        default=0,
-        help="paths per vertex and view for indirect glossy (0: direct only)",
+        default=_INDIRECT_PATHS,
+        help="paths per vertex and view for indirect glossy, the light glossy surfaces reflect "
+        "off the object (0: direct glossy only)",
     )
     b.add_argument("--float16", action="store_true", help="store half floats (half the size)")
     b.add_argument("--seed", type=int, default=0, help="seed of the fit's random starts")
