@@ -55,9 +55,11 @@ def test_fit_mesh_sphere_one_gaussian():
     assert g.mu.shape == (v, j, 1, 3) and mf.diffuse.shape == (v, 25, 3)
     below = (mf.views[None] * sc.mesh.normals[:, None]).sum(-1) <= 0
     assert bool((g.w[below] == 0).all()) and bool((g.w[~below].amax(-1) > 0).any())
-    # a GGX lobe of roughness 0.2 is not a Gaussian (long tails): one Gaussian leaves a few
-    # per cent of relative L2 error squared; measured 3-10 %
-    assert float(mf.data_error.max()) < 0.15
+    # a GGX lobe of roughness 0.2 is not a Gaussian (long tails): one Gaussian that carries
+    # all of its light (the default, conserved weights) widens towards the tail and leaves
+    # 21-27 % of relative L2 error squared, measured (the plain L2 optimum, which drops a
+    # quarter of the light, leaves 3-10 %); 0.35 fails a fit that lost the lobe
+    assert float(mf.data_error.max()) < 0.35
     # the fitted mean follows the mirror direction on a convex sphere (no occlusion)
     n = sc.mesh.normals[:, None]
     refl = 2 * (mf.views[None] * n).sum(-1, keepdim=True) * n - mf.views[None]

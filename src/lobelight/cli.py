@@ -26,6 +26,7 @@ import time
 from pathlib import Path
 
 from .errors import InputError
+from .gallery._args import add_arguments as gallery_arguments
 from .progress import Reporter
 
 #: A bake's interreflection defaults, :data:`lobelight.transport.BOUNCES` and
@@ -408,6 +409,12 @@ def _cmd_figure5(args) -> dict:
     return {"command": "figure5", **figure5(args.output, device=args.device)}
 
 
+def _cmd_gallery(args) -> dict:
+    from .gallery import main_from_args
+
+    return {"command": "gallery", "action": args.action, **main_from_args(args)}
+
+
 def _cmd_lobes_demo(args) -> dict:
     from .cosine import lobes_demo
 
@@ -711,6 +718,13 @@ def _parser() -> argparse.ArgumentParser:
         help="gl (or both) also renders ours and FIS-40 with the GLSL shaders (PSNR and fps "
         "rows); auto: where a context opens",
     )
+
+    ga = cmd(
+        "gallery",
+        _cmd_gallery,
+        "score real scenes against Mitsuba 3 references (DEVELOPERS.md renders them)",
+    )
+    gallery_arguments(ga)
 
     f = cmd("figure5", _cmd_figure5, "the paper's Figure 5: Gaussians vs Haar vs SH")
     output(f, "lobelight-figure5", "output folder")

@@ -27,63 +27,53 @@ from a data folder (``--data DIR`` or ``$LOBELIGHT_DATA``; ``meshes/`` and ``env
 Installing Mitsuba's LLVM variant and rendering the references: DEVELOPERS.md.
 """
 
-from ._cli import add_arguments, main, main_from_args
-from ._references import (
-    Reference,
-    ReferenceSettings,
-    coverage_mask,
-    load_reference,
-    read_manifest,
-    reference_status,
-    render_references,
-    write_reference,
-)
-from ._run import METRICS, run, summarise
-from ._scenes import (
-    MAPS,
-    MATERIALS,
-    SCENES,
-    GalleryScene,
-    data_folder,
-    default_camera,
-    geometry_sha256,
-    prepare_mesh,
-    scene_hash,
-    select,
-    to_scene,
-)
-from ._score import LEGEND, display_exposure, energy_ratio, luminance, noise_psnr_display, score
+import importlib
 
-__all__ = [
-    "LEGEND",
-    "MAPS",
-    "MATERIALS",
-    "METRICS",
-    "SCENES",
-    "GalleryScene",
-    "Reference",
-    "ReferenceSettings",
-    "add_arguments",
-    "coverage_mask",
-    "data_folder",
-    "default_camera",
-    "display_exposure",
-    "energy_ratio",
-    "geometry_sha256",
-    "load_reference",
-    "luminance",
-    "main",
-    "main_from_args",
-    "noise_psnr_display",
-    "prepare_mesh",
-    "read_manifest",
-    "reference_status",
-    "render_references",
-    "run",
-    "scene_hash",
-    "score",
-    "select",
-    "summarise",
-    "to_scene",
-    "write_reference",
-]
+#: Where each public name lives: the submodules load on first use (PEP 562), so that the
+#: command line can add the gallery's arguments without importing torch.
+_HOMES = {
+    "DATA_ENV": "._settings",
+    "GalleryScene": "._scenes",
+    "LEGEND": "._score",
+    "MAPS": "._scenes",
+    "MATERIALS": "._scenes",
+    "METRICS": "._run",
+    "Reference": "._references",
+    "ReferenceSettings": "._settings",
+    "SCENES": "._scenes",
+    "VARIANTS": "._settings",
+    "add_arguments": "._args",
+    "coverage_mask": "._references",
+    "data_folder": "._scenes",
+    "default_camera": "._scenes",
+    "display_exposure": "._score",
+    "energy_ratio": "._score",
+    "geometry_sha256": "._scenes",
+    "load_reference": "._references",
+    "luminance": "._score",
+    "main": "._cli",
+    "main_from_args": "._cli",
+    "noise_psnr_display": "._score",
+    "prepare_mesh": "._scenes",
+    "read_manifest": "._references",
+    "reference_status": "._references",
+    "render_references": "._references",
+    "run": "._run",
+    "scene_hash": "._scenes",
+    "score": "._score",
+    "select": "._scenes",
+    "summarise": "._run",
+    "to_scene": "._scenes",
+    "write_reference": "._references",
+}
+
+
+def __getattr__(name: str):
+    if name not in _HOMES:
+        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+    value = getattr(importlib.import_module(_HOMES[name], __name__), name)
+    globals()[name] = value
+    return value
+
+
+__all__ = sorted(_HOMES)

@@ -16,7 +16,7 @@ from __future__ import annotations
 import json
 import tempfile
 import time
-from dataclasses import asdict, dataclass
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -42,13 +42,12 @@ from ._scenes import (
     to_scene,
 )
 from ._score import display_exposure
+from ._settings import VARIANTS, ReferenceSettings
 
 __all__ = [
     "FORMAT",
     "MANIFEST",
-    "VARIANTS",
     "Reference",
-    "ReferenceSettings",
     "coverage_mask",
     "load_reference",
     "read_manifest",
@@ -60,42 +59,8 @@ __all__ = [
 FORMAT = "lobelight-gallery-references"
 VERSION = 1
 MANIFEST = "manifest.json"
-#: Mitsuba variants tried in turn when none is asked for.
-VARIANTS = ("llvm_ad_rgb", "scalar_rgb")
 #: The command that renders references, for messages.
 COMMAND = "python -m lobelight.gallery references --data DIR --refs DIR"
-
-
-@dataclass(frozen=True)
-class ReferenceSettings:
-    """How references are rendered: Mitsuba's ``path`` integrator with ``max_depth`` (path
-    length as Mitsuba counts it: 2 is direct lighting), ``spp`` samples per pixel in passes of
-    ``pass_spp`` (independent seeds; their spread gives the standard error), a box pixel
-    filter, and the mask from a ``mask_grid x mask_grid`` grid of rays per pixel."""
-
-    spp: int = 1024
-    max_depth: int = 8
-    width: int = 512
-    height: int = 512
-    pass_spp: int = 32
-    seed: int = 0
-    mask_grid: int = 4
-
-    def __post_init__(self) -> None:
-        for k, v in asdict(self).items():
-            least = 0 if k == "seed" else 1
-            if isinstance(v, bool) or not isinstance(v, int) or v < least:
-                raise InputError(
-                    f"--{k.replace('_', '-')}", f"must be an integer >= {least}, got {v!r}"
-                )
-        if self.spp % self.pass_spp or self.spp // self.pass_spp < 2:
-            raise InputError(
-                "--spp",
-                f"must be a multiple of {self.pass_spp} (two passes or more), got {self.spp}",
-            )
-
-    def to_dict(self) -> dict[str, int]:
-        return asdict(self)
 
 
 @dataclass(frozen=True)

@@ -15,9 +15,9 @@ import numpy as np
 from ..camera import Camera
 from ..errors import InputError
 from ..scene import Mesh, Scene, load_mesh, mesh_from_arrays, parse_material
+from ._settings import DATA_ENV
 
 __all__ = [
-    "DATA_ENV",
     "MAPS",
     "MATERIALS",
     "PREPARATION",
@@ -34,8 +34,6 @@ __all__ = [
     "to_scene",
 ]
 
-#: The environment variable that names the data folder when ``--data`` is not given.
-DATA_ENV = "LOBELIGHT_DATA"
 #: Version of the mesh preparation (:func:`prepare_mesh`); part of every scene's hash, so a
 #: change to it marks the references rendered before it as stale.
 PREPARATION = 1
