@@ -123,7 +123,7 @@ def horizon_scale(views, normals, rows, idx, bary, view_dirs) -> torch.Tensor:
     A stored view with ``n.v <= 0`` has no data (the fit gives it zero weight), not zero
     light: a view direction just above the horizon blends such a record with the last views
     above it, and counting the record as dark loses the light in proportion to its
-    barycentric weight (a third of a GGX metal's light at ``n.v < 0.2`` on a sphere). So for
+    barycentric weight (a third of it on average at ``n.v < 0.1`` on a sphere). So for
     a view direction above the horizon the carried light is averaged over the records above
     it: each record's light is scaled by ``1 / sum(b over records above)``. Below the horizon
     (seen only through interpolated normals at a silhouette) the records blend as they are,
