@@ -18,8 +18,12 @@ the object's pixels (the background is the environment in all of them):
                     whole map, sun included, through the order-5 SH transfer, no per-pixel
                     sun shadow; ``ours`` takes the sun out of the SH and shades it per pixel
                     with a shadow test (:func:`lobelight.envmap.extract_sun`)
-``reference``       :func:`lobelight.reference.render`, direct lighting (``max_depth = 2``),
-                    through the pixel centres
+``reference``       :func:`lobelight.reference.render` through the pixel centres, with the
+                    light the model holds: paths of ``REFERENCE_DEPTH`` (interreflection) for
+                    a model baked with bounces or indirect paths, direct lighting
+                    (``max_depth = 2``) for one baked without; the glossy reference (diffuse
+                    albedo zero everywhere) then leaves out glossy light that arrives by way
+                    of diffuse surfaces, which a baked model's Gaussians hold
 
 Two PSNRs, both over object pixels: ``psnr`` is ``10 log10(peak^2 / MSE)`` on linear radiance
 with ``peak`` the reference's largest object-pixel value (a sun's reflection makes that peak
@@ -52,6 +56,18 @@ from .transport import Transport
 
 #: The factor of the difference images.
 DIFF_SCALE = 4
+#: Path length (Mitsuba's ``max_depth``) of the reference for a model baked with
+#: interreflection.
+REFERENCE_DEPTH = 8
+
+
+def reference_depth(model) -> int:
+    """The reference's ``max_depth`` for ``model``: :data:`REFERENCE_DEPTH` when its provenance
+    says it holds interreflection (diffuse bounces or indirect glossy paths), else 2."""
+    prov = model.provenance or {}
+    baked = int(prov.get("bounces", 0) or 0) > 0 or int(prov.get("indirect_paths", 0) or 0) > 0
+    return REFERENCE_DEPTH if baked else 2
+
 
 __all__ = ["compare", "psnr", "psnr_display", "relative_l2"]
 
@@ -63,6 +79,8 @@ LEGEND = {
     "psnr": "dB, linear radiance, peak = the reference's brightest object pixel (a sun's "
     "reflection makes it large and this figure generous)",
     "rel_l2": "|ours - reference| / |reference|, linear radiance over object pixels",
+    "reference_depth": "the reference's path length (Mitsuba's max_depth): 8 for a model "
+    "baked with interreflection, 2 (direct light) for one baked without",
     "reference_noise": "the reference's mean standard error / its mean (Monte Carlo noise)",
     "reference_noise_psnr": "dB, the linear PSNR that the reference's own noise allows: scores "
     "near it are limited by the reference, not the model (raise --spp)",
@@ -234,7 +252,8 @@ def compare(
     # references: the environment is turned by rotating the map itself (independent of ours)
     ref_env = env if light_rotation is None else env.rotate(rot)
     t = time.perf_counter()
-    kw = dict(width=width, height=height, spp=spp, max_depth=2, seed=seed, jitter=False)
+    depth = reference_depth(model)
+    kw = dict(width=width, height=height, spp=spp, max_depth=depth, seed=seed, jitter=False)
 
     def step(name):  # one progress bar per reference image
         return None if progress is None else (lambda _, done, total: progress(name, done, total))
@@ -323,6 +342,7 @@ def compare(
         },
         "table": rows,
         "legend": LEGEND,
+        "reference_depth": depth,
         "reference_noise": noise,
         "reference_noise_psnr": _noise_psnr(ref_full, err_full, mask),
         "object_pixels": int(mask.sum()),

@@ -152,8 +152,8 @@ the model is baked once and relit.
 
 Model file: `model.lobelight.npz`, {n_bytes / 1e6:.2f} MB.
 
-Against the Monte Carlo reference under the sky (direct lighting, object pixels; `compare/`
-holds the images and `compare.json`):
+Against the Monte Carlo reference under the sky (paths of up to {cmp["reference_depth"]}
+vertices as Mitsuba counts them, object pixels; `compare/` holds the images and `compare.json`):
 
 | method | component | PSNR, displayed (dB) | PSNR, linear (dB) | relative L2 |
 |---|---|---|---|---|

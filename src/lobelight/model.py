@@ -14,6 +14,8 @@ holding
                     (half-float files store the weight times the Gaussian's integral instead
                     of its peak: ``meta["weights"] == "integral"``)
 ``diffuse``         (V, n, 3) SH diffuse transfer
+``bounce``          optional (V, n, 3): the interreflected part of ``diffuse``, lit by the sun
+                    as well (the self-shadowed part sees the sun per pixel)
 
 Beyond the paper's 92 x 7 x V x N floats: ``float16`` halves it, and records are dropped
 where they cannot matter. A view's Gaussians enter rendering only through the spherical
@@ -156,6 +158,9 @@ class Model:
     gaussians : w (V, J, N, 3), mu (V, J, N, 3), lam (V, J, N)
     diffuse : (V, n, 3) SH diffuse transfer (order-5: n = 25)
     materials : per-vertex materials;  provenance : scene, settings, timings, versions
+    bounce : optional (V, n, 3) the interreflected part of ``diffuse``: a renderer that shades
+        the map's sun per pixel lights it with the sun's SH too (the sun's light bounced off
+        the object; left out, the knot under the built-in sky rendered 5 % dark)
     """
 
     mesh: Mesh
@@ -164,6 +169,7 @@ class Model:
     diffuse: torch.Tensor
     materials: Materials
     provenance: dict[str, Any] = field(default_factory=dict)
+    bounce: torch.Tensor | None = None
 
     @property
     def n_lobes(self) -> int:
@@ -236,6 +242,8 @@ class Model:
         self.gaussians = Gaussians(g.w.to(device), g.mu.to(device), g.lam.to(device))
         self.diffuse = self.diffuse.to(device)
         self.materials = self.materials.to(device)
+        if self.bounce is not None:
+            self.bounce = self.bounce.to(device)
         return self
 
     def save(self, path, *, float16: bool = False, drop: bool = True) -> dict[str, Any]:
@@ -250,6 +258,7 @@ class Model:
             float16=float16,
             drop=drop,
             provenance=self.provenance,
+            bounce=self.bounce,
         )
 
 
@@ -291,6 +300,7 @@ def save(
         float16=float16,
         drop=drop,
         provenance=provenance,
+        bounce=fit.bounce,
     )
 
 
@@ -305,6 +315,7 @@ def _write(
     float16: bool,
     drop: bool,
     provenance: dict[str, Any] | None,
+    bounce: torch.Tensor | None = None,
 ) -> dict[str, Any]:
     p = Path(path)
     if not p.parent.is_dir():
@@ -344,6 +355,8 @@ def _write(
         "gaussians": kept.detach().cpu().numpy().astype(dt),
         "diffuse": diffuse.detach().cpu().numpy().astype(dt),
     }
+    if bounce is not None:
+        arrays["bounce"] = bounce.detach().cpu().numpy().astype(dt)
     tmp = p.with_name(p.name + ".tmp")
     try:
         with open(tmp, "wb") as f:
@@ -404,6 +417,7 @@ def load(path, *, device=None) -> Model:
             missing = [k for k in _ARRAYS if k not in z.files]
             _need(not missing, name, f"not a lobelight model file (missing {missing})")
             a = {k: z[k] for k in _ARRAYS}
+            bounce_arr = z["bounce"] if "bounce" in z.files else None
     except InputError:
         raise
     except (
@@ -520,6 +534,15 @@ def load(path, *, device=None) -> Model:
         raise InputError(name, f"bad materials entry: {exc}") from None
     except InputError as exc:
         raise InputError(name, f"bad materials entry: {exc}") from None
+    bounce = None
+    if bounce_arr is not None:
+        _need(
+            bounce_arr.shape == a["diffuse"].shape,
+            name,
+            f"bounce has shape {bounce_arr.shape}, diffuse {a['diffuse'].shape}",
+        )
+        _need(bool(np.isfinite(bounce_arr).all()), name, "bounce has non-finite values")
+        bounce = torch.from_numpy(bounce_arr.astype(np.float32))
     model = Model(
         mesh,
         torch.from_numpy(a["views"].astype(np.float32)),
@@ -527,5 +550,6 @@ def load(path, *, device=None) -> Model:
         torch.from_numpy(a["diffuse"].astype(np.float32)),
         mats,
         dict(prov),
+        bounce=bounce,
     )
     return model.to(device) if device is not None else model

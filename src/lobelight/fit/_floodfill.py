@@ -100,6 +100,8 @@ class MeshFit:
         interreflection
     views : (J, 3) view directions
     data_error : (V,) relative L2 error squared of the glossy fit (D)
+    bounce : (V, 25, 3) the interreflected part of ``diffuse`` (None without bounces): the
+        renderer lights it with the sun too, which the self-shadowed part sees per pixel
     flips_before, flips_after : flipped (edge, view) pairs before and after relaxation
     separated_flips_before, separated_flips_after : the same among lobes at least
         ``SEPARATED`` widths apart (:func:`count_flips`)
@@ -111,6 +113,7 @@ class MeshFit:
     diffuse: torch.Tensor
     views: torch.Tensor
     data_error: torch.Tensor
+    bounce: torch.Tensor | None = None
     flips_before: int = 0
     flips_after: int = 0
     separated_flips_before: int = 0
@@ -282,6 +285,7 @@ def fit_mesh(
     w = torch.zeros(v, j, n, 3, device=dev)
     derr = torch.zeros(v, device=dev)
     diffuse = torch.zeros(v, DIFFUSE_ORDER**2, 3, device=dev)
+    bounce = torch.zeros(v, DIFFUSE_ORDER**2, 3, device=dev)
     done = torch.zeros(v, dtype=torch.bool, device=dev)
     # vertices whose material has a glossy lobe (BRDF samples carry weight; known once a
     # vertex is processed): the others have no glossy transport at all, are given zero weights
@@ -302,6 +306,7 @@ def fit_mesh(
         "w": w,
         "derr": derr,
         "diffuse": diffuse,
+        "bounce": bounce,
         "done": done,
         "glossy": glossy,
     }
@@ -430,9 +435,11 @@ def fit_mesh(
         # the hit points' glossy light comes from their fitted Gaussians (direct and indirect
         # glossy): without it a diffuse floor by a metal wall lost 32-63 % of its light
         lobes = (views, w, mu, lam) if bool(glossy.any()) else None
-        diffuse.copy_(
-            diffuse_interreflection(tr, diffuse, bounces=bounces, glossy=lobes, progress=progress)
+        total = diffuse_interreflection(
+            tr, diffuse, bounces=bounces, glossy=lobes, progress=progress
         )
+        bounce.copy_(total - diffuse)
+        diffuse.copy_(total)
         save_state("done", 0, force=True)
     t3 = time.perf_counter()
     return MeshFit(
@@ -440,6 +447,7 @@ def fit_mesh(
         diffuse=diffuse,
         views=views,
         data_error=derr,
+        bounce=bounce if bounces > 0 else None,
         flips_before=before[0],
         flips_after=after[0],
         separated_flips_before=before[1],

@@ -238,6 +238,7 @@ class GLRenderer:
                 "MAX_LEVELS": self.n_levels,
                 "FLOOR": f"{model_module._FLOOR:.6e}",
                 "MIN_SAY": f"{model_module._MIN_SAY:.6e}",
+                "HAS_BOUNCE": int(model.bounce is not None and lighting.sun is not None),
                 **geo_defines,
             },
             include=("prefiltered",),
@@ -271,6 +272,20 @@ class GLRenderer:
             img, tw = _wrap(rec, tw2)
         self.gauss_tex = self._data_texture(img)
         self.diff_tex = self._data_texture(dimg)
+        # the interreflected part of the transfer, lit by the sun as well (Model.bounce)
+        self.has_bounce = model.bounce is not None and lighting.sun is not None
+        bounce = model.bounce if self.has_bounce else torch.zeros_like(model.diffuse[:1])
+        bimg, tw3 = _wrap(
+            torch.cat([bounce, torch.zeros_like(bounce[..., :1])], -1)
+            .reshape(-1, 4)
+            .detach()
+            .cpu()
+            .numpy(),
+            tw,
+        )
+        if tw3 != tw:
+            raise InputError("model", "the bounce table exceeds the texture size")
+        self.bounce_tex = self._data_texture(bimg)
         self.atlas, atlas_uniforms = upload_prefiltered(ctx, pf)
         cube = lighting.env.to_cubemap(BACKGROUND_RES).detach().cpu().numpy().astype(np.float32)
         self.env_cube = ctx.texture_cube((BACKGROUND_RES,) * 2, 3, cube.tobytes(), dtype="f4")
@@ -280,8 +295,16 @@ class GLRenderer:
         p["tex_width"].value = tw
         set_uniforms(p, atlas_uniforms)
         p["Planes"].binding = 0
-        for name, unit in (("gauss_tex", 0), ("diff_tex", 1), ("cand_tex", 2), ("atlas", 3)):
-            p[name].value = unit
+        units = (
+            ("gauss_tex", 0),
+            ("diff_tex", 1),
+            ("cand_tex", 2),
+            ("atlas", 3),
+            ("bounce_tex", 8),
+        )
+        for name, unit in units:
+            if p.get(name, None) is not None:  # bounce_tex is compiled out without a bounce
+                p[name].value = unit
         self.bg_prog["env"].value = 4
         self.lighting = lighting
 
@@ -407,6 +430,10 @@ class GLRenderer:
         p["sh_light"].write(
             self.lighting.sh_rotated(rot).cpu().numpy().astype(np.float32).tobytes()
         )
+        if self.has_bounce:
+            p["sh_sun"].write(
+                self.lighting.sun_sh_rotated(rot).numpy().astype(np.float32).tobytes()
+            )
         p["parts"].value = (float(diffuse), float(glossy))
         self._sun_pass(rot, on=diffuse or (glossy and self.sun_glossy))
         n = self.offsets.shape[0]
@@ -457,6 +484,7 @@ class GLRenderer:
         self.gauss_tex.use(0)
         self.diff_tex.use(1)
         self.cand_tex.use(2)
+        self.bounce_tex.use(8)
         self.planes_ubo.bind_to_uniform_block(0)
         self.atlas.use(3)
         self.vao.render(moderngl.TRIANGLES)
@@ -542,6 +570,7 @@ class GLRenderer:
             self.depth,
             self.gauss_tex,
             self.diff_tex,
+            self.bounce_tex,
             self.planes_ubo,
             self.cand_tex,
             self.atlas,

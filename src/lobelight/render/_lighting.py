@@ -119,6 +119,18 @@ class Lighting:
             self._rest_pf = prefilter(self._rest_env, base_res=self._base_res, device=self.device)
         return self._rest_pf
 
+    def sun_sh_rotated(self, rot: torch.Tensor) -> torch.Tensor:
+        """The sun alone as SH of the transfer's order, turned by ``rot``: ``E Y_lm(R s)`` (its
+        disc as a point of irradiance ``E``), ``(n, 3)``; zeros without a sun. What lights a
+        model's interreflected transfer (:attr:`lobelight.model.Model.bounce`) besides the
+        map, since the sun's direct light is shaded per pixel."""
+        n = self.sh.shape[0]
+        if self.sun is None:
+            return torch.zeros(n, 3)
+        d = self.sun_direction(rot).to(torch.float32).cpu()
+        y = sh.basis(d[None], math.isqrt(n))[0]  # (n,)
+        return (y[:, None] * self.sun.irradiance.to(torch.float32).cpu()[None]).float()
+
     def sh_rotated(self, rot: torch.Tensor) -> torch.Tensor:
         """``(n, 3)`` float32 SH coefficients of the rotated lighting ``L(R^T w)`` (on the CPU:
         it is computed there once per frame, see :class:`ShRotator`)."""

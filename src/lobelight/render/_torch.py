@@ -76,6 +76,9 @@ def vertex_stage(model, lighting: Lighting, eye, rot: torch.Tensor) -> VertexDat
     g = model.transport(torch.arange(mesh.n_vertices, device=dev), view)
     shl = lighting.sh_rotated(rot).to(dev)  # (n, 3)
     diffuse = (model.diffuse * shl).sum(-2)  # (V, 3)
+    if model.bounce is not None and lighting.sun is not None:
+        # the sun's light bounced off the object: its direct light is shaded per pixel
+        diffuse = diffuse + (model.bounce * lighting.sun_sh_rotated(rot).to(dev)).sum(-2)
     mirror = mirror_direction(mesh.normals.to(dev), view)  # (V, 3)
     return VertexData(
         g.w * sg.integral(g.lam)[..., None], g.mu, g.lam.rsqrt(), diffuse, mirror, eye

@@ -18,6 +18,8 @@ in vec3 in_k;
 
 uniform sampler2D gauss_tex;   // RGBA32F, 2 texels per record (e.rgb, sigma), (mu.xyz, 0)
 uniform sampler2D diff_tex;    // RGBA32F, N_SH texels per vertex: transfer RGB
+uniform sampler2D bounce_tex;  // RGBA32F, N_SH texels per vertex: its interreflected part
+uniform vec3 sh_sun[N_SH];     // the rotated sun alone as SH (zeros without a sun)
 // the geodesic triangles and locate_triangle() come from geodesic.glsl
 uniform int tex_width;         // width of gauss_tex and diff_tex
 uniform vec3 sh_light[N_SH];   // the rotated lighting's SH coefficients
@@ -83,6 +85,12 @@ void main() {
     for (int i = 0; i < N_SH; ++i) {
         diffuse += texelFetch(diff_tex, at(v * N_SH + i), 0).rgb * sh_light[i];
     }
+#if HAS_BOUNCE
+    // the sun's light bounced off the object (lobelight.model.Model.bounce)
+    for (int i = 0; i < N_SH; ++i) {
+        diffuse += texelFetch(bounce_tex, at(v * N_SH + i), 0).rgb * sh_sun[i];
+    }
+#endif
     v_diffuse = diffuse;
     v_pos = in_pos;
     v_normal = in_normal;
