@@ -56,7 +56,7 @@ def _latlong_of(fn, h: int) -> EnvMap:
 
 
 def test_latlong_matches_mitsuba(tmp_path):
-    """DESIGN.md: our lat-long lookup is Mitsuba 3's envmap emitter, shown on an asymmetric map.
+    """Our lat-long lookup is Mitsuba 3's envmap emitter (docs/conventions.md), on a random map.
 
     A random map (every pixel different, so any flip, shift or transpose shows) is written to
     EXR and rendered by Mitsuba with one radiancemeter per direction. Tolerance 1e-4 relative:

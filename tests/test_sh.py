@@ -361,7 +361,7 @@ def test_sg_zonal_matches_adaptive_quadrature(lam):
 def test_sg_zonal_integral_and_extremes():
     lam = np.array([1e-3, 1.0, 100.0, 1e4, 1e6])
     z0 = sh.sg_zonal(lam, 3)[:, 0]
-    # DESIGN.md: integral of G = 2 pi (1 - e^{-2 lam}) / lam = sqrt(4 pi) z_0
+    # docs/conventions.md: integral of G = 2 pi (1 - e^{-2 lam}) / lam = sqrt(4 pi) z_0
     np.testing.assert_allclose(
         math.sqrt(4 * np.pi) * z0, 2 * np.pi * -np.expm1(-2 * lam) / lam, rtol=1e-12
     )

@@ -59,8 +59,8 @@ def test_direct_glossy_against_constant_light_is_directional_albedo():
 
 
 def test_direct_glossy_on_a_local_grid_for_a_sharp_lobe():
-    # Phong exponent 5000: far narrower than any global cube-map texel (DESIGN.md); a local
-    # grid around the mirror direction integrates it
+    # Phong exponent 5000: far narrower than any global cube-map texel (lobelight.fit._data);
+    # a local grid around the mirror direction integrates it
     sc = scene.builtin("sphere", subdivisions=2, model="phong", roughness=0.02)
     exponent = float(sc.materials.specular.params["exponent"])
     tr = transport.Transport(sc)

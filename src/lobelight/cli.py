@@ -25,6 +25,7 @@ import sys
 import time
 from pathlib import Path
 
+from ._size import check_pixels, parse_size
 from .errors import InputError
 from .gallery._args import add_arguments as gallery_arguments
 from .progress import Reporter
@@ -116,15 +117,8 @@ def _size(args) -> tuple[int, int]:
     """``--width``/``--height``, or ``--size N`` / ``--size WxH`` (both checked)."""
     w, h = args.width, args.height
     if getattr(args, "size", None):
-        m = re.fullmatch(r"(\d+)(?:[xX](\d+))?", args.size)
-        if not m:
-            raise InputError("--size", f"expected N or WxH, got {args.size!r}")
-        w = int(m.group(1))
-        h = int(m.group(2) or m.group(1))
-    for name, v in (("--width", w), ("--height", h)):
-        if not 1 <= v <= 16384:
-            raise InputError(name, f"must be 1..16384 pixels, got {v}")
-    return w, h
+        w, h = parse_size(args.size)
+    return check_pixels("--width", w), check_pixels("--height", h)
 
 
 def _model_path(scene: str, output: str | None) -> Path:

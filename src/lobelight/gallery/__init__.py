@@ -21,8 +21,8 @@ from a data folder (``--data DIR`` or ``$LOBELIGHT_DATA``; ``meshes/`` and ``env
 - :func:`score`: displayed PSNR at the exposure that maps the reference's 99th-percentile
   object luminance to 1 (object pixels, and the whole image), relative L2 of linear radiance
   and the energy ratio of the object's luminance (:mod:`._score`).
-- :func:`add_arguments` and :func:`main_from_args` are the command line for any parser;
-  ``python -m lobelight.gallery {list,references,run}`` is :func:`main`.
+- :func:`add_arguments` and :func:`main_from_args` are ``lobelight gallery {list,references,run}``
+  (also ``python -m lobelight.gallery``).
 
 Installing Mitsuba's LLVM variant and rendering the references: DEVELOPERS.md.
 """
@@ -51,7 +51,6 @@ _HOMES = {
     "geometry_sha256": "._scenes",
     "load_reference": "._references",
     "luminance": "._score",
-    "main": "._cli",
     "main_from_args": "._cli",
     "noise_psnr_display": "._score",
     "prepare_mesh": "._scenes",

@@ -1,7 +1,7 @@
-"""``python -m lobelight.gallery {list,references,run}`` (:func:`lobelight.gallery.main`)."""
+"""``python -m lobelight.gallery ...``: the same as ``lobelight gallery ...``."""
 
 import sys
 
-from ._cli import main
+from ..cli import main
 
-sys.exit(main())
+sys.exit(main(["gallery", *sys.argv[1:]]))

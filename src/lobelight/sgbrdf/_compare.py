@@ -48,6 +48,7 @@ import torch
 
 from ..brdf import Ward
 from ..errors import InputError
+from ..gallery._settings import DATA_ENV
 from ._fis import FIS_SAMPLES, shade_fis
 from ._fit import fit_many, is_isotropic
 from ._reference import shade_reference
@@ -77,23 +78,17 @@ BACKENDS = ("torch", "both")
 
 
 def default_envmap() -> Path | None:
-    """The default real map: ``$LOBELIGHT_SHARED/data/envmaps/`` or a ``shared/`` folder next
-    to the working directory or the package, ``DEFAULT_ENVMAP`` if present (else the first
-    ``.hdr`` there); None when there is none."""
-    cands = []
-    if os.environ.get("LOBELIGHT_SHARED"):
-        cands.append(Path(os.environ["LOBELIGHT_SHARED"]))
-    for base in (Path.cwd(), *Path(__file__).resolve().parents):
-        cands += [base / "shared", base.parent / "shared"]
-    for c in cands:
-        d = c / "data" / "envmaps"
-        if d.is_dir():
-            if (d / DEFAULT_ENVMAP).is_file():
-                return d / DEFAULT_ENVMAP
-            found = sorted(d.rglob("*.hdr"))
-            if found:
-                return found[0]
-    return None
+    """The default real map: ``DEFAULT_ENVMAP`` (else the first ``.hdr``) in the data folder's
+    ``envmaps/``, the folder named by ``$LOBELIGHT_DATA`` as for the gallery; None when the
+    variable is unset or the folder holds no map."""
+    data = os.environ.get(DATA_ENV)
+    if not data:
+        return None
+    d = Path(data) / "envmaps"
+    if (d / DEFAULT_ENVMAP).is_file():
+        return d / DEFAULT_ENVMAP
+    found = sorted(d.rglob("*.hdr")) if d.is_dir() else []
+    return found[0] if found else None
 
 
 def _load_env(env: Any, device: Any):
