@@ -408,6 +408,15 @@ class BRDF(abc.ABC):
         """A copy with every parameter on ``device`` (and of ``dtype`` when given)."""
         return self._map(lambda t, _k: t.to(device=device, dtype=dtype))
 
+    def replace(self, **params: torch.Tensor) -> BRDF:
+        """A copy with the named parameters replaced (same kinds; tensors as the others')."""
+        for name in params:
+            if name not in self._p:
+                raise InputError(name, f"{self.type_name} has no parameter {name!r}")
+        new = self._map(lambda t, _k: t)
+        new._p.update({k: torch.as_tensor(v) for k, v in params.items()})
+        return new
+
     def to_dict(self) -> dict[str, Any]:
         """Plain floats and lists with a ``"type"`` key; :func:`from_dict` reads it back."""
         out: dict[str, Any] = {"type": self.type_name}

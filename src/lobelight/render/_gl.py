@@ -32,6 +32,7 @@ from ._sun_glossy import (
     sun_glossy_supported,
     sun_glossy_uniforms,
     sun_glossy_vertex_params,
+    sun_widened,
 )
 
 __all__ = [
@@ -318,7 +319,7 @@ class GLRenderer:
         self.abo = ctx.buffer(albedo.tobytes())
         v = model.mesh.n_vertices
         if self.sun_glossy:
-            sb = sun_glossy_vertex_params(spec, v)
+            sb = sun_glossy_vertex_params(sun_widened(spec, lighting.sun.spread), v)
             set_uniforms(p, sun_glossy_uniforms(spec))
         else:
             sb = np.zeros((v, 10), np.float32)

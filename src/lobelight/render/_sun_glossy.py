@@ -12,6 +12,15 @@ the Gaussians integrate the map *without* the sun, and the sun adds
 per pixel, ``V`` from the sun's shadow map in the shader (one shadow ray in the torch path):
 the split is exact, ``int T L = int T L_rest + T(l) E_sun`` for a sun small against the lobe.
 
+A sun is not a point: a studio's softbox taken out as the sun spans degrees, and a point-lit
+sharp lobe would show it as a dot. Its disc of RMS angle ``sigma``
+(:attr:`lobelight.envmap.Sun.spread`) is folded into the lobe (:func:`sun_widened`): a
+microfacet lobe's slopes and the disc's half-vector offsets (``sigma / 2``) add their
+variances, ``alpha'^2 = alpha^2 + sigma^2 / 4`` (Blinn-Phong through its Beckmann alpha,
+``alpha^2 = 2 / (e + 2)``), and a mirror lobe's (modified Phong, about ``exp(-e theta^2 / 2)``)
+``1 / e' = 1 / e + sigma^2 / 2``. Each distribution stays normalised, so the highlight keeps its
+light and takes the disc's size.
+
 Supported (``prt.glsl`` carries the same formulas; parameters constant or per vertex):
 modified Phong and normalised Blinn-Phong (:class:`lobelight.brdf.Phong`,
 :class:`lobelight.brdf.BlinnPhong`) and the isotropic rough conductors
@@ -31,6 +40,7 @@ __all__ = [
     "sun_glossy_supported",
     "sun_glossy_uniforms",
     "sun_glossy_vertex_params",
+    "sun_widened",
 ]
 
 
@@ -44,6 +54,22 @@ def sun_glossy_supported(spec) -> bool:
     if type(spec) not in _MODELS:
         return False
     return not isinstance(spec, (brdf.GGX, brdf.Beckmann)) or spec.isotropic
+
+
+def sun_widened(spec, spread: float):
+    """``spec`` (a supported model, :func:`sun_glossy_supported`) with its lobe widened by a
+    sun disc of RMS angle ``spread`` radians (module docstring); ``spec`` itself for 0."""
+    if spread <= 0.0:
+        return spec
+    s2 = spread * spread
+    p = spec.params
+    if isinstance(spec, (brdf.GGX, brdf.Beckmann)):
+        return spec.replace(alpha=(p["alpha"] ** 2 + s2 / 4).sqrt())
+    e = p["exponent"]
+    if isinstance(spec, brdf.BlinnPhong):
+        a2 = 2 / (e + 2) + s2 / 4
+        return spec.replace(exponent=(2 / a2 - 2).clamp_min(0))
+    return spec.replace(exponent=e / (1 + e * s2 / 2))  # modified Phong
 
 
 def sun_glossy_uniforms(spec) -> dict[str, float | int]:
@@ -82,7 +108,7 @@ def sun_glossy(
     corners : (P, 3) the triangles' vertex ids;  bary : (P, 3) barycentrics (per-vertex
         parameters are interpolated with them, as the rasteriser interpolates the shader's)
     """
-    spec = model.materials.specular.to(pos.device)
+    spec = sun_widened(model.materials.specular, lighting.sun.spread).to(pos.device)
     b = bary.to(pos.device, torch.float32)
 
     def blend(t: torch.Tensor, kind: int) -> torch.Tensor:
