@@ -40,7 +40,6 @@ import numpy as np
 import torch
 
 from . import __version__, sg, sphere
-from .envmap import sg_integral
 from .errors import InputError
 from .fit import Gaussians, MeshFit
 from .scene import Materials, Mesh
@@ -327,7 +326,7 @@ def _write(
         # peak weights of sharp lobes reach 1e5 and more; their integrals w 2 pi / lam (the
         # light the lobe carries, at most the albedo) fit half floats with full relative
         # precision, so half-float files store those
-        w = w * sg_integral(g.lam.double()).to(w.dtype)[..., None]
+        w = w * sg.integral(g.lam.double()).to(w.dtype)[..., None]
     rec = torch.cat([w, g.mu, g.lam.clamp_min(1e-12).rsqrt()[..., None]], -1)  # (V, J, N, 7)
     kept = rec[keep.to(rec.device)]  # (K, N, 7)
     dt = np.float16 if float16 else np.float32
@@ -520,7 +519,7 @@ def load(path, *, device=None) -> Model:
     lam = sigma.pow(-2)
     w = rec[..., :3].contiguous()
     if meta.get("weights", "peak") == "integral":
-        w = w / sg_integral(lam.double()).to(w.dtype)[..., None]
+        w = w / sg.integral(lam.double()).to(w.dtype)[..., None]
     g = Gaussians(w, mu, lam)
     mesh = Mesh(
         vertices=torch.from_numpy(a["vertices"].astype(np.float32)),

@@ -11,10 +11,11 @@
   ``int exp(lam (mu.w - 1)) L(w) dw`` with one interpolated lookup per lobe.
 """
 
+from ..sg import integral as sg_integral  # the SG integral's home is lobelight.sg
 from ._builtin import builtin
 from ._envmap import EnvMap
 from ._io import load, save
-from ._prefilter import Prefiltered, prefilter, sg_integral
+from ._prefilter import Prefiltered, prefilter
 from ._sun import Sun, extract_sun
 
 __all__ = [

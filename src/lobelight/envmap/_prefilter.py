@@ -55,7 +55,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from .. import cubemap
+from .. import cubemap, sg
 from .._backend import as_tensor
 from ..errors import InputError
 from . import _chain_cache, _convolve
@@ -75,11 +75,6 @@ SH_MAX_RES = 32
 #: relative error scales with the lobe width in radians: about 0.5-1.5 % at 256, 2-3 % at 128);
 #: between the two, exact windowed sums.
 SEPARABLE_MIN_RES = 256
-
-
-def sg_integral(lam: torch.Tensor) -> torch.Tensor:
-    """``int exp(lam (mu.w - 1)) dw = 2 pi (1 - exp(-2 lam)) / lam``, stable for small lam."""
-    return 2 * math.pi * (-torch.expm1(-2 * lam)) / lam
 
 
 def _langevin(lam: torch.Tensor) -> torch.Tensor:
@@ -198,7 +193,7 @@ class Prefiltered:
         mu : (..., 3) lobe axes;  lam : (...) sharpness in ``[lam_min, lam_max]`` for full accuracy.
         """
         lam = as_tensor(lam, device=self.device)
-        z = sg_integral(lam.to(torch.float64)).to(self.levels[0].dtype)
+        z = sg.integral(lam.to(torch.float64)).to(self.levels[0].dtype)
         return self.lookup(mu, lam) * z.unsqueeze(-1)
 
     def gl_chains(self) -> list[list[np.ndarray]]:

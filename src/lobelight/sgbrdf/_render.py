@@ -28,7 +28,7 @@ from typing import Any
 
 import torch
 
-from .. import cubemap
+from .. import cubemap, sg
 from .._backend import as_tensor
 from ..errors import InputError
 from ..sphere import frame
@@ -39,10 +39,6 @@ __all__ = ["COVERAGE", "MipChain", "mip_chain", "render_sphere", "shade", "spher
 #: Default coverage ``a`` of eq. (10): 0.5 was the most accurate of 0.3 ... 0.9 against
 #: quadrature on the built-in sky (tests/test_sgbrdf.py::test_lookups_against_quadrature).
 COVERAGE = 0.5
-
-
-def _sg_integral(lam: torch.Tensor) -> torch.Tensor:
-    return 2 * math.pi * (-torch.expm1(-2 * lam)) / lam
 
 
 @dataclass
@@ -123,7 +119,7 @@ class MipChain:
     def integrate(self, mu: Any, lam: Any) -> torch.Tensor:
         """``int G(w; mu, lam) L(w) dw ~ Z(lam) * lookup``, ``(..., 3)``."""
         lam = as_tensor(lam, device=self.device)
-        z = _sg_integral(lam.to(torch.float64)).to(self.levels[0].dtype)
+        z = sg.integral(lam.to(torch.float64)).to(self.levels[0].dtype)
         return self.lookup(mu, lam) * z.unsqueeze(-1)
 
 
