@@ -107,7 +107,7 @@ def test_killed_fit_resumes_to_the_same_model(tmp_path, n, stage, batch):
     log: list = []
     with pytest.raises(_Kill):
         fit.fit_mesh(sc, **kw, checkpoint=ck, progress=_killer(stage, 1, log))
-    assert ck.exists() and not list(tmp_path.glob("*.tmp"))
+    assert ck.exists() and not list(tmp_path.glob("*.partial*"))
     log.clear()
     done = fit.fit_mesh(sc, **kw, checkpoint=ck, progress=_killer("none", 0, log))
     # it went on from the chunk after the last one finished, nothing earlier ran again

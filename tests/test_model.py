@@ -104,4 +104,4 @@ def test_bad_model_files(tmp_path, fitted):
     # an interrupted save leaves nothing behind
     with pytest.raises(InputError, match="does not exist"):
         model.save(tmp_path / "nodir" / "m.npz", sc.mesh, sc.materials, mf)
-    assert not list(tmp_path.glob("*.tmp"))
+    assert not list(tmp_path.glob("*.partial*"))

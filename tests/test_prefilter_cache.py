@@ -15,7 +15,7 @@ import pytest
 import torch
 
 from conftest import DEVICES
-from lobelight import _cache
+from lobelight import _cache, _io
 from lobelight.cosine import _tables
 from lobelight.envmap import EnvMap, _chain_cache, _convolve, _prefilter, prefilter
 from lobelight.errors import InputError
@@ -282,7 +282,7 @@ def test_concurrent_writers_leave_one_whole_entry(tmp_path):
 def test_atomic_writer_leaves_nothing_on_error(tmp_path):
     target = tmp_path / "x.bin"
     target.write_bytes(b"old")
-    with pytest.raises(RuntimeError), _cache.atomic_writer(target) as f:
+    with pytest.raises(RuntimeError), _io.atomic_writer(target) as f:
         f.write(b"half of the new")
         raise RuntimeError("interrupted")
     assert target.read_bytes() == b"old"

@@ -212,7 +212,7 @@ def test_compare_brdf_tiny_writes_documented_json(tmp_path):
     path = tmp_path / "cmp" / "compare-brdf.json"
     on_disk = json.loads(path.read_text())  # strict JSON: no NaN / Infinity
     assert on_disk == json.loads(json.dumps(res))
-    assert not list((tmp_path / "cmp").glob("*.tmp"))  # temporary files renamed away
+    assert not list((tmp_path / "cmp").glob("*.partial*"))  # temporary files renamed away
     for key in (
         "benchmark", "env", "size", "pixels", "device", "ref_spp", "seed", "methods",
         "materials", "settings", "setup_seconds", "table", "reference_noise", "goals", "image",

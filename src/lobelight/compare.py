@@ -38,8 +38,6 @@ from __future__ import annotations
 import dataclasses
 import json
 import math
-import os
-import tempfile
 import time
 from pathlib import Path
 from typing import Any
@@ -47,6 +45,7 @@ from typing import Any
 import torch
 
 from . import reference, sh, sphere
+from ._io import atomic_writer
 from .camera import Camera
 from .progress import resolve
 from .raycast import RayCaster
@@ -367,8 +366,6 @@ def _write(out: Path, images: dict, mask, result: dict) -> dict[str, str]:
             diff = (images[k] - images["reference"]).abs() * mask[..., None] * DIFF_SCALE
             paths[f"diff_{k}"] = str(save_image(out / f"diff-{k}.png", diff, exposure=exposure))
     result = {**result, "images": paths}
-    fd, tmp = tempfile.mkstemp(dir=out, prefix=".compare.json.", suffix=".tmp")
-    with os.fdopen(fd, "w") as f:
-        f.write(json.dumps(result, indent=2, default=str))
-    os.replace(tmp, out / "compare.json")
+    with atomic_writer(out / "compare.json") as f:
+        f.write(json.dumps(result, indent=2, default=str).encode())
     return paths

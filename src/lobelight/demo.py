@@ -5,10 +5,10 @@ path tracer, and write a Markdown report of it all (``lobelight demo``).
 from __future__ import annotations
 
 import os
-import tempfile
 import time
 from pathlib import Path
 
+from ._io import atomic_writer
 from .compare import compare
 from .data import DEFAULT_ENVMAP, envmap_path
 from .envmap import builtin
@@ -117,10 +117,8 @@ def demo(
 
 
 def _write_text(path: Path, text: str) -> None:
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
-    with os.fdopen(fd, "w") as f:
-        f.write(text)
-    os.replace(tmp, path)
+    with atomic_writer(path) as f:
+        f.write(text.encode())
 
 
 def _report(sc, model, n_bytes, backend, size, spp, stills, cmp, seconds) -> str:

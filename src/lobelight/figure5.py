@@ -60,8 +60,6 @@ from __future__ import annotations
 
 import json
 import math
-import os
-import tempfile
 import time
 from pathlib import Path
 from typing import Any
@@ -70,6 +68,7 @@ import numpy as np
 import torch
 
 from . import cubemap, fit, haar, sg, sh, sphere
+from ._io import atomic_path
 from .errors import InputError
 from .fit import FitData, Gaussians, Weights
 from .scene import Scene, mesh_from_arrays, uniform
@@ -587,18 +586,9 @@ def _sh_full_orders(counts) -> list[int]:
 
 
 def _atomic_write(path: Path, write) -> None:
-    """``write(tmp_path)`` then rename onto ``path``: never a half-written file."""
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=path.suffix, dir=path.parent)
-    os.close(fd)
-    try:
-        write(Path(tmp))
-        mask = os.umask(0)  # mkstemp makes owner-only files: the usual permissions instead
-        os.umask(mask)
-        os.chmod(tmp, 0o666 & ~mask)
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
+    """``write(tmp_path)`` then rename onto ``path`` (:func:`lobelight._io.atomic_path`)."""
+    with atomic_path(path) as tmp:
+        write(tmp)
 
 
 def plot(result: dict[str, Any], path) -> None:

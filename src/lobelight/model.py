@@ -29,7 +29,6 @@ whole or absent.
 from __future__ import annotations
 
 import json
-import os
 import zipfile
 import zlib
 from dataclasses import dataclass, field
@@ -40,6 +39,7 @@ import numpy as np
 import torch
 
 from . import __version__, sg, sphere
+from ._io import atomic_writer
 from .errors import InputError
 from .fit import Gaussians, MeshFit
 from .scene import Materials, Mesh
@@ -356,14 +356,8 @@ def _write(
     }
     if bounce is not None:
         arrays["bounce"] = bounce.detach().cpu().numpy().astype(dt)
-    tmp = p.with_name(p.name + ".tmp")
-    try:
-        with open(tmp, "wb") as f:
-            np.savez_compressed(f, **arrays)
-        os.replace(tmp, p)
-    finally:
-        if tmp.exists():
-            tmp.unlink()
+    with atomic_writer(p) as f:
+        np.savez_compressed(f, **arrays)
     return {
         "bytes": p.stat().st_size,
         "records": int(keep.sum()),

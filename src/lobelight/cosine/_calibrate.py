@@ -33,6 +33,7 @@ import numpy as np
 import torch
 
 from .. import brdf as _brdf
+from .._io import atomic_writer
 from ._light import SphereLight
 from ._reference import direct_mc
 from ._shade import _shade_chunk
@@ -203,7 +204,6 @@ def calibrate_weights(
 def write_weights(result: dict, path: str | Path | None = None) -> Path:
     """Write :mod:`._weights` (a plain Python literal, no pickles) atomically."""
     import json
-    import os
 
     path = Path(path) if path is not None else Path(__file__).with_name("_weights.py")
     body = json.dumps(result["weights"], indent=1)
@@ -216,7 +216,6 @@ def write_weights(result: dict, path: str | Path | None = None) -> Path:
         f"# calibration errors (relative to each light's unoccluded maximum):\n# {report}\n\n"
         f"WEIGHTS = {body}\n"
     )
-    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
-    tmp.write_text(text)
-    os.replace(tmp, path)
+    with atomic_writer(path) as f:
+        f.write(text.encode())
     return path

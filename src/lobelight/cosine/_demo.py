@@ -20,6 +20,7 @@ from typing import Any
 import numpy as np
 import torch
 
+from .._io import atomic_path
 from ..errors import InputError
 from ._light import SphereLight
 from ._scene import _TILT, default_scene, gbuffer, rotation_about_y
@@ -50,13 +51,8 @@ def false_colour(values: np.ndarray, vmax: float | None = None) -> np.ndarray:
 def _save_png(img: np.ndarray, path: Path) -> None:
     from PIL import Image
 
-    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
-    try:
+    with atomic_path(path) as tmp:
         Image.fromarray(img).save(tmp, format="PNG")
-        os.replace(tmp, path)
-    finally:
-        if tmp.exists():
-            tmp.unlink()
 
 
 def lobes_demo(
@@ -150,12 +146,11 @@ def lobes_demo(
         from PIL import Image
 
         gif = out / "lobes.gif"
-        tmp = gif.with_name(f".{gif.name}.{os.getpid()}.tmp")
         frames_pil = [Image.fromarray(im) for im in images]
-        frames_pil[0].save(
-            tmp, format="GIF", save_all=True, append_images=frames_pil[1:], duration=80, loop=0
-        )
-        os.replace(tmp, gif)
+        with atomic_path(gif) as tmp:
+            frames_pil[0].save(
+                tmp, format="GIF", save_all=True, append_images=frames_pil[1:], duration=80, loop=0
+            )
         gif = str(gif)
     except (ImportError, OSError, ValueError):  # pragma: no cover - Pillow without GIF support
         gif = None

@@ -85,6 +85,7 @@ import torch
 
 from .. import _cache
 from .._backend import dispatch
+from .._io import atomic_writer
 from ..errors import InputError
 from ..sphere import _check_vec, _float
 from ._fused import kernel
@@ -744,11 +745,8 @@ _KEYS = ("format_version", "params", "info", "product", "cap")
 
 
 def save_tables(tables: LobeTables, path: str | os.PathLike) -> Path:
-    """Write ``tables`` to ``path`` (``.npz``, no pickles), atomically: a temporary name in the
-    same folder, then ``os.replace``; nothing half-written is left on failure."""
+    """Write ``tables`` to ``path`` (``.npz``, no pickles), whole (:mod:`lobelight._io`)."""
     path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
     arrays = {
         "format_version": np.array(FORMAT_VERSION, dtype=np.int64),
         "params": np.array(json.dumps(tables.params.to_dict(), sort_keys=True)),
@@ -756,15 +754,8 @@ def save_tables(tables: LobeTables, path: str | os.PathLike) -> Path:
         "product": tables.product_table.detach().cpu().numpy().astype(np.float32),
         "cap": tables.cap_table.detach().cpu().numpy().astype(np.float32),
     }
-    try:
-        with open(tmp, "wb") as f:
-            np.savez(f, **arrays)
-            f.flush()
-            os.fsync(f.fileno())
-        os.replace(tmp, path)
-    finally:
-        if tmp.exists():
-            tmp.unlink()
+    with atomic_writer(path) as f:
+        np.savez(f, **arrays)
     return path
 
 

@@ -14,7 +14,7 @@ kind, dtype and shape, and the chain's settings, which include the prefilter's o
 numerical constants) followed by the source's float32 bytes. Reading checks everything it reads
 (zip CRCs, the key, the level count, shapes, dtypes, finiteness); an entry that fails, or cannot
 be read at all, is a miss: the chain is computed again and the entry rewritten. Entries are
-written atomically (:func:`lobelight._cache.atomic_writer`), so concurrent writers of one key
+written atomically (:func:`lobelight._io.atomic_writer`), so concurrent writers of one key
 leave one whole entry, and deleting any of them, or the folder, at any time is harmless.
 
 The folder is kept under a size cap (:func:`max_bytes`: ``$LOBELIGHT_CACHE_MAX_MB``, default
@@ -34,7 +34,8 @@ from typing import Any
 import numpy as np
 import torch
 
-from .._cache import UNREADABLE, atomic_writer, cache_dir
+from .._cache import UNREADABLE, cache_dir
+from .._io import atomic_writer
 
 __all__ = [
     "FORMAT_VERSION",

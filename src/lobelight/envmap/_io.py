@@ -64,7 +64,6 @@ import logging
 import math
 import os
 import re
-import tempfile
 from pathlib import Path
 
 import cv2
@@ -73,6 +72,7 @@ import OpenEXR
 import torch
 
 from .. import cubemap
+from .._io import atomic_path
 from ..errors import InputError
 from ._envmap import EnvMap, describe_bad_values
 
@@ -450,29 +450,19 @@ def save(env: EnvMap, path: str | Path, *, cross: str = "vcross", half: bool = F
                 name, f"radiance up to {peak:g} does not fit in half floats (max {_HALF_MAX:g})"
             )
         arr = arr.astype(np.float16)
-    fd, tmp = tempfile.mkstemp(dir=p.parent, prefix=f".{p.name}.", suffix=f".tmp{ext}")
-    os.close(fd)  # written by name below (OpenEXR opens the file itself)
     try:
-        if ext == ".hdr":
-            ok, enc = cv2.imencode(".hdr", np.ascontiguousarray(arr[..., ::-1]))  # RGB -> BGR
-            if not ok:
-                raise InputError(name, "OpenCV could not encode the image as RGBE")
-            with open(tmp, "wb") as fh:
-                fh.write(enc.tobytes())
-                fh.flush()
-                os.fsync(fh.fileno())
-        else:
-            header = {"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage}
-            OpenEXR.File(header, {"RGB": arr}).write(tmp)
-        mask = os.umask(0)  # mkstemp makes owner-only files: the usual permissions instead
-        os.umask(mask)
-        os.chmod(tmp, 0o666 & ~mask)
-        os.replace(tmp, p)
+        with atomic_path(p) as tmp:  # written by name (OpenEXR opens the file itself)
+            if ext == ".hdr":
+                ok, enc = cv2.imencode(".hdr", np.ascontiguousarray(arr[..., ::-1]))  # to BGR
+                if not ok:
+                    raise InputError(name, "OpenCV could not encode the image as RGBE")
+                tmp.write_bytes(enc.tobytes())
+            else:
+                header = {"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage}
+                OpenEXR.File(header, {"RGB": arr}).write(str(tmp))
     except InputError:
-        _remove(tmp)
         raise
     except Exception as e:
-        _remove(tmp)
         raise InputError(name, f"cannot write the file ({e})") from e
     return p
 

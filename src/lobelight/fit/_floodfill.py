@@ -27,6 +27,7 @@ import numpy as np
 import torch
 
 from .. import cubemap, sphere
+from .._io import atomic_writer
 from .._malloc import keep_freed_memory
 from ..errors import InputError
 from ..scene import Mesh, Scene
@@ -499,10 +500,8 @@ def _save_checkpoint(
         "flips_after": list(flips_after),
     }
     arrays["meta"] = np.frombuffer(json.dumps(meta).encode(), dtype=np.uint8)
-    tmp = path.with_name(path.name + ".tmp")
-    with open(tmp, "wb") as f:
+    with atomic_writer(path) as f:
         np.savez(f, **arrays)
-    os.replace(tmp, path)
 
 
 def _resume(path: Path, key: str, state: dict) -> tuple:

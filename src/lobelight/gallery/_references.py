@@ -23,7 +23,8 @@ from typing import Any
 import numpy as np
 import torch
 
-from .._cache import UNREADABLE, atomic_writer
+from .._cache import UNREADABLE
+from .._io import atomic_writer
 from ..camera import Camera
 from ..errors import InputError
 from ..mitsuba_export import scene_dict

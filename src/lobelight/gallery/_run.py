@@ -14,7 +14,7 @@ import torch
 
 from .. import envmap
 from .. import model as model_io
-from .._cache import atomic_writer
+from .._io import atomic_writer
 from ..errors import InputError
 from ..fit import fit_model
 from ..progress import resolve

@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import math
 import os
-import tempfile
 from pathlib import Path
 
 import cv2
@@ -13,6 +12,7 @@ import OpenEXR
 import torch
 from PIL import Image
 
+from .._io import atomic_path
 from ..errors import InputError
 
 __all__ = ["auto_exposure", "check_output_path", "save_image", "tonemap", "write_atomically"]
@@ -93,22 +93,11 @@ def check_output_path(path, *, types: tuple[str, ...] = DISPLAY_TYPES + LINEAR_T
 
 
 def write_atomically(path, write) -> Path:
-    """Call ``write(tmp)`` on a temporary file next to ``path``, then move it onto ``path``
-    (readers never see a half-written file), with the usual permissions."""
-    p = Path(path)
-    fd, tmp = tempfile.mkstemp(dir=p.parent, prefix=f".{p.name}.", suffix=f".tmp{p.suffix}")
-    os.close(fd)
-    try:
-        write(tmp)
-        # mkstemp makes owner-only files: give the image the usual permissions
-        mask = os.umask(0)
-        os.umask(mask)
-        os.chmod(tmp, 0o666 & ~mask)
-        os.replace(tmp, p)
-    finally:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-    return p
+    """Call ``write(tmp)`` on a temporary path next to ``path`` (:func:`lobelight._io.atomic_path`),
+    which then becomes ``path``: readers never see a half-written file."""
+    with atomic_path(path) as tmp:
+        write(str(tmp))
+    return Path(path)
 
 
 def save_image(path, img, *, exposure: float = 0.0, curve: str = "srgb") -> Path:

@@ -38,7 +38,6 @@ from __future__ import annotations
 import json
 import math
 import os
-import tempfile
 import time
 from pathlib import Path
 from typing import Any
@@ -46,6 +45,7 @@ from typing import Any
 import numpy as np
 import torch
 
+from .._io import atomic_path, atomic_writer
 from ..brdf import Ward
 from ..errors import InputError
 from ..gallery._settings import DATA_ENV
@@ -175,39 +175,18 @@ def _psnr(mse: float) -> float:
     return 10 * math.log10(1 / mse) if mse > 0 else math.inf
 
 
-def _publish(tmp: str, path: Path) -> None:
-    """Give ``tmp`` the permissions of a normally created file (mkstemp makes it 0600), then
-    rename it onto ``path`` (atomic on one file system)."""
-    mask = os.umask(0)
-    os.umask(mask)
-    os.chmod(tmp, 0o666 & ~mask)
-    os.replace(tmp, path)
-
-
 def _write_png(img: np.ndarray, path: Path) -> None:
     from PIL import Image
 
     out = (np.clip(img, 0, 1) * 255 + 0.5).astype(np.uint8)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=path.name, suffix=".tmp")
-    os.close(fd)
-    try:
+    with atomic_path(path) as tmp:
         Image.fromarray(out).save(tmp, format="PNG")
-        _publish(tmp, path)
-    finally:
-        if os.path.exists(tmp):
-            os.remove(tmp)
 
 
 def _write_json(obj: dict, path: Path) -> None:
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=path.name, suffix=".tmp")
-    try:
-        with os.fdopen(fd, "w") as f:
-            json.dump(obj, f, indent=2, allow_nan=False)
-            f.write("\n")
-        _publish(tmp, path)
-    finally:
-        if os.path.exists(tmp):
-            os.remove(tmp)
+    text = json.dumps(obj, indent=2, allow_nan=False) + "\n"
+    with atomic_writer(path) as f:
+        f.write(text.encode())
 
 
 def compare_brdf(

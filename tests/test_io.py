@@ -1,0 +1,73 @@
+"""Files written whole (lobelight._io): concurrent writers and readers of one path."""
+
+from __future__ import annotations
+
+import os
+import stat
+import subprocess
+import sys
+import textwrap
+
+import pytest
+
+from lobelight import _io
+
+#: Each writer writes whole files of one repeated byte; a torn or mixed file has two values.
+_WRITER = textwrap.dedent(
+    """
+    import sys
+    from lobelight._io import atomic_writer
+    path, byte, count = sys.argv[1], int(sys.argv[2]), int(sys.argv[3])
+    block = bytes([byte]) * (1 << 18)
+    for _ in range(count):
+        with atomic_writer(path) as f:
+            for _ in range(4):  # 1 MiB in four writes: a reader could catch it half done
+                f.write(block)
+    """
+)
+
+
+def test_two_processes_writing_one_path_leave_one_whole_file(tmp_path):
+    """Two processes rewrite the same 1 MiB file 40 times each while this one reads it: every
+    read and the file left at the end are one writer's whole file, and no temporary file is
+    left (with a plain open-and-write the reads tear and the bytes mix)."""
+    target = tmp_path / "model.npz"
+    writers = [
+        subprocess.Popen([sys.executable, "-c", _WRITER, str(target), str(b), "40"]) for b in (1, 2)
+    ]
+    reads = 0
+    while any(w.poll() is None for w in writers):
+        try:
+            data = target.read_bytes()
+        except FileNotFoundError:  # not written yet
+            continue
+        assert len(data) == 1 << 20 and len(set(data)) == 1, "a reader saw a partial file"
+        reads += 1
+    assert [w.wait() for w in writers] == [0, 0]
+    data = target.read_bytes()
+    assert len(data) == 1 << 20 and set(data) in ({1}, {2})
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["model.npz"]
+    assert reads > 0
+
+
+def test_an_error_leaves_the_old_file_and_no_temporary(tmp_path):
+    target = tmp_path / "image.png"
+    target.write_bytes(b"old")
+    with pytest.raises(RuntimeError), _io.atomic_path(target) as tmp:
+        assert tmp.suffix == ".png" and tmp.parent == tmp_path  # writers pick by extension
+        tmp.write_bytes(b"half of the new")
+        raise RuntimeError("interrupted")
+    assert target.read_bytes() == b"old"
+    assert sorted(tmp_path.iterdir()) == [target]
+
+
+def test_a_written_file_has_the_usual_permissions(tmp_path):
+    """mkstemp makes owner-only files; a written file gets what a plain open would give."""
+    mask = os.umask(0o022)
+    try:
+        with _io.atomic_writer(tmp_path / "sub" / "x.json") as f:
+            f.write(b"{}")
+    finally:
+        os.umask(mask)
+    mode = stat.S_IMODE((tmp_path / "sub" / "x.json").stat().st_mode)
+    assert mode == 0o644
