@@ -6,14 +6,14 @@ Speed is measured here, never in unit tests. Each benchmark returns a dict that 
 
 from __future__ import annotations
 
-import os
-import platform
 import tempfile
 import time
 from pathlib import Path
 
 import torch
 
+from ._machine import machine
+from ._machine import sync as _sync
 from .envmap import builtin, prefilter
 from .envmap._prefilter import clear_memory_caches
 
@@ -25,34 +25,6 @@ __all__ = [
     "machine",
     "synthetic_model",
 ]
-
-
-def machine(device: str) -> dict:
-    """Where a benchmark ran: CPU model and cores, torch version, GPU name if any."""
-    cpu = platform.processor() or platform.machine()
-    try:
-        with open("/proc/cpuinfo") as f:
-            for line in f:
-                if line.startswith("model name"):
-                    cpu = line.split(":", 1)[1].strip()
-                    break
-    except OSError:
-        pass
-    info = {
-        "cpu": cpu,
-        "cores": os.cpu_count(),
-        "torch_threads": torch.get_num_threads(),
-        "torch": torch.__version__,
-        "device": device,
-    }
-    if device.startswith("cuda") and torch.cuda.is_available():
-        info["gpu"] = torch.cuda.get_device_name(device)
-    return info
-
-
-def _sync(device: str) -> None:
-    if device.startswith("cuda"):
-        torch.cuda.synchronize(device)
 
 
 def bench_prefilter(

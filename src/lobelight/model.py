@@ -41,8 +41,8 @@ import torch
 from . import __version__, sg, sphere
 from ._io import atomic_writer
 from .errors import InputError
-from .fit import Gaussians, MeshFit
 from .scene import Materials, Mesh
+from .sg import Gaussians
 
 __all__ = ["FORMAT", "VERSION", "Model", "blend_lobes", "horizon_scale", "load", "save"]
 
@@ -276,7 +276,7 @@ def save(
     path,
     mesh: Mesh,
     materials: Materials,
-    fit: MeshFit,
+    fit: Any,
     *,
     float16: bool = False,
     drop: bool = True,
@@ -286,6 +286,8 @@ def save(
 
     Parameters
     ----------
+    fit : the fitted transport, with ``gaussians``, ``views``, ``diffuse`` and ``bounce`` (None
+        for none) as a :class:`lobelight.fit.MeshFit` has them
     float16 : store the Gaussians (and SH) as half floats
     drop : leave out records no rendering can see (module docstring)
     """

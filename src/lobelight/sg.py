@@ -22,6 +22,7 @@ All functions are torch-first and accept numpy (numpy in, numpy out; see :mod:`l
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 
 import torch
 
@@ -30,6 +31,7 @@ from .errors import InputError
 from .sphere import _check_vec, _float
 
 __all__ = [
+    "Gaussians",
     "evaluate",
     "evaluate_mixture",
     "fit_from_samples",
@@ -60,6 +62,32 @@ def _one_minus_exp_neg2_over(lam: torch.Tensor) -> torch.Tensor:
     small = lam < 1e-12
     safe = torch.where(small, torch.ones_like(lam), lam)
     return torch.where(small, torch.full_like(lam, 2.0), -torch.expm1(-2 * safe) / safe)
+
+
+# --------------------------------------------------------------------------------------------
+# the record of fitted Gaussians
+
+
+@dataclass(eq=False)
+class Gaussians:
+    """N Gaussians per view for B vertices: the paper's 7 floats (w RGB, mu, sigma) per Gaussian.
+
+    Attributes
+    ----------
+    w : (B, J, N, 3) RGB weights (0 for views below the horizon)
+    mu : (B, J, N, 3) unit means (global frame)
+    lam : (B, J, N) sharpness, ``sigma = 1 / sqrt(lam)``
+    """
+
+    w: torch.Tensor
+    mu: torch.Tensor
+    lam: torch.Tensor
+
+    def take(self, idx) -> Gaussians:
+        return Gaussians(self.w[idx], self.mu[idx], self.lam[idx])
+
+    def detach(self) -> Gaussians:
+        return Gaussians(self.w.detach(), self.mu.detach(), self.lam.detach())
 
 
 # --------------------------------------------------------------------------------------------

@@ -32,6 +32,7 @@ from typing import Any
 import torch
 
 from .. import brdf as _brdf
+from .._machine import machine
 from ._scene import default_scene
 from ._shade import shade_points
 from ._tables import get_tables
@@ -131,8 +132,6 @@ def bench_lobes(
     every leaf built); with ``fused`` the ``large`` configuration (seconds per image, best and
     median, leaves and products per point, at t = 1e-3 and 0); and ``machine``
     """
-    from ..bench import machine
-
     dev = torch.device(device)
     get_tables(device=dev)
     cfgs, lights = _configs(dev)

@@ -86,6 +86,7 @@ import torch
 from .. import _cache
 from .._backend import dispatch
 from .._io import atomic_writer
+from .._machine import machine
 from ..errors import InputError
 from ..sphere import _check_vec, _float
 from ._fused import kernel
@@ -929,8 +930,6 @@ def bench_tables(device: str = "cpu") -> dict:
     a 2-core CPU; the paper: ~4 hours) and the machine.
     """
     import tempfile
-
-    from ..bench import machine
 
     if device.startswith("cuda"):
         torch.cuda.synchronize(device)

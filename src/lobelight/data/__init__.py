@@ -9,9 +9,13 @@ from __future__ import annotations
 
 from pathlib import Path
 
-__all__ = ["DEFAULT_ENVMAP", "envmap_names", "envmap_path", "resolve_envmap"]
+__all__ = ["DATA_ENV", "DEFAULT_ENVMAP", "envmap_names", "envmap_path", "resolve_envmap"]
 
 _ENVMAPS = Path(__file__).resolve().parent / "envmaps"
+
+#: The environment variable naming a folder of larger data (``meshes/``, ``envmaps/``) that does
+#: not ship with the package: the gallery's scenes, compare-brdf's default map.
+DATA_ENV = "LOBELIGHT_DATA"
 
 #: The bundled map the demo and the examples light with: a park under a clear sky with a small,
 #: unclipped sun.

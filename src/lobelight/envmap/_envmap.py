@@ -64,6 +64,7 @@ import torch
 from .. import cubemap
 from .._backend import as_tensor
 from ..errors import InputError
+from ._files import save
 
 __all__ = ["LAYOUTS", "EnvMap", "describe_bad_values"]
 
@@ -331,9 +332,7 @@ class EnvMap:
     # -- files -------------------------------------------------------------------------------
 
     def save(self, path: str | Path, **options: Any) -> Path:
-        """Write to ``path`` (``.exr`` or ``.hdr``); see :func:`lobelight.envmap._io.save`."""
-        from ._io import save
-
+        """Write to ``path`` (``.exr`` or ``.hdr``); see :func:`lobelight.envmap.save`."""
         return save(self, path, **options)
 
 

@@ -10,6 +10,7 @@ from collections.abc import Callable
 import torch
 
 from .. import __version__
+from ..model import Model
 from ..progress import resolve
 from ..scene import Scene
 from ..transport import BOUNCES, INDIRECT_PATHS
@@ -52,8 +53,6 @@ def fit_model(
     lobelight.model.Model, with provenance holding the settings, the mean relative data error,
     flip counts and timings
     """
-    from ..model import Model  # the model module imports this package: import late
-
     if n_lobes not in (1, 2, 3):
         raise ValueError(f"n_lobes must be 1, 2 or 3, got {n_lobes}")
     t0 = time.perf_counter()

@@ -22,12 +22,12 @@ from __future__ import annotations
 
 import itertools
 import math
-from dataclasses import dataclass
 
 import torch
 
 from .. import sg, sphere
 from ..errors import InputError
+from ..sg import Gaussians
 from ._data import FitData
 from ._lm import levenberg_marquardt
 from ._objective import (
@@ -45,28 +45,6 @@ __all__ = ["Gaussians", "fit_batch", "initial_guess", "relabel"]
 
 #: Default sharpness range: from a hemisphere-wide lobe to well past a Phong exponent of 1e4.
 LAM_RANGE = (0.5, 3e4)
-
-
-@dataclass(eq=False)
-class Gaussians:
-    """N Gaussians per view for B vertices: the paper's 7 floats (w RGB, mu, sigma) per Gaussian.
-
-    Attributes
-    ----------
-    w : (B, J, N, 3) RGB weights (0 for views below the horizon)
-    mu : (B, J, N, 3) unit means (global frame)
-    lam : (B, J, N) sharpness, ``sigma = 1 / sqrt(lam)``
-    """
-
-    w: torch.Tensor
-    mu: torch.Tensor
-    lam: torch.Tensor
-
-    def take(self, idx) -> Gaussians:
-        return Gaussians(self.w[idx], self.mu[idx], self.lam[idx])
-
-    def detach(self) -> Gaussians:
-        return Gaussians(self.w.detach(), self.mu.detach(), self.lam.detach())
 
 
 def _moments(data: FitData, values: torch.Tensor, lam_range) -> tuple[torch.Tensor, torch.Tensor]:

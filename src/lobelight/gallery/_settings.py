@@ -5,12 +5,11 @@ from __future__ import annotations
 
 from dataclasses import asdict, dataclass
 
+from ..data import DATA_ENV
 from ..errors import InputError
 
 __all__ = ["DATA_ENV", "VARIANTS", "ReferenceSettings"]
 
-#: The environment variable that names the data folder when ``--data`` is not given.
-DATA_ENV = "LOBELIGHT_DATA"
 #: Mitsuba variants tried in turn when none is asked for.
 VARIANTS = ("llvm_ad_rgb", "scalar_rgb")
 

@@ -40,6 +40,7 @@ from typing import Any
 import numpy as np
 import torch
 
+from .._machine import machine
 from ..brdf import BRDF, Ward
 from ..brdf import from_dict as brdf_from_dict
 from ..camera import Camera
@@ -595,7 +596,6 @@ def bench_gl(
     ``ours_faster_than_fis``, ``lobes``, ``layout``, ``fis_samples``, ``renderer`` (the GL
     renderer string: "llvmpipe ..." means the CPU rasteriser) and ``machine``
     """
-    from ..bench import machine
 
     if not isinstance(size, int) or isinstance(size, bool) or size < 1:
         raise InputError("size", f"must be a positive integer, got {size!r}")

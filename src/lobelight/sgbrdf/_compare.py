@@ -46,9 +46,10 @@ import numpy as np
 import torch
 
 from .._io import atomic_path, atomic_writer
+from .._machine import machine
 from ..brdf import Ward
+from ..data import DATA_ENV
 from ..errors import InputError
-from ..gallery._settings import DATA_ENV
 from ._fis import FIS_SAMPLES, shade_fis
 from ._fit import fit_many, is_isotropic
 from ._reference import shade_reference
@@ -234,7 +235,6 @@ def compare_brdf(
     ``json`` (paths), ``backend``, ``gl`` (None, or the GL renderer string and timing rule),
     ``machine``.
     """
-    from ..bench import machine
     from ..envmap import prefilter
     from ..reference import EnvSampler
 

@@ -67,6 +67,7 @@ from typing import Any
 import torch
 
 from .. import sphere
+from .._machine import machine
 from ..brdf import BRDF, GGX, Beckmann, Lafortune, Sum, Ward
 from ..errors import InputError
 from ..sg import evaluate_mixture, integral
@@ -897,7 +898,6 @@ def bench_fit(
     Returns seconds (best and median), the view and lobe counts, the mean fit error, the goal
     (5 s on a 2-core CPU) and the machine.
     """
-    from ..bench import machine
 
     before = torch.get_num_threads()
     if threads is not None:

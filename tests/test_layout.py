@@ -1,0 +1,136 @@
+"""The package's import graph: no circles, and no module importing one of a higher layer.
+
+Every ``import`` in every module counts, function-local ones included (they hide the graph from
+readers, not from this test). The layers, lowest first, are the one-way pipeline of
+``docs/method.md``: foundations, geometry and lobes, inputs, ray queries, transport and ground
+truth, the model, the fit, the renderers, studies, the command line. The companion methods
+(``sgbrdf``, ``cosine``) sit beside the fit; their comparisons and benchmarks still live inside
+their packages and reach the renderers, so for them the check is that nothing above the
+renderers is imported.
+"""
+
+from __future__ import annotations
+
+import ast
+from pathlib import Path
+
+import lobelight
+
+ROOT = Path(lobelight.__file__).parent
+
+#: Top-level modules and packages by layer, lowest first.
+LAYERS: list[tuple[str, ...]] = [
+    ("errors", "_backend", "_io", "_cache", "_size", "_machine", "_malloc", "progress", "data"),
+    ("sphere", "cubemap", "camera", "sg", "sh", "haar", "brdf"),
+    ("envmap", "scene"),
+    ("raycast",),
+    ("transport", "reference", "mitsuba_export"),
+    ("model",),
+    ("fit", "sgbrdf", "cosine"),
+    ("render",),
+    ("compare", "energy", "figure5", "bench", "demo", "gallery"),
+    ("cli", "__main__"),
+]
+#: Packages whose own studies still import upwards (module docstring).
+COMPANIONS = ("sgbrdf", "cosine")
+
+
+def _modules() -> dict[str, Path]:
+    out = {}
+    for p in ROOT.rglob("*.py"):
+        parts = p.relative_to(ROOT.parent).with_suffix("").parts
+        name = ".".join(parts[:-1] if parts[-1] == "__init__" else parts)
+        out[name] = p
+    return out
+
+
+def _imports(name: str, path: Path, modules: dict[str, Path]) -> set[str]:
+    """The lobelight modules ``name`` imports (a package's ``__init__`` for a package)."""
+    package = name if path.name == "__init__.py" else name.rsplit(".", 1)[0]
+    found = set()
+    for node in ast.walk(ast.parse(path.read_text())):
+        if isinstance(node, ast.Import):
+            targets = [a.name for a in node.names]
+        elif isinstance(node, ast.ImportFrom):
+            if node.level:
+                base = package.split(".")[: len(package.split(".")) - (node.level - 1)]
+                mod = ".".join(base) + (f".{node.module}" if node.module else "")
+            else:
+                mod = node.module or ""
+            targets = [
+                f"{mod}.{a.name}" if f"{mod}.{a.name}" in modules else mod for a in node.names
+            ]
+        else:
+            continue
+        for t in targets:
+            while t not in modules and "." in t:
+                t = t.rsplit(".", 1)[0]
+            if t in modules and t != name:
+                found.add(t)
+    return found
+
+
+def _graph() -> dict[str, set[str]]:
+    modules = _modules()
+    return {name: _imports(name, path, modules) for name, path in modules.items()}
+
+
+def _rank(name: str) -> int:
+    parts = name.split(".")
+    top = parts[1] if len(parts) > 1 else "__init__"
+    if parts[-1] == "__main__":  # python -m entry points are command lines
+        top = "__main__"
+    for i, layer in enumerate(LAYERS):
+        if top in layer:
+            return i
+    raise AssertionError(f"{name} is in no layer: add its top-level name to LAYERS")
+
+
+def test_every_module_has_a_layer():
+    for name in _modules():
+        if name != "lobelight":
+            _rank(name)
+
+
+def test_no_import_circles():
+    graph = _graph()
+    state: dict[str, int] = {}  # 1 on the current path, 2 done
+    path: list[str] = []
+    circles = []
+
+    def visit(v: str) -> None:
+        state[v] = 1
+        path.append(v)
+        for w in sorted(graph[v]):
+            if state.get(w) == 1:
+                circles.append([*path[path.index(w) :], w])
+            elif w not in state:
+                visit(w)
+        path.pop()
+        state[v] = 2
+
+    for v in sorted(graph):
+        if v not in state:
+            visit(v)
+    assert not circles, "import circles: " + "; ".join(" -> ".join(c) for c in circles)
+
+
+def test_no_module_imports_a_higher_layer():
+    bad = []
+    for a, targets in _graph().items():
+        if a == "lobelight" or a.split(".")[1] in COMPANIONS:
+            continue
+        bad += [f"{a} -> {b}" for b in sorted(targets) if b != "lobelight" and _rank(b) > _rank(a)]
+    assert not bad, "imports from a lower layer to a higher one:\n" + "\n".join(bad)
+
+
+def test_the_companion_methods_import_nothing_above_the_renderers():
+    render = _rank("lobelight.render")
+    bad = [
+        f"{a} -> {b}"
+        for a, targets in _graph().items()
+        if a != "lobelight" and a.split(".")[1] in COMPANIONS
+        for b in sorted(targets)
+        if b != "lobelight" and _rank(b) > render
+    ]
+    assert not bad, "\n".join(bad)
