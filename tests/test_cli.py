@@ -178,3 +178,27 @@ def test_the_bake_flags_default_to_the_bake_s_interreflection():
 
     args = cli._parser().parse_args(["bake", "sphere:1"])
     assert args.bounces == transport.BOUNCES and args.indirect_paths == transport.INDIRECT_PATHS
+
+
+def test_sigterm_ends_a_bake_like_ctrl_c(tmp_path):
+    """Batch schedulers stop jobs with SIGTERM: one line and exit 143, unwound like Ctrl-C (it
+    used to kill the process silently), and nothing half-written is left."""
+    import signal
+    import subprocess
+    import sys
+
+    out = tmp_path / "knot.npz"
+    code = "import sys; from lobelight.cli import main; sys.exit(main(sys.argv[1:]))"
+    cmd = [sys.executable, "-c", code, "bake", "knot", "-o", str(out)]
+    p = subprocess.Popen(cmd, stderr=subprocess.PIPE, stdout=subprocess.DEVNULL, cwd=tmp_path)
+    lines = []
+    for raw in p.stderr:  # plain progress lines: wait until the fit has done some chunks
+        lines.append(raw.decode().rstrip())
+        if "fit:" in lines[-1] and "chunks" in lines[-1]:
+            break
+    p.send_signal(signal.SIGTERM)
+    rest = p.stderr.read().decode().splitlines()
+    assert p.wait(timeout=120) == 143, "\n".join(lines + rest)
+    assert rest[-1] == "lobelight: terminated (a bake resumes when run again)"
+    assert not any("Traceback" in x for x in rest)
+    assert not out.exists() and not list(tmp_path.glob("*.partial*"))

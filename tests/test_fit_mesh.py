@@ -120,6 +120,33 @@ def test_killed_fit_resumes_to_the_same_model(tmp_path, n, stage, batch):
         assert log[0] == ("fit", 1)
 
 
+@pytest.mark.parametrize("damage", ["truncated", "flipped"])
+def test_a_corrupt_checkpoint_is_moved_aside_and_the_bake_starts_afresh(tmp_path, caplog, damage):
+    """A checkpoint cut short or with bytes flipped in its members (numpy's header parser then
+    raises errors no plain OSError covers) used to stop every later bake until deleted by hand."""
+    sc = scene.builtin("sphere", subdivisions=0, model="phong", exponent=200.0)
+    kw = dict(n=1, batch=2, checkpoint_every=0)
+    clean = fit.fit_mesh(sc, **kw)
+    ck = tmp_path / "bake.ckpt.npz"
+    with pytest.raises(_Kill):
+        fit.fit_mesh(sc, **kw, checkpoint=ck, progress=_killer("fit", 2, []))
+    raw = bytearray(ck.read_bytes())
+    if damage == "truncated":
+        raw = raw[: len(raw) // 2]
+    else:  # every member's header and data: bytes of the middle third turned over
+        third = len(raw) // 3
+        raw[third : 2 * third] = bytes(b ^ 0x5A for b in raw[third : 2 * third])
+    ck.write_bytes(bytes(raw))
+    log: list = []
+    with caplog.at_level("WARNING", logger="lobelight.fit._floodfill"):
+        done = fit.fit_mesh(sc, **kw, checkpoint=ck, progress=_killer("none", 0, log))
+    assert log[0] == ("fit", 1)  # from the start
+    _same(done, clean)
+    aside = tmp_path / "bake.ckpt.npz.corrupt"
+    assert aside.read_bytes() == bytes(raw)
+    assert len(caplog.records) == 1 and "unreadable checkpoint" in caplog.records[0].getMessage()
+
+
 @pytest.mark.skipif(
     not sys.platform.startswith("linux"),
     reason="mallopt is glibc's (Linux); elsewhere keep_freed_memory is a documented no-op",

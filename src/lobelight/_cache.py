@@ -13,6 +13,7 @@ entry each rename a complete file and the last one wins.
 from __future__ import annotations
 
 import os
+import tokenize
 import zipfile
 import zlib
 from pathlib import Path
@@ -24,10 +25,12 @@ __all__ = ["UNREADABLE", "cache_dir"]
 #: What reading a damaged ``.npz`` can raise, from zipfile, zlib and numpy's ``.npy`` reader: a
 #: bad zip structure, unknown compression method or flags (NotImplementedError, RuntimeError),
 #: corrupt deflate data, a short member, an impossible header (ValueError, MemoryError or
-#: OverflowError for absurd shapes), a missing member (KeyError).
+#: OverflowError for absurd shapes), a missing member (KeyError), a mangled ``.npy`` header
+#: (SyntaxError, tokenize.TokenError from its literal parser).
 UNREADABLE = (
     OSError, ValueError, EOFError, KeyError, zipfile.BadZipFile, zipfile.LargeZipFile,
-    NotImplementedError, RuntimeError, zlib.error, MemoryError, OverflowError,
+    NotImplementedError, RuntimeError, zlib.error, MemoryError, OverflowError, SyntaxError,
+    tokenize.TokenError,
 )  # fmt: skip
 
 

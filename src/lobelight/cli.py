@@ -10,7 +10,8 @@ commands: ``-o/--output``, ``--width/--height``, ``--spp``, ``--sun/--no-sun``, 
 older spellings (``--out``, ``--ref-spp``) are kept as aliases.
 
 Exit codes: 0 success; 1 unexpected error; 2 bad input (one line on stderr naming the input and
-the problem); 130 interrupted (Ctrl-C; a bake resumes from its checkpoint when run again).
+the problem); 130 interrupted (Ctrl-C), 143 terminated (SIGTERM, as batch schedulers send it):
+one line each, and a bake resumes from its checkpoint when run again.
 """
 
 from __future__ import annotations
@@ -21,7 +22,9 @@ import json
 import math
 import os
 import re
+import signal
 import sys
+import threading
 import time
 from pathlib import Path
 
@@ -504,7 +507,8 @@ def _parser() -> argparse.ArgumentParser:
     p = _Parser(
         prog="lobelight",
         description="Relight 3D objects under HDR environment lighting with spherical lobes.",
-        epilog="Exit codes: 0 ok, 1 unexpected error, 2 bad input, 130 interrupted.",
+        epilog="Exit codes: 0 ok, 1 unexpected error, 2 bad input, 130 interrupted (Ctrl-C), "
+        "143 terminated (SIGTERM).",
     )
     p.add_argument("--version", action="version", version=f"lobelight {_version()}")
     sub = p.add_subparsers(dest="command", required=True, metavar="COMMAND", parser_class=_Parser)
@@ -845,8 +849,27 @@ def _fail(json_mode: bool, what: str, problem: str, code: int) -> int:
     return code
 
 
+class _Terminated(Exception):
+    """SIGTERM arrived: unwound like Ctrl-C, so that ``finally`` blocks and checkpoints run."""
+
+
+def _on_sigterm(signum, frame) -> None:
+    raise _Terminated
+
+
 def main(argv: list[str] | None = None) -> int:
-    """Run the CLI; returns the exit code (0 ok, 1 unexpected error, 2 bad input, 130 Ctrl-C)."""
+    """Run the CLI; returns the exit code (0 ok, 1 unexpected error, 2 bad input, 130 Ctrl-C,
+    143 SIGTERM)."""
+    if threading.current_thread() is threading.main_thread():
+        previous = signal.signal(signal.SIGTERM, _on_sigterm)
+        try:
+            return _main(argv)
+        finally:
+            signal.signal(signal.SIGTERM, previous)
+    return _main(argv)
+
+
+def _main(argv: list[str] | None) -> int:
     argv = _join_signed(list(sys.argv[1:] if argv is None else argv))
     json_mode = "--json" in argv
     try:
@@ -858,11 +881,12 @@ def main(argv: list[str] | None = None) -> int:
         summary = args.run(args)
     except InputError as e:
         return _fail(args.json, e.what, e.problem, 2)
-    except KeyboardInterrupt:
-        print("lobelight: interrupted (a bake resumes when run again)", file=sys.stderr)
+    except (KeyboardInterrupt, _Terminated) as e:
+        code, what = (143, "terminated") if isinstance(e, _Terminated) else (130, "interrupted")
+        print(f"lobelight: {what} (a bake resumes when run again)", file=sys.stderr)
         if args.json:
-            print(json.dumps({"error": {"code": 130, "input": "", "problem": "interrupted"}}))
-        return 130
+            print(json.dumps({"error": {"code": code, "input": "", "problem": what}}))
+        return code
     try:
         if args.json:
             print(json.dumps(summary, indent=2, default=_plain))

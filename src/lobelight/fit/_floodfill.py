@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import hashlib
 import json
+import logging
 import os
 import time
 from collections.abc import Callable
@@ -27,6 +28,7 @@ import numpy as np
 import torch
 
 from .. import cubemap, sphere
+from .._cache import UNREADABLE
 from .._io import atomic_writer
 from .._malloc import keep_freed_memory
 from ..errors import InputError
@@ -38,6 +40,8 @@ from ._optimize import Gaussians, fit_batch, initial_guess
 from ._relax import live_gaussians, reorder_mesh, separated_pairs, vertex_flips
 
 __all__ = ["MeshFit", "count_flips", "fit_mesh", "wavefronts"]
+
+logger = logging.getLogger(__name__)
 
 #: Face resolution of the cube map the indirect glossy paths are binned on: at 16 paths per view,
 #: 8^2 halves the light's error per (vertex, view) against 16^2 bins (docs/method.md).
@@ -513,11 +517,20 @@ def _resume(path: Path, key: str, state: dict) -> tuple:
     try:
         with np.load(path, allow_pickle=False) as z:
             meta = json.loads(bytes(z["meta"]).decode())
-            if meta.get("key") != key or meta.get("stage") not in _STAGES:
+            if not isinstance(meta, dict) or meta.get("key") != key:
                 return fresh  # another scene or other settings: start over
+            if meta.get("stage") not in _STAGES:
+                return fresh
             loaded = {k: torch.from_numpy(z[k]) for k in state}
-    except (OSError, ValueError, KeyError, EOFError):
-        return fresh  # unreadable (e.g. cut short): start over
+    except UNREADABLE as e:
+        # damaged (cut short, bits flipped): kept aside for a look, never in the way of a bake
+        aside = path.with_name(path.name + ".corrupt")
+        os.replace(path, aside)
+        logger.warning(
+            "%s: unreadable checkpoint (%s), moved to %s; the bake starts afresh",
+            path, type(e).__name__, aside.name,
+        )  # fmt: skip
+        return fresh
     for k, v in loaded.items():
         if v.shape != state[k].shape:
             return fresh
