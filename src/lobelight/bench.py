@@ -11,11 +11,22 @@ import time
 from pathlib import Path
 
 import torch
+import trimesh
 
+from . import cubemap, transport
+from . import scene as _scene
+from . import sphere as sph
 from ._machine import machine
 from ._machine import sync as _sync
+from .camera import Camera
 from .envmap import builtin, prefilter
 from .envmap._prefilter import clear_memory_caches
+from .fit import Gaussians, fit_model
+from .model import Model
+from .render import Lighting, Renderer, as_rotation
+from .render._gl import create_context
+from .scene import load, mesh_from_arrays, uniform
+from .transport import BOUNCES, INDIRECT_PATHS
 
 __all__ = [
     "bench_fit",
@@ -103,8 +114,6 @@ def bench_transport(
       :func:`lobelight.transport.sample` on ``sample_vertices`` vertices x 92 views, reported
       per transport function (one vertex and view).
     """
-    from . import cubemap, transport
-    from . import scene as _scene
 
     sc = _scene.load(scene)
     tr = transport.Transport(sc, device=device)
@@ -160,9 +169,6 @@ def bench_fit(
     stage: ``fit`` (transport sampling and fit, with ``indirect_glossy`` the path tracing inside
     it), ``relax``, ``interreflection`` (the diffuse bounces).
     """
-    from .fit import fit_model
-    from .scene import load
-    from .transport import BOUNCES, INDIRECT_PATHS
 
     bounces = BOUNCES if bounces is None else bounces
     indirect_paths = INDIRECT_PATHS if indirect_paths is None else indirect_paths
@@ -193,12 +199,6 @@ def bench_fit(
 def synthetic_model(vertices: int, n_lobes: int):
     """A sphere of about ``vertices`` vertices with analytic Gaussians (a mirror-direction lobe
     and broad ones about the normal): rendering cost does not depend on fitted values."""
-    import trimesh
-
-    from . import sphere as sph
-    from .fit import Gaussians
-    from .model import Model
-    from .scene import mesh_from_arrays, uniform
 
     # trimesh's UV sphere has about 4 rows^2 vertices for count = (rows + 2, 2 rows)
     rows = max(3, round((vertices / 4) ** 0.5))
@@ -247,9 +247,6 @@ def bench_render(
     ``frames`` frames and ``min_seconds`` seconds, so that a fast GPU is timed over hundreds of
     frames. ``fps_finish_each_frame`` waits for every frame (latency bound), and
     ``fps_with_readback`` adds the float read-back of :meth:`Renderer.render`."""
-    from .camera import Camera
-    from .envmap import builtin
-    from .render import Lighting, Renderer
 
     light = Lighting(builtin(), base_res=base_res, sun=sun)
     cam = Camera.look_at((0.0, 0.8, 3.2), (0.0, 0.0, 0.0), fov=45.0)
@@ -287,8 +284,6 @@ def bench_render(
                 rows.append(row)
     info = {}
     if backend == "gl":
-        from .render._gl import create_context
-
         ctx = create_context()
         info = {"gl_renderer": ctx.info["GL_RENDERER"], "gl_version": ctx.info["GL_VERSION"]}
         ctx.release()
@@ -322,6 +317,5 @@ def _time_gl(gl, cam, frames: int, min_seconds: float) -> dict:
 
 
 def _rot(i: int):
-    from .render import as_rotation
 
     return as_rotation(float(i))

@@ -47,6 +47,7 @@ import torch
 from . import reference, sh, sphere
 from ._io import atomic_writer
 from .camera import Camera
+from .fit import fit_model, gather
 from .progress import resolve
 from .raycast import RayCaster
 from .render import Lighting, Renderer, as_rotation, auto_exposure, save_image
@@ -156,7 +157,6 @@ def sh_glossy(
     scene, model, lighting: Lighting, camera: Camera, rot, tri, bary, *, order: int = 10
 ) -> torch.Tensor:
     """The order-``order`` SH baseline's glossy image ``(H, W, 3)`` (module docstring)."""
-    from .fit import gather
 
     tr = Transport(scene, device=model.device)
     views = model.views
@@ -215,7 +215,6 @@ def compare(
     dict with ``table`` (rows: method, component, psnr, rel_l2), timings, the reference's
     noise (mean standard error relative to the mean) and image paths
     """
-    from .fit import fit_model
 
     progress = resolve(progress)
     t0 = time.perf_counter()

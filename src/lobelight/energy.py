@@ -31,7 +31,7 @@ import time
 
 import torch
 
-from . import brdf, envmap, fit, scene, sg, sphere, transport
+from . import brdf, cubemap, envmap, fit, scene, sg, sphere, transport
 from .fit._data import half_vector_lobes
 from .model import blend_lobes
 from .scene import Materials, Scene
@@ -316,7 +316,6 @@ def prefilter_check(
     (``lam_max``; 655 at 128, 10486 at 512) are looked up at its sharpest level, and the chain's
     largest is always checked too. Returns per ``lam`` the ratio summaries.
     """
-    from . import cubemap
 
     gen = torch.Generator().manual_seed(seed)
     res = base_res

@@ -48,6 +48,7 @@ from typing import Any
 
 import torch
 
+from . import cubemap
 from ._backend import as_tensor, dispatch
 from .errors import InputError
 
@@ -307,7 +308,6 @@ def triangle_candidates(res: int = 32, *, sub: int = 8) -> torch.Tensor:
     (6, res, res, K) int64 triangle indices (rows of :func:`geodesic_faces`), ``-1`` padded;
     ``[face, row (t), col (s)]`` as :func:`lobelight.cubemap.texel_directions`
     """
-    from . import cubemap  # sphere is imported by cubemap's users first: import late
 
     g = res * sub + 1
     c = torch.linspace(-1.0, 1.0, g, dtype=torch.float64)
