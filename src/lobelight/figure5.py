@@ -585,12 +585,6 @@ def _sh_full_orders(counts) -> list[int]:
     return [max(1, math.isqrt(int(c))) for c in counts]
 
 
-def _atomic_write(path: Path, write) -> None:
-    """``write(tmp_path)`` then rename onto ``path`` (:func:`lobelight._io.atomic_path`)."""
-    with atomic_path(path) as tmp:
-        write(tmp)
-
-
 def plot(result: dict[str, Any], path) -> None:
     """Three panels, relative L2 error (%) against the number of coefficients, log scale, as
     in the paper's Figure 5; written to ``path`` (PNG) through a temporary name."""
@@ -625,7 +619,8 @@ def plot(result: dict[str, Any], path) -> None:
     fig.suptitle(f"Green et al. 2006, Figure 5: cube map {result['res']}^2 per face", fontsize=11)
     fig.tight_layout()
     path = Path(path)
-    _atomic_write(path, lambda p: fig.savefig(p, dpi=110, format="png"))
+    with atomic_path(path) as tmp:
+        fig.savefig(tmp, dpi=110, format="png")
     plt.close(fig)
 
 
@@ -706,6 +701,7 @@ def figure5(
         folder = Path(out)
         folder.mkdir(parents=True, exist_ok=True)
         text = json.dumps(result, indent=1)
-        _atomic_write(folder / "figure5.json", lambda p: p.write_text(text))
+        with atomic_path(folder / "figure5.json") as tmp:
+            tmp.write_text(text)
         plot(result, folder / "figure5.png")
     return result

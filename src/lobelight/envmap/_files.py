@@ -28,7 +28,7 @@ _EXTENSIONS = (".hdr", ".exr")
 _HALF_MAX = 65504.0
 
 # Per cross layout: GL face name -> (block row, block column, centre, right, down), with the
-# block position in units of faces. Directions as in the module docstring.
+# block position in units of faces. Directions as in lobelight.envmap._io's module docstring.
 _X, _Y, _Z = (1, 0, 0), (0, 1, 0), (0, 0, 1)
 
 
@@ -99,8 +99,8 @@ def save(env: Any, path: str | Path, *, cross: str = "vcross", half: bool = Fals
     env : the map (an :class:`~lobelight.envmap.EnvMap`: its ``data`` and ``layout``)
     path : ``.exr`` (float32, or half with ``half=True``; ZIP compression) or ``.hdr`` (RGBE
         RLE: 8-bit mantissas with a shared exponent, ~0.4 % of the largest channel)
-    cross : how a cube map is laid out: ``"vcross"``, ``"hcross"`` or ``"strip"`` (module
-        docstring); lat-long maps are written as they are
+    cross : how a cube map is laid out: ``"vcross"``, ``"hcross"`` or ``"strip"``
+        (:mod:`lobelight.envmap._io`); lat-long maps are written as they are
     half : write half floats (EXR only); radiance above 65504 is refused
 
     Returns

@@ -74,13 +74,8 @@ from ..errors import InputError
 from ._envmap import EnvMap, describe_bad_values
 from ._files import _EXTENSIONS, _GRID, CROSS_FACES, FILE_LAYOUTS, cross_pixels, save
 
-__all__ = [
-    "CROSS_FACES",
-    "FILE_LAYOUTS",
-    "cross_pixels",
-    "load",
-    "save",
-]  # the layouts and save: _files
+# the layouts and save live in _files (EnvMap.save calls it there without an import circle)
+__all__ = ["CROSS_FACES", "FILE_LAYOUTS", "cross_pixels", "load", "save"]
 
 logger = logging.getLogger(__name__)
 

@@ -16,8 +16,8 @@ what the disc carries above it is the sun's irradiance ``E`` (RGB, W/m^2-like: r
 steradian), its direction the irradiance-weighted mean. In the residual map the disc pixels
 take the background's value, so ``residual.power() + E`` equals ``env.power()`` up to the
 ring's estimate of what lay under the disc. A map whose brightest spot carries less than
-``min_share`` of the power has no sun
-(``None``): an overcast sky or an interior map then stays whole.
+``min_share`` of the power has no sun (``None``): an overcast sky or an interior map then stays
+whole.
 """
 
 from __future__ import annotations
@@ -32,7 +32,8 @@ from ._envmap import EnvMap, _LatlongCells
 
 __all__ = ["RADIUS_DEG", "Sun", "extract_sun"]
 
-#: The window the sun is looked for in, degrees from the peak pixel. Wide enough for an
+#: The window the sun is looked for in, degrees from the bright pixels' centre around the
+#: map's peak. Wide enough for an
 #: extended source (a studio's softbox): at 3 degrees the studio map's sun held 38 % of the
 #: map's power and the rest of the softbox stayed in the order-5 SH, whose blurred shadows
 #: left a diffuse teapot's vertices 5.9 % (RMS) from quadrature; at 10 degrees the sun holds

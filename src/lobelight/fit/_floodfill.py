@@ -517,10 +517,12 @@ def _resume(path: Path, key: str, state: dict) -> tuple:
     try:
         with np.load(path, allow_pickle=False) as z:
             meta = json.loads(bytes(z["meta"]).decode())
-            if not isinstance(meta, dict) or meta.get("key") != key:
+            if (
+                not isinstance(meta, dict)
+                or meta.get("key") != key
+                or meta.get("stage") not in _STAGES
+            ):
                 return fresh  # another scene or other settings: start over
-            if meta.get("stage") not in _STAGES:
-                return fresh
             loaded = {k: torch.from_numpy(z[k]) for k in state}
     except UNREADABLE as e:
         # damaged (cut short, bits flipped): kept aside for a look, never in the way of a bake

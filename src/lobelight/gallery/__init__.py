@@ -32,7 +32,7 @@ import importlib
 #: Where each public name lives: the submodules load on first use (PEP 562), so that the
 #: command line can add the gallery's arguments without importing torch.
 _HOMES = {
-    "DATA_ENV": "._settings",
+    "DATA_ENV": "..data",
     "GalleryScene": "._scenes",
     "LEGEND": "._score",
     "MAPS": "._scenes",

@@ -15,7 +15,7 @@ from PIL import Image
 from .._io import atomic_path
 from ..errors import InputError
 
-__all__ = ["auto_exposure", "check_output_path", "save_image", "tonemap", "write_atomically"]
+__all__ = ["auto_exposure", "check_output_path", "save_image", "tonemap"]
 
 CURVES = ("srgb", "aces")
 
@@ -92,14 +92,6 @@ def check_output_path(path, *, types: tuple[str, ...] = DISPLAY_TYPES + LINEAR_T
     return p
 
 
-def write_atomically(path, write) -> Path:
-    """Call ``write(tmp)`` on a temporary path next to ``path`` (:func:`lobelight._io.atomic_path`),
-    which then becomes ``path``: readers never see a half-written file."""
-    with atomic_path(path) as tmp:
-        write(str(tmp))
-    return Path(path)
-
-
 def save_image(path, img, *, exposure: float = 0.0, curve: str = "srgb") -> Path:
     """Write ``(H, W, 3)`` radiance atomically: ``.png`` and ``.jpg``/``.jpeg`` (quality 95)
     tone-mapped (:func:`tonemap`), ``.exr`` (float32, ZIP) and ``.hdr`` linear.
@@ -130,4 +122,6 @@ def save_image(path, img, *, exposure: float = 0.0, curve: str = "srgb") -> Path
             header = {"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage}
             OpenEXR.File(header, {"RGB": np.ascontiguousarray(x)}).write(tmp)
 
-    return write_atomically(p, write)
+    with atomic_path(p) as tmp:
+        write(str(tmp))
+    return p

@@ -10,6 +10,7 @@ from pathlib import Path
 import numpy as np
 from PIL import Image, features
 
+from .._io import atomic_path
 from ..camera import Camera
 from ..errors import InputError
 from ..progress import resolve
@@ -21,7 +22,6 @@ from ._tonemap import (
     check_output_path,
     check_type,
     tonemap,
-    write_atomically,
 )
 
 __all__ = ["ROTATIONS", "orbit", "turntable"]
@@ -147,14 +147,16 @@ def turntable(
         t_render += time.perf_counter() - t
         t = time.perf_counter()
         frame = Image.fromarray(tonemap(img, exposure=exposure, curve=curve))
-        write_atomically(path, lambda tmp, im=frame: im.save(tmp, format="PNG"))
+        with atomic_path(path) as tmp:
+            frame.save(tmp, format="PNG")
         t_write += time.perf_counter() - t
         if report is not None:
             report("turntable", k + 1, n)
 
     if anim is not None:
         t = time.perf_counter()
-        write_atomically(anim, lambda tmp: _write_animation(tmp, paths, anim.suffix, fps))
+        with atomic_path(anim) as tmp:
+            _write_animation(str(tmp), paths, anim.suffix, fps)
         t_write += time.perf_counter() - t
     return {
         "frames": [str(p) for p in paths],
