@@ -208,7 +208,8 @@ def _cmd_info(args) -> dict:
         "vertices": m.mesh.n_vertices,
         "faces": int(m.mesh.faces.shape[0]),
         "views": int(m.views.shape[0]),
-        "n_lobes": m.n_lobes,
+        "n_lobes": m.direct_lobes,
+        "indirect_lobes": m.indirect_lobes,
         "sh_coefficients": int(m.diffuse.shape[1]),
         "records_with_weight": int(live.sum()),
         "material": m.materials.model,
@@ -550,7 +551,12 @@ def _parser() -> argparse.ArgumentParser:
 
     def lobes(sp):
         sp.add_argument(
-            "--lobes", type=int, default=1, choices=[1, 2, 3], help="Gaussians per view"
+            "--lobes",
+            type=int,
+            default=1,
+            choices=[1, 2, 3],
+            help="Gaussians per view fitted to the direct glossy transport (indirect glossy has "
+            "one more of its own)",
         )
 
     def backend(sp):

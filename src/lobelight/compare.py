@@ -300,7 +300,7 @@ def compare(
             g = sh_glossy(scene, model, lighting, camera, rot, tri, bary)
         elif name == "no_visibility":
             nv = fit_model(
-                scene, model.n_lobes, device=model.device, shadows=False, progress=progress
+                scene, model.direct_lobes, device=model.device, shadows=False, progress=progress
             )
             r2 = Renderer(nv, plain, width, height, backend=backend, samples=1)  # no shadows
             g = r2.render(camera, rot, diffuse=False, background=False).cpu()
@@ -327,7 +327,8 @@ def compare(
     result: dict[str, Any] = {
         "scene": scene.name,
         "vertices": model.mesh.n_vertices,
-        "n_lobes": model.n_lobes,
+        "n_lobes": model.direct_lobes,
+        "indirect_lobes": model.indirect_lobes,
         "size": [width, height],
         "spp": spp,
         "backend": backend,

@@ -134,7 +134,8 @@ def _report(sc, model, n_bytes, backend, size, spp, stills, cmp, seconds) -> str
     noise = cmp["reference_noise"]["full"]
     return f"""# lobelight demo: {sc.name}
 
-{sc.mesh.n_vertices} vertices, {model.n_lobes} Gaussian(s) per view, 92 views. Under the
+{sc.mesh.n_vertices} vertices, {model.direct_lobes} Gaussian(s) per view (and
+{model.indirect_lobes} of indirect glossy), 92 views. Under the
 built-in sky and the bundled park map ({DEFAULT_ENVMAP}), each also turned by 120 degrees;
 the model is baked once and relit.
 

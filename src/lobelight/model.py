@@ -12,7 +12,9 @@ holding
 ``gaussians``       (K, N, 7) float32 or float16: the paper's 7 floats per Gaussian, RGB weight,
                     mean, sigma, for the K kept records in row-major (vertex, view) order
                     (half-float files store the weight times the Gaussian's integral instead
-                    of its peak: ``meta["weights"] == "integral"``)
+                    of its peak: ``meta["weights"] == "integral"``); the last
+                    ``meta["indirect_gaussians"]`` (0 when absent) of the N hold indirect
+                    glossy transport (:attr:`Model.indirect_lobes`)
 ``diffuse``         (V, n, 3) SH diffuse transfer
 ``bounce``          optional (V, n, 3): the interreflected part of ``diffuse``, lit by the sun
                     as well (the self-shadowed part sees the sun per pixel)
@@ -160,6 +162,11 @@ class Model:
     bounce : optional (V, n, 3) the interreflected part of ``diffuse``: a renderer that shades
         the map's sun per pixel lights it with the sun's SH too (the sun's light bounced off
         the object; left out, the knot under the built-in sky rendered 5 % dark)
+    indirect_lobes : how many of the last Gaussians per view hold indirect glossy transport
+        (light reflected off the object itself before it reaches the vertex's glossy lobe).
+        A renderer that shades the sun's glossy light per pixel, with the other lobes seeing
+        the map without it, lets the sun light these (render/_sun_glossy.py):
+        a mirror shows the sun's reflection in another mirror
     """
 
     mesh: Mesh
@@ -169,10 +176,22 @@ class Model:
     materials: Materials
     provenance: dict[str, Any] = field(default_factory=dict)
     bounce: torch.Tensor | None = None
+    indirect_lobes: int = 0
+
+    def __post_init__(self):
+        n = int(self.gaussians.lam.shape[-1])
+        if not 0 <= self.indirect_lobes < n:
+            raise InputError("indirect_lobes", f"must be in 0..{n - 1}, got {self.indirect_lobes}")
 
     @property
     def n_lobes(self) -> int:
+        """Gaussians per view, direct and indirect."""
         return int(self.gaussians.lam.shape[-1])
+
+    @property
+    def direct_lobes(self) -> int:
+        """Gaussians per view fitted to the direct glossy transport."""
+        return self.n_lobes - self.indirect_lobes
 
     @property
     def device(self) -> torch.device:
@@ -258,6 +277,7 @@ class Model:
             drop=drop,
             provenance=self.provenance,
             bounce=self.bounce,
+            indirect_lobes=self.indirect_lobes,
         )
 
 
@@ -302,6 +322,7 @@ def save(
         drop=drop,
         provenance=provenance,
         bounce=fit.bounce,
+        indirect_lobes=getattr(fit, "indirect_lobes", 0),
     )
 
 
@@ -317,6 +338,7 @@ def _write(
     drop: bool,
     provenance: dict[str, Any] | None,
     bounce: torch.Tensor | None = None,
+    indirect_lobes: int = 0,
 ) -> dict[str, Any]:
     p = Path(path)
     if not p.parent.is_dir():
@@ -340,6 +362,7 @@ def _write(
         "n_vertices": v,
         "n_views": j,
         "n_gaussians": n,
+        "indirect_gaussians": int(indirect_lobes),
         "sh_order": round(diffuse.shape[1] ** 0.5),
         "float16": bool(float16),
         "weights": "integral" if float16 else "peak",
@@ -454,6 +477,12 @@ def load(path, *, device=None) -> Model:
         raise InputError(name, "metadata lacks the vertex, view or Gaussian counts") from None
     # bounds before anything is allocated from these counts
     _need(1 <= n <= 8, name, f"n_gaussians must be 1..8, got {n}")
+    ni = meta.get("indirect_gaussians", 0)
+    _need(
+        isinstance(ni, int) and not isinstance(ni, bool) and 0 <= ni < n,
+        name,
+        f"indirect_gaussians must be a whole number in 0..{n - 1}, got {ni!r}",
+    )
     _need(1 <= j <= 4096, name, f"n_views must be 1..4096, got {j}")
     _need(3 <= v <= 1 << 26, name, f"n_vertices must be 3..{1 << 26}, got {v}")
     shapes = {
@@ -546,5 +575,6 @@ def load(path, *, device=None) -> Model:
         mats,
         dict(prov),
         bounce=bounce,
+        indirect_lobes=ni,
     )
     return model.to(device) if device is not None else model

@@ -100,11 +100,15 @@ class MeshFit:
 
     Attributes
     ----------
-    gaussians : Gaussians of all V vertices (w (V, J, N, 3), mu (V, J, N, 3), lam (V, J, N))
+    gaussians : Gaussians of all V vertices (w (V, J, N, 3), mu (V, J, N, 3), lam (V, J, N)):
+        the fitted direct glossy lobes, then ``indirect_lobes`` of indirect glossy
+    indirect_lobes : trailing Gaussians per view that hold the indirect glossy transport
+        (:meth:`lobelight.transport.Transport.indirect_lobes`; 0 without indirect paths, or
+        where none bounced off the object: a convex object)
     diffuse : (V, 25, 3) diffuse SH transfer, self-shadowed plus ``bounces`` bounces of
         interreflection
     views : (J, 3) view directions
-    data_error : (V,) relative L2 error squared of the glossy fit (D)
+    data_error : (V,) relative L2 error squared of the direct glossy fit (D)
     bounce : (V, 25, 3) the interreflected part of ``diffuse`` (None without bounces): the
         renderer lights it with the sun too, which the self-shadowed part sees per pixel
     flips_before, flips_after : flipped (edge, view) pairs before and after relaxation
@@ -124,6 +128,7 @@ class MeshFit:
     separated_flips_before: int = 0
     separated_flips_after: int = 0
     seconds: dict[str, float] = field(default_factory=dict)
+    indirect_lobes: int = 0
 
 
 def _edges(mesh: Mesh) -> torch.Tensor:
@@ -241,8 +246,15 @@ def fit_mesh(
     checkpoint_every: float = 30.0,
     shadows: bool = True,
 ) -> MeshFit:
-    """Fit N Gaussians per view to every vertex's glossy transport, and its SH diffuse transfer,
-    both with interreflection.
+    """Fit N Gaussians per view to every vertex's direct glossy transport, one more to its
+    indirect glossy transport, and its SH diffuse transfer with interreflection.
+
+    The indirect glossy Gaussian is the paths' moments
+    (:meth:`lobelight.transport.Transport.indirect_lobes`), kept apart from the fitted ones: it
+    integrates the whole lighting, the sun included, where a renderer shades the sun's direct
+    glossy light per pixel and the fitted lobes see the map without it (the light a mirror
+    shows of the sun in another mirror); folded into one fitted lobe, that light lit the direct
+    reflection's place instead.
 
     Parameters
     ----------
@@ -251,7 +263,8 @@ def fit_mesh(
         half the free memory holds on a GPU); memory about ``batch x J x 700 x (90 + 100 n)``
         bytes. With ``n = 1`` there is no spatial term, vertices do not depend on each other
         and chunks run across wavefronts; with ``n >= 2`` a chunk stays inside one wavefront
-    indirect_paths : paths per vertex and view for indirect glossy (0: direct glossy only)
+    indirect_paths : paths per vertex and view for indirect glossy (0: direct glossy only,
+        no indirect Gaussian)
     bounces : bounces of diffuse interreflection added to the SH transfer once the glossy fit
         is done (:func:`lobelight.transport.diffuse_interreflection`, carrying the light of
         the hit points' diffuse and fitted glossy parts; 0: self-shadowed only)
@@ -288,6 +301,10 @@ def fit_mesh(
     mu = torch.zeros(v, j, n, 3, device=dev)
     lam = torch.ones(v, j, n, device=dev)
     w = torch.zeros(v, j, n, 3, device=dev)
+    # the indirect glossy Gaussian of each (vertex, view)
+    ind_w = torch.zeros(v, j, 1, 3, device=dev)
+    ind_mu = torch.zeros(v, j, 1, 3, device=dev)
+    ind_lam = torch.ones(v, j, 1, device=dev)
     derr = torch.zeros(v, device=dev)
     diffuse = torch.zeros(v, DIFFUSE_ORDER**2, 3, device=dev)
     bounce = torch.zeros(v, DIFFUSE_ORDER**2, 3, device=dev)
@@ -314,9 +331,12 @@ def fit_mesh(
         "bounce": bounce,
         "done": done,
         "glossy": glossy,
+        "ind_w": ind_w,
+        "ind_mu": ind_mu,
+        "ind_lam": ind_lam,
     }
     key = _settings_key(
-        scene, n, views, weights, batch, (indirect_paths, bounces, shadows), relax, seed
+        scene, n, views, weights, batch, (indirect_paths, "moments", bounces, shadows), relax, seed
     )
     ckpt = Path(checkpoint) if checkpoint is not None else None
     start = _resume(ckpt, key, state) if ckpt is not None else _FRESH
@@ -350,16 +370,16 @@ def fit_mesh(
         vidx = vidx[glossy[vidx]]
         if vidx.numel() == 0:
             return
+        if indirect_paths > 0 and not all_neighbours:
+            # seeded by chunk, so a resumed run draws the same paths
+            gen = torch.Generator().manual_seed(seed * 1_000_003 + 2 * i)
+            t = time.perf_counter()
+            ig = tr.indirect_lobes(vidx, views, paths=indirect_paths, generator=gen)
+            ind_w[vidx], ind_mu[vidx], ind_lam[vidx] = ig.w, ig.mu, ig.lam
+            t_indirect += time.perf_counter() - t
         # the relaxation pass samples the transport again rather than keeping it: all of it
         # (V x J x ~700 samples x 7 floats, 17 GB for 10K vertices) would not fit in memory
-        ind = None
-        if indirect_paths > 0:
-            # seeded by chunk and pass, so a resumed run draws the same paths
-            gen = torch.Generator().manual_seed(seed * 1_000_003 + 2 * i + int(all_neighbours))
-            t = time.perf_counter()
-            ind = tr.indirect(vidx, views, paths=indirect_paths, res=INDIRECT_RES, generator=gen)
-            t_indirect += time.perf_counter() - t
-        data = gather(tr, vidx, views, indirect=ind, indirect_res=INDIRECT_RES, lobe=lobe)
+        data = gather(tr, vidx, views, lobe=lobe)
         if all_neighbours:
             avail = glossy
         else:
@@ -437,9 +457,10 @@ def fit_mesh(
         save_state("interreflection", 0, force=True)
     t2 = time.perf_counter()
     if stage0 <= 2 and bounces > 0:
-        # the hit points' glossy light comes from their fitted Gaussians (direct and indirect
+        # the hit points' glossy light comes from their Gaussians (direct and indirect
         # glossy): without it a diffuse floor by a metal wall lost 32-63 % of its light
-        lobes = (views, w, mu, lam) if bool(glossy.any()) else None
+        g = _with_indirect(Gaussians(w, mu, lam), ind_w, ind_mu, ind_lam)
+        lobes = (views, g.w, g.mu, g.lam) if bool(glossy.any()) else None
         total = diffuse_interreflection(
             tr, diffuse, bounces=bounces, glossy=lobes, progress=progress
         )
@@ -448,7 +469,8 @@ def fit_mesh(
         save_state("done", 0, force=True)
     t3 = time.perf_counter()
     return MeshFit(
-        gaussians=Gaussians(w, mu, lam),
+        gaussians=_with_indirect(Gaussians(w, mu, lam), ind_w, ind_mu, ind_lam),
+        indirect_lobes=1 if bool((ind_w > 0).any()) else 0,
         diffuse=diffuse,
         views=views,
         data_error=derr,
@@ -468,6 +490,14 @@ def fit_mesh(
 
 # --------------------------------------------------------------------------------------------
 # checkpoints: plain arrays in an npz (no pickle), written to a temporary name and renamed
+
+
+def _with_indirect(g: Gaussians, w, mu, lam) -> Gaussians:
+    """The fitted Gaussians with the indirect glossy one after them, where any path bounced
+    off the object (a convex object, or a bake without indirect paths, has none)."""
+    if not bool((w > 0).any()):
+        return g
+    return Gaussians(torch.cat([g.w, w], 2), torch.cat([g.mu, mu], 2), torch.cat([g.lam, lam], 2))
 
 
 def _settings_key(scene, n, views, weights, batch, indirect_paths, relax, seed) -> str:

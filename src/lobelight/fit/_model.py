@@ -99,4 +99,13 @@ def fit_model(
     }
     mesh = scene.mesh.to(mf.gaussians.w.device)
     mats = scene.materials.to(mesh.vertices.device)
-    return Model(mesh, mf.views, mf.gaussians, mf.diffuse, mats, prov, bounce=mf.bounce)
+    return Model(
+        mesh,
+        mf.views,
+        mf.gaussians,
+        mf.diffuse,
+        mats,
+        prov,
+        bounce=mf.bounce,
+        indirect_lobes=mf.indirect_lobes,
+    )

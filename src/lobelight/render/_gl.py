@@ -235,6 +235,7 @@ class GLRenderer:
             "prt",
             {
                 "NL": n_lobes,
+                "NI": model.indirect_lobes,
                 "N_SH": n_sh,
                 "MAX_LEVELS": self.n_levels,
                 "FLOOR": f"{model_module._FLOOR:.6e}",
@@ -321,6 +322,8 @@ class GLRenderer:
         if self.sun_glossy:
             sb = sun_glossy_vertex_params(sun_widened(spec, lighting.sun.spread), v)
             set_uniforms(p, sun_glossy_uniforms(spec))
+            if p.get("sun_spread", None) is not None:  # compiled out without indirect lobes
+                p["sun_spread"].value = float(lighting.sun.spread)
         else:
             sb = np.zeros((v, 10), np.float32)
         p["sun_glossy"].value = float(self.sun_glossy)

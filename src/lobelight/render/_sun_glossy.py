@@ -26,6 +26,14 @@ modified Phong and normalised Blinn-Phong (:class:`lobelight.brdf.Phong`,
 :class:`lobelight.brdf.BlinnPhong`) and the isotropic rough conductors
 (:class:`lobelight.brdf.GGX`, :class:`lobelight.brdf.Beckmann`, with or without conductor
 Fresnel). Other specular BRDFs keep the sun in the Gaussians' lighting, as the paper does.
+
+The sun's *indirect* glossy light (the sun in a mirror seen in a mirror) has no BRDF to shade
+it per pixel: a model's indirect Gaussians (:attr:`lobelight.model.Model.indirect_lobes`) carry
+it, and :func:`sun_through` adds what the sun sends through them, the Gaussian widened by the
+disc, ``1 / lam' = 1 / lam + sigma^2 / 2`` (the variances of two small-angle Gaussians add; a
+lobe's per-axis variance is ``1 / lam``, a disc's of RMS angle ``sigma`` is ``sigma^2 / 2``),
+keeping its integral: ``E w (lam' / lam) exp(lam' (mu.l - 1))``. No shadow test: that light
+arrives from the object, not from the sun.
 """
 
 from __future__ import annotations
@@ -33,13 +41,14 @@ from __future__ import annotations
 import numpy as np
 import torch
 
-from .. import brdf
+from .. import brdf, sg
 
 __all__ = [
     "sun_glossy",
     "sun_glossy_supported",
     "sun_glossy_uniforms",
     "sun_glossy_vertex_params",
+    "sun_through",
     "sun_widened",
 ]
 
@@ -122,3 +131,23 @@ def sun_glossy(
     cos = (n * l).sum(-1).clamp_min(0)
     f = s.eval(l, wo, n)  # (P, 3)
     return f * (cos[:, None] * lighting.sun.irradiance.to(pos.device, pos.dtype))
+
+
+def sun_through(
+    e: torch.Tensor, mu: torch.Tensor, lam: torch.Tensor, sun_dir: torch.Tensor, sun
+) -> torch.Tensor:
+    """The sun's light through Gaussians carrying light ``e``, ``(..., 3)`` (module docstring).
+
+    Parameters
+    ----------
+    e : (..., 3) carried light (weight times integral);  mu : (..., 3) unit means;
+    lam : (...) sharpness;  sun_dir : (3,) towards the sun;  sun : lobelight.envmap.Sun
+    """
+    lam = lam.clamp_min(0)
+    s2 = float(sun.spread) ** 2
+    ratio = 1 / (1 + lam * (s2 / 2))  # lam' / lam
+    lam_w = lam * ratio
+    d = mu - sun_dir.to(mu.device, mu.dtype)
+    g = torch.exp(-lam_w * 0.5 * (d * d).sum(-1))  # exp(lam' (mu.l - 1)), by the chord
+    w = e / sg.integral(lam)[..., None]
+    return w * (ratio * g)[..., None] * sun.irradiance.to(e.device, e.dtype)

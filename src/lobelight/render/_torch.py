@@ -31,7 +31,7 @@ from ..errors import InputError
 from ..model import blend_lobes
 from ..raycast import RayCaster
 from ._lighting import Lighting
-from ._sun_glossy import sun_glossy, sun_glossy_supported
+from ._sun_glossy import sun_glossy, sun_glossy_supported, sun_through
 
 __all__ = ["VertexData", "pixel_stage", "render_torch", "sun_stage", "vertex_stage"]
 
@@ -127,6 +127,13 @@ def pixel_stage(
             # the carried light times the lighting averaged under the lobe: the integral
             # without forming the (up to 1e5) peak weight
             acc += (e * lighting.lookup(mu, sigma.pow(-2), rot, rest=sun_gl).to(dev)).sum(1)
+            ni = model.indirect_lobes
+            if sun_gl and ni:
+                # the sun's light reflected off the object into the indirect lobes
+                sd = lighting.sun_direction(rot).to(dev, torch.float32)
+                k = slice(model.n_lobes - ni, None)
+                lam_k = sigma[:, k].pow(-2)
+                acc += sun_through(e[:, k], mu[:, k], lam_k, sd, lighting.sun).sum(1)
         out[s : s + PIXEL_BATCH] = acc
     if (diffuse or sun_gl) and lighting.sun is not None:
         if caster is None:

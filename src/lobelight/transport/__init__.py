@@ -4,7 +4,8 @@
   cube map of directions, indirect glossy by path tracing (binned on a cube map), and the
   self-shadowed diffuse transfer as order-5 SH (:class:`TransportBatch`).
 - :class:`Transport` evaluates each part where a caller needs it (e.g. visibility and direct
-  glossy on a dense local grid around a sharp lobe).
+  glossy on a dense local grid around a sharp lobe), and the indirect glossy transport as one
+  Gaussian per vertex and view from the paths' moments (:meth:`Transport.indirect_lobes`).
 - :func:`diffuse_interreflection` adds bounces of diffuse interreflection to the SH transfer,
   with the light the hit points' glossy lobes send (from their fitted Gaussians).
 - :data:`BOUNCES` and :data:`INDIRECT_PATHS` are a bake's defaults (docs/method.md).
@@ -13,6 +14,7 @@
 from ._transport import (
     BOUNCES,
     DIFFUSE_ORDER,
+    INDIRECT_LAM_RANGE,
     INDIRECT_PATHS,
     Transport,
     TransportBatch,
@@ -23,6 +25,7 @@ from ._transport import (
 __all__ = [
     "BOUNCES",
     "DIFFUSE_ORDER",
+    "INDIRECT_LAM_RANGE",
     "INDIRECT_PATHS",
     "Transport",
     "TransportBatch",

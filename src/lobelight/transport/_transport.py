@@ -32,13 +32,15 @@ from dataclasses import dataclass
 
 import torch
 
-from .. import cubemap, sh, sphere
+from .. import cubemap, sg, sh, sphere
 from ..errors import InputError
 from ..raycast import RayCaster
 from ..scene import Scene
+from ..sg import Gaussians
 
 __all__ = [
     "BOUNCES",
+    "INDIRECT_LAM_RANGE",
     "INDIRECT_PATHS",
     "Transport",
     "TransportBatch",
@@ -53,6 +55,10 @@ DIFFUSE_ORDER = 5
 BOUNCES = 4
 #: Paths per vertex and view of a bake's indirect glossy (docs/method.md).
 INDIRECT_PATHS = 16
+#: Sharpness range of the indirect glossy Gaussians (:meth:`Transport.indirect_lobes`), the
+#: fit's (:data:`lobelight.fit.LAM_RANGE`): paths that all escape one way (a mirror seen in a
+#: mirror) would give an infinite one, a lone path a flat one, whose width (inf) blends to NaN.
+INDIRECT_LAM_RANGE = (0.5, 3e4)
 
 
 @dataclass(eq=False)
@@ -247,14 +253,96 @@ class Transport:
         that ``sum_bins T * L * solid_angle`` estimates the radiance these paths carry
         """
         dev = self.device
+        b, j = vidx.shape[0], views.shape[0]
+        n_bins = 6 * res * res
+        acc = torch.zeros(b * j * n_bins, 3, device=dev)
+        slot, d, thr = self.escapes(
+            vidx, views, paths=paths, max_bounces=max_bounces, generator=generator
+        )
+        if slot.numel():
+            f, u, v = cubemap.direction_to_face_uv(d)
+            col = ((u + 1) * res / 2).floor().long().clamp(0, res - 1)
+            row = ((v + 1) * res / 2).floor().long().clamp(0, res - 1)
+            acc.index_add_(0, slot * n_bins + (f * res + row) * res + col, thr)
+        om = cubemap.texel_solid_angles(res, device=dev).reshape(-1)
+        return acc.reshape(b, j, n_bins, 3) / (paths * om[None, None, :, None])
+
+    def indirect_lobes(
+        self,
+        vidx: torch.Tensor,
+        views: torch.Tensor,
+        *,
+        paths: int = 64,
+        max_bounces: int = 8,
+        generator: torch.Generator | None = None,
+    ) -> Gaussians:
+        """Indirect glossy transport as one Gaussian per vertex and view, from its paths.
+
+        The paths of :meth:`escapes` sample the indirect transport as a density over escape
+        directions: their throughputs summed over ``paths`` estimate its integral (unbiased:
+        the Gaussian keeps it exactly), the throughput-weighted mean direction its mean, and
+        the weighted median angle from that mean its width (a vMF holds half its light within
+        ``1 - cos = ln 2 / lam``). The median, not the second moment: a mirror's image in a
+        curved mirror is compact with a few wide strays, and the vMF of the paths' second
+        moment puts its tail on bright sources the paths miss (docs/method.md has the
+        measurement). A lone path (by the throughputs' effective count) tells no width: it
+        gets the widest lobe.
+
+        Parameters
+        ----------
+        vidx : (B,);  views : (J, 3);  paths, max_bounces, generator : as :meth:`indirect`
+
+        Returns
+        -------
+        Gaussians with w (B, J, 1, 3), mu (B, J, 1, 3), lam (B, J, 1) (sharpness in
+        :data:`INDIRECT_LAM_RANGE`; zero weight where no path escaped)
+        """
+        b, j = vidx.shape[0], views.shape[0]
+        slot, d, thr = self.escapes(
+            vidx, views, paths=paths, max_bounces=max_bounces, generator=generator
+        )
+        w, mu, lam = _moment_lobes(slot, d, thr, b * j, paths)
+        return Gaussians(w.reshape(b, j, 1, 3), mu.reshape(b, j, 1, 3), lam.reshape(b, j, 1))
+
+    def escapes(
+        self,
+        vidx: torch.Tensor,
+        views: torch.Tensor,
+        *,
+        paths: int = 64,
+        max_bounces: int = 8,
+        generator: torch.Generator | None = None,
+    ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        """The indirect glossy paths that escape the object after at least one bounce off it.
+
+        ``paths`` paths per vertex and view leave the vertex by importance sampling its
+        specular lobe for the view (its diffuse part is the SH term's), bounce off the object
+        (full material: Lambert + specular, sampled as a mixture) until Russian roulette ends
+        them, and are recorded where they escape.
+
+        Parameters
+        ----------
+        vidx : (B,) vertex ids;  views : (J, 3)
+        max_bounces : hard cap on bounces off the object (bounds the loop)
+
+        Returns
+        -------
+        slot : (E,) int64 ``vertex * J + view`` of each escaped path;  dirs : (E, 3) its escape
+        direction;  thr : (E, 3) its throughput (``f cos / pdf`` products: ``sum thr / paths``
+        per slot estimates the indirect transport's integral)
+        """
+        dev = self.device
         vidx = vidx.to(dev)
         b, j = vidx.shape[0], views.shape[0]
         views = views.to(dev, torch.float32)
-        n_bins = 6 * res * res
-        acc = torch.zeros(b * j * n_bins, 3, device=dev)
+        slots, dirs, thrs = [], [], []
         spec = self.materials.specular
-        if spec is None:
-            return acc.reshape(b, j, n_bins, 3)
+        if spec is None or b * j == 0:
+            return (
+                torch.zeros(0, dtype=torch.int64, device=dev),
+                torch.zeros(0, 3, device=dev),
+                torch.zeros(0, 3, device=dev),
+            )
         g = generator
 
         def rand(*shape):
@@ -281,11 +369,10 @@ class Transport:
             tri, _, bary = self.caster.first_hit(o, wi)
             esc = tri < 0
             if not first and bool(esc.any()):
-                # escaped after at least one bounce off the object: record at its direction
-                f, u, v = cubemap.direction_to_face_uv(wi[esc])
-                col = ((u + 1) * res / 2).floor().long().clamp(0, res - 1)
-                row = ((v + 1) * res / 2).floor().long().clamp(0, res - 1)
-                acc.index_add_(0, slot[esc] * n_bins + (f * res + row) * res + col, thr[esc])
+                # escaped after at least one bounce off the object
+                slots.append(slot[esc])
+                dirs.append(wi[esc])
+                thrs.append(thr[esc])
             first = False
             keep = ~esc
             if bounce == max_bounces or not bool(keep.any()):
@@ -310,8 +397,13 @@ class Transport:
                 thr = torch.where(survive[:, None], thr, torch.zeros_like(thr))
             live = (thr.amax(-1) > 0).nonzero().squeeze(-1)
             p, n, wi, thr, slot = p[live], ns[live], wi_new[live], thr[live], slot[live]
-        om = cubemap.texel_solid_angles(res, device=dev).reshape(-1)
-        return acc.reshape(b, j, n_bins, 3) / (paths * om[None, None, :, None])
+        if not slots:
+            return (
+                torch.zeros(0, dtype=torch.int64, device=dev),
+                torch.zeros(0, 3, device=dev),
+                torch.zeros(0, 3, device=dev),
+            )
+        return torch.cat(slots), torch.cat(dirs), torch.cat(thrs)
 
     # ---- diffuse --------------------------------------------------------------------------
 
@@ -503,6 +595,40 @@ def diffuse_interreflection(
         if progress is not None:
             progress("interreflection", len(starts) + k + 1, total)
     return cur
+
+
+def _moment_lobes(slot, d, thr, m: int, paths: int):
+    """One Gaussian per group of escaped paths (:meth:`Transport.indirect_lobes`):
+    ``(w (m, 3), mu (m, 3), lam (m,))`` for groups ``0..m-1`` given each path's ``slot``."""
+    dev = d.device
+    s = torch.zeros(m, 3, device=dev).index_add_(0, slot, thr) / paths  # (m, 3) integral
+    lum = thr.sum(-1)  # (E,) the direction statistics' weights
+    big_l = torch.zeros(m, device=dev).index_add_(0, slot, lum)
+    big_q = torch.zeros(m, device=dev).index_add_(0, slot, lum * lum)
+    mom = torch.zeros(m, 3, device=dev).index_add_(0, slot, lum[:, None] * d)
+    norm = torch.linalg.vector_norm(mom, dim=-1)
+    some = (big_l > 0) & (norm > 0)
+    up = torch.tensor([0.0, 1.0, 0.0], device=dev)
+    mu = torch.where(some[:, None], mom / norm.clamp_min(1e-30)[:, None], up)
+    # the weighted median of 1 - cos to the mean (half chords: precise for sharp lobes): the
+    # paths sorted by slot, then by it; per slot the first at half the slot's weight
+    half = 0.5 * ((d - mu[slot]) ** 2).sum(-1)  # (E,)
+    order = torch.argsort(slot.double() * 4 + half.double())
+    ss, hs = slot[order], half[order]
+    before = torch.cumsum(big_l, 0) - big_l  # (m,) the weight of the earlier slots
+    frac = (lum[order].cumsum(0) - before[ss]) / big_l[ss].clamp_min(1e-30)
+    e = ss.numel()
+    at = torch.where(frac >= 0.5, torch.arange(e, device=dev), e)
+    first = torch.full((m,), e, dtype=torch.int64, device=dev).scatter_reduce(0, ss, at, "amin")
+    hm = torch.zeros(m, device=dev)
+    hm[first < e] = hs[first[first < e]]
+    # a vMF holds half its light within 1 - cos = ln 2 / lam (for lam >> 1); one path (by
+    # the throughputs' effective count) tells no width: the widest lobe
+    lam = (math.log(2) / hm.clamp_min(1e-30)).clamp(*INDIRECT_LAM_RANGE)
+    n_eff = big_l**2 / big_q.clamp_min(1e-30)
+    lam = torch.where(some & (n_eff >= 2), lam, torch.full_like(lam, INDIRECT_LAM_RANGE[0]))
+    w = torch.where(some[:, None], s / sg.integral(lam)[:, None], torch.zeros_like(s))
+    return w, mu, lam
 
 
 @dataclass(eq=False)

@@ -4,8 +4,9 @@
 // times its integral) blends linearly; width and mean blend over the live records (carrying at
 // least FLOOR) with renormalised barycentrics. Per pixel the rasteriser does that with
 // varyings premultiplied by the live flag, divided by the interpolated flag.
-// Stages are selected by VERTEX_SHADER / FRAGMENT_SHADER; NL (Gaussians per view) is defined
-// by the loader. The torch path (render/_torch.py) mirrors this file step by step.
+// Stages are selected by VERTEX_SHADER / FRAGMENT_SHADER; NL (Gaussians per view) and NI (how
+// many of the last hold indirect glossy transport, lobelight.model.Model.indirect_lobes) are
+// defined by the loader. The torch path (render/_torch.py) mirrors this file step by step.
 
 #if defined VERTEX_SHADER
 
@@ -139,6 +140,7 @@ uniform float shadow_bias;        // depth bias (shadow-map depth units)
 uniform float sun_glossy;         // 1: on
 uniform int sun_model;            // 0 GGX, 1 Beckmann, 2 modified Phong, 3 Blinn-Phong
 uniform float sun_fresnel;        // 1 conductor Fresnel, 0 none (F = 1)
+uniform float sun_spread;         // the sun disc's RMS angle (radians)
 
 const float PI = 3.14159265358979;
 
@@ -218,6 +220,16 @@ vec3 sun_brdf_cos(vec3 l, vec3 v, vec3 n) {
     return f * val;
 }
 
+// what the sun sends through an indirect Gaussian of sharpness lam, per unit carried light
+// (render/_sun_glossy.py sun_through: the lobe widened by the disc, its integral kept)
+float sun_through(vec3 mu, float lam) {
+    float ratio = 1.0 / (1.0 + lam * 0.5 * sun_spread * sun_spread);
+    vec3 dd = mu - sun_dir;
+    float g = exp(-lam * ratio * 0.5 * dot(dd, dd));
+    float integral = lam < 1e-4 ? 4.0 * PI * (1.0 - lam) : 2.0 * PI * (1.0 - exp(-2.0 * lam)) / lam;
+    return ratio * g / integral;
+}
+
 // the prefiltered lookups (integrate, level_lookup) come from prefiltered.glsl
 uniform vec3 eye;
 uniform mat3 rot_t;               // R^T: the rotated lighting seen by mu is the original at R^T mu
@@ -250,6 +262,10 @@ void main() {
             float sigma = v_sigma[k] / say;
             vec3 mu = normalize(mirror + v_mu[k] / say);
             c += v_e[k] * prefiltered_lookup(rot_t * mu, 1.0 / (sigma * sigma));
+            // the sun's light reflected off the object into the indirect lobes
+            if (sun_gl && sun_on > 0.0 && k >= NL - NI) {
+                c += v_e[k] * sun_e * sun_through(mu, 1.0 / (sigma * sigma));
+            }
         }
     }
     frag = vec4(c, 1.0);
