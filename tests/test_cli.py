@@ -202,3 +202,22 @@ def test_sigterm_ends_a_bake_like_ctrl_c(tmp_path):
     assert rest[-1] == "lobelight: terminated (a bake resumes when run again)"
     assert not any("Traceback" in x for x in rest)
     assert not out.exists() and not list(tmp_path.glob("*.partial*"))
+
+
+def test_a_truncated_exr_leaves_stdout_to_the_json(tmp_path, capfd, monkeypatch):
+    # OpenEXR prints a warning on stdout and another on stderr when a file is cut short: under
+    # --json stdout must hold the JSON alone, and the library's words go into our one line
+    import OpenEXR
+
+    monkeypatch.chdir(tmp_path)
+    img = np.random.default_rng(0).random((64, 128, 3), dtype=np.float32)
+    header = {"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage}
+    OpenEXR.File(header, {"RGB": img}).write(str(tmp_path / "full.exr"))
+    data = (tmp_path / "full.exr").read_bytes()
+    (tmp_path / "cut.exr").write_bytes(data[: len(data) * 6 // 10])
+    assert main(["bake", "sphere:1", "--env", "cut.exr", "--json", "-q"]) == 2
+    out, err = capfd.readouterr()
+    doc = json.loads(out)  # the whole of stdout is one JSON document
+    assert "cut.exr" in json.dumps(doc) and "OpenEXR" in json.dumps(doc)
+    lines = err.strip().splitlines()  # one line, ours, with the library's words inside it
+    assert len(lines) == 1 and lines[0].startswith("lobelight: error: cut.exr")

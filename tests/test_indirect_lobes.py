@@ -160,7 +160,10 @@ def test_indirect_lobes_see_the_sun_when_it_is_shaded_per_pixel():
     # the differences leave out the sun's direct light, whose shadow map and shadow rays
     # differ at shadow edges
     torch.testing.assert_close(
-        (img_gl - without_gl)[both], (with_sun - without)[both], rtol=1e-3, atol=1e-5
+        (img_gl - without_gl)[both],
+        (with_sun - without)[both],
+        rtol=1e-3,
+        atol=1e-4 * float(with_sun.max()),  # a difference of two images: their rounding
     )
 
 

@@ -20,7 +20,18 @@ ROOT = Path(lobelight.__file__).parent
 
 #: Top-level modules and packages by layer, lowest first.
 LAYERS: list[tuple[str, ...]] = [
-    ("errors", "_backend", "_io", "_cache", "_size", "_machine", "_malloc", "progress", "data"),
+    (
+        "errors",
+        "_backend",
+        "_io",
+        "_library_output",
+        "_cache",
+        "_size",
+        "_machine",
+        "_malloc",
+        "progress",
+        "data",
+    ),
     ("sphere", "cubemap", "camera", "sg", "sh", "haar", "brdf"),
     ("envmap", "scene"),
     ("raycast",),

@@ -70,6 +70,7 @@ import numpy as np
 import OpenEXR
 import torch
 
+from .._library_output import library_output
 from ..errors import InputError
 from ._envmap import EnvMap, describe_bad_values
 from ._files import _EXTENSIONS, _GRID, CROSS_FACES, FILE_LAYOUTS, cross_pixels, save
@@ -307,16 +308,20 @@ def _read_exr(p: Path, buf: bytes, name: str) -> np.ndarray:
     """Read an OpenEXR file to ``(H, W, 3)`` float32 RGB."""
     if not buf.startswith(b"\x76\x2f\x31\x01"):
         raise InputError(name, f"not an OpenEXR file (it is {_sniff(buf)})")
-    try:
-        f = OpenEXR.File(str(p), separate_channels=True)
-        parts = f.parts
-        if not parts:
-            raise InputError(name, "truncated or corrupt OpenEXR file (no image could be read)")
-        chans = parts[0].channels
-    except InputError:
-        raise
-    except Exception as e:
-        raise InputError(name, f"truncated or corrupt OpenEXR file ({e})") from e
+    # OpenEXR prints its own warnings on stdout and stderr: they become part of our one line
+    problem = None
+    with library_output() as said:
+        try:
+            f = OpenEXR.File(str(p), separate_channels=True)
+            parts = f.parts
+            chans = parts[0].channels if parts else None
+        except Exception as e:
+            problem = str(e)
+    if problem is not None or chans is None:
+        detail = "; ".join([problem or "no image could be read", *said[:2]])
+        raise InputError(name, f"truncated or corrupt OpenEXR file ({detail})")
+    if said:
+        logger.warning("%s: OpenEXR: %s", name, "; ".join(said[:2]))
     names = sorted(chans)
     if all(c in chans for c in "RGB"):
         planes = [chans[c].pixels for c in "RGB"]
