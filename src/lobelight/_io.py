@@ -7,18 +7,38 @@ get the permissions a plainly created file would have (``mkstemp`` makes owner-o
 ``os.replace`` renames them over the target. Two processes writing one path each rename a
 complete file, and the last one wins; an error removes the temporary file and leaves the target
 as it was.
+
+Files read go through one door too, :func:`read_input` (or :func:`check_input` for a library
+that opens the file by name): a regular file of a known size, under a limit per kind, read in
+one bounded call. A device, a pipe or a socket (``/dev/zero``, a FIFO) would be read forever.
 """
 
 from __future__ import annotations
 
 import contextlib
 import os
+import stat
 import tempfile
 from collections.abc import Iterator
 from pathlib import Path
 from typing import BinaryIO
 
-__all__ = ["PARTIAL_SUFFIX", "atomic_path", "atomic_writer"]
+from .errors import InputError
+
+__all__ = [
+    "IMAGE_LIMIT",
+    "PARTIAL_SUFFIX",
+    "TEXT_LIMIT",
+    "atomic_path",
+    "atomic_writer",
+    "check_input",
+    "read_input",
+]
+
+#: Size limits of the files read, in bytes: images (a 16K x 8K float EXR is 1.6 GB) and scene
+#: descriptions (TOML or JSON text); meshes have theirs in lobelight.scene (MAX_MESH_BYTES).
+IMAGE_LIMIT = 4 << 30
+TEXT_LIMIT = 16 << 20
 
 #: What every temporary name contains (before the target's suffix); their names are unique.
 PARTIAL_SUFFIX = ".partial"
@@ -59,3 +79,36 @@ def atomic_writer(path: str | os.PathLike) -> Iterator[BinaryIO]:
     (:func:`atomic_path`)."""
     with atomic_path(path) as tmp, open(tmp, "wb") as f:
         yield f
+
+
+def check_input(path: str | os.PathLike, *, limit: int) -> int:
+    """The size of ``path`` in bytes, after checking that it is a regular file (symbolic links
+    followed) of at most ``limit`` bytes; else :class:`InputError` naming it."""
+    name = str(path)
+    try:
+        st = os.stat(path)
+    except FileNotFoundError:
+        raise InputError(name, "no such file") from None
+    except OSError as e:
+        raise InputError(name, f"cannot read the file ({e.strerror or e})") from None
+    if stat.S_ISDIR(st.st_mode):
+        raise InputError(name, "is a directory, not a file")
+    if not stat.S_ISREG(st.st_mode):
+        raise InputError(name, "is not a regular file (a device, pipe or socket has no end)")
+    if st.st_size > limit:
+        raise InputError(name, f"is {st.st_size:,} bytes, more than the {limit:,} bytes read here")
+    return st.st_size
+
+
+def read_input(path: str | os.PathLike, *, limit: int) -> bytes:
+    """The bytes of ``path``, a regular file of at most ``limit`` bytes (:func:`check_input`),
+    read in one call that stops past the limit (a file that grows meanwhile is refused)."""
+    check_input(path, limit=limit)
+    try:
+        with open(path, "rb") as f:
+            data = f.read(limit + 1)
+    except OSError as e:
+        raise InputError(str(path), f"cannot read the file ({e.strerror or e})") from None
+    if len(data) > limit:
+        raise InputError(str(path), f"grew past {limit:,} bytes while it was read")
+    return data

@@ -70,6 +70,7 @@ import numpy as np
 import OpenEXR
 import torch
 
+from .._io import IMAGE_LIMIT, read_input
 from .._library_output import library_output
 from ..errors import InputError
 from ._envmap import EnvMap, describe_bad_values
@@ -119,10 +120,7 @@ def load(path: str | Path, *, layout: str | None = None, sanitize: bool = False)
         raise InputError(
             name, f"unsupported file type {ext or '(no extension)'!r}: lobelight reads .hdr, .exr"
         )
-    try:
-        buf = p.read_bytes()
-    except OSError as e:
-        raise InputError(name, f"cannot read the file ({e.strerror or e})") from e
+    buf = read_input(p, limit=IMAGE_LIMIT)
     if not buf:
         raise InputError(name, "the file is empty")
     img = _read_hdr(buf, name) if ext == ".hdr" else _read_exr(p, buf, name)  # (H, W, 3) f32

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import os
 from dataclasses import dataclass
 from functools import cached_property
 from pathlib import Path
@@ -10,6 +9,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from .._io import check_input
 from ..errors import InputError
 
 __all__ = ["MAX_MESH_BYTES", "Mesh", "load_mesh", "mesh_from_arrays"]
@@ -199,11 +199,7 @@ def load_mesh(path, *, device=None) -> Mesh:
     import trimesh
 
     p = Path(path)
-    if not p.is_file():
-        raise InputError(str(p), "no such file")
-    size = os.path.getsize(p)
-    if size > MAX_MESH_BYTES:
-        raise InputError(str(p), f"file is {size / 1024**3:.1f} GB; meshes over 2 GB are refused")
+    size = check_input(p, limit=MAX_MESH_BYTES)  # a regular file, of a size trimesh can read
     if size == 0:
         raise InputError(str(p), "file is empty")
     suffix = p.suffix.lower()

@@ -42,6 +42,7 @@ from typing import Any
 import numpy as np
 import torch
 
+from .._io import TEXT_LIMIT, read_input
 from ..camera import Camera
 from ..data import envmap_names, resolve_envmap
 from ..errors import InputError
@@ -228,10 +229,7 @@ def builtin(name: str = "knot", **options: Any) -> Scene:
 
 
 def _read_description(p: Path) -> dict[str, Any]:
-    try:
-        text_bytes = p.read_bytes()
-    except OSError as exc:  # a directory, no permission
-        raise InputError(str(p), f"cannot read the file ({exc.strerror or exc})") from None
+    text_bytes = read_input(p, limit=TEXT_LIMIT)
     try:
         if p.suffix.lower() == ".json":
             data = json.loads(text_bytes.decode("utf-8"))
