@@ -438,3 +438,43 @@ def test_a_device_or_a_pipe_is_refused_not_read_forever(tmp_path, load, name, ki
     with pytest.raises(InputError, match="not a regular file") as e:
         load(p)
     assert name in str(e.value)
+
+
+def _ascii_ply(tmp_path) -> str:
+    import trimesh
+
+    trimesh.creation.icosphere(2).export(tmp_path / "full.ply", encoding="ascii")
+    return (tmp_path / "full.ply").read_text()
+
+
+def test_a_ply_cut_short_is_refused_not_loaded_in_part(tmp_path):
+    # an ASCII PLY cut at 90 % (inside its face list) loaded as a partial mesh
+    text = _ascii_ply(tmp_path)
+    (tmp_path / "cut.ply").write_text(text[: len(text) * 9 // 10])
+    with pytest.raises(InputError, match=r"cut\.ply: declares 320 faces and holds \d+"):
+        scene.load_mesh(tmp_path / "cut.ply")
+    assert scene.load_mesh(tmp_path / "full.ply").n_vertices == 162
+
+
+def test_a_ply_header_that_declares_more_faces_than_it_holds_is_refused(tmp_path):
+    text = _ascii_ply(tmp_path).replace("element face 320", "element face 1000000000")
+    (tmp_path / "lies.ply").write_text(text)
+    with pytest.raises(InputError, match=r"lies\.ply: declares 1,000,000,000 faces"):
+        scene.load_mesh(tmp_path / "lies.ply")
+
+
+def test_an_rgbe_file_of_0xff_bytes_is_refused(tmp_path):
+    # every pixel decodes to 1.7e38: it passed bake --env, and render failed naming no file
+    head = b"#?RADIANCE\nFORMAT=32-bit_rle_rgbe\n\n-Y 8 +X 16\n"
+    (tmp_path / "hot.hdr").write_bytes(head + b"\xff" * (8 * 16 * 4))
+    with pytest.raises(InputError, match=r"hot\.hdr: radiance up to 1.69e\+38"):
+        envmap.load(tmp_path / "hot.hdr")
+
+
+def test_a_scene_whose_environment_is_not_a_map_is_refused(tmp_path):
+    # environment = "/etc/passwd" baked with exit 0
+    _ascii_ply(tmp_path)
+    (tmp_path / "notes.txt").write_text("not a map")
+    (tmp_path / "s.toml").write_text('mesh = "full.ply"\nenvironment = "notes.txt"\n')
+    with pytest.raises(InputError, match=r"notes\.txt: is not an environment map"):
+        scene.load(tmp_path / "s.toml")

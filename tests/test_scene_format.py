@@ -259,9 +259,13 @@ def test_bundled_environment_name_resolves(tetra: Path):
     p = tetra.parent / "s.toml"
     p.write_text(f'mesh = "tetra.obj"\nenvironment = "{data.DEFAULT_ENVMAP}"\n')
     assert scene.load(p).environment == str(data.envmap_path(data.DEFAULT_ENVMAP))
-    # a file of that name next to the scene file comes first
+    # a file of that name without a map's suffix is not a map: the bundled one is taken
     (tetra.parent / data.DEFAULT_ENVMAP).write_bytes(b"#?RADIANCE\n")
-    assert scene.load(p).environment == str(tetra.parent / data.DEFAULT_ENVMAP)
+    assert scene.load(p).environment == str(data.envmap_path(data.DEFAULT_ENVMAP))
+    # a map file next to the scene file comes first
+    (tetra.parent / "sky.hdr").write_bytes(b"#?RADIANCE\n")
+    p.write_text('mesh = "tetra.obj"\nenvironment = "sky.hdr"\n')
+    assert scene.load(p).environment == str(tetra.parent / "sky.hdr")
     p.write_text('mesh = "tetra.obj"\nenvironment = "builtin"\n')
     assert scene.load(p).environment == "builtin"
     p.write_text('mesh = "tetra.obj"\nenvironment = "no_such_park"\n')

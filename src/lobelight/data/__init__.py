@@ -9,7 +9,19 @@ from __future__ import annotations
 
 from pathlib import Path
 
-__all__ = ["DATA_ENV", "DEFAULT_ENVMAP", "envmap_names", "envmap_path", "resolve_envmap"]
+from ..errors import InputError
+
+__all__ = [
+    "DATA_ENV",
+    "DEFAULT_ENVMAP",
+    "MAP_SUFFIXES",
+    "envmap_names",
+    "envmap_path",
+    "resolve_envmap",
+]
+
+#: The environment map files lobelight reads (and writes): Radiance RGBE and OpenEXR.
+MAP_SUFFIXES = (".hdr", ".exr")
 
 _ENVMAPS = Path(__file__).resolve().parent / "envmaps"
 
@@ -36,11 +48,15 @@ def envmap_path(name: str) -> Path | None:
 def resolve_envmap(source: str, *, relative_to: str | Path | None = None) -> str | None:
     """The environment a user names: ``"builtin"`` as it is; a file (relative to the folder
     ``relative_to``, else the working directory) when one exists; else the bundled map with that
-    stem; None when it is none of these."""
+    stem; None when it is none of these. A file that is not a map (by its suffix) is passed
+    over for a bundled map of that name, else an :class:`InputError`."""
     if source == "builtin":
         return source
     path = Path(relative_to) / source if relative_to is not None else Path(source)
-    if path.is_file():
-        return str(path.resolve() if relative_to is not None else path)
     bundled = envmap_path(source)
+    if path.is_file() and (path.suffix.lower() in MAP_SUFFIXES or bundled is None):
+        if path.suffix.lower() not in MAP_SUFFIXES:
+            problem = f"is not an environment map (lobelight reads {', '.join(MAP_SUFFIXES)})"
+            raise InputError(source, problem)
+        return str(path.resolve() if relative_to is not None else path)
     return str(bundled) if bundled is not None else None

@@ -18,12 +18,13 @@ import torch
 
 from .. import cubemap
 from .._io import atomic_path
+from ..data import MAP_SUFFIXES
 from ..errors import InputError
 
 __all__ = ["CROSS_FACES", "FILE_LAYOUTS", "cross_pixels", "save"]
 
 FILE_LAYOUTS = ("latlong", "vcross", "hcross", "strip")
-_EXTENSIONS = (".hdr", ".exr")
+_EXTENSIONS = MAP_SUFFIXES
 # Largest value a half float holds; larger radiance would be written as +Inf.
 _HALF_MAX = 65504.0
 

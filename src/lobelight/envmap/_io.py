@@ -165,10 +165,19 @@ def _file_layout(h: int, w: int, layout: str | None, name: str) -> str:
     )
 
 
+#: The largest radiance a map may hold: a calibrated sun is about 1e9, and sums and squares of
+#: 1e15 over any map stay finite in float32 (an RGBE file of 0xFF bytes decodes to 1.7e38).
+MAX_RADIANCE = 1e15
+
+
 def _check_values(img: np.ndarray, name: str, *, sanitize: bool) -> np.ndarray:
-    """Refuse, or with ``sanitize`` repair, NaN / Inf / negative radiance. ``(H, W, 3)``."""
+    """Refuse, or with ``sanitize`` repair, NaN / Inf / negative radiance; refuse radiance over
+    :data:`MAX_RADIANCE`. ``(H, W, 3)``."""
     problem = describe_bad_values(torch.from_numpy(img))
     if problem is None:
+        top = float(img.max()) if img.size else 0.0
+        if top > MAX_RADIANCE:
+            raise InputError(name, f"radiance up to {top:.3g}, over {MAX_RADIANCE:g}: not a map")
         return img
     if not sanitize:
         raise InputError(name, problem + "; load with sanitize=True to repair them")

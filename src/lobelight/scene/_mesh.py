@@ -213,10 +213,33 @@ def load_mesh(path, *, device=None) -> Mesh:
     f = getattr(loaded, "faces", None)
     if v is None or f is None or len(f) == 0:
         raise InputError(str(p), "file holds no triangles")
+    if suffix == ".ply":
+        _check_ply_counts(p, len(v), len(f))
     try:
         return mesh_from_arrays(np.asarray(v), np.asarray(f), name=p.name, device=device)
     except InputError as exc:  # name the whole path, as every other error here does
         raise InputError(str(p), exc.problem) from None
+
+
+def _check_ply_counts(p: Path, n_vertices: int, n_triangles: int) -> None:
+    """Refuse a PLY file that holds fewer vertices or faces than its header declares (cut
+    short, or a header that lies): trimesh reads what is there and says nothing. Each declared
+    face gives one triangle or more (polygons are fanned), so triangles may outnumber faces."""
+    with p.open("rb") as fh:
+        head = fh.read(1 << 16)
+    end = head.find(b"end_header")
+    if end < 0:
+        return  # trimesh parsed it: nothing declared to check against
+    declared = {}
+    for line in head[:end].decode("ascii", errors="replace").splitlines():
+        parts = line.split()
+        if len(parts) == 3 and parts[0] == "element" and parts[2].isdigit():
+            declared[parts[1]] = int(parts[2])
+    nv, nf = declared.get("vertex"), declared.get("face")
+    if nv is not None and n_vertices != nv:
+        raise InputError(str(p), f"declares {nv:,} vertices and holds {n_vertices:,} (cut short?)")
+    if nf is not None and n_triangles < nf:
+        raise InputError(str(p), f"declares {nf:,} faces and holds {n_triangles:,} (cut short?)")
 
 
 def triangle_areas(mesh: Mesh) -> torch.Tensor:
