@@ -105,3 +105,26 @@ def test_bad_model_files(tmp_path, fitted):
     with pytest.raises(InputError, match="does not exist"):
         model.save(tmp_path / "nodir" / "m.npz", sc.mesh, sc.materials, mf)
     assert not list(tmp_path.glob("*.partial*"))
+
+
+def test_metadata_nested_too_deep_is_refused_not_a_recursion_error(tmp_path, fitted):
+    # meta JSON nested 10^5 deep crashed the loader with RecursionError (exit 1)
+    sc, mf = fitted
+    model.save(tmp_path / "m.npz", sc.mesh, sc.materials, mf)
+    deep = '{"format": "lobelight-model", "x": ' + "[" * 100_000 + "]" * 100_000 + "}"
+    _rewrite(tmp_path / "m.npz", tmp_path / "deep.npz",
+             meta=np.frombuffer(deep.encode(), dtype=np.uint8))  # fmt: skip
+    with pytest.raises(InputError, match=r"deep\.npz: corrupt metadata: nested too deep"):
+        model.load(tmp_path / "deep.npz")
+
+
+def test_weights_near_the_float_range_are_refused(tmp_path, fitted):
+    # weights of 3e38 loaded and rendered Inf pixels with exit 0
+    sc, mf = fitted
+    model.save(tmp_path / "m.npz", sc.mesh, sc.materials, mf)
+    with np.load(tmp_path / "m.npz", allow_pickle=False) as z:
+        g = z["gaussians"].copy()
+    g[..., :3] = 3e38
+    _rewrite(tmp_path / "m.npz", tmp_path / "huge.npz", gaussians=g)
+    with pytest.raises(InputError, match=r"huge\.npz: a Gaussian carries .* of light"):
+        model.load(tmp_path / "huge.npz")

@@ -53,6 +53,10 @@ VERSION = 1
 _ARRAYS = ("meta", "vertices", "faces", "normals", "views", "keep", "gaussians", "diffuse")
 
 
+#: The most light a Gaussian, or a transfer coefficient, of a fitted model carries: they are
+#: reflectances (at most about 1 for a physical material), and values near float32's range
+#: rendered Inf pixels.
+MAX_LIGHT = 1e4
 #: Carried light below which a record is dead: it has no say in a blended lobe's shape.
 _FLOOR = 1e-30
 #: A blended lobe whose live records have less barycentric weight than this carries no light.
@@ -458,6 +462,8 @@ def load(path, *, device=None) -> Model:
         meta = json.loads(bytes(a["meta"]).decode())
     except (ValueError, UnicodeDecodeError) as exc:
         raise InputError(name, f"corrupt metadata: {exc}") from None
+    except RecursionError:
+        raise InputError(name, "corrupt metadata: nested too deep to read") from None
     _need(isinstance(meta, dict) and meta.get("format") == FORMAT, name, "not a lobelight model")
     prov = meta.get("provenance", {})
     _need(isinstance(prov, dict), name, "provenance must be a mapping")
@@ -546,6 +552,15 @@ def load(path, *, device=None) -> Model:
     if meta.get("weights", "peak") == "integral":
         w = w / sg.integral(lam.double()).to(w.dtype)[..., None]
     g = Gaussians(w, mu, lam)
+    carried = float((w.double() * sg.integral(lam.double())[..., None]).max()) if w.numel() else 0
+    _need(
+        carried <= MAX_LIGHT,
+        name,
+        f"a Gaussian carries {carried:.3g} of light, over {MAX_LIGHT:g}: not a fitted model",
+    )
+    for k, arr in (("diffuse", a["diffuse"]), ("bounce", bounce_arr)):
+        if arr is not None and arr.size and float(np.abs(arr).max()) > MAX_LIGHT:
+            raise InputError(name, f"{k} transfer over {MAX_LIGHT:g}: not a fitted model")
     mesh = Mesh(
         vertices=torch.from_numpy(a["vertices"].astype(np.float32)),
         faces=torch.from_numpy(f.astype(np.int64)),
