@@ -301,7 +301,7 @@ class Transport:
         slot, d, thr = self.escapes(
             vidx, views, paths=paths, max_bounces=max_bounces, generator=generator
         )
-        w, mu, lam = _moment_lobes(slot, d, thr, b * j, paths)
+        w, mu, lam = _escape_lobes(slot, d, thr, b * j, paths)
         return Gaussians(w.reshape(b, j, 1, 3), mu.reshape(b, j, 1, 3), lam.reshape(b, j, 1))
 
     def escapes(
@@ -597,7 +597,7 @@ def diffuse_interreflection(
     return cur
 
 
-def _moment_lobes(slot, d, thr, m: int, paths: int):
+def _escape_lobes(slot, d, thr, m: int, paths: int):
     """One Gaussian per group of escaped paths (:meth:`Transport.indirect_lobes`):
     ``(w (m, 3), mu (m, 3), lam (m,))`` for groups ``0..m-1`` given each path's ``slot``."""
     dev = d.device
