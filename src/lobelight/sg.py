@@ -31,6 +31,7 @@ from .errors import InputError
 from .sphere import _check_vec, _float
 
 __all__ = [
+    "LAM_RANGE",
     "Gaussians",
     "evaluate",
     "evaluate_mixture",
@@ -47,6 +48,10 @@ __all__ = [
     "vmf_normalization",
     "vmf_pdf",
 ]
+
+#: The sharpness range of the Gaussians lobelight fits or estimates: from a hemisphere-wide lobe
+#: to well past a Phong exponent of 1e4.
+LAM_RANGE = (0.5, 3e4)
 
 _TWO_PI = 2 * math.pi
 

@@ -249,12 +249,12 @@ def fit_mesh(
     """Fit N Gaussians per view to every vertex's direct glossy transport, one more to its
     indirect glossy transport, and its SH diffuse transfer with interreflection.
 
-    The indirect glossy Gaussian is the paths' moments
+    The indirect glossy Gaussian comes from the paths' light, mean direction and median angle
     (:meth:`lobelight.transport.Transport.indirect_lobes`), kept apart from the fitted ones: it
     integrates the whole lighting, the sun included, where a renderer shades the sun's direct
     glossy light per pixel and the fitted lobes see the map without it (the light a mirror
-    shows of the sun in another mirror); folded into one fitted lobe, that light lit the direct
-    reflection's place instead.
+    shows of the sun in another mirror); folded into a fitted lobe, that light would light the
+    direct reflection's place instead.
 
     Parameters
     ----------
@@ -303,7 +303,7 @@ def fit_mesh(
     w = torch.zeros(v, j, n, 3, device=dev)
     # the indirect glossy Gaussian of each (vertex, view)
     ind_w = torch.zeros(v, j, 1, 3, device=dev)
-    ind_mu = torch.zeros(v, j, 1, 3, device=dev)
+    ind_mu = torch.tensor([0.0, 1.0, 0.0], device=dev).expand(v, j, 1, 3).clone()
     ind_lam = torch.ones(v, j, 1, device=dev)
     derr = torch.zeros(v, device=dev)
     diffuse = torch.zeros(v, DIFFUSE_ORDER**2, 3, device=dev)
@@ -336,7 +336,14 @@ def fit_mesh(
         "ind_lam": ind_lam,
     }
     key = _settings_key(
-        scene, n, views, weights, batch, (indirect_paths, "moments", bounces, shadows), relax, seed
+        scene,
+        n,
+        views,
+        weights,
+        batch,
+        (indirect_paths, "indirect-gaussian", bounces, shadows),
+        relax,
+        seed,
     )
     ckpt = Path(checkpoint) if checkpoint is not None else None
     start = _resume(ckpt, key, state) if ckpt is not None else _FRESH

@@ -35,7 +35,7 @@ from __future__ import annotations
 
 import torch
 
-from .. import sphere
+from .. import sg, sphere
 from ._data import FitData
 from ._objective import Weights, _neighbour_mean, _pair_diffs, conserve_factor, solve_gram
 
@@ -78,7 +78,7 @@ def levenberg_marquardt(
     *,
     nbr_mu: torch.Tensor | None = None,
     nbr_mask: torch.Tensor | None = None,
-    lam_range=(0.5, 3e4),
+    lam_range=sg.LAM_RANGE,
     iters: int = 20,
     state: dict | None = None,
     conserve: bool = True,

@@ -43,8 +43,8 @@ from ._objective import (
 
 __all__ = ["Gaussians", "fit_batch", "initial_guess", "relabel"]
 
-#: Default sharpness range: from a hemisphere-wide lobe to well past a Phong exponent of 1e4.
-LAM_RANGE = (0.5, 3e4)
+#: Default sharpness range (:data:`lobelight.sg.LAM_RANGE`).
+LAM_RANGE = sg.LAM_RANGE
 
 
 def _moments(data: FitData, values: torch.Tensor, lam_range) -> tuple[torch.Tensor, torch.Tensor]:

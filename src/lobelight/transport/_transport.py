@@ -56,9 +56,9 @@ BOUNCES = 4
 #: Paths per vertex and view of a bake's indirect glossy (docs/method.md).
 INDIRECT_PATHS = 16
 #: Sharpness range of the indirect glossy Gaussians (:meth:`Transport.indirect_lobes`), the
-#: fit's (:data:`lobelight.fit.LAM_RANGE`): paths that all escape one way (a mirror seen in a
+#: fit's (:data:`lobelight.sg.LAM_RANGE`): paths that all escape one way (a mirror seen in a
 #: mirror) would give an infinite one, a lone path a flat one, whose width (inf) blends to NaN.
-INDIRECT_LAM_RANGE = (0.5, 3e4)
+INDIRECT_LAM_RANGE = sg.LAM_RANGE
 
 
 @dataclass(eq=False)
@@ -98,10 +98,7 @@ class TransportBatch:
         ind = self.indirect
         if self.indirect_res != res:
             # nearest bin: the density is piecewise constant over the coarser bins
-            f, u, v = cubemap.direction_to_face_uv(self.dirs)
-            col = ((u + 1) * self.indirect_res / 2).floor().long().clamp(0, self.indirect_res - 1)
-            row = ((v + 1) * self.indirect_res / 2).floor().long().clamp(0, self.indirect_res - 1)
-            ind = ind[:, :, (f * self.indirect_res + row) * self.indirect_res + col]
+            ind = ind[:, :, _bin(self.dirs, self.indirect_res)]
         return self.glossy + ind
 
 
@@ -260,10 +257,7 @@ class Transport:
             vidx, views, paths=paths, max_bounces=max_bounces, generator=generator
         )
         if slot.numel():
-            f, u, v = cubemap.direction_to_face_uv(d)
-            col = ((u + 1) * res / 2).floor().long().clamp(0, res - 1)
-            row = ((v + 1) * res / 2).floor().long().clamp(0, res - 1)
-            acc.index_add_(0, slot * n_bins + (f * res + row) * res + col, thr)
+            acc.index_add_(0, slot * n_bins + _bin(d, res), thr)
         om = cubemap.texel_solid_angles(res, device=dev).reshape(-1)
         return acc.reshape(b, j, n_bins, 3) / (paths * om[None, None, :, None])
 
@@ -338,11 +332,7 @@ class Transport:
         slots, dirs, thrs = [], [], []
         spec = self.materials.specular
         if spec is None or b * j == 0:
-            return (
-                torch.zeros(0, dtype=torch.int64, device=dev),
-                torch.zeros(0, 3, device=dev),
-                torch.zeros(0, 3, device=dev),
-            )
+            return _no_escapes(dev)
         g = generator
 
         def rand(*shape):
@@ -398,11 +388,7 @@ class Transport:
             live = (thr.amax(-1) > 0).nonzero().squeeze(-1)
             p, n, wi, thr, slot = p[live], ns[live], wi_new[live], thr[live], slot[live]
         if not slots:
-            return (
-                torch.zeros(0, dtype=torch.int64, device=dev),
-                torch.zeros(0, 3, device=dev),
-                torch.zeros(0, 3, device=dev),
-            )
+            return _no_escapes(dev)
         return torch.cat(slots), torch.cat(dirs), torch.cat(thrs)
 
     # ---- diffuse --------------------------------------------------------------------------
@@ -595,6 +581,23 @@ def diffuse_interreflection(
         if progress is not None:
             progress("interreflection", len(starts) + k + 1, total)
     return cur
+
+
+def _bin(dirs: torch.Tensor, res: int) -> torch.Tensor:
+    """``(N,)`` the cube-map bin (``(face * res + row) * res + col``) of each of ``dirs (N, 3)``."""
+    f, u, v = cubemap.direction_to_face_uv(dirs)
+    col = ((u + 1) * res / 2).floor().long().clamp(0, res - 1)
+    row = ((v + 1) * res / 2).floor().long().clamp(0, res - 1)
+    return (f * res + row) * res + col
+
+
+def _no_escapes(dev) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """:meth:`Transport.escapes`'s result when no path escapes."""
+    return (
+        torch.zeros(0, dtype=torch.int64, device=dev),
+        torch.zeros(0, 3, device=dev),
+        torch.zeros(0, 3, device=dev),
+    )
 
 
 def _escape_lobes(slot, d, thr, m: int, paths: int):
