@@ -77,6 +77,37 @@ def test_the_indirect_gaussian_points_where_a_mirror_in_a_mirror_escapes():
     torch.testing.assert_close(e, torch.full((3,), 0.81), rtol=0.03, atol=0)
 
 
+def test_a_lone_path_gets_a_narrow_gaussian_along_it():
+    # a path that escapes alone tells no width; spread over the sphere it would put its light
+    # where the object blocks it and on a sun there. Its Gaussian lies along the path with
+    # LONE_PATH_LAM, its light the path's: the same paths (same seed) through both calls
+    sc, r = _mirror_corner(0.3)
+    tr = transport.Transport(sc)
+    v = torch.tensor([_nearest(sc.mesh, p, r) for p in ([0.25, 0.0, 0.25], [0.6, 0.0, 0.1])])
+    views = sphere.geodesic_views()[::7]
+    j = views.shape[0]
+    slot, d, thr = tr.escapes(v, views, paths=2, generator=torch.Generator().manual_seed(3))
+    g = tr.indirect_lobes(v, views, paths=2, generator=torch.Generator().manual_seed(3))
+    count = torch.bincount(slot, minlength=2 * j)
+    lone = (count == 1).nonzero().squeeze(-1)
+    assert lone.numel() >= 3, lone.numel()
+    first = torch.full((2 * j,), -1, dtype=torch.int64).scatter_reduce(
+        0, slot, torch.arange(slot.numel()), "amax"
+    )
+    k = first[lone]
+    lam = g.lam.reshape(-1)[lone]
+    mu = g.mu.reshape(-1, 3)[lone]
+    e = (g.w * sg.integral(g.lam)[..., None]).reshape(-1, 3)[lone]
+    torch.testing.assert_close(lam, torch.full_like(lam, transport.LONE_PATH_LAM))
+    torch.testing.assert_close(mu, d[k], rtol=0, atol=1e-5)
+    torch.testing.assert_close(e, thr[k] / 2, rtol=1e-4, atol=1e-7)
+    # a sun 90 degrees off the path gets exp(-LONE_PATH_LAM) of the lobe's peak, not the
+    # ~e^-0.5 of the widest lobe
+    side = torch.nn.functional.normalize(torch.linalg.cross(d[k], torch.randn_like(d[k])), dim=-1)
+    peak = sg.evaluate(d[k], mu, lam)
+    assert bool((sg.evaluate(side, mu, lam) < 1e-20 * peak).all())
+
+
 @pytest.mark.parametrize("lam", [5.0, 60.0, 600.0])
 def test_the_sun_through_a_gaussian_matches_a_disc_quadrature(lam):
     # a uniform disc of radius 2 degrees (RMS angle r / sqrt 2) at several angles from the

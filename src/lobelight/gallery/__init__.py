@@ -35,6 +35,7 @@ _HOMES = {
     "DATA_ENV": "..data",
     "GalleryScene": "._scenes",
     "LEGEND": "._score",
+    "LOBES": "._scenes",
     "MAPS": "._scenes",
     "MATERIALS": "._scenes",
     "METRICS": "._run",

@@ -69,7 +69,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         default="lobelight-gallery",
         help="output folder (models, strips, JSON)",
     )
-    g.add_argument("--lobes", type=int, default=1, choices=[1, 2, 3], help="Gaussians per view")
+    g.add_argument(
+        "--lobes",
+        type=int,
+        default=None,
+        choices=[1, 2, 3],
+        help="Gaussians per view of every bake (default: each bake's own, 2 for the metals)",
+    )
     g.add_argument(
         "--samples", type=int, default=16, help="our samples per pixel (box filter, 1..256)"
     )

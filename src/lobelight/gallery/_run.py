@@ -109,7 +109,7 @@ def _bake(
     settings = {
         "bake": first.bake_definition(),
         "geometry_sha256": geometry_sha256(mesh),
-        "n_lobes": n_lobes,
+        "n_lobes": first.lobes if n_lobes is None else n_lobes,
         "options": options,
     }
     settings = json.loads(json.dumps(settings))
@@ -124,7 +124,7 @@ def _bake(
     t = time.perf_counter()
     m = fit_model(
         to_scene(first, data, mesh),
-        n_lobes,
+        settings["n_lobes"],
         device=device,
         progress=progress,
         checkpoint=ckpt,
@@ -152,7 +152,7 @@ def run(
     data=None,
     refs,
     out,
-    n_lobes: int = 1,
+    n_lobes: int | None = None,
     samples: int = 16,
     backend: str = "auto",
     base_res: int = 256,
@@ -178,7 +178,8 @@ def run(
     ----------
     scenes : names (of scenes or bakes) or :class:`GalleryScene`; default all
     data : the data folder (default ``$LOBELIGHT_DATA``);  refs : the references folder
-    n_lobes : Gaussians per view;  fit_options : more keyword arguments of ``fit_model``
+    n_lobes : Gaussians per view of every bake (None: each bake's own,
+        :attr:`GalleryScene.lobes`);  fit_options : more keyword arguments of ``fit_model``
     backend : "gl", "torch" or "auto" (gl where a context opens)
     base_res : face resolution of the sharpest prefiltered level;  sun : shade the map's sun
         per pixel (:class:`lobelight.render.Lighting`)
@@ -191,7 +192,7 @@ def run(
     data = data_folder(data)
     chosen = select(scenes)
     options = _check_options(fit_options)
-    if n_lobes not in (1, 2, 3):
+    if n_lobes not in (None, 1, 2, 3):
         raise InputError("--lobes", f"must be 1, 2 or 3, got {n_lobes}")
     if backend == "auto":
         from ..render._gl import gl_available

@@ -18,6 +18,7 @@ from ..scene import Mesh, Scene, load_mesh, mesh_from_arrays, parse_material
 from ._settings import DATA_ENV
 
 __all__ = [
+    "LOBES",
     "MAPS",
     "MATERIALS",
     "PREPARATION",
@@ -70,6 +71,7 @@ class GalleryScene:
     camera : the viewpoint (None: :func:`default_camera`)
     subdivisions : Loop subdivisions of the mesh before anything else
     max_vertices : decimate the mesh to about this many vertices (``fast-simplification``)
+    lobes : the bake's fitted Gaussians per view (:data:`LOBES`)
     description : what the scene shows and how its mesh is prepared
     """
 
@@ -81,6 +83,7 @@ class GalleryScene:
     camera: Camera | None = None
     subdivisions: int = 0
     max_vertices: int | None = None
+    lobes: int = 1
     description: str = ""
 
     def to_dict(self) -> dict:
@@ -91,7 +94,7 @@ class GalleryScene:
     def bake_definition(self) -> dict:
         """What the bake depends on: the mesh, its preparation and the material (not the map
         or the camera)."""
-        keys = ("bake", "mesh", "material", "subdivisions", "max_vertices")
+        keys = ("bake", "mesh", "material", "subdivisions", "max_vertices", "lobes")
         return {k: getattr(self, k) for k in keys}
 
     def view(self) -> Camera:
@@ -109,10 +112,21 @@ def default_camera(azimuth: float = 0.0) -> Camera:
     return Camera.look_at(origin, (0.0, 0.0, 0.0), fov=40.0, fov_axis="smaller")
 
 
+#: Fitted Gaussians per view of each material's bakes. One Gaussian keeps a GGX metal's light
+#: (the fit's integral constraint) but not its tails, which lie on other parts of the map than
+#: its peak: on Spot's rough metal under the park map its direct light off the map without the
+#: sun is 3.4 % over the path tracer's with one and 1.3 % with two (29.3 -> 32.7 dB); the
+#: plastic's and the diffuse's glossy light is too small a share for that to show.
+LOBES = {"sharp_metal": 2, "rough_metal": 2, "plastic": 1, "diffuse": 1}
+
+
 def _bake(bake, mesh, material, maps, **kw) -> tuple[GalleryScene, ...]:
     """One (mesh, material) bake rendered under each of ``maps``."""
     return tuple(
-        GalleryScene(f"{bake}-{m}", bake, mesh, MAPS[m], MATERIALS[material], **kw) for m in maps
+        GalleryScene(
+            f"{bake}-{m}", bake, mesh, MAPS[m], MATERIALS[material], lobes=LOBES[material], **kw
+        )
+        for m in maps
     )
 
 
