@@ -8,6 +8,7 @@ temporary data folder; references are synthetic (no Mitsuba render).
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import math
 from collections import Counter
@@ -215,6 +216,16 @@ def test_prepared_mesh_is_centred_with_diagonal_two(data_dir):
     assert float((lo + hi).abs().max()) < 1e-5
     mask = coverage_mask(m, BALL.view(), 24, 24)
     assert 0 < int(mask.sum()) < 24 * 24 and not bool(mask[0, 0])
+
+
+def test_a_reference_does_not_depend_on_the_bakes_gaussians_per_view(data_dir):
+    # the bake's lobe count changes the model, not what Mitsuba renders: its references stay
+    more = dataclasses.replace(BALL, lobes=2)
+    assert scene_hash(more, data_dir) == scene_hash(BALL, data_dir)
+    assert more.bake_definition() != BALL.bake_definition()  # but the bake is another
+    assert scene_hash(dataclasses.replace(BALL, material="diffuse:color=0.5"), data_dir) != (
+        scene_hash(BALL, data_dir)
+    )
 
 
 def test_bad_inputs_name_the_input(data_dir, monkeypatch):

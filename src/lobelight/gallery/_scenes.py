@@ -216,10 +216,12 @@ def sha256_file(path) -> str:
 
 def scene_hash(scene: GalleryScene, data: Path) -> str:
     """sha256 of the scene's definition, :data:`PREPARATION` and its mesh and map files'
-    contents: it changes whenever anything that a reference shows changes."""
+    contents: it changes whenever anything that a reference shows changes (not the bake's
+    Gaussians per view)."""
     mesh = _find(data, "meshes", scene.mesh, f"{scene.name}: mesh")
+    shown = {k: v for k, v in scene.to_dict().items() if k != "lobes"}
     d = {
-        "definition": scene.to_dict() | {"name": None, "description": None},
+        "definition": shown | {"name": None, "description": None},
         "preparation": PREPARATION,
         "mesh_sha256": sha256_file(mesh),
         "map_sha256": sha256_file(find_map(scene, data)),
