@@ -546,7 +546,7 @@ def test_tangent_sets_the_anisotropy_axis():
 
 
 def test_default_frame_is_sphere_frame():
-    from lobelight.sphere import frame
+    from lobelight.geometry.sphere import frame
 
     n = torch.nn.functional.normalize(torch.randn(100, 3), dim=-1)
     t, _, _ = frame(n)

@@ -142,7 +142,7 @@ def test_a_reader_that_stops_early_is_not_an_error(tmp_path):
     import subprocess
     import sys
 
-    from lobelight.bench import synthetic_model
+    from lobelight.studies.bench import synthetic_model
 
     path = tmp_path / "m.lobelight.npz"
     synthetic_model(200, 1).save(path)
@@ -162,7 +162,8 @@ def test_a_reader_that_stops_early_is_not_an_error(tmp_path):
 def test_reference_reports_progress_per_batch():
     """The path tracer's ``progress`` (the CLI's bars for compare and demo) follows its batches
     of samples, and changes no sample."""
-    from lobelight import reference, scene
+    from lobelight import scene
+    from lobelight.reference import paths as reference
 
     sc = scene.builtin("sphere", subdivisions=0)
     calls = []

@@ -12,9 +12,9 @@ from __future__ import annotations
 import pytest
 import torch
 
-from lobelight import cubemap
 from lobelight.envmap import _convolve as C
 from lobelight.envmap import builtin
+from lobelight.geometry import cubemap
 
 
 def _texel_map(res: int, spots) -> torch.Tensor:

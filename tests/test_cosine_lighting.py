@@ -19,6 +19,8 @@ from lobelight import cosine as C
 from lobelight.cosine._lobeset import Lobes, multiply, product_integral
 from lobelight.cosine._visibility import DIST_NODES, leaf_weights
 from lobelight.errors import InputError
+from lobelight.reference.cosine import direct_mc
+from lobelight.studies.lobes_demo import lobes_demo
 
 
 @pytest.fixture(scope="module")
@@ -159,7 +161,7 @@ def test_unoccluded_shading_matches_monte_carlo(tables, device, name):
     light = C.SphereLight((0.6, 2.0, -0.3), 0.35, (5.0, 4.5, 4.0))
     model = _materials(P)[name]
     got = C.shade_points(x, n, wo, model, light, threshold=0.0, device=device, tables=tables)
-    ref, se = C.direct_mc(x, n, wo, model, light, samples=4096, seed=2)
+    ref, se = direct_mc(x, n, wo, model, light, samples=4096, seed=2)
     diff = (got.radiance.double().cpu() - ref).abs()
     bound = 4 * se + 0.04 * float(ref.max())
     assert bool((diff <= bound).all()), float((diff - bound).max())
@@ -214,7 +216,7 @@ def test_shadowed_points_match_monte_carlo(tables):
     light = C.SphereLight((0.3, 3.0, 0.2), 0.4, (5.0, 5.0, 5.0))
     model = B.Lambert(0.7)
     got = C.shade_points(x, n, wo, model, light, spheres=spheres, tables=tables)
-    ref, _ = C.direct_mc(x, n, wo, model, light, spheres=spheres, samples=576, seed=3)
+    ref, _ = direct_mc(x, n, wo, model, light, spheres=spheres, samples=576, seed=3)
     free = C.shade_points(x, n, wo, model, light, tables=tables).radiance.double()
     diff = (got.radiance.double() - ref).abs()
     scale = float(free.max())
@@ -286,7 +288,7 @@ def test_threshold_culls_products(tables):
 
 def _square_coverage(x, light_axis, theta, sphere, k_samples=200):
     """Fraction of the visibility square covered by a sphere's cone, by dense sampling."""
-    from lobelight.sphere import frame
+    from lobelight.geometry.sphere import frame
 
     t, b, a = (v[0] for v in frame(light_axis.unsqueeze(0)))
     s = (torch.arange(k_samples) + 0.5) / k_samples - 0.5
@@ -455,11 +457,11 @@ def test_monte_carlo_reference_closed_form():
     x = torch.zeros(1, 3)
     n = torch.tensor([[0.0, 1.0, 0.0]])
     light = C.SphereLight((0.0, 2.0, 0.0), 0.8, (1.0, 2.0, 3.0))
-    ref, _ = C.direct_mc(x, n, n, B.Lambert(0.5), light, samples=1024)
+    ref, _ = direct_mc(x, n, n, B.Lambert(0.5), light, samples=1024)
     want = 0.5 * (0.8 / 2.0) ** 2 * torch.tensor([1.0, 2.0, 3.0], dtype=torch.float64)
     torch.testing.assert_close(ref[0], want, rtol=1e-3, atol=0)  # stratified: ~N^-3/4 error
     # a sphere in between blocks it entirely
-    dark, _ = C.direct_mc(
+    dark, _ = direct_mc(
         x, n, n, B.Lambert(0.5), light, spheres=torch.tensor([[0.0, 1.0, 0.0, 0.6]]), samples=64
     )
     assert float(dark.abs().max()) == 0.0
@@ -467,7 +469,7 @@ def test_monte_carlo_reference_closed_form():
 
 def test_table_error_reference_quadrature():
     """The scored table error's quadrature agrees with the lune quadrature of ``_lobe``."""
-    from lobelight.cosine._score import _exact_product
+    from lobelight.studies.lobes_score import _exact_product
 
     for e1, e2, a in [(0.5, 3.0, 1.0), (40.0, 900.0, 0.05), (2.0, 2.0, 1.6)]:
         want = float(C.product_integral(torch.tensor(e1), torch.tensor(e2), torch.tensor(a)))
@@ -521,7 +523,7 @@ def test_bad_shading_input(tables):
 
 
 def test_demo_writes_frames(tmp_path):
-    info = C.lobes_demo(tmp_path / "demo", frames=2, size=24)
+    info = lobes_demo(tmp_path / "demo", frames=2, size=24)
     from PIL import Image
 
     assert len(info["frames"]) == 2

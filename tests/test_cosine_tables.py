@@ -26,9 +26,10 @@ import torch
 from scipy import integrate, optimize, special
 
 from lobelight import cosine as C
-from lobelight import sphere as S
 from lobelight.cosine import _tables
 from lobelight.errors import InputError
+from lobelight.geometry import sphere as S
+from lobelight.studies.bench_lobes import bench_tables
 
 F64 = torch.float64
 
@@ -693,7 +694,7 @@ def test_bench_tables_reports(monkeypatch):
     # Smoke test of the benchmark's report on the tiny grid (timings are for `lobelight bench`).
     real = _tables.build_tables
     monkeypatch.setattr(_tables, "build_tables", lambda **k: real(SMALL, **k))
-    out = C.bench_tables()
+    out = bench_tables()
     for key in ("seconds", "shapes", "bytes", "file_bytes", "machine", "goal_seconds"):
         assert key in out
     assert out["unconverged_fits"] == 0 and out["bytes"] > 0

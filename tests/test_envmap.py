@@ -14,11 +14,11 @@ import pytest
 import torch
 
 from conftest import REAL_ENVMAPS
-from lobelight import cubemap
 from lobelight.envmap._builtin import SUN_DIRECTION, builtin
 from lobelight.envmap._envmap import EnvMap
 from lobelight.envmap._io import load, save
 from lobelight.errors import InputError
+from lobelight.geometry import cubemap
 
 FOUR_PI = 4 * math.pi
 

@@ -17,11 +17,11 @@ import pytest
 import torch
 
 from conftest import REAL_ENVMAPS
-from lobelight import cubemap
 from lobelight.envmap import _io
 from lobelight.envmap._envmap import EnvMap
 from lobelight.envmap._io import CROSS_FACES, cross_pixels, load, save
 from lobelight.errors import InputError
+from lobelight.geometry import cubemap
 
 # RGBE stores an 8-bit mantissa per channel with the exponent of the largest channel, and
 # OpenCV truncates: a channel is off by less than 2^-7 of the pixel's largest channel.

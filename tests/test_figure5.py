@@ -1,4 +1,4 @@
-"""Figure 5 of Green et al. 2006 (lobelight.figure5): Gaussians vs Haar vs SH.
+"""Figure 5 of Green et al. 2006 (lobelight.studies.figure5): Gaussians vs Haar vs SH.
 
 The tests run at 64^2 per face and K <= 3 (the figure: 256^2, K <= 10) to stay fast. 64^2 is
 justified for functions (a) and (b): their 7-coefficient Haar and SH errors at 64^2 are within
@@ -16,8 +16,9 @@ import math
 import pytest
 import torch
 
-from lobelight import cubemap, sg, sh
-from lobelight.figure5 import (
+from lobelight.geometry import cubemap
+from lobelight.lobes import sg, sh
+from lobelight.studies.figure5 import (
     FLOATS_PER_GAUSSIAN,
     FUNCTIONS,
     figure5,

@@ -7,8 +7,10 @@ import math
 import pytest
 import torch
 
-from lobelight import cubemap, fit, scene, sg, sphere, transport
+from lobelight import fit, scene, transport
 from lobelight.fit import FitData, Gaussians, Weights
+from lobelight.geometry import cubemap, sphere
+from lobelight.lobes import sg
 
 VIEWS = sphere.geodesic_views()
 NBR = sphere.geodesic_neighbor_table()

@@ -1,7 +1,7 @@
 """Energy-true lobes: the fitted glossy transport keeps each (vertex, view) function's integral.
 
-The truth is :func:`lobelight.energy.reference_integral`, a dense nested-shell quadrature of the
-transport with visibility (checked here against SG integrals and BRDF importance sampling).
+The truth is :func:`lobelight.studies.energy.reference_integral`, a dense nested-shell quadrature
+of the transport with visibility (checked here against SG integrals and BRDF importance sampling).
 Materials are Fresnel-free GGX and Beckmann metals at alpha 0.02 (mirror-like), 0.1 and 0.5
 (rough), on a sphere (nothing occludes) and next to a wall (the lobes of views from the open
 side point into the wall: visibility cuts them).
@@ -12,8 +12,11 @@ from __future__ import annotations
 import pytest
 import torch
 
-from lobelight import energy, fit, scene, sg, sphere, transport
+from lobelight import fit, scene, transport
 from lobelight.fit._objective import solve_gram
+from lobelight.geometry import sphere
+from lobelight.lobes import sg
+from lobelight.studies import energy
 
 VIEWS = sphere.geodesic_views()
 NBR = sphere.geodesic_neighbor_table()

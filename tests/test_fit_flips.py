@@ -14,8 +14,9 @@ import math
 import numpy as np
 import torch
 
-from lobelight import brdf, fit, scene, sphere
+from lobelight import brdf, fit, scene
 from lobelight.fit import Gaussians, Weights, _optimize, _relax
+from lobelight.geometry import sphere
 from lobelight.scene import _shapes
 
 VIEWS = sphere.geodesic_views()

@@ -8,7 +8,8 @@ import numpy as np
 import pytest
 import torch
 
-from lobelight import fit, scene, sg
+from lobelight import fit, scene
+from lobelight.lobes import sg
 from lobelight.scene import _shapes
 
 

@@ -1,4 +1,4 @@
-"""The gallery (lobelight.gallery): its scores against hand-computed values, the references'
+"""The gallery (lobelight.studies.gallery): its scores against hand-computed values, the references'
 manifest, the scene list, the Mitsuba export of its plastic, and one tiny run end to end.
 
 Every file is made here: a small icosphere written as OBJ and a small synthetic sky in a
@@ -20,9 +20,10 @@ import torch
 
 from lobelight import envmap
 from lobelight import model as model_io
-from lobelight.compare import psnr_display
 from lobelight.errors import InputError
-from lobelight.gallery import (
+from lobelight.render import Lighting, Renderer, auto_exposure
+from lobelight.studies.compare import psnr_display
+from lobelight.studies.gallery import (
     MAPS,
     MATERIALS,
     SCENES,
@@ -47,7 +48,6 @@ from lobelight.gallery import (
     summarise,
     write_reference,
 )
-from lobelight.render import Lighting, Renderer, auto_exposure
 
 
 def _srgb(x: float) -> float:
@@ -346,7 +346,7 @@ def test_arguments_fit_a_parser_that_has_the_common_flags(data_dir):
 def test_lambert_plus_ggx_exports_as_their_exact_sum():
     """The plastic's Mitsuba blendbsdf evaluates to Lambert + GGX at 40 direction pairs."""
     mi = pytest.importorskip("mitsuba", reason="mitsuba is not installed")
-    from lobelight.mitsuba_export import _blend
+    from lobelight.reference.mitsuba import _blend
     from lobelight.scene import parse_material
 
     if mi.variant() != "scalar_rgb":

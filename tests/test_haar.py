@@ -12,8 +12,8 @@ import numpy as np
 import pytest
 import torch
 
-from lobelight import haar
 from lobelight.errors import InputError
+from lobelight.lobes import haar
 
 
 def random_cube(res: int, ch: int = 3, *, seed: int = 0, dtype=np.float64) -> np.ndarray:

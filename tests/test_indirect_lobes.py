@@ -17,8 +17,10 @@ import numpy as np
 import pytest
 import torch
 
-from lobelight import brdf, cubemap, envmap, fit, model, render, scene, sg, sphere, transport
+from lobelight import brdf, envmap, fit, model, render, scene, transport
 from lobelight.errors import InputError
+from lobelight.geometry import cubemap, sphere
+from lobelight.lobes import sg
 from lobelight.render._gl import gl_available
 from lobelight.render._sun_glossy import sun_through
 from lobelight.scene import Materials, Scene

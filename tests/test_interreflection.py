@@ -15,8 +15,10 @@ import numpy as np
 import pytest
 import torch
 
-from lobelight import brdf, cubemap, envmap, fit, reference, scene, sphere, transport
+from lobelight import brdf, envmap, fit, scene, transport
 from lobelight.errors import InputError
+from lobelight.geometry import cubemap, sphere
+from lobelight.reference import paths as reference
 from lobelight.scene import Materials, Scene, _shapes
 
 

@@ -6,7 +6,7 @@ import torch
 
 from conftest import random_dirs
 from lobelight import scene
-from lobelight.raycast import RayCaster
+from lobelight.geometry.raycast import RayCaster
 
 
 def _brute_first_hit(tri: torch.Tensor, o: torch.Tensor, d: torch.Tensor):

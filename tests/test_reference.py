@@ -8,8 +8,9 @@ import numpy as np
 import pytest
 import torch
 
-from lobelight import brdf, envmap, reference
-from lobelight.camera import Camera
+from lobelight import brdf, envmap
+from lobelight.geometry.camera import Camera
+from lobelight.reference import paths as reference
 from lobelight.scene import Materials, Scene, _shapes, mesh_from_arrays
 
 mi = pytest.importorskip("mitsuba", reason="Mitsuba 3 is the independent reference")
@@ -32,7 +33,7 @@ def _sphere_on_ground() -> Scene:
 
 
 def test_camera_rays_match_mitsuba_sensor():
-    from lobelight.mitsuba_export import load_mitsuba
+    from lobelight.reference.mitsuba import load_mitsuba
 
     m = load_mitsuba()
     cam = Camera.look_at((1.0, 2.0, 3.0), (0.2, -0.1, 0.0), up=(0.1, 1.0, 0.0), fov=50.0)
@@ -75,7 +76,7 @@ def test_env_sampler_is_unbiased_for_the_map_power(builtin_sky):
 def test_reference_agrees_with_mitsuba(tmp_path, builtin_sky, max_depth):
     """Mean absolute difference within 3 Monte Carlo standard errors, over the image and over
     four horizontal bands (a wrong orientation, camera, BRDF or MIS weight shows in a band)."""
-    from lobelight.mitsuba_export import load_mitsuba, scene_dict
+    from lobelight.reference.mitsuba import load_mitsuba, scene_dict
 
     m = load_mitsuba()
     sc = _sphere_on_ground()

@@ -8,8 +8,10 @@ import math
 import pytest
 import torch
 
-from lobelight import envmap, fit, render, scene, sg, sh, sphere
+from lobelight import envmap, fit, render, scene
 from lobelight.errors import InputError
+from lobelight.geometry import sphere
+from lobelight.lobes import sg, sh
 from lobelight.model import Model
 from lobelight.render._gl import gl_available
 
@@ -309,7 +311,7 @@ def test_fast_sh_rotation_equals_sh_rotate(order):
     # matrix; both are exact, so only float64 rounding separates them
     from scipy.spatial.transform import Rotation
 
-    from lobelight import sh
+    from lobelight.lobes import sh
     from lobelight.render._lighting import ShRotator
 
     c = torch.randn(

@@ -13,8 +13,8 @@ import pytest
 import torch
 
 from lobelight import brdf, data, scene
-from lobelight.camera import Camera
 from lobelight.errors import InputError
+from lobelight.geometry.camera import Camera
 
 try:
     import tomllib

@@ -1,4 +1,4 @@
-"""Tests of lobelight.sg against independent references.
+"""Tests of lobelight.lobes.sg against independent references.
 
 Brute-force references are float64 scipy quadratures in the polar angle about one lobe's axis,
 with the azimuth done in closed form where a second lobe is off-axis
@@ -19,9 +19,9 @@ from hypothesis import strategies as st
 from scipy import integrate, special
 
 from conftest import F64, random_dirs, triple, unit
-from lobelight import sg
-from lobelight import sphere as S
 from lobelight.errors import InputError
+from lobelight.geometry import sphere as S
+from lobelight.lobes import sg
 
 LAMS = [0.1, 0.3, 1.0, 3.0, 10.0, 100.0, 1e3, 1e4]
 

@@ -15,11 +15,12 @@ import pytest
 import torch
 
 from conftest import smooth_env
-from lobelight import brdf, cubemap, sphere
-from lobelight.camera import Camera
+from lobelight import brdf
 from lobelight.envmap import EnvMap, prefilter
 from lobelight.errors import InputError
-from lobelight.sg import integral, lam_from_mean_cosine, mean_cosine
+from lobelight.geometry import cubemap, sphere
+from lobelight.geometry.camera import Camera
+from lobelight.lobes.sg import integral, lam_from_mean_cosine, mean_cosine
 from lobelight.sgbrdf import (
     em_fit,
     fit,
@@ -150,7 +151,7 @@ def test_kappa_from_gap_exact_and_approx():
     k = torch.logspace(-2, 5, 300, dtype=F64)
     gap = 1 - mean_cosine(k)
     exact = kappa_from_gap(gap)
-    # against lobelight.sg's independent Newton inverse; the gap itself carries float64
+    # against lobelight.lobes.sg's independent Newton inverse; the gap itself carries float64
     # rounding of ~1e-16 absolute, 1e-11 relative at kappa = 1e5
     assert float((exact / lam_from_mean_cosine(1 - gap) - 1).abs().max()) < 1e-8
     approx = kappa_from_gap(gap, solver="approx")

@@ -21,18 +21,17 @@ from conftest import smooth_env
 from lobelight import brdf
 from lobelight.envmap import EnvMap, prefilter
 from lobelight.errors import InputError
+from lobelight.reference.sgbrdf import shade_reference
 from lobelight.sgbrdf import (
-    METHODS,
-    compare_brdf,
     fit,
     fit_many,
     hammersley,
     mip_chain,
     shade_fis,
-    shade_reference,
     shade_wang09,
     wang09_lobe,
 )
+from lobelight.studies.compare_brdf import METHODS, compare_brdf
 
 pytestmark = pytest.mark.usefixtures("one_torch_thread")
 

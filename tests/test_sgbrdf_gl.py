@@ -21,9 +21,10 @@ import torch
 
 from conftest import smooth_env
 from lobelight.brdf import GGX, Ward
-from lobelight.camera import Camera
 from lobelight.envmap import EnvMap, prefilter
 from lobelight.errors import InputError
+from lobelight.geometry.camera import Camera
+from lobelight.lobes.sg import integral
 from lobelight.render._gl import gl_available
 from lobelight.render._gl_sgbrdf import (
     GLSGBRDFRenderer,
@@ -31,8 +32,8 @@ from lobelight.render._gl_sgbrdf import (
     gl_mip_chain,
     time_frames,
 )
-from lobelight.sg import integral
-from lobelight.sgbrdf import compare_brdf, fit, render_sphere, shade, shade_fis, sphere_hits
+from lobelight.sgbrdf import fit, render_sphere, shade, shade_fis, sphere_hits
+from lobelight.studies.compare_brdf import compare_brdf
 
 needs_gl = pytest.mark.skipif(not gl_available(), reason="no headless OpenGL context (EGL)")
 
@@ -220,7 +221,7 @@ def test_bench_gl_reports_both_methods(models, pf, env):
 
 @needs_gl
 def test_compare_brdf_gl_rows(tmp_path, monkeypatch, env):
-    import lobelight.sgbrdf._compare as cmp
+    import lobelight.studies.compare_brdf as cmp
 
     # short timings: the rows' presence and accuracy are tested, not the speed
     monkeypatch.setattr(cmp, "GL_MIN_SECONDS", 0.01)

@@ -21,8 +21,9 @@ from scipy import integrate
 from scipy.spatial.transform import Rotation
 from scipy.special import ive, roots_legendre, sph_harm_y
 
-from lobelight import cubemap, sh
 from lobelight.errors import InputError
+from lobelight.geometry import cubemap
+from lobelight.lobes import sh
 
 # ------------------------------------------------------------------------------------------------
 # references

@@ -1,4 +1,5 @@
-"""Tests of lobelight.sphere: the 92 geodesic views, view location, quadrature sets, rotations.
+"""Tests of lobelight.geometry.sphere: the 92 geodesic views, view location, quadrature sets,
+rotations.
 
 References are independent of the code under test: the views are rebuilt here from the rule
 written in the module docstring; areas use the Van Oosterom-Strackee solid-angle formula;
@@ -17,8 +18,8 @@ from hypothesis import strategies as st
 from scipy import integrate, special
 
 from conftest import F64, random_dirs, triple, unit
-from lobelight import sphere as S
 from lobelight.errors import InputError
+from lobelight.geometry import sphere as S
 
 # ---------------------------------------------------------------------------------------------
 # the 92 views
@@ -302,7 +303,7 @@ def test_fibonacci_hemisphere():
 
 @pytest.mark.parametrize("lam", [1e-3, 0.1, 1.0, 10.0, 100.0, 1e3, 1e4, 1e5])
 def test_local_grid_integrates_centred_sg(lam):
-    from lobelight import sg
+    from lobelight.lobes import sg
 
     mu = random_dirs(4)
     for dtype, tol in ((F64, 1e-12), (torch.float32, 1e-5)):
@@ -348,7 +349,7 @@ def test_cap_grid_constant_polynomials_and_cosine_lobes():
 @pytest.mark.parametrize("lam,beta_sigmas", [(3.0, 0.7), (200.0, 1.5), (1e4, 1.0), (1e4, 3.0)])
 def test_cap_grid_off_centre_sg_against_scipy(lam, beta_sigmas):
     """An SG whose peak is off the cap centre: the product rule is not tailored to it."""
-    from lobelight import sg
+    from lobelight.lobes import sg
 
     beta = beta_sigmas / math.sqrt(lam)
     theta_max = min(
@@ -569,7 +570,7 @@ def test_triangle_candidates_hold_the_located_triangle():
     # the renderer tests only a texel's candidates: they must contain the triangle that the
     # full scan (locate_views) picks, for random directions and for the hard ones, next to the
     # geodesic vertices and edges (where several triangles and texels meet)
-    from lobelight import cubemap, sphere
+    from lobelight.geometry import cubemap, sphere
 
     res = 32
     cand = sphere.triangle_candidates(res)

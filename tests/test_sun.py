@@ -7,10 +7,11 @@ import math
 import pytest
 import torch
 
-from lobelight import brdf, envmap, fit, render, scene, sphere
+from lobelight import brdf, envmap, fit, render, scene
 from lobelight.envmap import _builtin
+from lobelight.geometry import sphere
+from lobelight.geometry.raycast import RayCaster
 from lobelight.model import Model
-from lobelight.raycast import RayCaster
 from lobelight.render._gl import gl_available
 
 needs_gl = pytest.mark.skipif(not gl_available(), reason="no headless OpenGL context (EGL)")

@@ -12,7 +12,10 @@ import pytest
 import torch
 
 from conftest import REAL_ENVMAPS
-from lobelight import brdf, cubemap, envmap, reference, scene, sh, sphere, transport
+from lobelight import brdf, envmap, scene, transport
+from lobelight.geometry import cubemap, sphere
+from lobelight.lobes import sh
+from lobelight.reference import paths as reference
 from lobelight.scene import Materials, Scene
 
 

@@ -1,13 +1,25 @@
 """lobelight: real-time, all-frequency relighting with spherical lobes.
 
-Modules follow the pipeline (conventions: docs/conventions.md):
+The package is layered, lowest first (``DEVELOPERS.md``; conventions: ``docs/conventions.md``):
 
-- :mod:`lobelight.sphere`   directions: the 92 geodesic views, Fibonacci and local sets, rotations
-- :mod:`lobelight.cubemap`  cube-map texel directions, exact solid angles, seamless sampling
-- :mod:`lobelight.sg`       spherical Gaussians ``G(w; mu, lam) = exp(lam (mu.w - 1))``
-- :mod:`lobelight.sh`       real orthonormal spherical harmonics up to order 10 and rotation
-- :mod:`lobelight.haar`     Haar wavelets on cube maps (the Ng 2003 baseline)
-- :mod:`lobelight.envmap`   environment maps: load/save, built-in sky, Gaussian-prefiltered chain
+- foundations: :mod:`~lobelight.errors`, :mod:`~lobelight.progress`, :mod:`~lobelight.data`
+- :mod:`lobelight.geometry` directions, cube maps, the camera, ray queries
+- :mod:`lobelight.lobes` spherical Gaussians, spherical harmonics, Haar wavelets
+- :mod:`lobelight.brdf` the BRDF models
+- :mod:`lobelight.envmap`, :mod:`lobelight.scene` the inputs: environment maps, meshes and
+  materials
+- :mod:`lobelight.transport` light transport per vertex and view
+- :mod:`lobelight.model` the fitted model: file format and view blending
+- :mod:`lobelight.fit` the fit of the view-dependent PRT method
+- :mod:`lobelight.sgbrdf`, :mod:`lobelight.cosine` the two companion methods
+- :mod:`lobelight.render` the renderers (OpenGL and torch)
+- :mod:`lobelight.reference` ground truth: the path tracer, Mitsuba 3 export
+- :mod:`lobelight.studies` comparisons, the gallery, benchmarks, demos
+- :mod:`lobelight.cli` the command line
 """
 
+from . import _moved
+
 __version__ = "0.1.0"
+
+_moved.install()  # the old module paths (lobelight.sg, lobelight.bench, ...) keep working

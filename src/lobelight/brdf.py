@@ -5,8 +5,8 @@ frame, all pointing **away** from the surface: ``wi`` towards the light, ``wo`` 
 viewer, ``n`` the shading normal. Batch shapes broadcast. Every model works in the local frame
 ``(t, b, n)`` with the normal as **z**: ``t`` is the optional tangent argument (orthonormalised
 against ``n``; it sets the ``x`` axis of anisotropic models) or, when it is None, the
-deterministic tangent of :func:`lobelight.sphere.frame`; ``b = n x t``. Below, ``x, y, z`` are
-local coordinates and ``pos(c)^e`` is ``c^e`` for ``c > 0`` and 0 otherwise.
+deterministic tangent of :func:`lobelight.geometry.sphere.frame`; ``b = n x t``. Below, ``x, y, z``
+are local coordinates and ``pos(c)^e`` is ``c^e`` for ``c > 0`` and 0 otherwise.
 
 Every method returns 0 (value, density and sample weight) where ``n.wi <= 0`` or ``n.wo <= 0``:
 the models are one-sided reflectors.
@@ -114,7 +114,7 @@ import torch
 
 from ._backend import as_tensor
 from .errors import InputError
-from .sphere import frame
+from .geometry.sphere import frame
 
 __all__ = [
     "BRDF",

@@ -30,8 +30,8 @@ from pathlib import Path
 
 from ._size import check_pixels, parse_size
 from .errors import InputError
-from .gallery._args import add_arguments as gallery_arguments
 from .progress import Reporter
+from .studies.gallery._args import add_arguments as gallery_arguments
 
 #: A bake's interreflection defaults, :data:`lobelight.transport.BOUNCES` and
 #: :data:`lobelight.transport.INDIRECT_PATHS`, restated so that building the parser imports no
@@ -57,7 +57,7 @@ def _note(args, text: str) -> None:
 
 
 def _camera_from(text: str | None, provenance: dict, mesh):
-    from .camera import Camera
+    from .geometry.camera import Camera
 
     if text:
         try:
@@ -338,9 +338,9 @@ def _cmd_view(args) -> dict:
 
 
 def _cmd_compare(args) -> dict:
-    from .compare import compare
     from .model import load as load_model
     from .scene import load
+    from .studies.compare import compare
 
     width, height = _size(args)
     sc = load(args.scene, device=args.device)
@@ -375,7 +375,7 @@ def _cmd_compare(args) -> dict:
 
 def _cmd_compare_brdf(args) -> dict:
     from .render._gl import gl_available
-    from .sgbrdf import compare_brdf
+    from .studies.compare_brdf import compare_brdf
 
     size = _square(args, "compare-brdf")
     backend = {"torch": "torch", "gl": "both", "both": "both"}.get(args.backend)
@@ -402,19 +402,19 @@ def _square(args, command: str) -> int:
 
 
 def _cmd_figure5(args) -> dict:
-    from .figure5 import figure5
+    from .studies.figure5 import figure5
 
     return {"command": "figure5", **figure5(args.output, device=args.device)}
 
 
 def _cmd_gallery(args) -> dict:
-    from .gallery import main_from_args
+    from .studies.gallery import main_from_args
 
     return {"command": "gallery", "action": args.action, **main_from_args(args)}
 
 
 def _cmd_lobes_demo(args) -> dict:
-    from .cosine import lobes_demo
+    from .studies.lobes_demo import lobes_demo
 
     return {
         "command": "lobes-demo",
@@ -430,7 +430,7 @@ def _cmd_lobes_demo(args) -> dict:
 
 
 def _cmd_bench(args) -> dict:
-    from . import bench
+    from .studies import bench
 
     w = args.what
     # each benchmark's own default count unless --repeats is given
@@ -448,22 +448,22 @@ def _cmd_bench(args) -> dict:
             samples=args.samples,
         )
     if w == "lobe-tables":
-        from .cosine import bench_tables
+        from .studies.bench_lobes import bench_tables
 
         return bench_tables(device=args.device)
     if w == "lobes":
-        from .cosine import bench_lobes
+        from .studies.bench_lobes import bench_lobes
 
         return bench_lobes(device=args.device, **reps)
     if w == "brdf-fit":
-        from .sgbrdf import bench_fit
+        from .studies.bench_brdf_fit import bench_fit
 
         return bench_fit(material=args.material, device=args.device)
     raise AssertionError(w)
 
 
 def _cmd_demo(args) -> dict:
-    from .demo import demo
+    from .studies.demo import demo
 
     width, height = _size(args)
     return {

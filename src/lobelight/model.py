@@ -40,11 +40,13 @@ from typing import Any
 import numpy as np
 import torch
 
-from . import __version__, sg, sphere
+from . import __version__
 from ._io import atomic_writer
 from .errors import InputError
+from .geometry import sphere
+from .lobes import sg
+from .lobes.sg import Gaussians
 from .scene import Materials, Mesh
-from .sg import Gaussians
 
 __all__ = ["FORMAT", "VERSION", "Model", "blend_lobes", "horizon_scale", "load", "save"]
 
@@ -205,7 +207,7 @@ class Model:
         """The Gaussians of vertices at arbitrary views, interpolated between stored views.
 
         The paper's scheme (section 5): the geodesic triangle holding the view
-        (:func:`lobelight.sphere.locate_views`) gives three stored records and barycentric
+        (:func:`lobelight.geometry.sphere.locate_views`) gives three stored records and barycentric
         weights, and corresponding lobes blend with each other, by :func:`blend_lobes`: the
         light each lobe carries linearly, width and mean over the records that carry light.
 

@@ -39,23 +39,18 @@ Direct lighting with soft shadows (method note ``docs/cosine-lobes.md``)
     are the CLI's entry points.
 """
 
-from ._bench import bench_lobes
+from .. import _moved
 from ._brdf_lobes import brdf_lobes
-from ._calibrate import calibrate_weights, write_weights
-from ._demo import lobes_demo
 from ._light import SphereLight, cap_lobe, light_lobes
 from ._lobe import evaluate, from_vector, integral, product_integral, product_peak
 from ._lobeset import Lobes
-from ._reference import direct_mc
 from ._scene import LobeScene, default_scene, gbuffer
-from ._score import score, table_error
 from ._shade import ShadeResult, shade_points
 from ._spheres import SphereSet, sphere_set, winding_number
 from ._tables import (
     FORMAT_VERSION,
     LobeTables,
     TableParams,
-    bench_tables,
     build_tables,
     cache_dir,
     cap_exponent,
@@ -78,17 +73,13 @@ __all__ = [
     "SphereLight",
     "SphereSet",
     "TableParams",
-    "bench_lobes",
-    "bench_tables",
     "brdf_lobes",
     "build_tables",
     "cache_dir",
-    "calibrate_weights",
     "cap_exponent",
     "cap_lobe",
     "default_path",
     "default_scene",
-    "direct_mc",
     "evaluate",
     "fit_cap_exponent",
     "fit_product",
@@ -98,16 +89,17 @@ __all__ = [
     "integral",
     "light_lobes",
     "load_tables",
-    "lobes_demo",
     "product",
     "product_integral",
     "product_peak",
     "save_tables",
-    "score",
     "shade_points",
     "shadow_leaves",
     "sphere_set",
-    "table_error",
     "winding_number",
-    "write_weights",
 ]
+
+
+def __getattr__(name: str):
+    # names this package exported before they moved to the studies and references
+    return _moved.attribute(__name__, name)

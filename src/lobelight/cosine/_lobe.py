@@ -39,7 +39,7 @@ import torch
 
 from .._backend import dispatch
 from ..errors import InputError
-from ..sphere import _check_vec, _float, _normalize, frame
+from ..geometry.sphere import _check_vec, _float, _normalize, frame
 
 __all__ = [
     "evaluate",

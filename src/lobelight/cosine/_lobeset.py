@@ -14,7 +14,7 @@ from typing import NamedTuple
 
 import torch
 
-from ..sphere import frame
+from ..geometry.sphere import frame
 from ._fused import kernel
 from ._tables import LobeTables, _product_lookup
 

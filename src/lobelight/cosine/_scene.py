@@ -3,9 +3,10 @@
 The object is a closed trimesh mesh (default: a torus) placed by a rotation and a translation
 (so it can move from frame to frame without rebuilding anything); its occluder spheres are a
 :func:`~._spheres.sphere_set` of the same mesh, moved with it. The G-buffer casts the camera's
-rays against the plane (analytically) and the mesh (Embree, :class:`lobelight.raycast.RayCaster`,
-rays moved into the object's frame), and gives the points to shade: positions, interpolated
-normals, view directions, material ids and per-point BRDF parameters (spatially varying).
+rays against the plane (analytically) and the mesh (Embree,
+:class:`lobelight.geometry.raycast.RayCaster`, rays moved into the object's frame), and gives the
+points to shade: positions, interpolated normals, view directions, material ids and per-point BRDF
+parameters (spatially varying).
 """
 
 from __future__ import annotations
@@ -18,7 +19,7 @@ import numpy as np
 import torch
 
 from .. import brdf as _brdf
-from ..camera import Camera
+from ..geometry.camera import Camera
 from ._light import SphereLight
 from ._spheres import SphereSet, sphere_set
 
@@ -44,8 +45,9 @@ class LobeScene:
     vertices, faces : the object's mesh in its own frame, (V, 3) float64, (F, 3) int64
     spheres : its :class:`~._spheres.SphereSet`, in its own frame
     rotation, translation : (3, 3), (3,) the object's placement ``x -> R x + t``
-    lights : list of :class:`~._light.SphereLight`;  camera : :class:`lobelight.camera.Camera`
-    plane_albedo, object_albedo : RGB;  object_specular, object_exponent : modified Phong
+    lights : list of :class:`~._light.SphereLight`;  camera :
+    :class:`lobelight.geometry.camera.Camera` plane_albedo, object_albedo : RGB;  object_specular,
+    object_exponent : modified Phong
     """
 
     vertices: np.ndarray
@@ -79,7 +81,7 @@ class LobeScene:
 
     def caster(self):
         if self._caster is None:
-            from ..raycast import RayCaster
+            from ..geometry.raycast import RayCaster
             from ..scene import mesh_from_arrays
 
             self._caster = RayCaster(mesh_from_arrays(self.vertices, self.faces, weld=False))

@@ -86,9 +86,8 @@ import torch
 from .. import _cache
 from .._backend import dispatch
 from .._io import atomic_writer
-from .._machine import machine
 from ..errors import InputError
-from ..sphere import _check_vec, _float
+from ..geometry.sphere import _check_vec, _float
 from ._fused import kernel
 from ._lobe import (
     _axis_pair,
@@ -102,7 +101,6 @@ __all__ = [
     "FORMAT_VERSION",
     "LobeTables",
     "TableParams",
-    "bench_tables",
     "build_tables",
     "cache_dir",
     "cap_exponent",
@@ -914,52 +912,3 @@ def cap_exponent(theta, /, *, tables=None):
     theta = _float(theta)
     tables = tables if tables is not None else get_tables(device=theta.device)
     return tables.cap_exponent(theta)
-
-
-# --------------------------------------------------------------------------------------------
-# benchmark
-
-
-def bench_tables(device: str = "cpu") -> dict:
-    """Time building the default tables from scratch (no cache), plus writing and reading them.
-
-    Returns
-    -------
-    dict with ``seconds`` (the full build), its product and cap parts, the fit count, table
-    shapes, ``bytes`` in memory and on disk, the torch threads of the build, the goal (120 s on
-    a 2-core CPU; the paper: ~4 hours) and the machine.
-    """
-    import tempfile
-
-    if device.startswith("cuda"):
-        torch.cuda.synchronize(device)
-    threads = 1 if device == "cpu" else None  # build_tables' default on a CPU
-    t0 = time.perf_counter()
-    tables = build_tables(device=device, threads=threads)
-    if device.startswith("cuda"):
-        torch.cuda.synchronize(device)
-    seconds = time.perf_counter() - t0
-    with tempfile.TemporaryDirectory() as tmp:
-        path = Path(tmp) / "tables.npz"
-        t1 = time.perf_counter()
-        save_tables(tables, path)
-        load_tables(path)
-        io_seconds = time.perf_counter() - t1
-        file_bytes = path.stat().st_size
-    return {
-        "benchmark": "cosine_tables",
-        "seconds": seconds,
-        "seconds_product": tables.info["seconds_product"],
-        "seconds_cap": tables.info["seconds_cap"],
-        "seconds_save_load": io_seconds,
-        "product_fits": tables.info["product_fits"],
-        "unconverged_fits": tables.info["unconverged_fits"],
-        "shapes": tables.shapes,
-        "bytes": tables.nbytes,
-        "file_bytes": file_bytes,
-        "params": tables.params.to_dict(),
-        "build_threads": threads or torch.get_num_threads(),
-        "goal_seconds": 120.0,
-        "paper_seconds": 4 * 3600.0,
-        "machine": machine(device),
-    }

@@ -55,7 +55,7 @@ from typing import NamedTuple
 import torch
 
 from ..errors import InputError
-from ..sphere import frame
+from ..geometry.sphere import frame
 from . import _walk
 from ._fused import fusion_enabled, kernel
 

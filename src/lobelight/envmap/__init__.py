@@ -11,7 +11,7 @@
   ``int exp(lam (mu.w - 1)) L(w) dw`` with one interpolated lookup per lobe.
 """
 
-from ..sg import integral as sg_integral  # the SG integral's home is lobelight.sg
+from ..lobes.sg import integral as sg_integral  # the SG integral's home is lobelight.lobes.sg
 from ._builtin import builtin
 from ._envmap import EnvMap
 from ._io import load, save

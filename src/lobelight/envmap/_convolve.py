@@ -39,7 +39,8 @@ import numpy as np
 import scipy.special
 import torch
 
-from .. import cubemap, sh
+from ..geometry import cubemap
+from ..lobes import sh
 
 #: Window half-width of a 1-D Gaussian pass, in its standard deviations (mass outside 0.14 %).
 PASS_SIGMAS = 3.2

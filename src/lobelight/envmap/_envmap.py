@@ -21,9 +21,9 @@ scale and, in RGB variants, no colour conversion to an RGB image. A direction ex
 has no azimuth; Mitsuba then reads whichever column its ``atan2`` of two rounding-level numbers
 gives, and so do we.
 
-``"cubemap"`` — a ``(6, R, R, 3)`` cube map in the layout of :mod:`lobelight.cubemap` (OpenGL
-faces and texel orientation), looked up with its bilinear, seamless
-:func:`~lobelight.cubemap.sample`.
+``"cubemap"`` — a ``(6, R, R, 3)`` cube map in the layout of :mod:`lobelight.geometry.cubemap`
+(OpenGL faces and texel orientation), looked up with its bilinear, seamless
+:func:`~lobelight.geometry.cubemap.sample`.
 
 Power. :meth:`EnvMap.power` is the exact integral of the map's own interpolant for lat-long maps
 (pixel ``(i, j)`` weighted by ``2 pi / W`` times the integral over ``theta`` of its bilinear hat
@@ -61,9 +61,9 @@ from typing import Any
 import numpy as np
 import torch
 
-from .. import cubemap
 from .._backend import as_tensor
 from ..errors import InputError
+from ..geometry import cubemap
 from ._files import save
 
 __all__ = ["LAYOUTS", "EnvMap", "describe_bad_values"]
@@ -475,7 +475,7 @@ class _Cells:
 
 
 class _CubeCells(_Cells):
-    """The ``6 R^2`` texels of a cube map, in the :mod:`lobelight.cubemap` layout."""
+    """The ``6 R^2`` texels of a cube map, in the :mod:`lobelight.geometry.cubemap` layout."""
 
     def __init__(self, res: int, *, device: Any = None):
         self.res, self.device = res, device

@@ -16,10 +16,10 @@ import numpy as np
 import OpenEXR
 import torch
 
-from .. import cubemap
 from .._io import atomic_path
 from ..data import MAP_SUFFIXES
 from ..errors import InputError
+from ..geometry import cubemap
 
 __all__ = ["CROSS_FACES", "FILE_LAYOUTS", "cross_pixels", "save"]
 
@@ -55,9 +55,9 @@ _GRID = {"vcross": (4, 3), "hcross": (3, 4), "strip": (1, 6)}
 def cross_pixels(kind: str, n: int) -> tuple[torch.Tensor, torch.Tensor]:
     """Where each GL cube texel lies in a cross (or strip) image with faces of ``n`` pixels.
 
-    Computed from directions: the centre of GL texel ``[f, i, j]`` (:mod:`lobelight.cubemap`)
-    is expressed in the coordinates ``(a, b)`` of the cross face of the same axis, which land
-    exactly on a pixel centre.
+    Computed from directions: the centre of GL texel ``[f, i, j]``
+    (:mod:`lobelight.geometry.cubemap`) is expressed in the coordinates ``(a, b)`` of the cross
+    face of the same axis, which land exactly on a pixel centre.
 
     Returns
     -------

@@ -25,7 +25,7 @@ Layouts in a file, told apart by the image's aspect ratio unless ``layout=`` say
         .  -Y  .   .
 
 - ``6:1`` — ``"strip"``: the GL faces +X, -X, +Y, -Y, +Z, -Z left to right, each exactly as
-  stored in a :mod:`lobelight.cubemap` (rows = t, columns = s).
+  stored in a :mod:`lobelight.geometry.cubemap` (rows = t, columns = s).
 
 In the crosses each face is what a viewer at the centre sees with the cube unfolded around the
 front face -Z (up +Y, right +X): the pixel at face coordinates ``(a, b)`` in ``[-1, 1]`` (``a``

@@ -23,8 +23,8 @@ Level ladder
 GL layout
     Phase ``j`` over all mips is an ordinary mip-mapped cube map: ``gl_chains()[j][m]`` is the
     ``(6, R_m, R_m, 3)`` level, uploaded as is (GL face order and texel orientation, see
-    :mod:`lobelight.cubemap`). A shader computes ``k`` from ``lam`` as :meth:`level_coords` does and
-    fetches two levels with ``textureLod`` at integer lods.
+    :mod:`lobelight.geometry.cubemap`). A shader computes ``k`` from ``lam`` as
+    :meth:`level_coords` does and fetches two levels with ``textureLod`` at integer lods.
 
 How the levels are built (see :mod:`._convolve` for each operator)
     Fine levels come from a cascade: each level is the previous one convolved with the narrow
@@ -55,9 +55,10 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from .. import cubemap, sg
 from .._backend import as_tensor
 from ..errors import InputError
+from ..geometry import cubemap
+from ..lobes import sg
 from . import _chain_cache, _convolve
 
 __all__ = ["CHAIN_VERSION", "TEXELS_PER_SIGMA", "Prefiltered", "clear_memory_caches", "prefilter"]

@@ -31,7 +31,9 @@ from dataclasses import dataclass
 
 import torch
 
-from .. import brdf, cubemap, sg, sphere
+from .. import brdf
+from ..geometry import cubemap, sphere
+from ..lobes import sg
 from ..transport import Transport
 
 __all__ = [

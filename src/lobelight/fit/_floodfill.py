@@ -27,11 +27,11 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from .. import cubemap, sphere
 from .._cache import UNREADABLE
 from .._io import atomic_writer
 from .._malloc import keep_freed_memory
 from ..errors import InputError
+from ..geometry import cubemap, sphere
 from ..scene import Mesh, Scene
 from ..transport import BOUNCES, DIFFUSE_ORDER, INDIRECT_PATHS, Transport, diffuse_interreflection
 from ._data import gather, lobe_estimate

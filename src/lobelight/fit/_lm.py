@@ -35,7 +35,8 @@ from __future__ import annotations
 
 import torch
 
-from .. import sg, sphere
+from ..geometry import sphere
+from ..lobes import sg
 from ._data import FitData
 from ._objective import Weights, _neighbour_mean, _pair_diffs, conserve_factor, solve_gram
 

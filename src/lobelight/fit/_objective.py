@@ -27,7 +27,7 @@ from dataclasses import dataclass
 
 import torch
 
-from .. import sg
+from ..lobes import sg
 from ._data import FitData
 
 __all__ = [

@@ -25,9 +25,10 @@ import math
 
 import torch
 
-from .. import sg, sphere
 from ..errors import InputError
-from ..sg import Gaussians
+from ..geometry import sphere
+from ..lobes import sg
+from ..lobes.sg import Gaussians
 from ._data import FitData
 from ._lm import levenberg_marquardt
 from ._objective import (
@@ -43,7 +44,7 @@ from ._objective import (
 
 __all__ = ["Gaussians", "fit_batch", "initial_guess", "relabel"]
 
-#: Default sharpness range (:data:`lobelight.sg.LAM_RANGE`).
+#: Default sharpness range (:data:`lobelight.lobes.sg.LAM_RANGE`).
 LAM_RANGE = sg.LAM_RANGE
 
 
@@ -84,7 +85,7 @@ def initial_guess(
     """A starting point from the data alone.
 
     The first Gaussian is the moment estimate of the transport per view
-    (:func:`lobelight.sg.fit_from_samples`, exact for a single SG). Each further Gaussian is
+    (:func:`lobelight.lobes.sg.fit_from_samples`, exact for a single SG). Each further Gaussian is
     the moment estimate of what the Gaussians so far leave unexplained (the squared positive
     residual),
     after a short joint refinement of those so far (greedy, then joint: a sharp highlight over a

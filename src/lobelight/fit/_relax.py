@@ -30,7 +30,7 @@ import itertools
 
 import torch
 
-from .. import sg
+from ..lobes import sg
 from ..scene import Mesh
 from ._objective import Weights, _pair_diffs, flipped_views, mean_term, sigma_term
 from ._optimize import Gaussians, _permuted, _swap_gain

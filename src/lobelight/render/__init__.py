@@ -19,10 +19,11 @@
   GIF or WebP animation of them; :func:`orbit` one camera of it.
 - :class:`GLSGBRDFRenderer` the SG-mixture BRDF method (and FIS-40) in GLSL
   (``_gl_sgbrdf.py``, ``shaders/sgbrdf.glsl``); :func:`bench_gl` times the two.
-- :class:`Camera` Mitsuba 3's perspective sensor (re-exported from :mod:`lobelight.camera`).
+- :class:`Camera` Mitsuba 3's perspective sensor (re-exported from
+:mod:`lobelight.geometry.camera`).
 """
 
-from ..camera import Camera
+from ..geometry.camera import Camera
 from ._gl_sgbrdf import GLSGBRDFRenderer, bench_gl
 from ._lighting import Lighting, as_rotation
 from ._renderer import Renderer, sample_offsets

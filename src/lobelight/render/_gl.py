@@ -7,11 +7,12 @@ shader finds each vertex's view triangle itself. Per frame the CPU uploads only 
 lighting rotation and the rotated lighting's 25 SH coefficients.
 
 Prefiltered levels: each level's six faces, each with the one-texel seamless border of
-:func:`lobelight.cubemap.pad_seamless`, are packed into one atlas texture; hardware bilinear
-filtering inside a padded face equals GL's seamless cube-map filtering (the same corner rule)
-and matches :func:`lobelight.cubemap.sample` exactly. A Gaussian between two levels costs two
-bilinear fetches, blended by the L2 rule of :meth:`lobelight.envmap.Prefiltered.level_coords`
-(a trilinear ``textureLod`` would blend mips linearly in level, which is less accurate).
+:func:`lobelight.geometry.cubemap.pad_seamless`, are packed into one atlas texture; hardware
+bilinear filtering inside a padded face equals GL's seamless cube-map filtering (the same corner
+rule) and matches :func:`lobelight.geometry.cubemap.sample` exactly. A Gaussian between two levels
+costs two bilinear fetches, blended by the L2 rule of
+:meth:`lobelight.envmap.Prefiltered.level_coords` (a trilinear ``textureLod`` would blend mips
+linearly in level, which is less accurate).
 """
 
 from __future__ import annotations
@@ -22,11 +23,12 @@ from importlib import resources
 import numpy as np
 import torch
 
-from .. import cubemap, sg, sphere
 from .. import model as model_module
-from ..camera import Camera
 from ..envmap import Prefiltered
 from ..errors import InputError
+from ..geometry import cubemap, sphere
+from ..geometry.camera import Camera
+from ..lobes import sg
 from ._lighting import Lighting
 from ._sun_glossy import (
     sun_glossy_supported,

@@ -4,15 +4,15 @@ The GLSL twin of :func:`lobelight.sgbrdf.shade` (the EM paper's sec. V): per pix
 shader builds the tangent frame, expresses the view in it, interpolates the fitted lobes
 between the fixed views exactly as :meth:`lobelight.sgbrdf.SGBRDF.lobes` does (elevation
 layout: linear in ``theta`` and turned by the azimuth; geodesic layout: barycentric in the
-geodesic triangle, found by the same 180-plane test as :func:`lobelight.sphere.locate_views`),
-turns each lobe to the world frame and integrates it against the lighting with
-``integrate()`` of ``prefiltered.glsl`` (the exact Gaussian-prefiltered chain of
-:class:`lobelight.envmap.Prefiltered`), then sums. The fitted table lives in a float texture
-written once (:func:`lobe_table`; one texel per view and lobe for grey materials, two
-otherwise); nothing is repacked per frame (per frame the CPU sets the camera only). The
-geodesic triangle search is ``geodesic.glsl``'s, shared with the PRT renderer: the few
-candidates of the view's cube-map texel (:func:`lobelight.sphere.triangle_candidates`) rather
-than all 180 triangles.
+geodesic triangle, found by the same 180-plane test as
+:func:`lobelight.geometry.sphere.locate_views`), turns each lobe to the world frame and integrates
+it against the lighting with ``integrate()`` of ``prefiltered.glsl`` (the exact
+Gaussian-prefiltered chain of :class:`lobelight.envmap.Prefiltered`), then sums. The fitted table
+lives in a float texture written once (:func:`lobe_table`; one texel per view and lobe for grey
+materials, two otherwise); nothing is repacked per frame (per frame the CPU sets the camera only).
+The geodesic triangle search is ``geodesic.glsl``'s, shared with the PRT renderer: the few
+candidates of the view's cube-map texel (:func:`lobelight.geometry.sphere.triangle_candidates`)
+rather than all 180 triangles.
 
 ``method="fis"`` is the baseline the paper times against: filtered importance sampling
 (:func:`lobelight.sgbrdf.shade_fis`) with 40 Hammersley samples of Ward's importance sampling,
@@ -24,7 +24,7 @@ reference. The fps comparison is then shader against shader (:func:`bench_gl`).
 
 Geometry: by default the unit sphere at the origin, ray cast per pixel on a full-screen quad
 with the rays of :func:`lobelight.sgbrdf.sphere_hits` (orthographic from +Z, or a
-:class:`lobelight.camera.Camera`), so images are pixel-comparable with
+:class:`lobelight.geometry.camera.Camera`), so images are pixel-comparable with
 :func:`lobelight.sgbrdf.render_sphere`; or a triangle mesh (positions, normals, optional
 tangents per vertex) rasterised with interpolated normals.
 """
@@ -43,10 +43,10 @@ import torch
 from .._machine import machine
 from ..brdf import BRDF, Ward
 from ..brdf import from_dict as brdf_from_dict
-from ..camera import Camera
 from ..envmap import EnvMap, Prefiltered, prefilter
 from ..errors import InputError
-from ..sg import integral
+from ..geometry.camera import Camera
+from ..lobes.sg import integral
 from ..sgbrdf._em import KAPPA_MIN
 from ..sgbrdf._fis import FIS_SAMPLES, hammersley
 from ..sgbrdf._fit import SGBRDF
@@ -240,7 +240,7 @@ class GLSGBRDFRenderer:
     mesh : None for the unit sphere at the origin (ray cast per pixel as
         :func:`lobelight.sgbrdf.sphere_hits`), or a mapping with ``positions (V, 3)``,
         ``normals (V, 3)``, ``faces (F, 3)`` int and optional ``tangents (V, 3)`` (the
-        material's ``x`` axis; default the tangent of :func:`lobelight.sphere.frame`, as
+        material's ``x`` axis; default the tangent of :func:`lobelight.geometry.sphere.frame`, as
         :func:`lobelight.sgbrdf.shade`)
     brdf : the material FIS samples (default the one the model was fitted to,
         ``model.material``); Ward with scalar parameters
@@ -448,7 +448,7 @@ class GLSGBRDFRenderer:
         ----------
         camera : None for :func:`lobelight.sgbrdf.sphere_hits`' orthographic view from +Z
             (``[-1, 1]^2`` of the ``xy`` plane fills the image), or a
-            :class:`lobelight.camera.Camera`
+            :class:`lobelight.geometry.camera.Camera`
         """
         import moderngl
 
@@ -576,7 +576,7 @@ def bench_gl(
     """Frames per second of our method against 40-sample FIS, both in GLSL, at one size.
 
     The unit sphere (orthographic, filling the ``size x size`` image as in
-    :func:`lobelight.sgbrdf.compare_brdf`, or seen by ``camera``) is drawn by a
+    :func:`lobelight.studies.compare_brdf.compare_brdf`, or seen by ``camera``) is drawn by a
     :class:`GLSGBRDFRenderer` of each method in one context. Each round times each method once
     (:func:`time_frames`: back-to-back frames, one ``ctx.finish()``, at least ``min_seconds``),
     alternating, so a change of load on a shared machine hits both alike; each method's best

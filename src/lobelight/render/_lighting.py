@@ -22,9 +22,9 @@ import math
 import numpy as np
 import torch
 
-from .. import sh
 from ..envmap import EnvMap, Prefiltered, Sun, extract_sun, prefilter
 from ..errors import InputError
+from ..lobes import sh
 
 __all__ = ["Lighting", "as_rotation"]
 
@@ -165,7 +165,7 @@ class ShRotator:
     more than a whole frame on a GPU. Here the work is three small numpy products. Real SH of
     band ``l`` are polynomials of degree ``l`` in ``(x, y, z)``, so the function is one fixed
     polynomial ``f(x) = m(x) . Pc`` of the monomials ``m`` of degree ``< order``; its rotation
-    evaluated at the nodes of :func:`lobelight.sh._rotation_rule` and projected with that
+    evaluated at the nodes of :func:`lobelight.lobes.sh._rotation_rule` and projected with that
     rule's weights is exact (the rule integrates products of two order-``order`` harmonics).
 
     Parameters

@@ -7,10 +7,10 @@ import math
 import numpy as np
 import torch
 
-from ..camera import Camera
 from ..envmap import EnvMap
 from ..errors import InputError
-from ..raycast import RayCaster
+from ..geometry.camera import Camera
+from ..geometry.raycast import RayCaster
 from ._gl import GLRenderer
 from ._lighting import Lighting, as_rotation
 from ._torch import render_torch

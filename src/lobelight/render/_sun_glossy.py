@@ -41,7 +41,8 @@ from __future__ import annotations
 import numpy as np
 import torch
 
-from .. import brdf, sg
+from .. import brdf
+from ..lobes import sg
 
 __all__ = [
     "sun_glossy",

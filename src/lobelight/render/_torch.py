@@ -25,11 +25,11 @@ from dataclasses import dataclass
 
 import torch
 
-from .. import sg
-from ..camera import Camera
 from ..errors import InputError
+from ..geometry.camera import Camera
+from ..geometry.raycast import RayCaster
+from ..lobes import sg
 from ..model import blend_lobes
-from ..raycast import RayCaster
 from ._lighting import Lighting
 from ._sun_glossy import sun_glossy, sun_glossy_supported, sun_through
 

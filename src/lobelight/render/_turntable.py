@@ -11,8 +11,8 @@ import numpy as np
 from PIL import Image, features
 
 from .._io import atomic_path
-from ..camera import Camera
 from ..errors import InputError
+from ..geometry.camera import Camera
 from ..progress import resolve
 from ._lighting import as_rotation
 from ._renderer import Renderer

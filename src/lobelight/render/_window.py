@@ -14,8 +14,8 @@ import time
 
 import numpy as np
 
-from ..camera import Camera
 from ..errors import InputError
+from ..geometry.camera import Camera
 from ..model import Model, load
 from ._lighting import as_rotation
 from ._renderer import Renderer, sample_offsets

@@ -43,9 +43,9 @@ import numpy as np
 import torch
 
 from .._io import TEXT_LIMIT, read_input
-from ..camera import Camera
 from ..data import envmap_names, resolve_envmap
 from ..errors import InputError
+from ..geometry.camera import Camera
 from . import _shapes
 from ._materials import Materials, gradient, parse_material, uniform
 from ._mesh import MESH_SUFFIXES, Mesh, load_mesh, mesh_from_arrays

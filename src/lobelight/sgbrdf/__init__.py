@@ -44,7 +44,7 @@ Baselines and the paper's comparison (docs/sgbrdf.md)
       ``compare-brdf.json`` (keys in its docstring); :func:`default_envmap`
 """
 
-from ._compare import METHODS, compare_brdf, default_envmap
+from .. import _moved
 from ._em import (
     KAPPA_MAX,
     KAPPA_MIN,
@@ -59,7 +59,6 @@ from ._em import (
 from ._fis import FIS_SAMPLES, hammersley, shade_fis
 from ._fit import (
     SGBRDF,
-    bench_fit,
     brdf_samples,
     elevation_views,
     fit,
@@ -73,7 +72,6 @@ from ._fit import (
     view_jump,
     view_transport,
 )
-from ._reference import shade_reference
 from ._render import COVERAGE, MipChain, mip_chain, render_sphere, shade, sphere_hits
 from ._wang09 import shade_wang09, wang09_lobe
 
@@ -82,14 +80,10 @@ __all__ = [
     "FIS_SAMPLES",
     "KAPPA_MAX",
     "KAPPA_MIN",
-    "METHODS",
     "SGBRDF",
     "MipChain",
     "VMFMixture",
-    "bench_fit",
     "brdf_samples",
-    "compare_brdf",
-    "default_envmap",
     "elevation_views",
     "em_fit",
     "fit",
@@ -109,7 +103,6 @@ __all__ = [
     "sample_mixture",
     "shade",
     "shade_fis",
-    "shade_reference",
     "shade_wang09",
     "sphere_hits",
     "view_jump",
@@ -117,3 +110,8 @@ __all__ = [
     "vmf_log_pdf",
     "wang09_lobe",
 ]
+
+
+def __getattr__(name: str):
+    # names this package exported before they moved to the studies and references
+    return _moved.attribute(__name__, name)

@@ -39,8 +39,8 @@ from typing import Any
 import torch
 
 from ..errors import InputError
-from ..sg import mean_cosine
-from ..sphere import frame
+from ..geometry.sphere import frame
+from ..lobes.sg import mean_cosine
 
 __all__ = [
     "VMFMixture",
@@ -123,7 +123,7 @@ def kappa_from_gap(gap: torch.Tensor, *, solver: str = "exact") -> torch.Tensor:
     rounding: ``1 / gap`` for ``gap < 1/25`` (there ``gap(k) = 1/k - 2/(e^(2k) - 1)`` is ``1/k``
     to 1e-21 relative), otherwise four Newton steps from Banerjee's estimate (quadratic
     convergence from within 5 %: 5e-2, 3e-3, 1e-5, 1e-10, 1e-16); within 1e-9 relative of
-    :func:`lobelight.sg.lam_from_mean_cosine` everywhere (the gap's own float64 rounding, near
+    :func:`lobelight.lobes.sg.lam_from_mean_cosine` everywhere (the gap's own float64 rounding, near
     ``kappa = 1e-3``), at a fraction of its cost per EM step.
 
     Parameters
@@ -281,7 +281,7 @@ def init_paper(
     """The EM paper's initial guess: sort along the axis of highest variance, split, estimate.
 
     1. spherical coordinates (latitude, longitude) of the samples, in the frame whose polar
-       axis is the tangent of :func:`lobelight.sphere.frame` at the weighted mean direction
+       axis is the tangent of :func:`lobelight.geometry.sphere.frame` at the weighted mean direction
        ``c`` (so ``c`` is at latitude 0, longitude 0 and the longitude wraps only at ``-c``);
     2. the samples sorted along the principal axis of the weighted 2 x 2 covariance of those
        coordinates (the axis of highest variance);

@@ -28,10 +28,11 @@ from typing import Any
 
 import torch
 
-from .. import cubemap, sg
 from .._backend import as_tensor
 from ..errors import InputError
-from ..sphere import frame
+from ..geometry import cubemap
+from ..geometry.sphere import frame
+from ..lobes import sg
 from ._fit import SGBRDF
 
 __all__ = ["COVERAGE", "MipChain", "mip_chain", "render_sphere", "shade", "sphere_hits"]
@@ -194,7 +195,8 @@ def shade(
     normals : (..., 3) unit shading normals, world frame
     views : (..., 3) unit directions towards the viewer, world frame
     tangents : optional (..., 3) tangents (the material's ``x`` axis; orthonormalised against the
-        normal), default the tangent of :func:`lobelight.sphere.frame` (as :mod:`lobelight.brdf`)
+        normal), default the tangent of :func:`lobelight.geometry.sphere.frame` (as
+        :mod:`lobelight.brdf`)
 
     Returns
     -------
@@ -236,7 +238,7 @@ def sphere_hits(
     """Primary-ray hits on the unit sphere at the origin.
 
     Orthographic by default: the sphere fills the image, seen from +Z (image right = +X, up =
-    +Y, every ray along -Z). With a :class:`lobelight.camera.Camera` the rays are its
+    +Y, every ray along -Z). With a :class:`lobelight.geometry.camera.Camera` the rays are its
     perspective rays and the sphere is intersected analytically.
 
     Returns
@@ -291,7 +293,7 @@ def render_sphere(
     ----------
     model : fitted material;  lighting : Prefiltered or MipChain
     width, height : image size (height defaults to width)
-    camera : optional :class:`lobelight.camera.Camera`; default orthographic from +Z
+    camera : optional :class:`lobelight.geometry.camera.Camera`; default orthographic from +Z
         (:func:`sphere_hits`)
     background : optional :class:`lobelight.envmap.EnvMap` seen behind the sphere (else 0)
 

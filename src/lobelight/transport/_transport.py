@@ -32,11 +32,12 @@ from dataclasses import dataclass
 
 import torch
 
-from .. import cubemap, sg, sh, sphere
 from ..errors import InputError
-from ..raycast import RayCaster
+from ..geometry import cubemap, sphere
+from ..geometry.raycast import RayCaster
+from ..lobes import sg, sh
+from ..lobes.sg import Gaussians
 from ..scene import Scene
-from ..sg import Gaussians
 
 __all__ = [
     "BOUNCES",
@@ -56,7 +57,7 @@ BOUNCES = 4
 #: Paths per vertex and view of a bake's indirect glossy (docs/method.md).
 INDIRECT_PATHS = 16
 #: Sharpness range of the indirect glossy Gaussians (:meth:`Transport.indirect_lobes`), the
-#: fit's (:data:`lobelight.sg.LAM_RANGE`): paths that all escape one way (a mirror seen in a
+#: fit's (:data:`lobelight.lobes.sg.LAM_RANGE`): paths that all escape one way (a mirror seen in a
 #: mirror) would give an infinite one, whose width (0) blends to NaN.
 INDIRECT_LAM_RANGE = sg.LAM_RANGE
 #: Sharpness of the indirect Gaussian of a (vertex, view) whose paths escape as one (by the

@@ -1,4 +1,4 @@
-// The geodesic view triangles (lobelight.sphere) and the lookup of the one holding a direction,
+// The geodesic view triangles (lobelight.geometry.sphere) and the lookup of the one holding a direction,
 // shared by prt.glsl (vertex stage) and sgbrdf.glsl (fragment stage); render/_gl.py's
 // upload_geodesic() makes the block, the texture and the defines (CAND_RES, CAND_TEXELS), and
 // _program(..., include / vertex_include=("geodesic",)) prepends this file.

@@ -4,7 +4,7 @@
 //   SPHERE      1: the unit sphere at the origin, ray cast per pixel on a full-screen quad
 //               (as sphere_hits, so images are pixel-comparable); 0: a rasterised mesh
 //   ORTHO       1: sphere_hits' default camera (orthographic from +Z, the sphere fills the
-//               image); 0: a lobelight.camera.Camera (Mitsuba's perspective sensor)
+//               image); 0: a lobelight.geometry.camera.Camera (Mitsuba's perspective sensor)
 //   HAS_TANGENT mesh only: per-vertex tangents are given (else the frame of sphere.frame)
 //   METHOD_FIS  0: our lobes with prefiltered.glsl's integrate(); 1: 40-sample FIS
 //   GEODESIC    ours only, 1: the 92-view geodesic layout, 0: the elevation layout

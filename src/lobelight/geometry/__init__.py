@@ -1,0 +1,12 @@
+"""Geometry: directions on the sphere, cube maps, the camera and ray queries.
+
+- :mod:`lobelight.geometry.sphere`   the 92 geodesic views, Fibonacci and local direction sets,
+  frames and rotations
+- :mod:`lobelight.geometry.cubemap`  cube-map texel directions, exact solid angles, seamless
+  bilinear sampling
+- :mod:`lobelight.geometry.camera`   Mitsuba 3's perspective sensor (:class:`Camera`)
+- :mod:`lobelight.geometry.raycast`  closest-hit and any-hit ray queries on a triangle mesh
+  (:class:`RayCaster`)
+
+Conventions (directions, cube-map faces, the camera): ``docs/conventions.md``.
+"""

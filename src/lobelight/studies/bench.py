@@ -1,0 +1,322 @@
+"""Benchmarks (``lobelight bench ...``): timings with the machine they ran on, as JSON.
+
+Speed is measured here, never in unit tests. Each benchmark returns a dict that the CLI prints
+(``--json``) and that ``docs/benchmarks.md`` records by hand with the machine description.
+"""
+
+from __future__ import annotations
+
+import tempfile
+import time
+from pathlib import Path
+
+import torch
+import trimesh
+
+from .. import scene as _scene
+from .. import transport
+from .._machine import machine
+from .._machine import sync as _sync
+from ..envmap import builtin, prefilter
+from ..envmap._prefilter import clear_memory_caches
+from ..fit import Gaussians, fit_model
+from ..geometry import cubemap
+from ..geometry import sphere as sph
+from ..geometry.camera import Camera
+from ..model import Model
+from ..render import Lighting, Renderer, as_rotation
+from ..render._gl import create_context
+from ..scene import load, mesh_from_arrays, uniform
+from ..transport import BOUNCES, INDIRECT_PATHS
+
+__all__ = [
+    "bench_fit",
+    "bench_prefilter",
+    "bench_render",
+    "bench_transport",
+    "machine",
+    "synthetic_model",
+]
+
+
+def bench_prefilter(
+    *, base_res: int = 512, repeats: int = 3, device: str = "cpu", phases: int = 4
+) -> dict:
+    """Time building the full Gaussian-prefiltered chain from a ``(6, base_res, base_res, 3)`` cube.
+
+    The input is the built-in sky converted to a cube map once, outside the timing. Three kinds
+    of time, in seconds:
+
+    - ``seconds_cold``: the first build, with the in-memory index plans and SH bases forgotten
+      and no disk cache: what a process pays for a map it has not seen;
+    - ``seconds_best`` / ``seconds_median`` of ``repeats`` builds after it (plans in memory, no
+      disk cache);
+    - ``seconds_cached``: median of ``repeats`` reads of the chain from a disk cache in a
+      temporary folder (written once, outside the timing), what a later process pays.
+
+    ``bytes`` is the chain in memory, ``bytes_on_disk`` its cache entry.
+    """
+    cube = builtin().to(device).to_cubemap(base_res)
+    clear_memory_caches()
+    _sync(device)
+    t0 = time.perf_counter()
+    prefilter(cube, base_res=base_res, phases=phases, cache=False)
+    _sync(device)
+    cold = time.perf_counter() - t0
+    times = []
+    for _ in range(repeats):
+        t0 = time.perf_counter()
+        pf = prefilter(cube, base_res=base_res, phases=phases, cache=False)
+        _sync(device)
+        times.append(time.perf_counter() - t0)
+    times.sort()
+    with tempfile.TemporaryDirectory(prefix="lobelight-bench-") as folder:
+        prefilter(cube, base_res=base_res, phases=phases, cache=folder)  # writes the entry
+        on_disk = sum(p.stat().st_size for p in Path(folder).iterdir())
+        cached = []
+        for _ in range(repeats):
+            t0 = time.perf_counter()
+            prefilter(cube, base_res=base_res, phases=phases, cache=folder)
+            _sync(device)
+            cached.append(time.perf_counter() - t0)
+    cached.sort()
+    return {
+        "benchmark": "prefilter",
+        "base_res": base_res,
+        "phases": phases,
+        "levels": len(pf.levels),
+        "lam_max": pf.lam_max,
+        "seconds_cold": cold,
+        "seconds_best": times[0],
+        "seconds_median": times[len(times) // 2],
+        "seconds_cached": cached[len(cached) // 2],
+        "repeats": repeats,
+        "bytes": pf.nbytes(),
+        "bytes_on_disk": on_disk,
+        "goal_seconds": 0.005 if device.startswith("cuda") else 0.5,
+        "machine": machine(device),
+    }
+
+
+def bench_transport(
+    *,
+    scene: str = "knot:2",
+    vertices: int = 10000,
+    res: int = 32,
+    sample_vertices: int = 64,
+    paths: int = 32,
+    device: str = "cpu",
+) -> dict:
+    """Time transport sampling on a ~10K-vertex built-in mesh.
+
+    - visibility: every vertex (up to ``vertices``) against the ``6 res^2`` texel directions of
+      a cube map (rays only above each vertex's horizon are cast), timed in full;
+    - direct glossy, indirect glossy (``paths`` per vertex and view) and diffuse SH: the whole
+      :func:`lobelight.transport.sample` on ``sample_vertices`` vertices x 92 views, reported
+      per transport function (one vertex and view).
+    """
+
+    sc = _scene.load(scene)
+    tr = transport.Transport(sc, device=device)
+    n = min(vertices, sc.mesh.n_vertices)
+    dirs = cubemap.texel_directions(res, device=device).reshape(-1, 3)
+    vidx = torch.arange(n, device=device)
+    up = int(((tr.mesh.normals[vidx] @ dirs.T) > 0).sum())
+    t0 = time.perf_counter()
+    for s in range(0, n, 2048):
+        tr.visibility(vidx[s : s + 2048], dirs)
+    _sync(device)
+    t_vis = time.perf_counter() - t0
+    sv = torch.linspace(0, sc.mesh.n_vertices - 1, sample_vertices).long()
+    t0 = time.perf_counter()
+    tb = transport.sample(sc, sv, res=res, paths=paths, transport=tr)
+    _sync(device)
+    t_direct = time.perf_counter() - t0
+    functions = sample_vertices * tb.views.shape[0]
+    return {
+        "benchmark": "transport",
+        "scene": scene,
+        "mesh_vertices": sc.mesh.n_vertices,
+        "visibility_vertices": n,
+        "directions": int(dirs.shape[0]),
+        "rays_cast": up,
+        "visibility_seconds": t_vis,
+        "rays_per_second": up / t_vis,
+        "visibility_seconds_per_10k_vertices": t_vis * 10000 / n,
+        "goal_visibility_seconds_per_10k_vertices": 60.0,
+        "sample_vertices": sample_vertices,
+        "views": int(tb.views.shape[0]),
+        "paths_per_function": paths,
+        "sample_seconds": t_direct,
+        "transport_functions_per_second": functions / t_direct,
+        "machine": machine(device),
+    }
+
+
+def bench_fit(
+    *,
+    scene: str = "knot:2",
+    n_lobes: int = 1,
+    device: str = "cpu",
+    bounces: int | None = None,
+    indirect_paths: int | None = None,
+) -> dict:
+    """Transport and fit of a whole model (a 10K-vertex, 92-view, N = 1 model), with a bake's
+    interreflection (``bounces``, ``indirect_paths``: default the bake's,
+    :data:`lobelight.transport.BOUNCES` and :data:`lobelight.transport.INDIRECT_PATHS`).
+
+    ``knot:2`` has 11,457 vertices (10,368 of them glossy, as the 12,769-vertex ``knot:3`` of
+    the earlier, coarser-tubed knot had); seconds are also given per 10K vertices, and per
+    stage: ``fit`` (transport sampling and fit, with ``indirect_glossy`` the path tracing inside
+    it), ``relax``, ``interreflection`` (the diffuse bounces).
+    """
+
+    bounces = BOUNCES if bounces is None else bounces
+    indirect_paths = INDIRECT_PATHS if indirect_paths is None else indirect_paths
+    sc = load(scene)
+    t0 = time.perf_counter()
+    m = fit_model(sc, n_lobes, device=device, bounces=bounces, indirect_paths=indirect_paths)
+    _sync(device)
+    total = time.perf_counter() - t0
+    v = sc.mesh.n_vertices
+    return {
+        "benchmark": "fit",
+        "scene": scene,
+        "vertices": v,
+        "glossy_vertices": int((m.gaussians.w.amax((1, 2, 3)) > 0).sum()),
+        "views": int(m.views.shape[0]),
+        "n_lobes": n_lobes,
+        "bounces": bounces,
+        "indirect_paths": indirect_paths,
+        "seconds": total,
+        "seconds_per_10k_vertices": total * 1e4 / v,
+        "stage_seconds": {k: t for k, t in m.provenance["seconds"].items() if k != "total"},
+        "relative_l2_error_mean": m.provenance["relative_l2_error_mean"],
+        "goal_seconds": 600.0 if device == "cpu" else 10.0,
+        "machine": machine(device),
+    }
+
+
+def synthetic_model(vertices: int, n_lobes: int):
+    """A sphere of about ``vertices`` vertices with analytic Gaussians (a mirror-direction lobe
+    and broad ones about the normal): rendering cost does not depend on fitted values."""
+
+    # trimesh's UV sphere has about 4 rows^2 vertices for count = (rows + 2, 2 rows)
+    rows = max(3, round((vertices / 4) ** 0.5))
+    tm = trimesh.creation.uv_sphere(radius=1.0, count=[rows + 2, 2 * rows])
+    mesh = mesh_from_arrays(tm.vertices, tm.faces, name=f"sphere{len(tm.vertices)}")
+    n = mesh.normals
+    views = sph.geodesic_views()
+    cos = n @ views.T
+    refl = torch.nn.functional.normalize(2 * cos[..., None] * n[:, None] - views[None], dim=-1)
+    mus = [refl] + [n[:, None].expand_as(refl)] * (n_lobes - 1)
+    mu = torch.stack(mus, 2)
+    lam = torch.tensor([300.0, 5.0, 2.0][:n_lobes]).expand(*cos.shape, n_lobes).clone()
+    w = (cos > 0).float()[..., None, None] * torch.full((n_lobes, 3), 0.3) * lam[..., None] / 6.3
+    diffuse = torch.zeros(n.shape[0], 25, 3)
+    diffuse[:, 0] = 0.2
+    # a Phong material as sharp as the mirror lobe, so that ``--sun`` shades the sun's glossy
+    # reflection per pixel too (render/_sun_glossy.py), as for a real glossy model
+    mats = uniform(
+        {"diffuse": [0.5, 0.5, 0.5], "model": "phong", "specular": 0.3, "exponent": 600.0},
+        mesh.n_vertices,
+    )
+    return Model(mesh, views, Gaussians(w.contiguous(), mu, lam), diffuse, mats, {})
+
+
+def bench_render(
+    *,
+    vertices: tuple[int, ...] = (10_000, 50_000),
+    lobes: tuple[int, ...] = (1, 3),
+    sizes: tuple[int, ...] = (512, 1024),
+    backend: str = "gl",
+    frames: int = 10,
+    base_res: int = 256,
+    min_seconds: float = 1.0,
+    sun: bool = False,
+    samples: int = 1,
+) -> dict:
+    """Frames per second of the renderer for each model size, lobe count and square image size.
+
+    ``samples``: anti-aliasing samples per pixel (each a full shading pass; 1 times one pass).
+
+    With ``sun`` the sky's sun is shaded per pixel with a shadow map; every timed frame turns
+    the light, so the map is redrawn every frame (a still light reuses it for free).
+
+    GL: ``fps`` is throughput, frames submitted back to back (each with its own camera-free
+    rotation upload) and one ``finish`` at the end, as a real-time loop runs; at least
+    ``frames`` frames and ``min_seconds`` seconds, so that a fast GPU is timed over hundreds of
+    frames. ``fps_finish_each_frame`` waits for every frame (latency bound), and
+    ``fps_with_readback`` adds the float read-back of :meth:`Renderer.render`."""
+
+    light = Lighting(builtin(), base_res=base_res, sun=sun)
+    cam = Camera.look_at((0.0, 0.8, 3.2), (0.0, 0.0, 0.0), fov=45.0)
+    rows = []
+    for v in vertices:
+        for n in lobes:
+            model = synthetic_model(v, n)
+            for s in sizes:
+                ren = Renderer(model, light, s, s, backend=backend, samples=samples)
+                ren.render(cam, 10.0)  # warm-up: shader compilation, uploads
+                if backend == "gl":
+                    draw = _time_gl(ren._gl, cam, frames, min_seconds)
+                else:
+                    t = time.perf_counter()
+                    for i in range(frames):
+                        ren.render(cam, float(i))
+                    draw = {"throughput": (time.perf_counter() - t) / frames}
+                t = time.perf_counter()
+                for i in range(max(1, frames // 2)):
+                    ren.render(cam, float(i))
+                full = (time.perf_counter() - t) / max(1, frames // 2)
+                ren.close()
+                row = {
+                    "vertices": model.mesh.n_vertices,
+                    "n_lobes": n,
+                    "size": s,
+                    "samples": samples,
+                    "fps": 1 / draw["throughput"],
+                    "ms_per_frame": 1e3 * draw["throughput"],
+                    "fps_with_readback": 1 / full,
+                }
+                if "latency" in draw:
+                    row["fps_finish_each_frame"] = 1 / draw["latency"]
+                    row["frames_timed"] = draw["frames"]
+                rows.append(row)
+    info = {}
+    if backend == "gl":
+        ctx = create_context()
+        info = {"gl_renderer": ctx.info["GL_RENDERER"], "gl_version": ctx.info["GL_VERSION"]}
+        ctx.release()
+    return {
+        "benchmark": "render",
+        "backend": backend,
+        "sun": sun,
+        "rows": rows,
+        "goals": {"cpu_512_fps": 5.0, "h100_50k_1024_fps": 1000.0},
+        "machine": {**machine("cpu"), **info},
+    }
+
+
+def _time_gl(gl, cam, frames: int, min_seconds: float) -> dict:
+    """Seconds per frame of ``gl.draw``: throughput and latency (finish after each frame)."""
+    rots = [_rot(i) for i in range(16)]  # rotation matrices built off the clock
+    count = 0
+    t = time.perf_counter()
+    while count < frames or time.perf_counter() - t < min_seconds:
+        for _ in range(frames):
+            gl.draw(cam, rots[count % 16])
+            count += 1
+        gl.ctx.finish()
+    throughput = (time.perf_counter() - t) / count
+    t = time.perf_counter()
+    for i in range(frames):
+        gl.draw(cam, rots[i % 16])
+        gl.ctx.finish()
+    latency = (time.perf_counter() - t) / frames
+    return {"throughput": throughput, "latency": latency, "frames": count}
+
+
+def _rot(i: int):
+
+    return as_rotation(float(i))

@@ -1,0 +1,79 @@
+"""A scored gallery of real scenes against Mitsuba 3 references.
+
+The gallery is :data:`SCENES`: 8 (mesh, material) bakes — the Stanford bunny (decimated),
+Spot, the teapot and Suzanne (Loop-subdivided); sharp and rough gold-coloured GGX metals, a
+plain diffuse and a glossy plastic — each rendered under two of four maps (a park with an
+unclipped sun, a studio, an overcast square and the Grace Cathedral probe), 16 scenes in all.
+Meshes are centred and scaled to a bounding-box diagonal of 2 (:func:`prepare_mesh`) and read
+from a data folder (``--data DIR`` or ``$LOBELIGHT_DATA``; ``meshes/`` and ``envmaps/`` in it).
+
+- :func:`render_references` renders each scene's reference with Mitsuba 3's ``path``
+  integrator (:func:`lobelight.reference.mitsuba.scene_dict`: ``max_depth`` 8, 1024 spp, 512²,
+  box pixel filter, ``llvm_ad_rgb`` else ``scalar_rgb``) and its mask, the pixels fully
+  covered by the object (:func:`coverage_mask`), into a references folder with a checked
+  manifest (:mod:`._references`); only stale, corrupt or missing entries are rendered.
+- :func:`run` bakes each (mesh, material) once with :func:`lobelight.fit.fit_model` (a rerun
+  loads the saved model), renders each scene with :class:`lobelight.render.Renderer` at its
+  reference's size with ``samples`` points per pixel — a box filter over the pixel, as the
+  reference's — and scores it on the reference's mask, less any pixel some of our samples
+  missed (:func:`score`; one mask for both images), writing
+  ``gallery.json`` and one strip ``reference | ours | error x 4`` per scene.
+- :func:`score`: displayed PSNR at the exposure that maps the reference's 99th-percentile
+  object luminance to 1 (object pixels, and the whole image), relative L2 of linear radiance
+  and the energy ratio of the object's luminance (:mod:`._score`).
+- :func:`add_arguments` and :func:`main_from_args` are ``lobelight gallery {list,references,run}``
+  (also ``python -m lobelight.studies.gallery``).
+
+Installing Mitsuba's LLVM variant and rendering the references: DEVELOPERS.md.
+"""
+
+import importlib
+
+#: Where each public name lives: the submodules load on first use (PEP 562), so that the
+#: command line can add the gallery's arguments without importing torch.
+_HOMES = {
+    "DATA_ENV": "..data",
+    "GalleryScene": "._scenes",
+    "LEGEND": "._score",
+    "LOBES": "._scenes",
+    "MAPS": "._scenes",
+    "MATERIALS": "._scenes",
+    "METRICS": "._run",
+    "Reference": "._references",
+    "ReferenceSettings": "._settings",
+    "SCENES": "._scenes",
+    "VARIANTS": "._settings",
+    "add_arguments": "._args",
+    "coverage_mask": "._references",
+    "data_folder": "._scenes",
+    "default_camera": "._scenes",
+    "display_exposure": "._score",
+    "energy_ratio": "._score",
+    "geometry_sha256": "._scenes",
+    "load_reference": "._references",
+    "luminance": "._score",
+    "main_from_args": "._cli",
+    "noise_psnr_display": "._score",
+    "prepare_mesh": "._scenes",
+    "read_manifest": "._references",
+    "reference_status": "._references",
+    "render_references": "._references",
+    "run": "._run",
+    "scene_hash": "._scenes",
+    "score": "._score",
+    "select": "._scenes",
+    "summarise": "._run",
+    "to_scene": "._scenes",
+    "write_reference": "._references",
+}
+
+
+def __getattr__(name: str):
+    if name not in _HOMES:
+        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+    value = getattr(importlib.import_module(_HOMES[name], __name__), name)
+    globals()[name] = value
+    return value
+
+
+__all__ = sorted(_HOMES)

@@ -1,0 +1,275 @@
+"""The gallery's scenes: their declarations, the data folder and the prepared meshes."""
+
+from __future__ import annotations
+
+import dataclasses
+import hashlib
+import json
+import math
+import os
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from ...errors import InputError
+from ...geometry.camera import Camera
+from ...scene import Mesh, Scene, load_mesh, mesh_from_arrays, parse_material
+from ._settings import DATA_ENV
+
+__all__ = [
+    "LOBES",
+    "MAPS",
+    "MATERIALS",
+    "PREPARATION",
+    "SCENES",
+    "GalleryScene",
+    "data_folder",
+    "default_camera",
+    "find_map",
+    "geometry_sha256",
+    "prepare_mesh",
+    "scene_hash",
+    "select",
+    "sha256_file",
+    "to_scene",
+]
+
+#: Version of the mesh preparation (:func:`prepare_mesh`); part of every scene's hash, so a
+#: change to it marks the references rendered before it as stale.
+PREPARATION = 1
+
+#: The gallery's materials, as :func:`lobelight.scene.parse_material` specs.
+MATERIALS = {
+    # gold-coloured metals: GGX with no Fresnel term (the specular is the metal's colour)
+    "sharp_metal": "ggx:alpha=0.03,specular=0.95,0.8,0.6",
+    "rough_metal": "ggx:alpha=0.25,specular=0.95,0.8,0.6",
+    "diffuse": "diffuse:color=0.7",
+    # a dielectric-looking coat: a grey 0.04 specular (Fresnel none) over a Lambert base
+    "plastic": "ggx:alpha=0.1,specular=0.04,diffuse=0.5",
+}
+#: The gallery's maps: file names in the data folder's ``envmaps/``.
+MAPS = {
+    "park": "rooitou_park_1k.hdr",  # clear sky, small unclipped sun
+    "studio": "studio_small_03_1k.hdr",  # softbox and round light
+    "overcast": "potsdamer_platz_1k.hdr",  # overcast city square, low frequency
+    "grace": "probulator_lowres/grace.hdr",  # Grace Cathedral probe, 256 x 128
+}
+
+
+@dataclass(frozen=True)
+class GalleryScene:
+    """One scene of the gallery: a mesh with one material, under one map, seen by one camera.
+
+    Attributes
+    ----------
+    name : unique, used for file names (``[a-z0-9-]``)
+    bake : the name of its (mesh, material) bake; scenes of one bake share the model
+    mesh : file name in the data folder's ``meshes/`` (or the folder itself)
+    envmap : file name in the data folder's ``envmaps/`` (or the folder itself)
+    material : a material spec (:func:`lobelight.scene.parse_material`)
+    camera : the viewpoint (None: :func:`default_camera`)
+    subdivisions : Loop subdivisions of the mesh before anything else
+    max_vertices : decimate the mesh to about this many vertices (``fast-simplification``)
+    lobes : the bake's fitted Gaussians per view (:data:`LOBES`)
+    description : what the scene shows and how its mesh is prepared
+    """
+
+    name: str
+    bake: str
+    mesh: str
+    envmap: str
+    material: str
+    camera: Camera | None = None
+    subdivisions: int = 0
+    max_vertices: int | None = None
+    lobes: int = 1
+    description: str = ""
+
+    def to_dict(self) -> dict:
+        d = dataclasses.asdict(self)
+        d["camera"] = None if self.camera is None else self.camera.to_dict()
+        return d
+
+    def bake_definition(self) -> dict:
+        """What the bake depends on: the mesh, its preparation and the material (not the map
+        or the camera)."""
+        keys = ("bake", "mesh", "material", "subdivisions", "max_vertices", "lobes")
+        return {k: getattr(self, k) for k in keys}
+
+    def view(self) -> Camera:
+        return self.camera if self.camera is not None else default_camera()
+
+
+def default_camera(azimuth: float = 0.0) -> Camera:
+    """The view of a prepared mesh (centred, bounding-box diagonal 2): from +Z turned by
+    ``azimuth`` degrees about +Y (towards +X), raised by 0.3 of the distance, its bounding
+    sphere filling a 40-degree field of view across the image's smaller side with a 5 % margin
+    (as :func:`lobelight.scene.load` frames a bare mesh at ``azimuth = 0``)."""
+    dist = 1.0 / math.sin(math.radians(20)) * 1.05
+    a = math.radians(azimuth)
+    origin = (dist * math.sin(a), 0.3 * dist, dist * math.cos(a))
+    return Camera.look_at(origin, (0.0, 0.0, 0.0), fov=40.0, fov_axis="smaller")
+
+
+#: Fitted Gaussians per view of each material's bakes. One Gaussian keeps a GGX metal's light
+#: (the fit's integral constraint) but not its tails, which lie on other parts of the map than
+#: its peak: on Spot's rough metal under the park map its direct light off the map without the
+#: sun is 3.4 % over the path tracer's with one and 1.3 % with two (docs/results.md); the
+#: plastic's and the diffuse's glossy light is too small a share for that to show.
+LOBES = {"sharp_metal": 2, "rough_metal": 2, "plastic": 1, "diffuse": 1}
+
+
+def _bake(bake, mesh, material, maps, **kw) -> tuple[GalleryScene, ...]:
+    """One (mesh, material) bake rendered under each of ``maps``."""
+    return tuple(
+        GalleryScene(
+            f"{bake}-{m}", bake, mesh, MAPS[m], MATERIALS[material], lobes=LOBES[material], **kw
+        )
+        for m in maps
+    )
+
+
+_BUNNY = {
+    "max_vertices": 14000,
+    "description": "Stanford bunny (watertight remesh), decimated from 29,834 to about 14,000 "
+    "vertices",
+}
+_SUZANNE = {
+    "subdivisions": 2,
+    "description": "Blender's Suzanne (open, low-poly: 505 vertices after welding), two Loop "
+    "subdivisions (7,814 vertices) so that per-vertex transport resolves its curvature",
+}
+_SPOT = {
+    "camera": default_camera(150.0),  # its face looks along -Z
+    "description": "Spot the cow (Keenan Crane), 11,533 vertices, seen from the front",
+}
+_TEAPOT = {"description": "Newell's teapot (watertight version), 7,850 vertices"}
+
+#: The gallery: 8 (mesh, material) bakes, each under 2 maps; every material is seen under
+#: every map once, every map four times.
+SCENES: tuple[GalleryScene, ...] = (
+    *_bake("bunny-sharp-metal", "bunny_hr.obj", "sharp_metal", ("park", "grace"), **_BUNNY),
+    *_bake("bunny-plastic", "bunny_hr.obj", "plastic", ("studio", "overcast"), **_BUNNY),
+    *_bake("spot-rough-metal", "spot.obj", "rough_metal", ("park", "studio"), **_SPOT),
+    *_bake("spot-diffuse", "spot.obj", "diffuse", ("overcast", "grace"), **_SPOT),
+    *_bake("teapot-diffuse", "teapot.obj", "diffuse", ("park", "studio"), **_TEAPOT),
+    *_bake("teapot-sharp-metal", "teapot.obj", "sharp_metal", ("studio", "overcast"), **_TEAPOT),
+    *_bake("suzanne-rough-metal", "suzanne.obj", "rough_metal", ("overcast", "grace"), **_SUZANNE),
+    *_bake("suzanne-plastic", "suzanne.obj", "plastic", ("park", "grace"), **_SUZANNE),
+)
+
+
+def select(names=None, scenes: tuple[GalleryScene, ...] = SCENES) -> list[GalleryScene]:
+    """The scenes named (each a scene's or a bake's name), all of them for None or empty."""
+    if not names:
+        return list(scenes)
+    out: list[GalleryScene] = []
+    for n in names:
+        if isinstance(n, GalleryScene):
+            hit = [n]
+        else:
+            hit = [s for s in scenes if n in (s.name, s.bake)]
+        if not hit:
+            raise InputError(
+                "--scenes", f"no gallery scene or bake {n!r}; known: {[s.name for s in scenes]}"
+            )
+        out += [s for s in hit if s not in out]
+    bakes: dict[str, dict] = {}
+    for s in out:
+        if bakes.setdefault(s.bake, s.bake_definition()) != s.bake_definition():
+            raise InputError(s.name, f"bake {s.bake!r} is declared with two definitions")
+    return out
+
+
+def data_folder(data=None) -> Path:
+    """The data folder: ``data``, else ``$LOBELIGHT_DATA``; InputError when neither names a
+    folder."""
+    if data is None:
+        data = os.environ.get(DATA_ENV)
+        if not data:
+            raise InputError("--data", f"give the data folder (--data DIR) or set ${DATA_ENV}")
+    p = Path(data).expanduser()
+    if not p.is_dir():
+        raise InputError("--data", f"no such folder: {str(p)!r}")
+    return p
+
+
+def _find(data: Path, sub: str, name: str, what: str) -> Path:
+    for p in (data / sub / name, data / name):
+        if p.is_file():
+            return p
+    raise InputError(what, f"{name!r} is neither in {str(data / sub)!r} nor in {str(data)!r}")
+
+
+def find_map(scene: GalleryScene, data: Path) -> Path:
+    return _find(data, "envmaps", scene.envmap, f"{scene.name}: envmap")
+
+
+def sha256_file(path) -> str:
+    h = hashlib.sha256()
+    with open(path, "rb") as f:
+        for block in iter(lambda: f.read(1 << 20), b""):
+            h.update(block)
+    return h.hexdigest()
+
+
+def scene_hash(scene: GalleryScene, data: Path) -> str:
+    """sha256 of the scene's definition, :data:`PREPARATION` and its mesh and map files'
+    contents: it changes whenever anything that a reference shows changes (not the bake's
+    Gaussians per view)."""
+    mesh = _find(data, "meshes", scene.mesh, f"{scene.name}: mesh")
+    shown = {k: v for k, v in scene.to_dict().items() if k != "lobes"}
+    d = {
+        "definition": shown | {"name": None, "description": None},
+        "preparation": PREPARATION,
+        "mesh_sha256": sha256_file(mesh),
+        "map_sha256": sha256_file(find_map(scene, data)),
+    }
+    return hashlib.sha256(json.dumps(d, sort_keys=True).encode()).hexdigest()
+
+
+def prepare_mesh(scene: GalleryScene, data: Path) -> Mesh:
+    """The scene's mesh as the gallery uses it: loaded (welded, cleaned), Loop-subdivided
+    ``subdivisions`` times, decimated to about ``max_vertices``, then centred on its bounding
+    box and scaled to a bounding-box diagonal of 2."""
+    path = _find(data, "meshes", scene.mesh, f"{scene.name}: mesh")
+    m = load_mesh(path)
+    v = m.vertices.double().numpy()  # (V, 3)
+    f = m.faces.numpy()  # (F, 3)
+    if scene.subdivisions:
+        import trimesh
+
+        v, f = trimesh.remesh.subdivide_loop(v, f, iterations=int(scene.subdivisions))
+    if scene.max_vertices is not None and len(v) > scene.max_vertices:
+        try:
+            import fast_simplification
+        except ImportError:
+            raise InputError(
+                f"{scene.name}: max_vertices",
+                "decimating needs fast-simplification: pip install 'lobelight[gallery]'",
+            ) from None
+        keep = scene.max_vertices / len(v)
+        v, f = fast_simplification.simplify(
+            v.astype(np.float32), f.astype(np.int32), target_reduction=1.0 - keep
+        )
+        v = v.astype(np.float64)
+    lo, hi = v.min(0), v.max(0)
+    v = (v - (lo + hi) / 2) * (2.0 / float(np.linalg.norm(hi - lo)))
+    return mesh_from_arrays(v.astype(np.float32), f, name=Path(scene.mesh).stem)
+
+
+def geometry_sha256(mesh: Mesh) -> str:
+    """sha256 of a mesh's vertices, faces and normals (what the renders see)."""
+    h = hashlib.sha256()
+    for t in (mesh.vertices, mesh.faces, mesh.normals):
+        h.update(np.ascontiguousarray(t.cpu().numpy()).tobytes())
+    return h.hexdigest()
+
+
+def to_scene(scene: GalleryScene, data: Path, mesh: Mesh | None = None) -> Scene:
+    """The :class:`lobelight.scene.Scene` of a gallery scene (``mesh``: its prepared mesh, when
+    already at hand)."""
+    mesh = prepare_mesh(scene, data) if mesh is None else mesh
+    mats = parse_material(scene.material, mesh.n_vertices, what=f"{scene.name}: material")
+    return Scene(mesh, mats, str(find_map(scene, data)), scene.view(), scene.name)

@@ -1,0 +1,116 @@
+"""The gallery's scores: displayed PSNR at the reference's exposure, relative L2, energy ratio.
+
+All scores compare ``img`` with ``ref``, both ``(H, W, 3)`` linear radiance, over ``mask``
+``(H, W)`` bool, the pixels fully covered by the object (one mask for both images, stored with
+the reference):
+
+``exposure``            stops that map the reference's 99th-percentile luminance over the mask
+                        (Rec. 709 weights) to 1: :func:`display_exposure`
+``psnr_display``        dB over the mask: both images scaled by ``2^exposure``, clipped to
+                        [0, 1], sRGB-encoded, ``10 log10(1 / MSE)`` over pixels and channels
+                        (:func:`lobelight.studies.compare.psnr_display`)
+``psnr_display_full``   the same over every pixel, object and background
+``rel_l2``              ``|img - ref| / |ref|`` on linear radiance over the mask
+                        (:func:`lobelight.studies.compare.relative_l2`)
+``energy_ratio``        sum of ``img``'s luminance over the mask / the same of ``ref``
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import torch
+
+from ...errors import InputError
+from ..compare import psnr_display, relative_l2
+
+__all__ = [
+    "LEGEND",
+    "PERCENTILE",
+    "display_exposure",
+    "energy_ratio",
+    "luminance",
+    "noise_psnr_display",
+    "score",
+]
+
+#: The reference's luminance percentile over the mask that the display exposure maps to 1.
+PERCENTILE = 99.0
+#: Rec. 709 luminance weights of linear RGB.
+_LUMA = (0.2126, 0.7152, 0.0722)
+
+#: What each score means (also in ``gallery.json``).
+LEGEND = {
+    "exposure": f"stops mapping the reference's {PERCENTILE:g}th-percentile object luminance to 1",
+    "psnr_display": "dB over fully covered object pixels: both images at that exposure, "
+    "clipped to [0, 1], sRGB-encoded, peak 1",
+    "psnr_display_full": "dB, the same over the whole image (object and background)",
+    "rel_l2": "|ours - reference| / |reference|, linear radiance over object pixels",
+    "energy_ratio": "sum of ours / sum of the reference, luminance over object pixels",
+    "reference_noise_psnr_display": "dB, the psnr_display the reference's own noise allows a "
+    "perfect image (its standard error through the display's slope): scores near it are "
+    "limited by the reference",
+}
+
+
+def _check(img: torch.Tensor, ref: torch.Tensor, mask: torch.Tensor) -> None:
+    if img.ndim != 3 or img.shape[-1] != 3 or img.shape != ref.shape:
+        shapes = f"{tuple(img.shape)} and {tuple(ref.shape)}"
+        raise InputError("image", f"expected two (H, W, 3) images, got {shapes}")
+    if mask.shape != img.shape[:2] or mask.dtype != torch.bool:
+        got = f"{tuple(mask.shape)} {mask.dtype}"
+        raise InputError("mask", f"expected an (H, W) bool mask, got {got}")
+    if not bool(mask.any()):
+        raise InputError("mask", "holds no pixel: nothing to score")
+
+
+def luminance(img: torch.Tensor) -> torch.Tensor:
+    """``(...)`` float64 Rec. 709 luminance of ``(..., 3)`` linear RGB."""
+    w = torch.tensor(_LUMA, dtype=torch.float64, device=img.device)
+    return img.double() @ w
+
+
+def display_exposure(ref: torch.Tensor, mask: torch.Tensor) -> float:
+    """Stops that map the :data:`PERCENTILE` th percentile (linear interpolation between
+    ranks, as ``numpy.percentile``) of ``ref``'s luminance over ``mask`` to 1."""
+    lum = luminance(ref[mask]).cpu().numpy()  # (P,)
+    p = float(np.percentile(lum, PERCENTILE))
+    if not p > 0:
+        raise InputError("reference", "its object pixels are black: no exposure to display")
+    return -math.log2(p)
+
+
+def energy_ratio(img: torch.Tensor, ref: torch.Tensor, mask: torch.Tensor) -> float:
+    """Sum of ``img``'s luminance over ``mask`` / the same of ``ref``."""
+    den = float(luminance(ref[mask]).sum())
+    return float(luminance(img[mask]).sum()) / den if den > 0 else math.inf
+
+
+def noise_psnr_display(
+    ref: torch.Tensor, stderr: torch.Tensor, mask: torch.Tensor, exposure: float
+) -> float:
+    """The displayed PSNR over ``mask`` that the reference's own noise allows a perfect image:
+    ``10 log10(1 / mean((s'(k ref) k stderr)^2))``, ``s`` the sRGB curve, ``k = 2^exposure``
+    (the noise taken through the display's slope; clipped pixels carry none)."""
+    k = 2.0**exposure
+    x = (ref[mask].double() * k).clamp_min(1e-6)  # (P, 3)
+    slope = torch.where(x <= 0.0031308, 12.92, 1.055 / 2.4 * x.pow(1 / 2.4 - 1))
+    slope = torch.where(x >= 1, torch.zeros_like(slope), slope)
+    mse = float(((slope * k * stderr[mask].double()) ** 2).mean())
+    return math.inf if mse == 0 else 10 * math.log10(1.0 / mse)
+
+
+def score(img: torch.Tensor, ref: torch.Tensor, mask: torch.Tensor) -> dict[str, float]:
+    """The scores of the module docstring, with the exposure they use."""
+    img, ref, mask = img.cpu(), ref.cpu(), mask.cpu()
+    _check(img, ref, mask)
+    e = display_exposure(ref, mask)
+    everything = torch.ones_like(mask)
+    return {
+        "psnr_display": psnr_display(img, ref, mask, e),
+        "psnr_display_full": psnr_display(img, ref, everything, e),
+        "rel_l2": relative_l2(img, ref, mask),
+        "energy_ratio": energy_ratio(img, ref, mask),
+        "exposure": e,
+    }
