@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import json
+import subprocess
+import sys
 
 import numpy as np
 import pytest
@@ -139,8 +141,6 @@ def test_render_rejects_a_bad_camera(tmp_path, capsys, monkeypatch):
 def test_a_reader_that_stops_early_is_not_an_error(tmp_path):
     # `lobelight info m.npz | head -1`: the pipe closes before the summary is written; the CLI
     # exits 0 without a traceback (it used to die with BrokenPipeError, exit 1)
-    import subprocess
-    import sys
 
     from lobelight.studies.bench import synthetic_model
 
@@ -185,8 +185,6 @@ def test_sigterm_ends_a_bake_like_ctrl_c(tmp_path):
     """Batch schedulers stop jobs with SIGTERM: one line and exit 143, unwound like Ctrl-C (it
     used to kill the process silently), and nothing half-written is left."""
     import signal
-    import subprocess
-    import sys
 
     out = tmp_path / "knot.npz"
     code = "import sys; from lobelight.cli import main; sys.exit(main(sys.argv[1:]))"
@@ -222,3 +220,14 @@ def test_a_truncated_exr_leaves_stdout_to_the_json(tmp_path, capfd, monkeypatch)
     assert "cut.exr" in json.dumps(doc) and "OpenEXR" in json.dumps(doc)
     lines = err.strip().splitlines()  # one line, ours, with the library's words inside it
     assert len(lines) == 1 and lines[0].startswith("lobelight: error: cut.exr")
+
+
+def test_help_and_parsing_load_no_torch():
+    """The parser is built and a line parsed without torch: ``--help`` and a usage error answer
+    at once; the commands load after parsing."""
+    code = (
+        "import sys; from lobelight import cli; cli._parser().parse_args(['bake', 'x']); "
+        "print('torch' in sys.modules, 'lobelight.cli._commands' in sys.modules)"
+    )
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert out.stdout.split() == ["False", "False"]

@@ -10,7 +10,7 @@ import json
 import pytest
 
 from lobelight import cli, progress
-from lobelight.cli import main
+from lobelight.cli import _commands, main
 
 
 class _Clock:
@@ -116,7 +116,7 @@ def test_a_camera_below_the_origin_parses():
                              "--rotate", "-30"])  # fmt: skip
     args = cli._parser().parse_args(argv)
     assert args.camera == "-1.6,0.7,-2.6:0,0,0:35" and args.rotate == -30.0
-    cam = cli._camera_from(args.camera, {}, None)
+    cam = _commands._camera_from(args.camera, {}, None)
     assert cam.origin == pytest.approx((-1.6, 0.7, -2.6)) and cam.fov == pytest.approx(35)
 
 

@@ -24,11 +24,13 @@
 """
 
 from ..geometry.camera import Camera
+from ._gl import gl_available
 from ._gl_sgbrdf import GLSGBRDFRenderer, bench_gl
 from ._lighting import Lighting, as_rotation
 from ._renderer import Renderer, sample_offsets
 from ._tonemap import auto_exposure, check_output_path, save_image, tonemap
 from ._turntable import orbit, turntable
+from ._window import require_display, view
 
 __all__ = [
     "Camera",
@@ -39,9 +41,12 @@ __all__ = [
     "auto_exposure",
     "bench_gl",
     "check_output_path",
+    "gl_available",
     "orbit",
+    "require_display",
     "sample_offsets",
     "save_image",
     "tonemap",
     "turntable",
+    "view",
 ]

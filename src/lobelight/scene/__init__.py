@@ -30,6 +30,7 @@ from ._scene import (
     SCENE_KEYS,
     Scene,
     builtin,
+    default_camera,
     load,
 )
 
@@ -47,6 +48,7 @@ __all__ = [
     "Mesh",
     "Scene",
     "builtin",
+    "default_camera",
     "gradient",
     "load",
     "load_mesh",

@@ -58,6 +58,7 @@ __all__ = [
     "SCENE_KEYS",
     "Scene",
     "builtin",
+    "default_camera",
     "load",
 ]
 
@@ -269,7 +270,9 @@ def _entry_path(p: Path, s: str, d: dict[str, Any], key: str) -> Path:
     return (p.parent / value).resolve()
 
 
-def _default_camera(mesh: Mesh) -> Camera:
+def default_camera(mesh: Mesh) -> Camera:
+    """The camera a scene without one gets: from +Z, raised, the bounding sphere in a 40 degree
+    field of view."""
     lo, hi = mesh.bounds
     centre = ((lo + hi) / 2).tolist()
     radius = 0.5 * mesh.scale
@@ -322,7 +325,7 @@ def _load(path_or_name) -> Scene:
     if suffix in MESH_SUFFIXES:
         mesh = load_mesh(p)
         mats = uniform(BARE_MESH_MATERIAL, mesh.n_vertices)
-        return Scene(mesh, mats, "builtin", _default_camera(mesh), p.stem)
+        return Scene(mesh, mats, "builtin", default_camera(mesh), p.stem)
     if suffix not in (".toml", ".json"):
         raise InputError(s, f"unknown scene format {suffix!r}: use .toml, .json or a mesh file")
     d = _read_description(p)
@@ -342,7 +345,7 @@ def _load(path_or_name) -> Scene:
     except InputError as exc:
         raise InputError(f"{s}: {exc.what}", exc.problem) from None
     env = _environment(p, s, d)
-    cam = _camera(d["camera"], f"{s}: camera") if "camera" in d else _default_camera(mesh)
+    cam = _camera(d["camera"], f"{s}: camera") if "camera" in d else default_camera(mesh)
     return Scene(mesh, mats, env, cam, d.get("name", p.stem))
 
 

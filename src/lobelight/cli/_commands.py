@@ -1,0 +1,470 @@
+"""What each command of the ``lobelight`` command line does, given its parsed arguments.
+
+:mod:`lobelight.cli` parses and dispatches: ``run_NAME(args) -> dict`` runs the command
+``NAME`` and returns its summary (printed as text, or as JSON under ``--json``). Inputs are
+checked before any work starts (output folders, sizes, numbers), and bad ones raise
+:class:`lobelight.errors.InputError`.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import os
+import sys
+import time
+from pathlib import Path
+
+import torch
+
+from .._size import check_pixels, parse_size
+from ..data import resolve_envmap
+from ..envmap import builtin
+from ..envmap import load as load_env
+from ..errors import InputError
+from ..fit import fit_model
+from ..geometry.camera import Camera
+from ..model import load as load_model
+from ..progress import Reporter
+from ..render import (
+    Renderer,
+    auto_exposure,
+    check_output_path,
+    gl_available,
+    require_display,
+    save_image,
+    turntable,
+    view,
+)
+from ..scene import default_camera
+from ..scene import load as load_scene
+from ..studies import bench
+from ..studies.bench_brdf_fit import bench_fit as bench_brdf_fit
+from ..studies.bench_lobes import bench_lobes, bench_tables
+from ..studies.compare import compare
+from ..studies.compare_brdf import compare_brdf
+from ..studies.demo import demo
+from ..studies.figure5 import figure5
+from ..studies.gallery import main_from_args as gallery_main
+from ..studies.lobes_demo import lobes_demo
+
+__all__ = [
+    "check_device",
+    "run_bake",
+    "run_bench",
+    "run_compare",
+    "run_compare_brdf",
+    "run_demo",
+    "run_figure5",
+    "run_gallery",
+    "run_info",
+    "run_lobes_demo",
+    "run_render",
+    "run_view",
+]
+
+# --------------------------------------------------------------------------------------------
+# feedback
+
+
+def _progress(args) -> Reporter | None:
+    """The commands' progress reporter: stderr, silent with ``--quiet``."""
+    return None if args.quiet else Reporter()
+
+
+def _note(args, text: str) -> None:
+    if not args.quiet:
+        print(f"lobelight: {text}", file=sys.stderr, flush=True)
+
+
+def _camera_from(text: str | None, provenance: dict, mesh):
+    if text:
+        try:
+            parts = [[float(x) for x in p.split(",")] for p in text.split(":")]
+            origin, target = parts[0], parts[1]
+            fov = parts[2][0] if len(parts) > 2 else 40.0
+            ok = len(origin) == 3 and len(target) == 3 and len(parts) <= 3
+            ok = ok and all(math.isfinite(v) for v in (*origin, *target, fov))
+        except (ValueError, IndexError):
+            ok = False
+        if not ok:
+            raise InputError("--camera", f"expected 'ox,oy,oz:tx,ty,tz[:fov]', got {text!r}")
+        return Camera.look_at(origin, target, fov=fov)
+    cam = provenance.get("camera")
+    if isinstance(cam, dict):
+        try:
+            return Camera(**{k: (tuple(v) if isinstance(v, list) else v) for k, v in cam.items()})
+        except (TypeError, ValueError, InputError):
+            pass
+    return default_camera(mesh)
+
+
+def _env_source(path: str | None, provenance: dict | None = None) -> str:
+    """The environment a command uses: ``--env`` (a file, ``builtin`` or a bundled map's name),
+    else the model's stored one (a scene file's or ``bake --env``'s) while its file exists, else
+    ``"builtin"``."""
+    if path:
+        return str(path)
+    stored = (provenance or {}).get("environment", "builtin")
+    if isinstance(stored, str) and stored != "builtin" and Path(stored).is_file():
+        return stored
+    return "builtin"
+
+
+def _env_file(source: str) -> str:
+    """``source`` as a file path (a bundled map's name resolves to its file); unresolved, as
+    given, so that the loader names what is missing."""
+    return resolve_envmap(source) or source
+
+
+def _env(path: str | None, provenance: dict | None = None):
+    source = _env_source(path, provenance)
+    return builtin() if source == "builtin" else load_env(_env_file(source))
+
+
+def _check_output(path: str | os.PathLike) -> Path:
+    """An image path checked before any work: a known extension, an existing writable folder."""
+    return check_output_path(path)
+
+
+def _size(args) -> tuple[int, int]:
+    """``--width``/``--height``, or ``--size N`` / ``--size WxH`` (both checked)."""
+    w, h = args.width, args.height
+    if getattr(args, "size", None):
+        w, h = parse_size(args.size)
+    return check_pixels("--width", w), check_pixels("--height", h)
+
+
+def _model_path(scene: str, output: str | None) -> Path:
+    out = Path(output) if output else Path(f"{Path(str(scene)).stem}.lobelight.npz")
+    out = Path(str(out).replace(":", "-"))
+    if out.is_dir():
+        raise InputError(str(out), "is a directory: name the model file (-o DIR/NAME.npz)")
+    if not out.parent.is_dir():
+        raise InputError(str(out), f"the directory {str(out.parent)!r} does not exist")
+    if not os.access(out.parent, os.W_OK):
+        raise InputError(str(out), f"the directory {str(out.parent)!r} is not writable")
+    return out
+
+
+def run_bake(args) -> dict:
+    out = _model_path(args.scene, args.output)  # checked before any work
+    if args.indirect_paths < 0:
+        raise InputError("--indirect-paths", f"must be >= 0, got {args.indirect_paths}")
+    if args.bounces < 0:
+        raise InputError("--bounces", f"must be >= 0, got {args.bounces}")
+    prog = _progress(args)
+    sc = load_scene(args.scene, device=args.device, material=args.material)
+    if args.env:  # the model's default lighting (render, view, compare), as a scene file's
+        env_file = _env_file(args.env)
+        if args.env != "builtin":
+            load_env(env_file)  # checked at the door: missing, unreadable, NaN/Inf, bad shape
+            env_file = str(Path(env_file).resolve())
+        sc = dataclasses.replace(sc, environment=env_file)
+    ckpt = out.with_name(out.name + ".ckpt")
+    if ckpt.exists():
+        _note(args, f"resuming from {ckpt}")
+    _note(args, f"baking {sc.name}: {sc.mesh.n_vertices} vertices, {args.lobes} Gaussian(s)/view")
+    t0 = time.perf_counter()
+    m = fit_model(
+        sc,
+        args.lobes,
+        device=args.device,
+        indirect_paths=args.indirect_paths,
+        bounces=args.bounces,
+        progress=prog,
+        seed=args.seed,
+        checkpoint=ckpt,
+    )
+    info = m.save(out, float16=args.float16)
+    if ckpt.exists():
+        ckpt.unlink()  # the model is whole on disk: the checkpoint has served
+    return {
+        "command": "bake",
+        "model": str(out),
+        "scene": sc.name,
+        "environment": sc.environment,
+        "material": sc.materials.model,
+        "vertices": sc.mesh.n_vertices,
+        "n_lobes": args.lobes,
+        "interreflection": _interreflection(m.provenance),
+        "bytes": info["bytes"],
+        "records_kept": info["records"],
+        "records_total": info["records_total"],
+        "relative_l2_error_mean": m.provenance["relative_l2_error_mean"],
+        "flips_before": m.provenance["flips_before"],
+        "flips_after": m.provenance["flips_after"],
+        "separated_flips_before": m.provenance["separated_flips_before"],
+        "separated_flips_after": m.provenance["separated_flips_after"],
+        "seconds": time.perf_counter() - t0,
+    }
+
+
+def run_info(args) -> dict:
+    m = load_model(args.model)
+    p = Path(args.model)
+    g = m.gaussians
+    live = g.w.amax((-1, -2)) > 0
+    return {
+        "command": "info",
+        "model": str(p),
+        "bytes": p.stat().st_size,
+        "vertices": m.mesh.n_vertices,
+        "faces": int(m.mesh.faces.shape[0]),
+        "views": int(m.views.shape[0]),
+        "n_lobes": m.direct_lobes,
+        "indirect_lobes": m.indirect_lobes,
+        "sh_coefficients": int(m.diffuse.shape[1]),
+        "records_with_weight": int(live.sum()),
+        "material": m.materials.model,
+        "interreflection": _interreflection(m.provenance),
+        "provenance": m.provenance,
+    }
+
+
+def _interreflection(provenance: dict) -> dict:
+    """What a model baked of interreflection: diffuse bounces and indirect glossy paths (a
+    model from before interreflection was baked has no ``bounces``: none)."""
+    return {
+        "bounces": int(provenance.get("bounces", 0)),
+        "indirect_paths": int(provenance.get("indirect_paths", 0)),
+    }
+
+
+def _exposure(text: str) -> float | None:
+    """``--exposure``: stops, or None for ``auto``."""
+    if text == "auto":
+        return None
+    try:
+        v = float(text)
+    except ValueError:
+        v = math.nan
+    if not math.isfinite(v):
+        raise InputError("--exposure", f"expected stops (a finite number) or 'auto', got {text!r}")
+    return v
+
+
+def run_render(args) -> dict:
+    width, height = _size(args)
+    exposure = _exposure(args.exposure)
+    if not 1 <= args.samples <= 256:
+        raise InputError("--samples", f"must be 1..256 samples per pixel, got {args.samples}")
+    if args.rotate is not None and not math.isfinite(args.rotate):
+        raise InputError("--rotate", f"must be a finite angle in degrees, got {args.rotate}")
+    if args.turntable is not None:
+        if args.turntable < 1:
+            raise InputError("--turntable", f"must be >= 1 frames, got {args.turntable}")
+        out_dir = Path(args.output)
+        if out_dir.suffix and not out_dir.is_dir():
+            raise InputError(str(out_dir), "--turntable writes frames into a folder: -o DIR")
+        if not out_dir.parent.is_dir():
+            raise InputError(str(out_dir), f"the directory {str(out_dir.parent)!r} does not exist")
+    else:
+        _check_output(args.output)
+    m = load_model(args.model, device=args.device)
+    env = _env(args.env, m.provenance)
+    cam = _camera_from(args.camera, m.provenance, m.mesh)
+    backend = args.backend
+    if backend == "auto":
+        backend = "gl" if gl_available() else "torch"
+    t0 = time.perf_counter()
+    with Renderer(
+        m,
+        env,
+        width,
+        height,
+        backend=backend,
+        base_res=args.base_res,
+        sun=args.sun,
+        samples=args.samples,
+    ) as ren:
+        t1 = time.perf_counter()
+        parts = dict(
+            diffuse=args.parts in ("both", "diffuse"),
+            glossy=args.parts in ("both", "glossy"),
+            background=args.background,
+        )
+        if args.turntable is not None:
+            out_dir = Path(args.output)
+            spin = turntable(
+                ren,
+                cam,
+                args.turntable,
+                out_dir,
+                exposure=exposure,
+                curve=args.tonemap,
+                rotate=args.spin,
+                light_rotation=args.rotate,
+                progress=_progress(args),
+                **parts,
+            )
+            t2 = time.perf_counter()
+            return {
+                "command": "render",
+                "output": str(out_dir),
+                **{k: v for k, v in spin.items() if k != "seconds"},
+                "environment": _env_source(args.env, m.provenance),
+                "backend": backend,
+                "size": [width, height],
+                "seconds_setup": t1 - t0,
+                "seconds_render": t2 - t1,
+            }
+        img, mask = ren.render(cam, args.rotate, return_mask=True, **parts)
+        t2 = time.perf_counter()
+    if exposure is None:
+        exposure = auto_exposure(img, mask)
+    out = save_image(args.output, img, exposure=exposure, curve=args.tonemap)
+    return {
+        "command": "render",
+        "output": str(out),
+        "environment": _env_source(args.env, m.provenance),
+        "backend": backend,
+        "size": [width, height],
+        "samples": args.samples,
+        "exposure": exposure,
+        "seconds_setup": t1 - t0,
+        "seconds_render": t2 - t1,
+    }
+
+
+def run_view(args) -> dict:
+    require_display()  # no model is loaded where no window can open
+    # checked before a window opens; its stored environment is the default
+    m = load_model(args.model)
+    width, height = _size(args)
+    return view(m, env=_env(args.env, m.provenance), width=width, height=height, sun=args.sun)
+
+
+def run_compare(args) -> dict:
+    width, height = _size(args)
+    sc = load_scene(args.scene, device=args.device)
+    model = load_model(args.model, device=args.device) if args.model else None
+    if model is not None and model.mesh.n_vertices != sc.mesh.n_vertices:
+        raise InputError(
+            args.model,
+            f"has {model.mesh.n_vertices} vertices, the scene "
+            f"{sc.mesh.n_vertices}: not a model of this scene",
+        )
+    return {
+        "command": "compare",
+        **compare(
+            sc,
+            model=model,
+            n_lobes=args.lobes,
+            env=_env(args.env) if args.env else None,
+            width=width,
+            height=height,
+            spp=args.spp,
+            light_rotation=args.rotate,
+            backend=args.backend,
+            baselines=tuple(args.baselines),
+            base_res=args.base_res,
+            out=args.output,
+            device=args.device,
+            sun=args.sun,
+            progress=_progress(args),
+        ),
+    }
+
+
+def run_compare_brdf(args) -> dict:
+    size = _square(args, "compare-brdf")
+    backend = {"torch": "torch", "gl": "both", "both": "both"}.get(args.backend)
+    if backend is None:  # auto
+        backend = "both" if gl_available() else "torch"
+    return {
+        "command": "compare-brdf",
+        **compare_brdf(
+            args.output,
+            env=_env_file(args.env) if args.env else None,
+            size=size,
+            ref_spp=args.spp,
+            device=args.device,
+            backend=backend,
+        ),
+    }
+
+
+def _square(args, command: str) -> int:
+    w, h = _size(args)
+    if w != h:
+        raise InputError("--size", f"{command} renders square images: give one number, got {w}x{h}")
+    return w
+
+
+def run_figure5(args) -> dict:
+    return {"command": "figure5", **figure5(args.output, device=args.device)}
+
+
+def run_gallery(args) -> dict:
+    return {"command": "gallery", "action": args.action, **gallery_main(args)}
+
+
+def run_lobes_demo(args) -> dict:
+    return {
+        "command": "lobes-demo",
+        **lobes_demo(
+            args.output,
+            frames=args.frames,
+            size=_square(args, "lobes-demo"),
+            device=args.device,
+            fused=args.fused,
+            progress=_progress(args),
+        ),
+    }
+
+
+def run_bench(args) -> dict:
+    w = args.what
+    # each benchmark's own default count unless --repeats is given
+    reps = {} if args.repeats is None else {"repeats": args.repeats}
+    if w == "prefilter":
+        return bench.bench_prefilter(base_res=args.base_res, device=args.device, **reps)
+    if w == "transport":
+        return bench.bench_transport(scene=args.scene, device=args.device)
+    if w == "fit":
+        return bench.bench_fit(scene=args.scene, n_lobes=args.lobes, device=args.device)
+    if w == "render":
+        return bench.bench_render(
+            backend=args.backend if args.backend != "auto" else "gl",
+            sun=args.sun,
+            samples=args.samples,
+        )
+    if w == "lobe-tables":
+        return bench_tables(device=args.device)
+    if w == "lobes":
+        return bench_lobes(device=args.device, **reps)
+    if w == "brdf-fit":
+        return bench_brdf_fit(material=args.material, device=args.device)
+    raise AssertionError(w)
+
+
+def run_demo(args) -> dict:
+    width, height = _size(args)
+    return {
+        "command": "demo",
+        **demo(
+            args.output,
+            scene=args.scene,
+            n_lobes=args.lobes,
+            width=width,
+            height=height,
+            spp=args.spp,
+            sun=args.sun,
+            device=args.device,
+            progress=_progress(args),
+        ),
+    }
+
+
+def check_device(text: str) -> str:
+    """``--device`` checked: a torch device this machine has."""
+    try:
+        dev = torch.device(text)
+    except (RuntimeError, ValueError):
+        raise InputError("--device", f"not a torch device: {text!r} (cpu, cuda, cuda:1)") from None
+    if dev.type == "cuda" and not torch.cuda.is_available():
+        raise InputError("--device", f"{text!r}: this torch has no CUDA device")
+    if dev.type not in ("cpu", "cuda"):
+        raise InputError("--device", f"{text!r}: lobelight runs on cpu or cuda")
+    return text
