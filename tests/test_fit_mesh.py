@@ -155,8 +155,8 @@ def test_a_corrupt_checkpoint_is_moved_aside_and_the_bake_starts_afresh(tmp_path
     reason="mallopt is glibc's (Linux); elsewhere keep_freed_memory is a documented no-op",
 )
 def test_freed_memory_is_kept_for_reuse_on_glibc():
-    # the fit's allocator setting (lobelight._malloc): mallopt accepted all three parameters
-    from lobelight._malloc import keep_freed_memory
+    # the fit's allocator setting (lobelight._process): mallopt accepted all three parameters
+    from lobelight._process import keep_freed_memory
 
     assert keep_freed_memory() is True
     assert keep_freed_memory() is True  # idempotent

@@ -31,7 +31,7 @@ LAYERS: list[tuple[str, ...]] = [
         "_cache",
         "_size",
         "_machine",
-        "_malloc",
+        "_process",
         "_moved",
         "progress",
         "data",
@@ -182,3 +182,17 @@ def test_a_moved_name_is_found_in_its_new_module(package, name):
         assert getattr(importlib.import_module(package), name) is getattr(home, name)
     with pytest.raises(AttributeError, match="no attribute 'not_a_name'"):
         _ = importlib.import_module(package).not_a_name
+
+
+def test_only_the_process_module_changes_the_process():
+    """Environment variables and the allocator are the process owner's (the command line's,
+    through :mod:`lobelight._process`), never set by library code as a side effect."""
+    bad = []
+    for name, path in _modules().items():
+        if name in ("lobelight._process", "lobelight.cli"):
+            continue
+        text = path.read_text()
+        for needle in ("os.environ[", "os.environ.setdefault", "os.putenv", "mallopt"):
+            if needle in text:
+                bad.append(f"{name}: {needle}")
+    assert not bad, "\n".join(bad)

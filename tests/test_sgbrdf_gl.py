@@ -26,13 +26,9 @@ from lobelight.errors import InputError
 from lobelight.geometry.camera import Camera
 from lobelight.lobes.sg import integral
 from lobelight.render._gl import gl_available
-from lobelight.render._gl_sgbrdf import (
-    GLSGBRDFRenderer,
-    bench_gl,
-    gl_mip_chain,
-    time_frames,
-)
+from lobelight.render._gl_sgbrdf import GLSGBRDFRenderer, gl_mip_chain
 from lobelight.sgbrdf import fit, render_sphere, shade, shade_fis, sphere_hits
+from lobelight.studies.bench_sgbrdf_gl import bench_gl, time_frames
 from lobelight.studies.compare_brdf import compare_brdf
 
 needs_gl = pytest.mark.skipif(not gl_available(), reason="no headless OpenGL context (EGL)")

@@ -45,6 +45,9 @@ ATTRIBUTES: dict[str, dict[str, str]] = {
         "bench_fit": "lobelight.studies.bench_brdf_fit",
         "shade_reference": "lobelight.reference.sgbrdf",
     },
+    "lobelight.render": {
+        "bench_gl": "lobelight.studies.bench_sgbrdf_gl",
+    },
     "lobelight.cosine": {
         "bench_lobes": "lobelight.studies.bench_lobes",
         "bench_tables": "lobelight.studies.bench_lobes",

@@ -27,9 +27,10 @@ import sys
 import threading
 
 from .. import __version__
+from .._process import tune
 from ..data import envmap_names
 from ..errors import InputError
-from ..studies.gallery._args import add_arguments as gallery_arguments
+from ..studies.gallery import add_arguments as gallery_arguments
 
 #: A bake's interreflection defaults, :data:`lobelight.transport.BOUNCES` and
 #: :data:`lobelight.transport.INDIRECT_PATHS`, restated so that building the parser imports no
@@ -418,6 +419,7 @@ def _main(argv: list[str] | None) -> int:
         args = _parser().parse_args(argv)
     except _UsageError as e:
         return _fail(json_mode, "", str(e), 2)
+    tune()  # the process is ours: its allocator and OpenMP settings (lobelight._process)
     try:
         # the commands (and torch) load once the line is parsed: --help and a mistyped
         # command answer at once

@@ -23,7 +23,6 @@ from __future__ import annotations
 
 import contextlib
 import functools
-import os
 import subprocess
 import threading
 import warnings
@@ -32,7 +31,7 @@ from typing import TypeVar
 
 import torch
 
-__all__ = ["fusion", "fusion_enabled", "kernel", "short_spin"]
+__all__ = ["fusion", "fusion_enabled", "kernel"]
 
 _F = TypeVar("_F", bound=Callable)
 _state = threading.local()
@@ -55,21 +54,6 @@ def fusion(enabled: bool = True) -> Iterator[None]:
         _state.on = old
 
 
-def short_spin() -> None:
-    """Let idle OpenMP workers of runtimes loaded from now on sleep sooner (unless the user set
-    ``GOMP_SPINCOUNT``).
-
-    A process that shades fused holds two OpenMP runtimes: torch's own (eager operators) and
-    the system's ``libgomp`` (TorchInductor's compiled CPU kernels, numba's walk), each with a
-    worker per core that spins for a while after its parallel region. On a 2-core machine the
-    spinning workers of one took the cores from the other in some processes: the same frame ran
-    at 54-58 fps instead of 75-77 (docs/benchmarks.md). With a short spin (20,000 iterations)
-    every measured run was in the fast mode. The system runtime reads the variable when it is
-    loaded, at the first compiled kernel, so this runs before that.
-    """
-    os.environ.setdefault("GOMP_SPINCOUNT", "20000")
-
-
 def _compiler_failure(exc: BaseException) -> bool:
     """Whether ``exc`` comes from torch.compile's machinery (not from the function itself)."""
     return isinstance(exc, (OSError, subprocess.CalledProcessError)) or type(
@@ -90,7 +74,6 @@ def kernel(fn: _F) -> _F:
         if torch.compiler.is_compiling() or not fusion_enabled():
             return fn(*args, **kwargs)
         if not compiled:
-            short_spin()
             compiled.append(torch.compile(fn, dynamic=True))
         try:
             return compiled[0](*args, **kwargs)

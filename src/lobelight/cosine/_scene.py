@@ -17,9 +17,12 @@ from typing import Any
 
 import numpy as np
 import torch
+import trimesh
 
 from .. import brdf as _brdf
 from ..geometry.camera import Camera
+from ..geometry.raycast import RayCaster
+from ..scene import mesh_from_arrays
 from ._light import SphereLight
 from ._spheres import SphereSet, sphere_set
 
@@ -81,17 +84,12 @@ class LobeScene:
 
     def caster(self):
         if self._caster is None:
-            from ..geometry.raycast import RayCaster
-            from ..scene import mesh_from_arrays
-
             self._caster = RayCaster(mesh_from_arrays(self.vertices, self.faces, weld=False))
         return self._caster
 
 
 def default_scene(*, spheres: int = 64, seed: int = 0) -> LobeScene:
     """A torus (64 spheres) over a plane, a light above and to the side, a camera looking down."""
-    import trimesh
-
     torus = trimesh.creation.torus(0.9, 0.3, major_sections=32, minor_sections=16)
     sset = sphere_set(torus, spheres, samples=12000, seed=seed)
     light = SphereLight((1.6, 3.2, 1.0), 0.45, (6.0, 6.0, 5.6))

@@ -32,8 +32,6 @@ import math
 import numpy as np
 import torch
 
-from ._fused import short_spin
-
 try:  # optional: without numba the flat-list walk runs everywhere
     import numba as _nb
 except ImportError:  # pragma: no cover - numba is a dependency; kept optional for source builds
@@ -362,7 +360,6 @@ def walk_leaves(
     v (L,) float32 (multiples of ``2^-(depth + 1)``: exact), grouped by point; the leaf count
     of every point (P,) int64
     """
-    short_spin()  # before numba's OpenMP runtime loads (._fused.short_spin)
     f64 = [np.ascontiguousarray(z.detach().cpu().numpy(), dtype=np.float64)
            for z in (points, t, b, a, light_dist, span, spheres.T)]  # fmt: skip
     ex = np.ascontiguousarray(exclude.detach().cpu().numpy(), dtype=np.int64)

@@ -29,7 +29,6 @@ import torch
 
 from .._cache import UNREADABLE
 from .._io import atomic_writer
-from .._malloc import keep_freed_memory
 from ..errors import InputError
 from ..geometry import cubemap, sphere
 from ..scene import Mesh, Scene
@@ -285,8 +284,6 @@ def fit_mesh(
     weights = Weights() if weights is None else weights
     tr = Transport(scene, device=device, shadows=shadows)
     dev = tr.device
-    if dev.type == "cpu":
-        keep_freed_memory()  # the LM's big temporaries, reused instead of page-faulted in
     batch = default_batch(dev, n) if batch is None else int(batch)
     if batch < 1:
         raise InputError("batch", f"must be a positive number of vertices, got {batch}")

@@ -19,7 +19,8 @@ from typing import Any
 import torch
 
 from .. import brdf as _brdf
-from ..cosine._light import SphereLight
+from ..cosine import SphereLight
+from ..cosine._shade import _per_point as pp
 from ..errors import InputError
 from ..geometry.sphere import frame
 
@@ -156,6 +157,4 @@ def direct_mc(
 
 
 def _per_point(model: _brdf.BRDF) -> bool:
-    from ..cosine._shade import _per_point as pp
-
     return pp(model)

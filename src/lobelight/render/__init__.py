@@ -18,14 +18,18 @@
 - :func:`turntable` frames over a full turn of the camera (or the light), one exposure, and a
   GIF or WebP animation of them; :func:`orbit` one camera of it.
 - :class:`GLSGBRDFRenderer` the SG-mixture BRDF method (and FIS-40) in GLSL
-  (``_gl_sgbrdf.py``, ``shaders/sgbrdf.glsl``); :func:`bench_gl` times the two.
+  (``_gl_sgbrdf.py``, ``shaders/sgbrdf.glsl``); :func:`create_context` the headless context
+  both OpenGL renderers use.
+- :func:`gl_available` whether OpenGL works here; :func:`view` an interactive window
+  (:func:`require_display` checks for a display first).
 - :class:`Camera` Mitsuba 3's perspective sensor (re-exported from
-:mod:`lobelight.geometry.camera`).
+  :mod:`lobelight.geometry.camera`).
 """
 
+from .. import _moved
 from ..geometry.camera import Camera
-from ._gl import gl_available
-from ._gl_sgbrdf import GLSGBRDFRenderer, bench_gl
+from ._gl import create_context, gl_available
+from ._gl_sgbrdf import GLSGBRDFRenderer
 from ._lighting import Lighting, as_rotation
 from ._renderer import Renderer, sample_offsets
 from ._tonemap import auto_exposure, check_output_path, save_image, tonemap
@@ -39,8 +43,8 @@ __all__ = [
     "Renderer",
     "as_rotation",
     "auto_exposure",
-    "bench_gl",
     "check_output_path",
+    "create_context",
     "gl_available",
     "orbit",
     "require_display",
@@ -50,3 +54,8 @@ __all__ = [
     "turntable",
     "view",
 ]
+
+
+def __getattr__(name: str):
+    # names this package exported before they moved to the studies
+    return _moved.attribute(__name__, name)

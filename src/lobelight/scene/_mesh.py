@@ -8,6 +8,7 @@ from pathlib import Path
 
 import numpy as np
 import torch
+import trimesh
 
 from .._io import check_input
 from ..errors import InputError
@@ -97,8 +98,6 @@ class Mesh:
 
     def to_trimesh(self):
         """The mesh as a ``trimesh.Trimesh`` (no processing, our normals attached)."""
-        import trimesh
-
         return trimesh.Trimesh(
             vertices=self.vertices.detach().cpu().numpy().astype(np.float64),
             faces=self.faces.cpu().numpy(),
@@ -196,8 +195,6 @@ def load_mesh(path, *, device=None) -> Mesh:
     InputError
         naming the file: missing, too large, unknown format, unreadable, or bad geometry.
     """
-    import trimesh
-
     p = Path(path)
     size = check_input(p, limit=MAX_MESH_BYTES)  # a regular file, of a size trimesh can read
     if size == 0:

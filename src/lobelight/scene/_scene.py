@@ -42,6 +42,7 @@ from typing import Any
 import numpy as np
 import torch
 
+from .. import envmap
 from .._io import TEXT_LIMIT, read_input
 from ..data import envmap_names, resolve_envmap
 from ..errors import InputError
@@ -107,8 +108,6 @@ class Scene:
 
     def load_environment(self, *, device=None):
         """The scene's :class:`lobelight.envmap.EnvMap`."""
-        from .. import envmap
-
         env = envmap.builtin() if self.environment == "builtin" else envmap.load(self.environment)
         return env.to(device) if device is not None else env
 

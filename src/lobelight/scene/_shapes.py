@@ -9,6 +9,7 @@ from __future__ import annotations
 import math
 
 import numpy as np
+import trimesh
 
 __all__ = ["ground_plane", "icosphere", "torus_knot", "uv_sphere"]
 
@@ -95,7 +96,5 @@ def uv_sphere(n_lat: int = 32, n_lon: int = 64, radius: float = 1.0):
 
 def icosphere(subdivisions: int = 3, radius: float = 1.0):
     """Geodesic sphere (trimesh's subdivided icosahedron), ``10 * 4^s + 2`` vertices."""
-    import trimesh
-
     m = trimesh.creation.icosphere(subdivisions=subdivisions, radius=radius)
     return np.asarray(m.vertices), np.asarray(m.faces)

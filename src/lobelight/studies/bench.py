@@ -24,8 +24,7 @@ from ..geometry import cubemap
 from ..geometry import sphere as sph
 from ..geometry.camera import Camera
 from ..model import Model
-from ..render import Lighting, Renderer, as_rotation
-from ..render._gl import create_context
+from ..render import Lighting, Renderer, as_rotation, create_context
 from ..scene import load, mesh_from_arrays, uniform
 from ..transport import BOUNCES, INDIRECT_PATHS
 

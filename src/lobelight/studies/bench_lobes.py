@@ -38,10 +38,12 @@ from .._machine import machine
 from ..cosine import (
     build_tables,
     default_scene,
+    gbuffer,
     get_tables,
     load_tables,
     save_tables,
     shade_points,
+    sphere_set,
 )
 
 __all__ = ["bench_lobes", "bench_tables"]
@@ -211,9 +213,6 @@ def bench_lobes(
 
 def _large(dev: torch.device, repeats: int) -> dict:
     """The ``large`` configuration (module docstring): seconds per image at t = 1e-3 and 0."""
-    from ..cosine._scene import gbuffer
-    from ..cosine._spheres import sphere_set
-
     scene = default_scene()
     scene.spheres = sphere_set((scene.vertices, scene.faces), 1024)  # 20,000 volume samples
     gb = gbuffer(scene, 800, 600, device=dev)

@@ -52,8 +52,7 @@ from ..geometry.raycast import RayCaster
 from ..lobes import sh
 from ..progress import resolve
 from ..reference import paths as reference
-from ..render import Lighting, Renderer, as_rotation, auto_exposure, save_image
-from ..render._gl import gl_available
+from ..render import Lighting, Renderer, as_rotation, auto_exposure, gl_available, save_image
 from ..transport import Transport
 
 #: The factor of the difference images.

@@ -25,11 +25,11 @@ Metrics, per material and method, over the sphere pixels only
     ``noise_share``, the part of its display MSE the reference's noise accounts for.
 
 With ``backend="both"`` two more rows per material come from the OpenGL shaders
-(:class:`lobelight.render._gl_sgbrdf.GLSGBRDFRenderer`, headless EGL): ``ours_gl`` (the same
+(:class:`lobelight.render.GLSGBRDFRenderer`, headless EGL): ``ours_gl`` (the same
 fit and Prefiltered chain) and ``fis40_gl`` (40-sample FIS on a GL cube map whose base level is
 the mip chain's level 0, its coarser levels built by ``glGenerateMipmap``). Their ``fps`` is of
 whole frames of the ``size x size`` image drawn back to back with one ``ctx.finish()``, for at
-least ``GL_MIN_SECONDS`` (:func:`lobelight.render._gl_sgbrdf.time_frames`), best of
+least ``GL_MIN_SECONDS`` (:func:`lobelight.studies.bench_sgbrdf_gl.time_frames`), best of
 ``GL_ROUNDS`` alternating rounds: shader against shader. They are not in the image grid.
 """
 
@@ -44,17 +44,30 @@ from typing import Any
 
 import numpy as np
 import torch
+from PIL import Image
 
+from .. import envmap
 from .._io import atomic_path, atomic_writer
 from .._machine import machine
 from ..brdf import Ward
 from ..data import DATA_ENV
+from ..envmap import prefilter
 from ..errors import InputError
+from ..reference.paths import EnvSampler
 from ..reference.sgbrdf import shade_reference
-from ..sgbrdf._fis import FIS_SAMPLES, shade_fis
-from ..sgbrdf._fit import fit_many, is_isotropic
-from ..sgbrdf._render import COVERAGE, mip_chain, shade, sphere_hits
-from ..sgbrdf._wang09 import shade_wang09
+from ..render import GLSGBRDFRenderer, create_context
+from ..sgbrdf import (
+    COVERAGE,
+    FIS_SAMPLES,
+    fit_many,
+    is_isotropic,
+    mip_chain,
+    shade,
+    shade_fis,
+    shade_wang09,
+    sphere_hits,
+)
+from .bench_sgbrdf_gl import time_frames
 
 __all__ = ["METHODS", "compare_brdf", "default_envmap"]
 
@@ -93,8 +106,6 @@ def default_envmap() -> Path | None:
 
 
 def _load_env(env: Any, device: Any):
-    from .. import envmap
-
     if env is None:
         path = default_envmap()
         env = envmap.load(path) if path is not None else envmap.builtin()
@@ -177,8 +188,6 @@ def _psnr(mse: float) -> float:
 
 
 def _write_png(img: np.ndarray, path: Path) -> None:
-    from PIL import Image
-
     out = (np.clip(img, 0, 1) * 255 + 0.5).astype(np.uint8)
     with atomic_path(path) as tmp:
         Image.fromarray(out).save(tmp, format="PNG")
@@ -235,9 +244,6 @@ def compare_brdf(
     ``json`` (paths), ``backend``, ``gl`` (None, or the GL renderer string and timing rule),
     ``machine``.
     """
-    from ..envmap import prefilter
-    from ..reference.paths import EnvSampler
-
     if not isinstance(size, int) or isinstance(size, bool) or size < 4:
         raise InputError("size", f"must be an integer >= 4, got {size!r}")
     if not isinstance(ref_spp, int) or isinstance(ref_spp, bool) or ref_spp < 16:
@@ -254,8 +260,6 @@ def compare_brdf(
     mats = _materials(alphas, aniso)
     gl_ctx = None
     if backend == "both":
-        from ..render._gl_sgbrdf import create_context
-
         gl_ctx = create_context()  # fails early, with its reason, where there is no OpenGL
     out.mkdir(parents=True, exist_ok=True)
     env_map = _load_env(env, dev)
@@ -411,8 +415,6 @@ def compare_brdf(
 def _run_gl(ctx, model, brdf, pf, chain, size: int, mask, got: dict, secs: dict) -> None:
     """Render and time ``GL_METHODS`` for one material into ``got`` (sphere pixels ``(P, 3)``,
     as the torch rows) and ``secs`` (seconds per frame)."""
-    from ..render._gl_sgbrdf import GLSGBRDFRenderer, time_frames
-
     rs = {
         "ours_gl": GLSGBRDFRenderer(model, pf, size, size, ctx=ctx, method="ours"),
         "fis40_gl": GLSGBRDFRenderer(

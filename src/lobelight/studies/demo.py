@@ -14,8 +14,7 @@ from ..envmap import builtin
 from ..envmap import load as load_env
 from ..fit import fit_model
 from ..progress import Reporter, resolve
-from ..render import Renderer, auto_exposure, save_image
-from ..render._gl import gl_available
+from ..render import Renderer, auto_exposure, gl_available, save_image
 from ..scene import load
 from .compare import compare
 

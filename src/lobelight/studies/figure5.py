@@ -591,11 +591,11 @@ def _sh_full_orders(counts) -> list[int]:
 def plot(result: dict[str, Any], path) -> None:
     """Three panels, relative L2 error (%) against the number of coefficients, log scale, as
     in the paper's Figure 5; written to ``path`` (PNG) through a temporary name."""
-    import matplotlib
+    import matplotlib  # optional: the plot extra
 
     matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-    from matplotlib.ticker import FuncFormatter, NullFormatter
+    import matplotlib.pyplot as plt  # optional: the plot extra
+    from matplotlib.ticker import FuncFormatter, NullFormatter  # optional: the plot extra
 
     plain = FuncFormatter(lambda v, _: f"{v:g}")  # 20, 0.1: not 2x10^1 on a log axis
 

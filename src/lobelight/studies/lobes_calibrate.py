@@ -25,18 +25,21 @@ penumbra and light all get samples. The result is stored in :mod:`._weights`
 
 from __future__ import annotations
 
+import json
 import math
 import time
 from pathlib import Path
 
 import numpy as np
 import torch
+import trimesh
+from scipy.optimize import nnls
 
 from .. import brdf as _brdf
 from .._io import atomic_writer
-from ..cosine._light import SphereLight
+from ..cosine import SphereLight, get_tables, sphere_set
 from ..cosine._shade import _shade_chunk
-from ..cosine._tables import _cpu_threads, get_tables
+from ..cosine._tables import _cpu_threads
 from ..cosine._visibility import DIST_NODES, MODES
 from ..reference.cosine import direct_mc
 
@@ -65,10 +68,6 @@ def calibration_scene(*, points_per_light: int = 600, seed: int = 0):
     -------
     dict with ``configs``: a list of ``(light, points (m, 3) on the plane y = 0, spheres)``
     """
-    import trimesh
-
-    from ..cosine._spheres import sphere_set
-
     torus = trimesh.creation.torus(0.9, 0.3, major_sections=24, minor_sections=12)
     # lying flat, its lowest point 0.25 above the plane
     ring = sphere_set(torus, 64, samples=12000, seed=seed).transformed(
@@ -112,8 +111,6 @@ def calibrate_weights(
     error (relative to each light's largest unoccluded radiance) on the calibration points
     before (all weights 1) and after, and seconds
     """
-    from scipy.optimize import nnls
-
     t0 = time.perf_counter()
     tables = get_tables()
     scene = calibration_scene(points_per_light=points_per_light, seed=seed)
@@ -203,8 +200,6 @@ def calibrate_weights(
 
 def write_weights(result: dict, path: str | Path | None = None) -> Path:
     """Write :mod:`._weights` (a plain Python literal, no pickles) atomically."""
-    import json
-
     path = Path(path) if path is not None else Path(__file__).with_name("_weights.py")
     body = json.dumps(result["weights"], indent=1)
     report = json.dumps(result["report"], indent=1).replace("\n", "\n# ")

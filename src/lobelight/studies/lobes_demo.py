@@ -19,12 +19,11 @@ from typing import Any
 
 import numpy as np
 import torch
+from PIL import Image
 
 from .._io import atomic_path
-from ..cosine._light import SphereLight
-from ..cosine._scene import _TILT, default_scene, gbuffer, rotation_about_y
-from ..cosine._shade import shade_points
-from ..cosine._tables import get_tables
+from ..cosine import SphereLight, default_scene, gbuffer, get_tables, shade_points
+from ..cosine._scene import _TILT, rotation_about_y
 from ..errors import InputError
 
 __all__ = ["false_colour", "lobes_demo"]
@@ -49,8 +48,6 @@ def false_colour(values: np.ndarray, vmax: float | None = None) -> np.ndarray:
 
 
 def _save_png(img: np.ndarray, path: Path) -> None:
-    from PIL import Image
-
     with atomic_path(path) as tmp:
         Image.fromarray(img).save(tmp, format="PNG")
 
@@ -143,8 +140,6 @@ def lobes_demo(
         total_s.append(time.perf_counter() - t0)
     gif = None
     try:
-        from PIL import Image
-
         gif = out / "lobes.gif"
         frames_pil = [Image.fromarray(im) for im in images]
         with atomic_path(gif) as tmp:

@@ -25,11 +25,9 @@ from typing import Any
 
 import numpy as np
 import torch
+from scipy.integrate import dblquad
 
-from ..cosine._light import SphereLight
-from ..cosine._scene import default_scene, gbuffer
-from ..cosine._shade import shade_points
-from ..cosine._tables import get_tables
+from ..cosine import SphereLight, default_scene, gbuffer, get_tables, shade_points
 from ..reference.cosine import direct_mc
 
 __all__ = ["score", "table_error"]
@@ -49,8 +47,6 @@ def _exact_product(e1: float, e2: float, alpha: float) -> float:
     Frame: polar axis on the sharper lobe, ``a2`` in the ``xz`` plane; mirror symmetry in
     ``phi`` halves the domain. ``theta`` stops where the sharper lobe drops below 1e-17.
     """
-    from scipy.integrate import dblquad
-
     if e2 > e1:
         e1, e2 = e2, e1
     sa, ca = math.sin(alpha), math.cos(alpha)

@@ -190,8 +190,8 @@ def _mitsuba(variant: str | None):
     """``(mi, variant, note)``: Mitsuba with ``variant`` set, else the first of :data:`VARIANTS`
     that runs; ``note`` says why the earlier ones did not."""
     try:
-        import drjit as dr
-        import mitsuba as mi
+        import drjit as dr  # optional: the reference extra (Mitsuba's)
+        import mitsuba as mi  # optional: the reference extra
     except ImportError as exc:
         raise InputError("mitsuba", f"is not installed ({exc}); pip install mitsuba") from None
     notes = []

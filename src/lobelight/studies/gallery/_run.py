@@ -18,7 +18,7 @@ from ..._io import atomic_writer
 from ...errors import InputError
 from ...fit import fit_model
 from ...progress import resolve
-from ...render import Lighting, Renderer, save_image
+from ...render import Lighting, Renderer, gl_available, save_image
 from ._references import load_reference, reference_status
 from ._scenes import (
     GalleryScene,
@@ -195,8 +195,6 @@ def run(
     if n_lobes not in (None, 1, 2, 3):
         raise InputError("--lobes", f"must be 1, 2 or 3, got {n_lobes}")
     if backend == "auto":
-        from ...render._gl import gl_available
-
         backend = "gl" if gl_available() else "torch"
     refs = Path(refs).expanduser()
     for sc in chosen:  # before any bake: a missing reference is found in seconds, not hours

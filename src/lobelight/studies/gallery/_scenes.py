@@ -11,6 +11,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
+import trimesh
 
 from ...errors import InputError
 from ...geometry.camera import Camera
@@ -238,12 +239,10 @@ def prepare_mesh(scene: GalleryScene, data: Path) -> Mesh:
     v = m.vertices.double().numpy()  # (V, 3)
     f = m.faces.numpy()  # (F, 3)
     if scene.subdivisions:
-        import trimesh
-
         v, f = trimesh.remesh.subdivide_loop(v, f, iterations=int(scene.subdivisions))
     if scene.max_vertices is not None and len(v) > scene.max_vertices:
         try:
-            import fast_simplification
+            import fast_simplification  # optional: the gallery extra
         except ImportError:
             raise InputError(
                 f"{scene.name}: max_vertices",

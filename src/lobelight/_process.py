@@ -1,0 +1,66 @@
+"""Process-wide settings for a process that runs lobelight's heavy work.
+
+They change the whole process, so the library never makes them itself: the command line
+(:func:`lobelight.cli.main`, which owns its process) makes them at start, and a program that
+embeds lobelight may call :func:`tune` once, early, for the same effect.
+
+- :func:`keep_freed_memory`: a fit allocates and frees tensors of 16-32 MB hundreds of times per
+  chunk; glibc serves such blocks with ``mmap`` and returns them with ``munmap``, so each
+  allocation page-faults its memory in again. Kept in the heap, they are reused (a fit's system
+  time mostly disappears: ``docs/benchmarks.md``). The cost: the process keeps its peak heap
+  until it exits.
+- :func:`short_openmp_spin`: a process that shades cosine lobes fused holds two OpenMP runtimes
+  (torch's, and the system's ``libgomp`` that TorchInductor's kernels and numba load), each
+  with a worker per core that spins after its parallel region; on few cores the spinning
+  workers of one take the cores from the other. A short spin lets them sleep sooner. The
+  system runtime reads the setting when it loads, so this must run before the first compiled
+  kernel.
+"""
+
+from __future__ import annotations
+
+import ctypes
+import ctypes.util
+import functools
+import os
+import sys
+
+__all__ = ["keep_freed_memory", "short_openmp_spin", "tune"]
+
+# glibc's mallopt parameters (malloc.h)
+_M_TRIM_THRESHOLD = -1
+_M_TOP_PAD = -2
+_M_MMAP_THRESHOLD = -3
+
+
+@functools.cache
+def keep_freed_memory() -> bool:
+    """Serve blocks up to 32 MB (glibc's largest mmap threshold) from the heap and never trim it.
+
+    Returns whether it took effect (glibc on Linux only; elsewhere a no-op). Process-wide and
+    idempotent.
+    """
+    if not sys.platform.startswith("linux"):
+        return False
+    try:
+        libc = ctypes.CDLL(ctypes.util.find_library("c") or "libc.so.6")
+        mallopt = libc.mallopt
+    except (OSError, AttributeError):  # musl or another libc without mallopt
+        return False
+    mallopt.argtypes, mallopt.restype = [ctypes.c_int, ctypes.c_int], ctypes.c_int
+    ok = mallopt(_M_MMAP_THRESHOLD, 32 * 1024 * 1024)
+    ok &= mallopt(_M_TRIM_THRESHOLD, 2**31 - 1)
+    ok &= mallopt(_M_TOP_PAD, 512 * 1024 * 1024)
+    return bool(ok)
+
+
+def short_openmp_spin() -> None:
+    """Let idle OpenMP workers of runtimes loaded from now on sleep after 20,000 spins
+    (``GOMP_SPINCOUNT``), unless the environment sets it."""
+    os.environ.setdefault("GOMP_SPINCOUNT", "20000")
+
+
+def tune() -> None:
+    """Both settings above: for a process that bakes, fits and shades (the command line's)."""
+    short_openmp_spin()
+    keep_freed_memory()
