@@ -41,6 +41,8 @@ import torch  # noqa: E402
 from hypothesis import assume  # noqa: E402
 from hypothesis import strategies as st  # noqa: E402
 
+import lobelight  # noqa: E402
+
 ROOT = Path(__file__).resolve().parents[1]
 
 
@@ -161,3 +163,12 @@ def smooth_env():
         -1,
     ).clamp_min(0.05)
     return EnvMap(img, layout="latlong", name="smooth")
+
+
+def pytest_configure(config):
+    # CI tests the package as installed, not the source tree (.ci/run sets the variable): a
+    # module or data file the wheel leaves out must fail the run
+    if os.environ.get("LOBELIGHT_TEST_INSTALLED") == "1":
+        src = Path(__file__).resolve().parents[1] / "src"
+        if Path(lobelight.__file__).resolve().is_relative_to(src):
+            raise pytest.UsageError(f"lobelight is imported from {src}, not from its install")
