@@ -37,7 +37,7 @@ def test_bake_info_render_compare(tmp_path, capsys):
 
     code, info = run(capsys, "info", model)
     assert code == 0 and info["vertices"] == 42 and info["views"] == 92
-    assert info["n_lobes"] == 1 and info["provenance"]["scene"] == "sphere1"
+    assert info["n_gaussians"] == 1 and info["provenance"]["scene"] == "sphere1"
     assert info["provenance"]["environment"] == str(env.resolve())
     # what was baked of interreflection: the defaults
     assert (

@@ -55,7 +55,7 @@ def test_fit_mesh_sphere_one_gaussian():
     v, j = sc.mesh.n_vertices, mf.views.shape[0]
     assert g.mu.shape == (v, j, 1, 3) and mf.diffuse.shape == (v, 25, 3)
     # a convex sphere reflects nothing onto itself: no indirect glossy Gaussian
-    assert mf.indirect_lobes == 0
+    assert mf.indirect_gaussians == 0
     below = (mf.views[None] * sc.mesh.normals[:, None]).sum(-1) <= 0
     assert bool((g.w[below] == 0).all()) and bool((g.w[~below].amax(-1) > 0).any())
     # a GGX lobe of roughness 0.2 is not a Gaussian (long tails): one Gaussian that carries

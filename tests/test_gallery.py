@@ -220,7 +220,7 @@ def test_prepared_mesh_is_centred_with_diagonal_two(data_dir):
 
 def test_a_reference_does_not_depend_on_the_bakes_gaussians_per_view(data_dir):
     # the bake's lobe count changes the model, not what Mitsuba renders: its references stay
-    more = dataclasses.replace(BALL, lobes=2)
+    more = dataclasses.replace(BALL, gaussians=2)
     assert scene_hash(more, data_dir) == scene_hash(BALL, data_dir)
     assert more.bake_definition() != BALL.bake_definition()  # but the bake is another
     assert scene_hash(dataclasses.replace(BALL, material="diffuse:color=0.5"), data_dir) != (

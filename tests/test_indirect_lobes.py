@@ -155,7 +155,7 @@ def test_indirect_lobes_see_the_sun_when_it_is_shaded_per_pixel():
     # the sun adds to the lookups of the whole map (the whole map's image minus the image of
     # the map without its sun)
     m = synthetic_model()
-    mi = dataclasses.replace(m, indirect_lobes=1)
+    mi = dataclasses.replace(m, indirect_gaussians=1)
     env = _sunny_env()
     per_pixel = render.Lighting(env, base_res=64, sun=True)
     assert per_pixel.sun is not None
@@ -202,12 +202,12 @@ def test_indirect_lobes_see_the_sun_when_it_is_shaded_per_pixel():
 
 
 def test_the_model_file_keeps_the_indirect_count(tmp_path):
-    m = dataclasses.replace(synthetic_model(1), indirect_lobes=1)
+    m = dataclasses.replace(synthetic_model(1), indirect_gaussians=1)
     m.save(tmp_path / "m.npz")
     back = model.load(tmp_path / "m.npz")
-    assert back.indirect_lobes == 1 and back.direct_lobes == 1 and back.n_lobes == 2
-    with pytest.raises(InputError, match="indirect_lobes"):
-        dataclasses.replace(m, indirect_lobes=2)
+    assert back.indirect_gaussians == 1 and back.direct_gaussians == 1 and back.n_gaussians == 2
+    with pytest.raises(InputError, match="indirect_gaussians"):
+        dataclasses.replace(m, indirect_gaussians=2)
     # a file that claims every Gaussian indirect is refused, naming the field
     with np.load(tmp_path / "m.npz", allow_pickle=False) as z:
         arrays = {k: z[k] for k in z.files}

@@ -18,6 +18,8 @@ import pytest
 
 import lobelight
 from lobelight import _moved
+from lobelight.cli import _parser
+from lobelight.studies.bench import synthetic_model
 
 ROOT = Path(lobelight.__file__).parent
 
@@ -196,3 +198,16 @@ def test_only_the_process_module_changes_the_process():
             if needle in text:
                 bad.append(f"{name}: {needle}")
     assert not bad, "\n".join(bad)
+
+
+def test_the_earlier_names_of_the_gaussians_per_view_still_answer():
+    """``n_gaussians`` is the one name (API, file format, shaders, CLI); the earlier ``n_lobes``
+    spellings answer with a DeprecationWarning naming it."""
+    m = synthetic_model(10, 2)
+    for old, new in [("n_lobes", "n_gaussians"), ("direct_lobes", "direct_gaussians")]:
+        with pytest.warns(DeprecationWarning, match=new):
+            assert getattr(m, old) == getattr(m, new)
+    with pytest.warns(DeprecationWarning, match="indirect_gaussians"):
+        assert m.indirect_lobes == m.indirect_gaussians == 0
+    assert _parser().parse_args(["bake", "x", "--lobes", "2"]).gaussians == 2
+    assert _parser().parse_args(["bake", "x", "--gaussians", "3"]).gaussians == 3

@@ -329,15 +329,16 @@ def test_lam_from_mean_cosine_round_trip():
 
 
 def test_evaluate_mixture_and_constant_integral():
-    n_lobes = 3
-    mus = random_dirs(2 * n_lobes).reshape(2, n_lobes, 3)
+    n_gaussians = 3
+    mus = random_dirs(2 * n_gaussians).reshape(2, n_gaussians, 3)
     lams = torch.tensor([[1.0, 20.0, 300.0], [0.5, 5.0, 50.0]], dtype=F64)
-    weights = torch.rand(2, n_lobes, 3, dtype=F64)
+    weights = torch.rand(2, n_gaussians, 3, dtype=F64)
     d = random_dirs(10, seed=3).reshape(10, 1, 3)  # (10, 1, 3) against 2 mixtures
     out = sg.evaluate_mixture(d, mus, lams, weights)
     assert out.shape == (10, 2, 3)
     ref = sum(
-        sg.evaluate(d, mus[:, k], lams[:, k]).unsqueeze(-1) * weights[:, k] for k in range(n_lobes)
+        sg.evaluate(d, mus[:, k], lams[:, k]).unsqueeze(-1) * weights[:, k]
+        for k in range(n_gaussians)
     )
     assert torch.allclose(out, ref)
     # constant lighting: closed form vs Fibonacci quadrature of the mixture (1e5 points; the

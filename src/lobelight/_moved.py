@@ -16,7 +16,7 @@ import warnings
 from types import ModuleType
 from typing import Any
 
-__all__ = ["ATTRIBUTES", "MODULES", "attribute", "install"]
+__all__ = ["ATTRIBUTES", "MODULES", "attribute", "install", "renamed"]
 
 #: Old module path -> its home (a package's submodules follow their package).
 MODULES: dict[str, str] = {
@@ -117,3 +117,8 @@ def attribute(package: str, name: str) -> Any:
         raise AttributeError(f"module {package!r} has no attribute {name!r}")
     _warn(f"{package}.{name}", f"{new}.{name}", 4)  # the caller of __getattr__
     return getattr(importlib.import_module(new), name)
+
+
+def renamed(old: str, new: str) -> None:
+    """Warn that ``old`` (an attribute or keyword still accepted) is now called ``new``."""
+    warnings.warn(f"{old} is now {new}", DeprecationWarning, stacklevel=3)

@@ -14,7 +14,7 @@ holding
                     (half-float files store the weight times the Gaussian's integral instead
                     of its peak: ``meta["weights"] == "integral"``); the last
                     ``meta["indirect_gaussians"]`` (0 when absent) of the N hold indirect
-                    glossy transport (:attr:`Model.indirect_lobes`)
+                    glossy transport (:attr:`Model.indirect_gaussians`)
 ``diffuse``         (V, n, 3) SH diffuse transfer
 ``bounce``          optional (V, n, 3): the interreflected part of ``diffuse``, lit by the sun
                     as well (the self-shadowed part sees the sun per pixel)
@@ -42,6 +42,7 @@ import torch
 
 from . import __version__
 from ._io import atomic_writer
+from ._moved import renamed
 from .errors import InputError
 from .geometry import sphere
 from .lobes import sg
@@ -168,7 +169,7 @@ class Model:
     bounce : optional (V, n, 3) the interreflected part of ``diffuse``: a renderer that shades
         the map's sun per pixel lights it with the sun's SH too (the sun's light bounced off
         the object; left out, the knot under the built-in sky rendered 5 % dark)
-    indirect_lobes : how many of the last Gaussians per view hold indirect glossy transport
+    indirect_gaussians : how many of the last Gaussians per view hold indirect glossy transport
         (light reflected off the object itself before it reaches the vertex's glossy lobe).
         A renderer that shades the sun's glossy light per pixel, with the other lobes seeing
         the map without it, lets the sun light these (render/_sun_glossy.py):
@@ -182,22 +183,40 @@ class Model:
     materials: Materials
     provenance: dict[str, Any] = field(default_factory=dict)
     bounce: torch.Tensor | None = None
-    indirect_lobes: int = 0
+    indirect_gaussians: int = 0
 
     def __post_init__(self):
         n = int(self.gaussians.lam.shape[-1])
-        if not 0 <= self.indirect_lobes < n:
-            raise InputError("indirect_lobes", f"must be in 0..{n - 1}, got {self.indirect_lobes}")
+        if not 0 <= self.indirect_gaussians < n:
+            raise InputError(
+                "indirect_gaussians", f"must be in 0..{n - 1}, got {self.indirect_gaussians}"
+            )
 
     @property
-    def n_lobes(self) -> int:
+    def n_gaussians(self) -> int:
         """Gaussians per view, direct and indirect."""
         return int(self.gaussians.lam.shape[-1])
 
     @property
-    def direct_lobes(self) -> int:
+    def direct_gaussians(self) -> int:
         """Gaussians per view fitted to the direct glossy transport."""
-        return self.n_lobes - self.indirect_lobes
+        return self.n_gaussians - self.indirect_gaussians
+
+    @property
+    def n_lobes(self) -> int:
+        # the earlier name of n_gaussians, kept working
+        renamed("Model.n_lobes", "Model.n_gaussians")
+        return self.n_gaussians
+
+    @property
+    def direct_lobes(self) -> int:
+        renamed("Model.direct_lobes", "Model.direct_gaussians")
+        return self.direct_gaussians
+
+    @property
+    def indirect_lobes(self) -> int:
+        renamed("Model.indirect_lobes", "Model.indirect_gaussians")
+        return self.indirect_gaussians
 
     @property
     def device(self) -> torch.device:
@@ -283,7 +302,7 @@ class Model:
             drop=drop,
             provenance=self.provenance,
             bounce=self.bounce,
-            indirect_lobes=self.indirect_lobes,
+            indirect_gaussians=self.indirect_gaussians,
         )
 
 
@@ -328,7 +347,7 @@ def save(
         drop=drop,
         provenance=provenance,
         bounce=fit.bounce,
-        indirect_lobes=getattr(fit, "indirect_lobes", 0),
+        indirect_gaussians=getattr(fit, "indirect_gaussians", 0),
     )
 
 
@@ -344,7 +363,7 @@ def _write(
     drop: bool,
     provenance: dict[str, Any] | None,
     bounce: torch.Tensor | None = None,
-    indirect_lobes: int = 0,
+    indirect_gaussians: int = 0,
 ) -> dict[str, Any]:
     p = Path(path)
     if not p.parent.is_dir():
@@ -368,7 +387,7 @@ def _write(
         "n_vertices": v,
         "n_views": j,
         "n_gaussians": n,
-        "indirect_gaussians": int(indirect_lobes),
+        "indirect_gaussians": int(indirect_gaussians),
         "sh_order": round(diffuse.shape[1] ** 0.5),
         "float16": bool(float16),
         "weights": "integral" if float16 else "peak",
@@ -592,6 +611,6 @@ def load(path, *, device=None) -> Model:
         mats,
         dict(prov),
         bounce=bounce,
-        indirect_lobes=ni,
+        indirect_gaussians=ni,
     )
     return model.to(device) if device is not None else model

@@ -7,7 +7,7 @@ Every command takes ``--json`` (stdout carries only the JSON summary, or a JSON 
 ``--device`` and ``--quiet``. Progress goes to stderr: bars on a terminal, plain lines at most
 every few seconds elsewhere (:mod:`lobelight.progress`). Flags share their names across
 commands: ``-o/--output``, ``--width/--height``, ``--spp``, ``--sun/--no-sun``, ``--backend``;
-older spellings (``--out``, ``--ref-spp``) are kept as aliases.
+older spellings (``--out``, ``--ref-spp``, ``--lobes`` for ``--gaussians``) are kept as aliases.
 
 Exit codes: 0 success; 1 unexpected error; 2 bad input (one line on stderr naming the input and
 the problem); 130 interrupted (Ctrl-C), 143 terminated (SIGTERM, as batch schedulers send it):
@@ -108,8 +108,9 @@ def _parser() -> argparse.ArgumentParser:
             "the sun in the SH diffuse and the Gaussians' lighting)",
         )
 
-    def lobes(sp):
+    def gaussians(sp):
         sp.add_argument(
+            "--gaussians",
             "--lobes",
             type=int,
             default=1,
@@ -156,7 +157,7 @@ def _parser() -> argparse.ArgumentParser:
     d = cmd("demo", "run_demo", "bake the built-in scene, render it, score it, write a report")
     output(d, "lobelight-demo", "output folder")
     d.add_argument("--scene", default="knot", help="scene to bake")
-    lobes(d)
+    gaussians(d)
     spp(d, 64)
     size(d, 960, 720)
     sun(d)
@@ -175,7 +176,7 @@ def _parser() -> argparse.ArgumentParser:
         help="a bare mesh's material, e.g. 'ggx:alpha=0.05,specular=0.9,0.8,0.6' or "
         "'diffuse:color=0.7' (the keys of a scene file's [material]; docs/scene-format.md)",
     )
-    lobes(b)
+    gaussians(b)
     b.add_argument(
         "--bounces",
         type=int,
@@ -248,7 +249,7 @@ def _parser() -> argparse.ArgumentParser:
     c = cmd("compare", "run_compare", "score a model against the path tracer and baselines")
     c.add_argument("scene", help="the scene (fitted here unless --model is given)")
     c.add_argument("--model", help="a model file of that scene")
-    lobes(c)
+    gaussians(c)
     env(c, "default: the scene's")
     output(c, "lobelight-compare", "output folder (images, compare.json)")
     spp(c, 1024)
@@ -313,7 +314,7 @@ def _parser() -> argparse.ArgumentParser:
         help="which benchmark",
     )
     be.add_argument("--scene", default="knot:2", help="scene of transport/fit (knot:2: 11.5K)")
-    lobes(be)
+    gaussians(be)
     be.add_argument("--material", default="ward", help="brdf-fit material (ward, ward_aniso)")
     base_res(be, 512)
     backend(be)

@@ -164,11 +164,13 @@ def run_bake(args) -> dict:
     ckpt = out.with_name(out.name + ".ckpt")
     if ckpt.exists():
         _note(args, f"resuming from {ckpt}")
-    _note(args, f"baking {sc.name}: {sc.mesh.n_vertices} vertices, {args.lobes} Gaussian(s)/view")
+    _note(
+        args, f"baking {sc.name}: {sc.mesh.n_vertices} vertices, {args.gaussians} Gaussian(s)/view"
+    )
     t0 = time.perf_counter()
     m = fit_model(
         sc,
-        args.lobes,
+        args.gaussians,
         device=args.device,
         indirect_paths=args.indirect_paths,
         bounces=args.bounces,
@@ -186,7 +188,7 @@ def run_bake(args) -> dict:
         "environment": sc.environment,
         "material": sc.materials.model,
         "vertices": sc.mesh.n_vertices,
-        "n_lobes": args.lobes,
+        "n_gaussians": args.gaussians,
         "interreflection": _interreflection(m.provenance),
         "bytes": info["bytes"],
         "records_kept": info["records"],
@@ -212,8 +214,8 @@ def run_info(args) -> dict:
         "vertices": m.mesh.n_vertices,
         "faces": int(m.mesh.faces.shape[0]),
         "views": int(m.views.shape[0]),
-        "n_lobes": m.direct_lobes,
-        "indirect_lobes": m.indirect_lobes,
+        "n_gaussians": m.direct_gaussians,
+        "indirect_gaussians": m.indirect_gaussians,
         "sh_coefficients": int(m.diffuse.shape[1]),
         "records_with_weight": int(live.sum()),
         "material": m.materials.model,
@@ -350,7 +352,7 @@ def run_compare(args) -> dict:
         **compare(
             sc,
             model=model,
-            n_lobes=args.lobes,
+            n_gaussians=args.gaussians,
             env=_env(args.env) if args.env else None,
             width=width,
             height=height,
@@ -423,7 +425,7 @@ def run_bench(args) -> dict:
     if w == "transport":
         return bench.bench_transport(scene=args.scene, device=args.device)
     if w == "fit":
-        return bench.bench_fit(scene=args.scene, n_lobes=args.lobes, device=args.device)
+        return bench.bench_fit(scene=args.scene, n_gaussians=args.gaussians, device=args.device)
     if w == "render":
         return bench.bench_render(
             backend=args.backend if args.backend != "auto" else "gl",
@@ -446,7 +448,7 @@ def run_demo(args) -> dict:
         **demo(
             args.output,
             scene=args.scene,
-            n_lobes=args.lobes,
+            n_gaussians=args.gaussians,
             width=width,
             height=height,
             spp=args.spp,

@@ -5,7 +5,7 @@
   vertices over all views at once (:class:`Gaussians`, :class:`Weights`).
 - :func:`fit_mesh` fits a whole mesh by flood-fill wavefronts, with a relaxation pass against
   flipped Gaussians (:class:`MeshFit`), resumable from a checkpoint file.
-- :func:`fit_model` ``(scene, n_lobes=1, *, device, ...) -> lobelight.model.Model`` does it all.
+- :func:`fit_model` ``(scene, n_gaussians=1, *, device, ...) -> lobelight.model.Model`` does it all.
 """
 
 from ._data import FitData, gather, lobe_estimate

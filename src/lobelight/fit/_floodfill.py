@@ -100,8 +100,8 @@ class MeshFit:
     Attributes
     ----------
     gaussians : Gaussians of all V vertices (w (V, J, N, 3), mu (V, J, N, 3), lam (V, J, N)):
-        the fitted direct glossy lobes, then ``indirect_lobes`` of indirect glossy
-    indirect_lobes : trailing Gaussians per view that hold the indirect glossy transport
+        the fitted direct glossy lobes, then ``indirect_gaussians`` of indirect glossy
+    indirect_gaussians : trailing Gaussians per view that hold the indirect glossy transport
         (:meth:`lobelight.transport.Transport.indirect_lobes`; 0 without indirect paths, or
         where none bounced off the object: a convex object)
     diffuse : (V, 25, 3) diffuse SH transfer, self-shadowed plus ``bounces`` bounces of
@@ -127,7 +127,7 @@ class MeshFit:
     separated_flips_before: int = 0
     separated_flips_after: int = 0
     seconds: dict[str, float] = field(default_factory=dict)
-    indirect_lobes: int = 0
+    indirect_gaussians: int = 0
 
 
 def _edges(mesh: Mesh) -> torch.Tensor:
@@ -474,7 +474,7 @@ def fit_mesh(
     t3 = time.perf_counter()
     return MeshFit(
         gaussians=_with_indirect(Gaussians(w, mu, lam), ind_w, ind_mu, ind_lam),
-        indirect_lobes=1 if bool((ind_w > 0).any()) else 0,
+        indirect_gaussians=1 if bool((ind_w > 0).any()) else 0,
         diffuse=diffuse,
         views=views,
         data_error=derr,

@@ -10,6 +10,7 @@ from collections.abc import Callable
 import torch
 
 from .. import __version__
+from .._moved import renamed
 from ..model import Model
 from ..progress import resolve
 from ..scene import Scene
@@ -22,7 +23,7 @@ __all__ = ["fit_model"]
 
 def fit_model(
     scene: Scene,
-    n_lobes: int = 1,
+    n_gaussians: int = 1,
     *,
     device=None,
     views: torch.Tensor | None = None,
@@ -35,8 +36,9 @@ def fit_model(
     seed: int = 0,
     checkpoint: str | os.PathLike | None = None,
     shadows: bool = True,
+    n_lobes: int | None = None,
 ):
-    """Fit the glossy transport of every vertex with ``n_lobes`` Gaussians per view, and its
+    """Fit the glossy transport of every vertex with ``n_gaussians`` Gaussians per view, and its
     SH diffuse transfer (:func:`fit_mesh`), and wrap the result as a model.
 
     Interreflection is baked by default: ``indirect_paths`` paths per vertex and view of
@@ -53,12 +55,15 @@ def fit_model(
     lobelight.model.Model, with provenance holding the settings, the mean relative data error,
     flip counts and timings
     """
-    if n_lobes not in (1, 2, 3):
-        raise ValueError(f"n_lobes must be 1, 2 or 3, got {n_lobes}")
+    if n_lobes is not None:  # the earlier name of n_gaussians, kept working
+        renamed("fit_model(n_lobes=...)", "fit_model(n_gaussians=...)")
+        n_gaussians = n_lobes
+    if n_gaussians not in (1, 2, 3):
+        raise ValueError(f"n_gaussians must be 1, 2 or 3, got {n_gaussians}")
     t0 = time.perf_counter()
     mf = fit_mesh(
         scene,
-        n=n_lobes,
+        n=n_gaussians,
         views=views,
         weights=weights,
         batch=batch,
@@ -79,7 +84,7 @@ def fit_model(
         "scene": scene.name,
         "camera": scene.camera.to_dict(),
         "environment": scene.environment,
-        "n_lobes": n_lobes,
+        "n_gaussians": n_gaussians,
         "weights": {"alpha": w.alpha, "beta": w.beta, "gamma": w.gamma, "delta": w.delta},
         "indirect_paths": int(indirect_paths),
         "bounces": int(bounces),
@@ -107,5 +112,5 @@ def fit_model(
         mats,
         prov,
         bounce=mf.bounce,
-        indirect_lobes=mf.indirect_lobes,
+        indirect_gaussians=mf.indirect_gaussians,
     )

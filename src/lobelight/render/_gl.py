@@ -219,7 +219,7 @@ class GLRenderer:
         self.width, self.height = int(width), int(height)
         ctx = self.ctx
         ctx.enable_direct(_GL_TEXTURE_CUBE_MAP_SEAMLESS)
-        n_lobes = model.n_lobes
+        n_gaussians = model.n_gaussians
         n_sh = int(model.diffuse.shape[1])
         if n_sh != lighting.sh.shape[0]:
             raise InputError(
@@ -236,8 +236,8 @@ class GLRenderer:
             ctx,
             "prt",
             {
-                "NL": n_lobes,
-                "NI": model.indirect_lobes,
+                "N_GAUSSIANS": n_gaussians,
+                "N_INDIRECT": model.indirect_gaussians,
                 "N_SH": n_sh,
                 "MAX_LEVELS": self.n_levels,
                 "FLOOR": f"{model_module._FLOOR:.6e}",

@@ -127,11 +127,11 @@ def pixel_stage(
             # the carried light times the lighting averaged under the lobe: the integral
             # without forming the (up to 1e5) peak weight
             acc += (e * lighting.lookup(mu, sigma.pow(-2), rot, rest=sun_gl).to(dev)).sum(1)
-            ni = model.indirect_lobes
+            ni = model.indirect_gaussians
             if sun_gl and ni:
                 # the sun's light reflected off the object into the indirect lobes
                 sd = lighting.sun_direction(rot).to(dev, torch.float32)
-                k = slice(model.n_lobes - ni, None)
+                k = slice(model.n_gaussians - ni, None)
                 lam_k = sigma[:, k].pow(-2)
                 acc += sun_through(e[:, k], mu[:, k], lam_k, sd, lighting.sun).sum(1)
         out[s : s + PIXEL_BATCH] = acc

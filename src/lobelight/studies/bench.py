@@ -155,7 +155,7 @@ def bench_transport(
 def bench_fit(
     *,
     scene: str = "knot:2",
-    n_lobes: int = 1,
+    n_gaussians: int = 1,
     device: str = "cpu",
     bounces: int | None = None,
     indirect_paths: int | None = None,
@@ -174,7 +174,7 @@ def bench_fit(
     indirect_paths = INDIRECT_PATHS if indirect_paths is None else indirect_paths
     sc = load(scene)
     t0 = time.perf_counter()
-    m = fit_model(sc, n_lobes, device=device, bounces=bounces, indirect_paths=indirect_paths)
+    m = fit_model(sc, n_gaussians, device=device, bounces=bounces, indirect_paths=indirect_paths)
     _sync(device)
     total = time.perf_counter() - t0
     v = sc.mesh.n_vertices
@@ -184,7 +184,7 @@ def bench_fit(
         "vertices": v,
         "glossy_vertices": int((m.gaussians.w.amax((1, 2, 3)) > 0).sum()),
         "views": int(m.views.shape[0]),
-        "n_lobes": n_lobes,
+        "n_gaussians": n_gaussians,
         "bounces": bounces,
         "indirect_paths": indirect_paths,
         "seconds": total,
@@ -196,7 +196,7 @@ def bench_fit(
     }
 
 
-def synthetic_model(vertices: int, n_lobes: int):
+def synthetic_model(vertices: int, n_gaussians: int):
     """A sphere of about ``vertices`` vertices with analytic Gaussians (a mirror-direction lobe
     and broad ones about the normal): rendering cost does not depend on fitted values."""
 
@@ -208,10 +208,15 @@ def synthetic_model(vertices: int, n_lobes: int):
     views = sph.geodesic_views()
     cos = n @ views.T
     refl = torch.nn.functional.normalize(2 * cos[..., None] * n[:, None] - views[None], dim=-1)
-    mus = [refl] + [n[:, None].expand_as(refl)] * (n_lobes - 1)
+    mus = [refl] + [n[:, None].expand_as(refl)] * (n_gaussians - 1)
     mu = torch.stack(mus, 2)
-    lam = torch.tensor([300.0, 5.0, 2.0][:n_lobes]).expand(*cos.shape, n_lobes).clone()
-    w = (cos > 0).float()[..., None, None] * torch.full((n_lobes, 3), 0.3) * lam[..., None] / 6.3
+    lam = torch.tensor([300.0, 5.0, 2.0][:n_gaussians]).expand(*cos.shape, n_gaussians).clone()
+    w = (
+        (cos > 0).float()[..., None, None]
+        * torch.full((n_gaussians, 3), 0.3)
+        * lam[..., None]
+        / 6.3
+    )
     diffuse = torch.zeros(n.shape[0], 25, 3)
     diffuse[:, 0] = 0.2
     # a Phong material as sharp as the mirror lobe, so that ``--sun`` shades the sun's glossy
@@ -271,7 +276,7 @@ def bench_render(
                 ren.close()
                 row = {
                     "vertices": model.mesh.n_vertices,
-                    "n_lobes": n,
+                    "n_gaussians": n,
                     "size": s,
                     "samples": samples,
                     "fps": 1 / draw["throughput"],

@@ -180,7 +180,7 @@ def compare(
     scene,
     *,
     model=None,
-    n_lobes: int = 1,
+    n_gaussians: int = 1,
     env=None,
     width: int = 192,
     height: int = 144,
@@ -199,7 +199,7 @@ def compare(
 
     Parameters
     ----------
-    scene : Scene;  model : its fitted Model (fitted here when None, with ``n_lobes``)
+    scene : Scene;  model : its fitted Model (fitted here when None, with ``n_gaussians``)
     env : EnvMap (default the scene's);  spp : reference samples per pixel (at 256 the
         reference's own noise, ~5 % of the mean on the knot, cost the full image 2 dB of PSNR)
     backend : "gl", "torch" or "auto" (gl when a context can be made)
@@ -224,7 +224,7 @@ def compare(
     rot = as_rotation(light_rotation)
     camera = scene.camera
     if model is None:
-        model = fit_model(scene, n_lobes, device=device, progress=progress)
+        model = fit_model(scene, n_gaussians, device=device, progress=progress)
         timings["fit"] = time.perf_counter() - t0
     lighting = Lighting(env, base_res=base_res, device=model.device, sun=sun)
     # the paper's lighting (all of it in the SH diffuse), sharing the prefiltered chain
@@ -301,7 +301,7 @@ def compare(
             g = sh_glossy(scene, model, lighting, camera, rot, tri, bary)
         elif name == "no_visibility":
             nv = fit_model(
-                scene, model.direct_lobes, device=model.device, shadows=False, progress=progress
+                scene, model.direct_gaussians, device=model.device, shadows=False, progress=progress
             )
             r2 = Renderer(nv, plain, width, height, backend=backend, samples=1)  # no shadows
             g = r2.render(camera, rot, diffuse=False, background=False).cpu()
@@ -328,8 +328,8 @@ def compare(
     result: dict[str, Any] = {
         "scene": scene.name,
         "vertices": model.mesh.n_vertices,
-        "n_lobes": model.direct_lobes,
-        "indirect_lobes": model.indirect_lobes,
+        "n_gaussians": model.direct_gaussians,
+        "indirect_gaussians": model.indirect_gaussians,
         "size": [width, height],
         "spp": spp,
         "backend": backend,

@@ -33,7 +33,7 @@ def demo(
     out: str | os.PathLike = "lobelight-demo",
     *,
     scene: str = "knot",
-    n_lobes: int = 1,
+    n_gaussians: int = 1,
     width: int = 960,
     height: int = 720,
     spp: int = 64,
@@ -53,9 +53,9 @@ def demo(
     outp.mkdir(parents=True, exist_ok=True)
     t0 = time.perf_counter()
     sc = load(scene, device=device)
-    say(f"baking {sc.name} ({sc.mesh.n_vertices} vertices, {n_lobes} Gaussian(s) per view)")
+    say(f"baking {sc.name} ({sc.mesh.n_vertices} vertices, {n_gaussians} Gaussian(s) per view)")
     ckpt = outp / "model.ckpt"
-    model = fit_model(sc, n_lobes, device=device, progress=prog, checkpoint=ckpt)
+    model = fit_model(sc, n_gaussians, device=device, progress=prog, checkpoint=ckpt)
     info = model.save(outp / "model.lobelight.npz")
     ckpt.unlink(missing_ok=True)
     t_bake = time.perf_counter() - t0
@@ -133,8 +133,8 @@ def _report(sc, model, n_bytes, backend, size, spp, stills, cmp, seconds) -> str
     noise = cmp["reference_noise"]["full"]
     return f"""# lobelight demo: {sc.name}
 
-{sc.mesh.n_vertices} vertices, {model.direct_lobes} Gaussian(s) per view (and
-{model.indirect_lobes} of indirect glossy), 92 views. Under the
+{sc.mesh.n_vertices} vertices, {model.direct_gaussians} Gaussian(s) per view (and
+{model.indirect_gaussians} of indirect glossy), 92 views. Under the
 built-in sky and the bundled park map ({DEFAULT_ENVMAP}), each also turned by 120 degrees;
 the model is baked once and relit.
 

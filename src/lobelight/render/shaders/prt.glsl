@@ -4,7 +4,7 @@
 // times its integral) blends linearly; width and mean blend over the live records (carrying at
 // least FLOOR) with renormalised barycentrics. Per pixel the rasteriser does that with
 // varyings premultiplied by the live flag, divided by the interpolated flag.
-// Stages are selected by VERTEX_SHADER / FRAGMENT_SHADER; NL (Gaussians per view) and NI (how
+// Stages are selected by VERTEX_SHADER / FRAGMENT_SHADER; N_GAUSSIANS (Gaussians per view) and N_INDIRECT (how
 // many of the last hold indirect glossy transport, lobelight.model.Model.indirect_lobes) are
 // defined by the loader. The torch path (render/_torch.py) mirrors this file step by step.
 
@@ -32,10 +32,10 @@ uniform vec2 tan_half;         // tan of the half field of view along x and y
 uniform vec2 depth_range;      // near, far
 uniform vec2 jitter;           // the sample's shift from the pixel centre, in NDC units
 
-out vec3 v_e[NL];        // carried light
-out float v_live[NL];    // 1 if the vertex's lobe is live (carries light), else 0
-out vec3 v_mu[NL];       // live flag times (mean - the vertex's mirror direction)
-out float v_sigma[NL];   // live flag times sigma
+out vec3 v_e[N_GAUSSIANS];        // carried light
+out float v_live[N_GAUSSIANS];    // 1 if the vertex's lobe is live (carries light), else 0
+out vec3 v_mu[N_GAUSSIANS];       // live flag times (mean - the vertex's mirror direction)
+out float v_sigma[N_GAUSSIANS];   // live flag times sigma
 out vec3 v_diffuse;
 out vec3 v_pos;
 out vec3 v_normal;
@@ -57,11 +57,11 @@ void main() {
     b /= max(b.x + b.y + b.z, 1e-30);
 
     vec3 mirror = 2.0 * dot(in_normal, d) * in_normal - d;
-    for (int k = 0; k < NL; ++k) {
+    for (int k = 0; k < N_GAUSSIANS; ++k) {
         vec3 e = vec3(0.0), mu = vec3(0.0);
         float sigma = 0.0, say = 0.0, above = 0.0;
         for (int c = 0; c < 3; ++c) {
-            int r = 2 * ((v * 92 + views[c]) * NL + k);
+            int r = 2 * ((v * 92 + views[c]) * N_GAUSSIANS + k);
             vec4 rec = texelFetch(gauss_tex, at(r), 0);
             vec4 m = texelFetch(gauss_tex, at(r + 1), 0);  // mean, above-the-horizon flag
             float live = (rec.r + rec.g + rec.b) / 3.0 >= FLOOR ? b[c] : 0.0;
@@ -113,10 +113,10 @@ void main() {
 
 #elif defined FRAGMENT_SHADER
 
-in vec3 v_e[NL];
-in float v_live[NL];
-in vec3 v_mu[NL];
-in float v_sigma[NL];
+in vec3 v_e[N_GAUSSIANS];
+in float v_live[N_GAUSSIANS];
+in vec3 v_mu[N_GAUSSIANS];
+in float v_sigma[N_GAUSSIANS];
 in vec3 v_diffuse;
 in vec3 v_pos;
 in vec3 v_normal;
@@ -256,14 +256,14 @@ void main() {
         // the pixel's own mirror direction, from its interpolated normal and view direction:
         // the blended offsets are re-based on it (lobelight.model.blend_lobes, frame=)
         vec3 mirror = 2.0 * dot(n, d) * n - d;
-        for (int k = 0; k < NL; ++k) {
+        for (int k = 0; k < N_GAUSSIANS; ++k) {
             float say = v_live[k];  // the live corners' barycentric weight
             if (say < MIN_SAY) continue;
             float sigma = v_sigma[k] / say;
             vec3 mu = normalize(mirror + v_mu[k] / say);
             c += v_e[k] * prefiltered_lookup(rot_t * mu, 1.0 / (sigma * sigma));
             // the sun's light reflected off the object into the indirect lobes
-            if (sun_gl && sun_on > 0.0 && k >= NL - NI) {
+            if (sun_gl && sun_on > 0.0 && k >= N_GAUSSIANS - N_INDIRECT) {
                 c += v_e[k] * sun_e * sun_through(mu, 1.0 / (sigma * sigma));
             }
         }

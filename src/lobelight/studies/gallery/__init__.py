@@ -35,7 +35,7 @@ _HOMES = {
     "DATA_ENV": "..data",
     "GalleryScene": "._scenes",
     "LEGEND": "._score",
-    "LOBES": "._scenes",
+    "GAUSSIANS": "._scenes",
     "MAPS": "._scenes",
     "MATERIALS": "._scenes",
     "METRICS": "._run",

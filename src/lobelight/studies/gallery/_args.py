@@ -70,6 +70,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="output folder (models, strips, JSON)",
     )
     g.add_argument(
+        "--gaussians",
         "--lobes",
         type=int,
         default=None,

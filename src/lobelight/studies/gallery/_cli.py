@@ -68,7 +68,7 @@ def main_from_args(args: argparse.Namespace) -> dict[str, Any]:
             data=args.data,
             refs=refs,
             out=args.output,
-            n_lobes=args.lobes,
+            n_gaussians=args.gaussians,
             samples=args.samples,
             backend=args.backend,
             base_res=args.base_res,

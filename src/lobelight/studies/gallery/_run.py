@@ -46,7 +46,7 @@ METRICS = {
     "energy_ratio": "one",
 }
 #: fit_model's arguments that run sets itself.
-_OWN = ("scene", "n_lobes", "device", "progress", "checkpoint")
+_OWN = ("scene", "n_gaussians", "device", "progress", "checkpoint")
 
 
 def _plain(x):
@@ -100,7 +100,7 @@ def summarise(scores: dict[str, dict[str, Any]]) -> dict[str, Any]:
 
 
 def _bake(
-    group: list[GalleryScene], data: Path, models: Path, *, n_lobes, options, device, progress
+    group: list[GalleryScene], data: Path, models: Path, *, n_gaussians, options, device, progress
 ) -> tuple[Any, dict[str, Any]]:
     """The model of one bake, and its record: loaded when a model of the same settings is
     there, else fitted (resuming from its checkpoint) and saved."""
@@ -109,7 +109,7 @@ def _bake(
     settings = {
         "bake": first.bake_definition(),
         "geometry_sha256": geometry_sha256(mesh),
-        "n_lobes": first.lobes if n_lobes is None else n_lobes,
+        "n_gaussians": first.gaussians if n_gaussians is None else n_gaussians,
         "options": options,
     }
     settings = json.loads(json.dumps(settings))
@@ -124,7 +124,7 @@ def _bake(
     t = time.perf_counter()
     m = fit_model(
         to_scene(first, data, mesh),
-        settings["n_lobes"],
+        settings["n_gaussians"],
         device=device,
         progress=progress,
         checkpoint=ckpt,
@@ -152,7 +152,7 @@ def run(
     data=None,
     refs,
     out,
-    n_lobes: int | None = None,
+    n_gaussians: int | None = None,
     samples: int = 16,
     backend: str = "auto",
     base_res: int = 256,
@@ -178,8 +178,8 @@ def run(
     ----------
     scenes : names (of scenes or bakes) or :class:`GalleryScene`; default all
     data : the data folder (default ``$LOBELIGHT_DATA``);  refs : the references folder
-    n_lobes : Gaussians per view of every bake (None: each bake's own,
-        :attr:`GalleryScene.lobes`);  fit_options : more keyword arguments of ``fit_model``
+    n_gaussians : Gaussians per view of every bake (None: each bake's own,
+        :attr:`GalleryScene.gaussians`);  fit_options : more keyword arguments of ``fit_model``
     backend : "gl", "torch" or "auto" (gl where a context opens)
     base_res : face resolution of the sharpest prefiltered level;  sun : shade the map's sun
         per pixel (:class:`lobelight.render.Lighting`)
@@ -192,8 +192,8 @@ def run(
     data = data_folder(data)
     chosen = select(scenes)
     options = _check_options(fit_options)
-    if n_lobes not in (None, 1, 2, 3):
-        raise InputError("--lobes", f"must be 1, 2 or 3, got {n_lobes}")
+    if n_gaussians not in (None, 1, 2, 3):
+        raise InputError("--gaussians", f"must be 1, 2 or 3, got {n_gaussians}")
     if backend == "auto":
         backend = "gl" if gl_available() else "torch"
     refs = Path(refs).expanduser()
@@ -212,7 +212,7 @@ def run(
         "format": FORMAT,
         "version": VERSION,
         "settings": {
-            "n_lobes": n_lobes,
+            "n_gaussians": n_gaussians,
             "fit_options": options,
             "samples": samples,
             "backend": backend,
@@ -239,7 +239,7 @@ def run(
             group,
             data,
             models,
-            n_lobes=n_lobes,
+            n_gaussians=n_gaussians,
             options=options,
             device=device,
             progress=progress,

@@ -19,7 +19,7 @@ from ...scene import Mesh, Scene, load_mesh, mesh_from_arrays, parse_material
 from ._settings import DATA_ENV
 
 __all__ = [
-    "LOBES",
+    "GAUSSIANS",
     "MAPS",
     "MATERIALS",
     "PREPARATION",
@@ -72,7 +72,7 @@ class GalleryScene:
     camera : the viewpoint (None: :func:`default_camera`)
     subdivisions : Loop subdivisions of the mesh before anything else
     max_vertices : decimate the mesh to about this many vertices (``fast-simplification``)
-    lobes : the bake's fitted Gaussians per view (:data:`LOBES`)
+    gaussians : the bake's fitted Gaussians per view (:data:`GAUSSIANS`)
     description : what the scene shows and how its mesh is prepared
     """
 
@@ -84,7 +84,7 @@ class GalleryScene:
     camera: Camera | None = None
     subdivisions: int = 0
     max_vertices: int | None = None
-    lobes: int = 1
+    gaussians: int = 1
     description: str = ""
 
     def to_dict(self) -> dict:
@@ -95,7 +95,7 @@ class GalleryScene:
     def bake_definition(self) -> dict:
         """What the bake depends on: the mesh, its preparation and the material (not the map
         or the camera)."""
-        keys = ("bake", "mesh", "material", "subdivisions", "max_vertices", "lobes")
+        keys = ("bake", "mesh", "material", "subdivisions", "max_vertices", "gaussians")
         return {k: getattr(self, k) for k in keys}
 
     def view(self) -> Camera:
@@ -118,14 +118,20 @@ def default_camera(azimuth: float = 0.0) -> Camera:
 #: its peak: on Spot's rough metal under the park map its direct light off the map without the
 #: sun is 3.4 % over the path tracer's with one and 1.3 % with two (docs/results.md); the
 #: plastic's and the diffuse's glossy light is too small a share for that to show.
-LOBES = {"sharp_metal": 2, "rough_metal": 2, "plastic": 1, "diffuse": 1}
+GAUSSIANS = {"sharp_metal": 2, "rough_metal": 2, "plastic": 1, "diffuse": 1}
 
 
 def _bake(bake, mesh, material, maps, **kw) -> tuple[GalleryScene, ...]:
     """One (mesh, material) bake rendered under each of ``maps``."""
     return tuple(
         GalleryScene(
-            f"{bake}-{m}", bake, mesh, MAPS[m], MATERIALS[material], lobes=LOBES[material], **kw
+            f"{bake}-{m}",
+            bake,
+            mesh,
+            MAPS[m],
+            MATERIALS[material],
+            gaussians=GAUSSIANS[material],
+            **kw,
         )
         for m in maps
     )
@@ -220,7 +226,7 @@ def scene_hash(scene: GalleryScene, data: Path) -> str:
     contents: it changes whenever anything that a reference shows changes (not the bake's
     Gaussians per view)."""
     mesh = _find(data, "meshes", scene.mesh, f"{scene.name}: mesh")
-    shown = {k: v for k, v in scene.to_dict().items() if k != "lobes"}
+    shown = {k: v for k, v in scene.to_dict().items() if k != "gaussians"}
     d = {
         "definition": shown | {"name": None, "description": None},
         "preparation": PREPARATION,
