@@ -593,7 +593,7 @@ def test_triangle_candidates_hold_the_located_triangle():
     col = ((u + 1) * res / 2).floor().long().clamp(0, res - 1)
     row = ((v + 1) * res / 2).floor().long().clamp(0, res - 1)
     c = cand[f, row, col]  # (M, K)
-    planes, faces = sphere._face_planes(torch.float64, torch.device("cpu"))
+    planes, faces = sphere.face_planes(torch.float64, torch.device("cpu"))
     m = (d @ planes).reshape(-1, 180, 3).amin(-1)
     mc = torch.where(c >= 0, m.gather(1, c.clamp_min(0)), torch.full(c.shape, -1e30).double())
     best = c.gather(1, mc.argmax(1, keepdim=True))[:, 0]

@@ -49,7 +49,17 @@ from .lobes import sg
 from .lobes.sg import Gaussians
 from .scene import Materials, Mesh
 
-__all__ = ["FORMAT", "VERSION", "Model", "blend_lobes", "horizon_scale", "load", "save"]
+__all__ = [
+    "FORMAT",
+    "LIVE_FLOOR",
+    "MAX_LIGHT",
+    "VERSION",
+    "Model",
+    "blend_lobes",
+    "horizon_scale",
+    "load",
+    "save",
+]
 
 FORMAT = "lobelight-model"
 VERSION = 1
@@ -61,7 +71,7 @@ _ARRAYS = ("meta", "vertices", "faces", "normals", "views", "keep", "gaussians",
 #: rendered Inf pixels.
 MAX_LIGHT = 1e4
 #: Carried light below which a record is dead: it has no say in a blended lobe's shape.
-_FLOOR = 1e-30
+LIVE_FLOOR = 1e-30
 #: A blended lobe whose live records have less barycentric weight than this carries no light.
 _MIN_SAY = 1e-6
 
@@ -72,7 +82,7 @@ def blend_lobes(e, mu, sigma, b, *, frame=None):
 
     The light a lobe carries, ``e = w * integral(lam)`` (RGB), blends linearly; its width and
     mean blend linearly (the mean then renormalised) over the *live* records, those carrying
-    light (mean of ``e`` over colour at least ``_FLOOR``), with their barycentric weights
+    light (mean of ``e`` over colour at least ``LIVE_FLOOR``), with their barycentric weights
     renormalised.
 
     Why not blend peak weights and widths independently, the paper's literal wording: where a
@@ -107,7 +117,7 @@ def blend_lobes(e, mu, sigma, b, *, frame=None):
     lobe without light);  sigma : (..., N) (1 for a lobe without light)
     """
     bn = b[..., None]  # (..., 3, 1)
-    live = e.mean(-1) >= _FLOOR  # (..., 3, N)
+    live = e.mean(-1) >= LIVE_FLOOR  # (..., 3, N)
     a = torch.where(live, bn, torch.zeros_like(bn))
     s = a.sum(-2)  # (..., N)
     ok = s >= _MIN_SAY

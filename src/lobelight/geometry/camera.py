@@ -81,7 +81,9 @@ class Camera:
         up = torch.linalg.cross(d, left)
         return torch.stack([left, up, d, o]).to(dtype=dtype, device=device)
 
-    def _tan_half(self, width: int, height: int) -> tuple[float, float]:
+    def tan_half(self, width: int, height: int) -> tuple[float, float]:
+        """Tangents of the half field of view across ``width`` and up ``height`` (the axis
+        ``fov_axis`` names gets ``tan(fov / 2)``)."""
         t = math.tan(math.radians(self.fov) / 2)
         aspect = width / height
         axis = self.fov_axis
@@ -116,7 +118,7 @@ class Camera:
         py = torch.arange(height, dtype=torch.float64, device=device)
         x = (px[None, :] + off[..., 0]) / width  # (..., H, W)
         y = (py[:, None] + off[..., 1]) / height
-        tx, ty = self._tan_half(width, height)
+        tx, ty = self.tan_half(width, height)
         d = (
             ((1 - 2 * x) * tx)[..., None] * f[0]
             + ((1 - 2 * y) * ty)[..., None] * f[1]

@@ -57,6 +57,7 @@ __all__ = [
     "cap_grid",
     "direction_to_spherical",
     "euler_to_matrix",
+    "face_planes",
     "fibonacci",
     "frame",
     "geodesic_edges",
@@ -240,7 +241,14 @@ def geodesic_neighbor_table(*, device: Any = None) -> torch.Tensor:
 
 
 @functools.lru_cache(maxsize=16)
-def _face_planes(dtype: torch.dtype, device: torch.device) -> tuple[torch.Tensor, torch.Tensor]:
+def face_planes(dtype: torch.dtype, device: torch.device) -> tuple[torch.Tensor, torch.Tensor]:
+    """The edge planes of the 180 geodesic triangles, for :func:`locate_views`'s test.
+
+    Returns ``planes (3, 540)``: column ``3 t + k`` is the normal of the great circle through
+    the edge of triangle ``t`` opposite its corner ``k`` (so ``planes.T @ d`` gives every
+    triangle's unnormalised barycentrics of ``d``), and ``faces (180, 3)``: each triangle's
+    three views. The GL renderers upload the same planes.
+    """
     g = _geodesic()
     tri = g["views"][g["faces"]]  # (180, 3 corners, 3)
     a, b, c = tri.unbind(1)
@@ -276,7 +284,7 @@ def locate_views(dirs, /, *, chunk: int = 16384):
     """
     dirs = _float(dirs)
     _check_vec(dirs, "dirs")
-    planes, faces = _face_planes(dirs.dtype, dirs.device)
+    planes, faces = face_planes(dirs.dtype, dirs.device)
     flat = dirs.reshape(-1, 3)  # (M, 3)
     idx_out, bary_out = [], []
     for d in flat.split(chunk):
@@ -316,7 +324,7 @@ def triangle_candidates(res: int = 32, *, sub: int = 8) -> torch.Tensor:
     d = torch.nn.functional.normalize(
         cubemap.face_uv_to_direction(face, u.expand(6, g, g), v.expand(6, g, g)), dim=-1
     ).reshape(-1, 3)
-    planes, _ = _face_planes(torch.float64, torch.device("cpu"))
+    planes, _ = face_planes(torch.float64, torch.device("cpu"))
     hit = torch.zeros(6 * g * g, 180, dtype=torch.bool)
     for s0 in range(0, d.shape[0], 16384):  # bounded memory: chunk x 540 values
         det = (d[s0 : s0 + 16384] @ planes).reshape(-1, 180, 3)

@@ -178,7 +178,7 @@ def upload_geodesic(ctx):
     """
     import moderngl  # optional (the gl extra)
 
-    planes, faces = sphere._face_planes(torch.float32, torch.device("cpu"))
+    planes, faces = sphere.face_planes(torch.float32, torch.device("cpu"))
     pl = torch.cat([planes.T.reshape(180, 3, 3), faces.reshape(180, 3, 1).float()], -1)
     ubo = ctx.buffer(pl.reshape(540, 4).numpy().astype(np.float32).tobytes())
     cand = sphere.triangle_candidates(CAND_RES)  # (6, R, R, K)
@@ -240,7 +240,7 @@ class GLRenderer:
                 "N_INDIRECT": model.indirect_gaussians,
                 "N_SH": n_sh,
                 "MAX_LEVELS": self.n_levels,
-                "FLOOR": f"{model_module._FLOOR:.6e}",
+                "FLOOR": f"{model_module.LIVE_FLOOR:.6e}",
                 "MIN_SAY": f"{model_module._MIN_SAY:.6e}",
                 "HAS_BOUNCE": int(model.bounce is not None and lighting.sun is not None),
                 **geo_defines,
@@ -398,7 +398,7 @@ class GLRenderer:
 
     def _camera_uniforms(self, prog, camera: Camera) -> None:
         f = camera.frame(dtype=torch.float64).numpy()
-        tx, ty = camera._tan_half(self.width, self.height)
+        tx, ty = camera.tan_half(self.width, self.height)
         prog["cam_left"].value = tuple(f[0])
         prog["cam_up"].value = tuple(f[1])
         prog["cam_dir"].value = tuple(f[2])

@@ -458,7 +458,7 @@ class GLSGBRDFRenderer:
         self._set(prog, "viewport", (float(self.width), float(self.height)))
         if camera is not None:
             f = camera.frame(dtype=torch.float64).numpy()
-            tx, ty = camera._tan_half(self.width, self.height)
+            tx, ty = camera.tan_half(self.width, self.height)
             eye = np.asarray(camera.origin, np.float64)
             self._set(prog, "cam_left", tuple(f[0]))
             self._set(prog, "cam_up", tuple(f[1]))
