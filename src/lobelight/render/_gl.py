@@ -241,7 +241,7 @@ class GLRenderer:
                 "N_SH": n_sh,
                 "MAX_LEVELS": self.n_levels,
                 "FLOOR": f"{model_module.LIVE_FLOOR:.6e}",
-                "MIN_SAY": f"{model_module._MIN_SAY:.6e}",
+                "MIN_SAY": f"{model_module.MIN_SAY:.6e}",
                 "HAS_BOUNCE": int(model.bounce is not None and lighting.sun is not None),
                 **geo_defines,
             },

@@ -1,4 +1,4 @@
-"""The model file: a fitted object in one file, checked on load, never unpickled.
+"""The model file format: a fitted object in one file, checked on read, never unpickled.
 
 Layout: a NumPy ``.npz`` archive (a zip of ``.npy`` arrays, read with ``allow_pickle=False``)
 holding
@@ -33,33 +33,21 @@ from __future__ import annotations
 import json
 import zipfile
 import zlib
-from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 import torch
 
-from . import __version__
-from ._io import atomic_writer
-from ._moved import renamed
-from .errors import InputError
-from .geometry import sphere
-from .lobes import sg
-from .lobes.sg import Gaussians
-from .scene import Materials, Mesh
+from .. import __version__
+from .._io import atomic_writer
+from ..errors import InputError
+from ..geometry import sphere
+from ..lobes import sg
+from ..lobes.sg import Gaussians
+from ..scene import Materials, Mesh
 
-__all__ = [
-    "FORMAT",
-    "LIVE_FLOOR",
-    "MAX_LIGHT",
-    "VERSION",
-    "Model",
-    "blend_lobes",
-    "horizon_scale",
-    "load",
-    "save",
-]
+__all__ = ["FORMAT", "MAX_LIGHT", "VERSION", "read", "write"]
 
 FORMAT = "lobelight-model"
 VERSION = 1
@@ -70,250 +58,6 @@ _ARRAYS = ("meta", "vertices", "faces", "normals", "views", "keep", "gaussians",
 #: reflectances (at most about 1 for a physical material), and values near float32's range
 #: rendered Inf pixels.
 MAX_LIGHT = 1e4
-#: Carried light below which a record is dead: it has no say in a blended lobe's shape.
-LIVE_FLOOR = 1e-30
-#: A blended lobe whose live records have less barycentric weight than this carries no light.
-_MIN_SAY = 1e-6
-
-
-def blend_lobes(e, mu, sigma, b, *, frame=None):
-    """Blend corresponding Gaussians of three records (views of a vertex, or vertices of a
-    triangle) with barycentric weights ``b``.
-
-    The light a lobe carries, ``e = w * integral(lam)`` (RGB), blends linearly; its width and
-    mean blend linearly (the mean then renormalised) over the *live* records, those carrying
-    light (mean of ``e`` over colour at least ``LIVE_FLOOR``), with their barycentric weights
-    renormalised.
-
-    Why not blend peak weights and widths independently, the paper's literal wording: where a
-    slot is a sharp lobe in one record and a broad or dead one in the next, the sharp lobe's
-    peak weight (~1e4) is spread over the blended width and the light grows by the ratio of
-    the integrals. On the knot with two Gaussians per view that made images ~7x too bright
-    (and one Gaussian's 1 % worst blends carried 17x their light). Blending the carried light
-    conserves it exactly. Why not weight the shape by the light too: that pins a highlight to
-    the brighter record's mean instead of letting it travel across the triangle as the means
-    do, the point of the paper's nonlinear interpolation; measured on ``knot:2`` (N = 1) it
-    costs 2.4 dB against this rule. Dead records are left out because their means and widths
-    are never fitted to anything (the M and V fill may be poor). The shader does the same, per
-    vertex explicitly and per pixel with varyings premultiplied by the live flag.
-
-    ``frame = (base, target)`` blends the means as offsets from per-record directions ``base``
-    and adds them to ``target`` before normalising. The renderer passes each triangle corner's
-    mirror direction (its view reflected about its normal) and the point's own, computed from
-    its interpolated normal and view: a mirror-like lobe then follows the reflection per pixel
-    as Phong shading does, instead of a blend of corner directions that differ by up to 60
-    degrees across the default knot's triangles (+1.2 dB glossy on the knot, relative L2 error
-    0.93 -> 0.34). At a corner (``b`` a unit vector) the corner's own mean comes back exactly.
-
-    Parameters
-    ----------
-    e : (..., 3, N, C) light carried (>= 0);  mu : (..., 3, N, 3) unit;  sigma : (..., 3, N)
-    b : (..., 3) barycentric weights;  frame : optional (base (..., 3, 3), target (..., 3))
-
-    Returns
-    -------
-    e : (..., N, C), zero where the live records' weight is below ``_MIN_SAY`` (then at most
-    ``_MIN_SAY`` of the largest record's light is dropped);  mu : (..., N, 3) unit (``+z`` for a
-    lobe without light);  sigma : (..., N) (1 for a lobe without light)
-    """
-    bn = b[..., None]  # (..., 3, 1)
-    live = e.mean(-1) >= LIVE_FLOOR  # (..., 3, N)
-    a = torch.where(live, bn, torch.zeros_like(bn))
-    s = a.sum(-2)  # (..., N)
-    ok = s >= _MIN_SAY
-    u = a / torch.where(ok, s, torch.ones_like(s))[..., None, :]
-    e_out = torch.where(
-        ok[..., None], (e * bn[..., None]).sum(-3), torch.zeros_like(e[..., 0, :, :])
-    )
-    sigma = torch.where(ok, (u * sigma).sum(-2), torch.ones_like(s))
-    z = torch.zeros_like(mu[..., 0, :, :])
-    z[..., 2] = 1.0
-    if frame is None:
-        m = (u[..., None] * mu).sum(-3)
-    else:  # means as offsets from each record's mirror direction, re-based at the point's
-        base, target = frame
-        m = target[..., None, :] + (u[..., None] * (mu - base[..., None, :])).sum(-3)
-    mu = torch.where(ok[..., None], torch.nn.functional.normalize(m, dim=-1), z)
-    return e_out, mu, sigma
-
-
-def horizon_scale(views, normals, rows, idx, bary, view_dirs) -> torch.Tensor:
-    """The factor that makes a view blend ignore records below the vertex's horizon.
-
-    A stored view with ``n.v <= 0`` has no data (the fit gives it zero weight), not zero
-    light: a view direction just above the horizon blends such a record with the last views
-    above it, and counting the record as dark loses the light in proportion to its
-    barycentric weight (a third of it on average at ``n.v < 0.1`` on a sphere). So for
-    a view direction above the horizon the carried light is averaged over the records above
-    it: each record's light is scaled by ``1 / sum(b over records above)``. Below the horizon
-    (seen only through interpolated normals at a silhouette) the records blend as they are,
-    fading to the dark records. The shader does the same with the flag stored next to each
-    record's mean.
-
-    Parameters
-    ----------
-    views : (J, 3);  normals : (V, 3);  rows, idx : (..., 3) vertex and view ids of the records
-    bary : (..., 3) their barycentric weights;  view_dirs : (..., 3) the blended view
-
-    Returns
-    -------
-    (...) scale of the blended light (1 below the horizon)
-    """
-    n = normals[rows[..., 0]]  # (..., 3)
-    above = (views[idx] * n[..., None, :]).sum(-1) > 0  # (..., 3)
-    say = (bary * above).sum(-1)
-    ok = ((view_dirs * n).sum(-1) > 0) & (say >= _MIN_SAY)
-    return torch.where(ok, 1.0 / torch.where(ok, say, torch.ones_like(say)), torch.ones_like(say))
-
-
-@dataclass(eq=False)
-class Model:
-    """A fitted object: mesh, views, Gaussians per vertex and view, SH diffuse, materials.
-
-    Attributes
-    ----------
-    mesh : Mesh (V vertices);  views : (J, 3) view directions (the 92 geodesic views)
-    gaussians : w (V, J, N, 3), mu (V, J, N, 3), lam (V, J, N)
-    diffuse : (V, n, 3) SH diffuse transfer (order-5: n = 25)
-    materials : per-vertex materials;  provenance : scene, settings, timings, versions
-    bounce : optional (V, n, 3) the interreflected part of ``diffuse``: a renderer that shades
-        the map's sun per pixel lights it with the sun's SH too (the sun's light bounced off
-        the object; left out, the knot under the built-in sky rendered 5 % dark)
-    indirect_gaussians : how many of the last Gaussians per view hold indirect glossy transport
-        (light reflected off the object itself before it reaches the vertex's glossy lobe).
-        A renderer that shades the sun's glossy light per pixel, with the other lobes seeing
-        the map without it, lets the sun light these (render/_sun_glossy.py):
-        a mirror shows the sun's reflection in another mirror
-    """
-
-    mesh: Mesh
-    views: torch.Tensor
-    gaussians: Gaussians
-    diffuse: torch.Tensor
-    materials: Materials
-    provenance: dict[str, Any] = field(default_factory=dict)
-    bounce: torch.Tensor | None = None
-    indirect_gaussians: int = 0
-
-    def __post_init__(self):
-        n = int(self.gaussians.lam.shape[-1])
-        if not 0 <= self.indirect_gaussians < n:
-            raise InputError(
-                "indirect_gaussians", f"must be in 0..{n - 1}, got {self.indirect_gaussians}"
-            )
-
-    @property
-    def n_gaussians(self) -> int:
-        """Gaussians per view, direct and indirect."""
-        return int(self.gaussians.lam.shape[-1])
-
-    @property
-    def direct_gaussians(self) -> int:
-        """Gaussians per view fitted to the direct glossy transport."""
-        return self.n_gaussians - self.indirect_gaussians
-
-    @property
-    def n_lobes(self) -> int:
-        # the earlier name of n_gaussians, kept working
-        renamed("Model.n_lobes", "Model.n_gaussians")
-        return self.n_gaussians
-
-    @property
-    def direct_lobes(self) -> int:
-        renamed("Model.direct_lobes", "Model.direct_gaussians")
-        return self.direct_gaussians
-
-    @property
-    def indirect_lobes(self) -> int:
-        renamed("Model.indirect_lobes", "Model.indirect_gaussians")
-        return self.indirect_gaussians
-
-    @property
-    def device(self) -> torch.device:
-        return self.gaussians.w.device
-
-    def transport(self, vertex_ids, view_dirs) -> Gaussians:
-        """The Gaussians of vertices at arbitrary views, interpolated between stored views.
-
-        The paper's scheme (section 5): the geodesic triangle holding the view
-        (:func:`lobelight.geometry.sphere.locate_views`) gives three stored records and barycentric
-        weights, and corresponding lobes blend with each other, by :func:`blend_lobes`: the
-        light each lobe carries linearly, width and mean over the records that carry light.
-
-        Parameters
-        ----------
-        vertex_ids : (...) int vertex indices;  view_dirs : (..., 3) world-frame directions
-            towards the viewer (need not be unit)
-
-        Returns
-        -------
-        Gaussians with w (..., N, 3), mu (..., N, 3), lam (..., N)
-        """
-        if self.views.shape[0] != 92:
-            raise InputError("model", "view interpolation needs the 92 geodesic views")
-        dev = self.device
-        vid = torch.as_tensor(vertex_ids, device=dev).long()
-        vd = torch.as_tensor(view_dirs, device=dev, dtype=torch.float32)
-        if vd.shape[-1] != 3 or vd.shape[:-1] != vid.shape:
-            want = (*vid.shape, 3)
-            raise InputError("view_dirs", f"expected shape {want}, got {tuple(vd.shape)}")
-        if vid.numel() and (int(vid.min()) < 0 or int(vid.max()) >= self.mesh.n_vertices):
-            raise InputError("vertex_ids", f"out of range 0..{self.mesh.n_vertices - 1}")
-        idx, bary = sphere.locate_views(vd)  # (..., 3), (..., 3)
-        g = self.gaussians
-        rows = vid[..., None].expand_as(idx)
-        lam = g.lam[rows, idx]  # (..., 3, N)
-        e = g.w[rows, idx] * sg.integral(lam)[..., None]  # (..., 3, N, 3)
-        scale = horizon_scale(self.views, self.mesh.normals, rows, idx, bary, vd)
-        e = e * scale[..., None, None, None]
-        e, mu, sigma = blend_lobes(e, g.mu[rows, idx], lam.rsqrt(), bary)
-        lam = sigma.pow(-2)
-        return Gaussians(e / sg.integral(lam)[..., None], mu, lam)
-
-    def evaluate(self, vertex_ids, view_dirs, dirs) -> torch.Tensor:
-        """The interpolated glossy transport function ``sum_k w_k G(d; mu_k, lam_k)``.
-
-        Parameters
-        ----------
-        vertex_ids : (...);  view_dirs : (..., 3);  dirs : (..., D, 3) unit light directions
-
-        Returns
-        -------
-        (..., D, 3)
-        """
-        g = self.transport(vertex_ids, view_dirs)
-        d = torch.as_tensor(dirs, device=self.device, dtype=torch.float32)
-        cos = d @ g.mu.transpose(-1, -2)  # (..., D, N)
-        gk = torch.exp(g.lam[..., None, :] * (cos - 1))  # (..., D, N)
-        return gk @ g.w  # (..., D, 3)
-
-    def to(self, device) -> Model:
-        """The model with every tensor on ``device`` (in place; returns it)."""
-        g = self.gaussians
-        self.mesh = self.mesh.to(device)
-        self.views = self.views.to(device)
-        self.gaussians = Gaussians(g.w.to(device), g.mu.to(device), g.lam.to(device))
-        self.diffuse = self.diffuse.to(device)
-        self.materials = self.materials.to(device)
-        if self.bounce is not None:
-            self.bounce = self.bounce.to(device)
-        return self
-
-    def save(self, path, *, float16: bool = False, drop: bool = True) -> dict[str, Any]:
-        """Write the model to ``path`` (see :func:`save`); returns sizes."""
-        return _write(
-            path,
-            self.mesh,
-            self.materials,
-            self.gaussians,
-            self.views,
-            self.diffuse,
-            float16=float16,
-            drop=drop,
-            provenance=self.provenance,
-            bounce=self.bounce,
-            indirect_gaussians=self.indirect_gaussians,
-        )
 
 
 def _kept(w: torch.Tensor, views: torch.Tensor) -> torch.Tensor:
@@ -327,41 +71,7 @@ def _kept(w: torch.Tensor, views: torch.Tensor) -> torch.Tensor:
     return live | near.any(-1)
 
 
-def save(
-    path,
-    mesh: Mesh,
-    materials: Materials,
-    fit: Any,
-    *,
-    float16: bool = False,
-    drop: bool = True,
-    provenance: dict[str, Any] | None = None,
-) -> dict[str, Any]:
-    """Write a model file atomically; returns sizes (bytes, records kept).
-
-    Parameters
-    ----------
-    fit : the fitted transport, with ``gaussians``, ``views``, ``diffuse`` and ``bounce`` (None
-        for none) as a :class:`lobelight.fit.MeshFit` has them
-    float16 : store the Gaussians (and SH) as half floats
-    drop : leave out records no rendering can see (module docstring)
-    """
-    return _write(
-        path,
-        mesh,
-        materials,
-        fit.gaussians,
-        fit.views,
-        fit.diffuse,
-        float16=float16,
-        drop=drop,
-        provenance=provenance,
-        bounce=fit.bounce,
-        indirect_gaussians=getattr(fit, "indirect_gaussians", 0),
-    )
-
-
-def _write(
+def write(
     path,
     mesh: Mesh,
     materials: Materials,
@@ -375,6 +85,12 @@ def _write(
     bounce: torch.Tensor | None = None,
     indirect_gaussians: int = 0,
 ) -> dict[str, Any]:
+    """Write a model file atomically (module docstring); returns sizes (bytes, records kept).
+
+    ``g``: the Gaussians, ``(V, J, N)``, of ``views (J, 3)``; ``diffuse (V, n, 3)``; ``float16``
+    stores the Gaussians and SH as half floats; ``drop`` leaves out the records no rendering
+    can see; the last ``indirect_gaussians`` of the N hold indirect glossy transport.
+    """
     p = Path(path)
     if not p.parent.is_dir():
         raise InputError(str(p), f"the directory {str(p.parent)!r} does not exist")
@@ -448,8 +164,14 @@ def _not_a_model(path: Path) -> str:
     return "not a lobelight model file (not an .npz archive)"
 
 
-def load(path, *, device=None) -> Model:
-    """Read and check a model file.
+def read(path) -> dict[str, Any]:
+    """Read and check a model file: the :class:`lobelight.model.Model` fields it holds.
+
+    Returns
+    -------
+    dict with ``mesh``, ``views (J, 3)``, ``gaussians`` (:class:`Gaussians`, ``(V, J, N)``),
+    ``diffuse (V, n, 3)``, ``materials``, ``provenance``, ``bounce`` (or None) and
+    ``indirect_gaussians``, all on the CPU
 
     Raises
     ------
@@ -613,14 +335,13 @@ def load(path, *, device=None) -> Model:
         )
         _need(bool(np.isfinite(bounce_arr).all()), name, "bounce has non-finite values")
         bounce = torch.from_numpy(bounce_arr.astype(np.float32))
-    model = Model(
-        mesh,
-        torch.from_numpy(a["views"].astype(np.float32)),
-        g,
-        torch.from_numpy(a["diffuse"].astype(np.float32)),
-        mats,
-        dict(prov),
-        bounce=bounce,
-        indirect_gaussians=ni,
-    )
-    return model.to(device) if device is not None else model
+    return {
+        "mesh": mesh,
+        "views": torch.from_numpy(a["views"].astype(np.float32)),
+        "gaussians": g,
+        "diffuse": torch.from_numpy(a["diffuse"].astype(np.float32)),
+        "materials": mats,
+        "provenance": dict(prov),
+        "bounce": bounce,
+        "indirect_gaussians": ni,
+    }

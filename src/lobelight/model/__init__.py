@@ -1,0 +1,30 @@
+"""The fitted model: what a bake produces and every renderer draws.
+
+- :class:`Model` ``(mesh, views (J, 3), gaussians (V, J, N), diffuse (V, n, 3), materials,
+  provenance, bounce, indirect_gaussians)``: per vertex and stored view, ``N`` Gaussians of
+  glossy transport (the last ``indirect_gaussians`` of them indirect), and the SH diffuse
+  transfer. :meth:`Model.transport` blends a vertex's Gaussians at any view direction,
+  :meth:`Model.evaluate` evaluates them, :meth:`Model.save` writes the file.
+- :func:`load`, :func:`save` the model file (:mod:`lobelight.model._format`: the layout, the
+  checks on read, the atomic write; ``docs/model-format.md``)
+- :func:`blend_lobes`, :func:`horizon_scale` the view blend (:mod:`lobelight.model._blend`)
+
+The model knows nothing of how it was fitted (:mod:`lobelight.fit` builds it).
+"""
+
+from ._blend import LIVE_FLOOR, MIN_SAY, blend_lobes, horizon_scale
+from ._format import FORMAT, MAX_LIGHT, VERSION
+from ._model import Model, load, save
+
+__all__ = [
+    "FORMAT",
+    "LIVE_FLOOR",
+    "MAX_LIGHT",
+    "MIN_SAY",
+    "VERSION",
+    "Model",
+    "blend_lobes",
+    "horizon_scale",
+    "load",
+    "save",
+]

@@ -1,0 +1,218 @@
+"""The fitted model: per vertex and view, the Gaussians of glossy transport and the SH diffuse
+transfer, with the mesh, materials and provenance; saved and loaded in the file format of
+:mod:`lobelight.model._format`."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any
+
+import torch
+
+from .._moved import renamed
+from ..errors import InputError
+from ..geometry import sphere
+from ..lobes import sg
+from ..lobes.sg import Gaussians
+from ..scene import Materials, Mesh
+from ._blend import blend_lobes, horizon_scale
+from ._format import read, write
+
+__all__ = ["Model", "load", "save"]
+
+
+@dataclass(eq=False)
+class Model:
+    """A fitted object: mesh, views, Gaussians per vertex and view, SH diffuse, materials.
+
+    Attributes
+    ----------
+    mesh : Mesh (V vertices);  views : (J, 3) view directions (the 92 geodesic views)
+    gaussians : w (V, J, N, 3), mu (V, J, N, 3), lam (V, J, N)
+    diffuse : (V, n, 3) SH diffuse transfer (order-5: n = 25)
+    materials : per-vertex materials;  provenance : scene, settings, timings, versions
+    bounce : optional (V, n, 3) the interreflected part of ``diffuse``: a renderer that shades
+        the map's sun per pixel lights it with the sun's SH too (the sun's light bounced off
+        the object; left out, the knot under the built-in sky rendered 5 % dark)
+    indirect_gaussians : how many of the last Gaussians per view hold indirect glossy transport
+        (light reflected off the object itself before it reaches the vertex's glossy lobe).
+        A renderer that shades the sun's glossy light per pixel, with the other lobes seeing
+        the map without it, lets the sun light these (render/_sun_glossy.py):
+        a mirror shows the sun's reflection in another mirror
+    """
+
+    mesh: Mesh
+    views: torch.Tensor
+    gaussians: Gaussians
+    diffuse: torch.Tensor
+    materials: Materials
+    provenance: dict[str, Any] = field(default_factory=dict)
+    bounce: torch.Tensor | None = None
+    indirect_gaussians: int = 0
+
+    def __post_init__(self):
+        n = int(self.gaussians.lam.shape[-1])
+        if not 0 <= self.indirect_gaussians < n:
+            raise InputError(
+                "indirect_gaussians", f"must be in 0..{n - 1}, got {self.indirect_gaussians}"
+            )
+
+    @property
+    def n_gaussians(self) -> int:
+        """Gaussians per view, direct and indirect."""
+        return int(self.gaussians.lam.shape[-1])
+
+    @property
+    def direct_gaussians(self) -> int:
+        """Gaussians per view fitted to the direct glossy transport."""
+        return self.n_gaussians - self.indirect_gaussians
+
+    @property
+    def n_lobes(self) -> int:
+        # the earlier name of n_gaussians, kept working
+        renamed("Model.n_lobes", "Model.n_gaussians")
+        return self.n_gaussians
+
+    @property
+    def direct_lobes(self) -> int:
+        renamed("Model.direct_lobes", "Model.direct_gaussians")
+        return self.direct_gaussians
+
+    @property
+    def indirect_lobes(self) -> int:
+        renamed("Model.indirect_lobes", "Model.indirect_gaussians")
+        return self.indirect_gaussians
+
+    @property
+    def device(self) -> torch.device:
+        return self.gaussians.w.device
+
+    def transport(self, vertex_ids, view_dirs) -> Gaussians:
+        """The Gaussians of vertices at arbitrary views, interpolated between stored views.
+
+        The paper's scheme (section 5): the geodesic triangle holding the view
+        (:func:`lobelight.geometry.sphere.locate_views`) gives three stored records and barycentric
+        weights, and corresponding lobes blend with each other, by :func:`blend_lobes`: the
+        light each lobe carries linearly, width and mean over the records that carry light.
+
+        Parameters
+        ----------
+        vertex_ids : (...) int vertex indices;  view_dirs : (..., 3) world-frame directions
+            towards the viewer (need not be unit)
+
+        Returns
+        -------
+        Gaussians with w (..., N, 3), mu (..., N, 3), lam (..., N)
+        """
+        if self.views.shape[0] != 92:
+            raise InputError("model", "view interpolation needs the 92 geodesic views")
+        dev = self.device
+        vid = torch.as_tensor(vertex_ids, device=dev).long()
+        vd = torch.as_tensor(view_dirs, device=dev, dtype=torch.float32)
+        if vd.shape[-1] != 3 or vd.shape[:-1] != vid.shape:
+            want = (*vid.shape, 3)
+            raise InputError("view_dirs", f"expected shape {want}, got {tuple(vd.shape)}")
+        if vid.numel() and (int(vid.min()) < 0 or int(vid.max()) >= self.mesh.n_vertices):
+            raise InputError("vertex_ids", f"out of range 0..{self.mesh.n_vertices - 1}")
+        idx, bary = sphere.locate_views(vd)  # (..., 3), (..., 3)
+        g = self.gaussians
+        rows = vid[..., None].expand_as(idx)
+        lam = g.lam[rows, idx]  # (..., 3, N)
+        e = g.w[rows, idx] * sg.integral(lam)[..., None]  # (..., 3, N, 3)
+        scale = horizon_scale(self.views, self.mesh.normals, rows, idx, bary, vd)
+        e = e * scale[..., None, None, None]
+        e, mu, sigma = blend_lobes(e, g.mu[rows, idx], lam.rsqrt(), bary)
+        lam = sigma.pow(-2)
+        return Gaussians(e / sg.integral(lam)[..., None], mu, lam)
+
+    def evaluate(self, vertex_ids, view_dirs, dirs) -> torch.Tensor:
+        """The interpolated glossy transport function ``sum_k w_k G(d; mu_k, lam_k)``.
+
+        Parameters
+        ----------
+        vertex_ids : (...);  view_dirs : (..., 3);  dirs : (..., D, 3) unit light directions
+
+        Returns
+        -------
+        (..., D, 3)
+        """
+        g = self.transport(vertex_ids, view_dirs)
+        d = torch.as_tensor(dirs, device=self.device, dtype=torch.float32)
+        cos = d @ g.mu.transpose(-1, -2)  # (..., D, N)
+        gk = torch.exp(g.lam[..., None, :] * (cos - 1))  # (..., D, N)
+        return gk @ g.w  # (..., D, 3)
+
+    def to(self, device) -> Model:
+        """The model with every tensor on ``device`` (in place; returns it)."""
+        g = self.gaussians
+        self.mesh = self.mesh.to(device)
+        self.views = self.views.to(device)
+        self.gaussians = Gaussians(g.w.to(device), g.mu.to(device), g.lam.to(device))
+        self.diffuse = self.diffuse.to(device)
+        self.materials = self.materials.to(device)
+        if self.bounce is not None:
+            self.bounce = self.bounce.to(device)
+        return self
+
+    def save(self, path, *, float16: bool = False, drop: bool = True) -> dict[str, Any]:
+        """Write the model to ``path`` (see :func:`save`); returns sizes."""
+        return write(
+            path,
+            self.mesh,
+            self.materials,
+            self.gaussians,
+            self.views,
+            self.diffuse,
+            float16=float16,
+            drop=drop,
+            provenance=self.provenance,
+            bounce=self.bounce,
+            indirect_gaussians=self.indirect_gaussians,
+        )
+
+
+def save(
+    path,
+    mesh: Mesh,
+    materials: Materials,
+    fit: Any,
+    *,
+    float16: bool = False,
+    drop: bool = True,
+    provenance: dict[str, Any] | None = None,
+) -> dict[str, Any]:
+    """Write a model file atomically; returns sizes (bytes, records kept).
+
+    Parameters
+    ----------
+    fit : the fitted transport, with ``gaussians``, ``views``, ``diffuse`` and ``bounce`` (None
+        for none) as a :class:`lobelight.fit.MeshFit` has them
+    float16 : store the Gaussians (and SH) as half floats
+    drop : leave out records no rendering can see (module docstring)
+    """
+    return write(
+        path,
+        mesh,
+        materials,
+        fit.gaussians,
+        fit.views,
+        fit.diffuse,
+        float16=float16,
+        drop=drop,
+        provenance=provenance,
+        bounce=fit.bounce,
+        indirect_gaussians=getattr(fit, "indirect_gaussians", 0),
+    )
+
+
+def load(path, *, device=None) -> Model:
+    """Read and check a model file (:func:`lobelight.model._format.read`).
+
+    Raises
+    ------
+    InputError
+        naming the file: missing, not a model file, unknown version, missing or malformed
+        arrays, non-finite values, inconsistent shapes.
+    """
+    model = Model(**read(path))
+    return model.to(device) if device is not None else model
