@@ -1,4 +1,4 @@
-"""Cosine lobes for dynamic direct lighting (the cosine-lobes paper, ``papers/`` in shared).
+"""Cosine lobes for dynamic direct lighting with sphere-set soft shadows (the cosine-lobes paper).
 
 Every term of the rendering equation as sums of lobes ``c(w) = s max(a.w, 0)^e``, multiplied and
 integrated through scene-independent tables.
@@ -18,8 +18,7 @@ Tables (:mod:`._tables`)
     ``preserve_integral=True`` the scale that keeps the product's exact integral);
     :func:`cap_exponent` is the lobe of a spherical cap.
     :func:`fit_product` and :func:`fit_cap_exponent` are the direct fits the tables store;
-    :func:`build_tables`, :func:`save_tables`, :func:`load_tables` and :func:`bench_tables`
-    complete the set.
+    :func:`build_tables`, :func:`save_tables` and :func:`load_tables` complete the set.
 
 Direct lighting with soft shadows (method note ``docs/cosine-lobes.md``)
     :class:`SphereLight` (centre, radius, RGB radiance) is one cap lobe per point
@@ -30,13 +29,17 @@ Direct lighting with soft shadows (method note ``docs/cosine-lobes.md``)
     :func:`shadow_leaves` builds the paper's hierarchical visibility masks (quad-tree over the
     square facing the light, aggressive or conservative leaves) and :func:`shade_points`
     shades a set of points in the paper's order, reflectance x lighting then visibility with
-    the eq. (39) weights (calibrated once by :func:`calibrate_weights`, stored in
-    ``_weights.py``), culling products below the threshold ``t``; it returns radiance and
-    products per point (the paper's Figure 16). :func:`direct_mc` is the independent Monte
-    Carlo reference; :func:`default_scene` and :func:`gbuffer` the paper's kind of scene.
-    :func:`score` (lobes vs Monte Carlo, table vs adaptive quadrature), :func:`bench_lobes`
-    (the paper's two timed configurations) and :func:`lobes_demo` (an animation to PNGs/GIF)
-    are the CLI's entry points.
+    the eq. (39) weights (calibrated once by
+    :func:`lobelight.studies.lobes_calibrate.calibrate_weights`, stored in ``_weights.py``),
+    culling products below the threshold ``t``; it returns radiance and products per point (the
+    paper's Figure 16). :func:`default_scene` and :func:`gbuffer` build the paper's kind of
+    scene.
+
+Elsewhere: the independent Monte Carlo reference is :func:`lobelight.reference.cosine.direct_mc`;
+the score against it (and of the tables against adaptive quadrature) is
+:mod:`lobelight.studies.lobes_score`, the benchmarks (the paper's two timed configurations, the
+tables' build) :mod:`lobelight.studies.bench_lobes`, and the animation to PNGs/GIF
+:mod:`lobelight.studies.lobes_demo`.
 """
 
 from .. import _moved

@@ -296,7 +296,7 @@ def _fit_chunk(e1, e2, alpha, *, nodes: int, iters: int = 60, tol: float = 1e-9)
 
 
 def _default_chunk(device: torch.device) -> int:
-    """Entries fitted at once: cache-sized on a CPU (measured ~10x faster than one big batch),
+    """Entries fitted at once: cache-sized on a CPU (far faster there than one big batch),
     large on a GPU (kernel launches, not memory, are the cost there)."""
     return 4096 if device.type == "cpu" else 1 << 17
 
@@ -673,8 +673,8 @@ def build_tables(
     chunk : entries fitted at once (default 4096 on a CPU, 131072 on a GPU)
     threads : torch CPU threads during the build (``None``: leave as set). One by default: the
         build is thousands of small tensor operations, for which a second thread gains little
-        on an idle machine and, measured on the shared 2-core machine, costs 5-20x when other
-        processes keep the cores busy.
+        on an idle machine and makes the build several times slower when other processes keep
+        the cores busy (docs/benchmarks.md).
     progress : optional ``progress(stage, done, total)`` after each chunk of product fits
 
     Returns

@@ -294,7 +294,7 @@ def _walk_all(
     counts = np.zeros(P, dtype=np.int64)
     blocks = (P + _BLOCK - 1) // _BLOCK
     # blocks dealt round-robin to the lanes: shadows are spatially coherent, so contiguous
-    # halves of the points carry unequal work (measured 15 : 11 ms on the benchmark)
+    # halves of the points carry unequal work
     lanes = min(blocks, _LANES)
     for lane in _prange(lanes):
         ok = np.empty(N, dtype=np.bool_)

@@ -275,8 +275,7 @@ def _rgbe_complete_scanlines(buf: bytes, pos: int, h: int, w: int) -> int:
     ``[8, 32767]`` are flat; otherwise a scanline starts with ``2 2 hi lo`` (``hi lo`` = width)
     and holds four channels of runs (``128 + n`` then one byte, or ``n`` then ``n`` bytes); a
     scanline without that start means the rest of the image is flat 4-byte pixels. The walk is
-    sequential by nature (a run's length is in the data), one Python step per run: ~10 ms for a
-    1024 x 512 map.
+    sequential by nature (a run's length is in the data), one Python step per run.
     """
     n = len(buf)
     if w < 8 or w > 0x7FFF:

@@ -70,7 +70,7 @@ TEXELS_PER_SIGMA = 2.5
 #: Levels at least this fine get the bilinear reconstruction prefilter.
 SHARPEN_MIN_RES = 4
 #: Levels at this face resolution or coarser come straight from spherical harmonics (up to
-#: order 31 for the 32^2 levels, on a 64^2 copy of the map: 0.08 s for all of them).
+#: order 31 for the 32^2 levels, on a 64^2 copy of the map).
 SH_MAX_RES = 32
 #: Cascade increments at this resolution or finer use the separable anisotropic passes (their
 #: relative error scales with the lobe width in radians: about 0.5-1.5 % at 256, 2-3 % at 128);

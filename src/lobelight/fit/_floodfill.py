@@ -6,8 +6,8 @@ breadth-first *wavefronts*: wavefront ``k`` holds the vertices at graph distance
 component's seed. Their ``S`` terms only read earlier wavefronts, so a wavefront is one batch
 (split into chunks of bounded memory), fitted at once on any device.
 
-Beyond the paper, a relaxation pass revisits every vertex once all are fitted, now with ``S``
-against all its neighbours (the paper's own proposal against "Gaussian flipping"), then
+Beyond the paper, a relaxation pass revisits every vertex once all are fitted, this time with
+``S`` against all its neighbours (the paper's own proposal against "Gaussian flipping"), then
 reorders the Gaussians of every (vertex, view) over the whole mesh where that lowers the
 flipped neighbour pairs and the view coherence together (:mod:`._relax`); the number of
 flipped neighbour pairs is reported before and after.
@@ -414,7 +414,7 @@ def fit_mesh(
             # The refit keeps a vertex's new lobes only where they add no flipped pair against
             # its neighbours, counting all pairs and separated ones: S alone does not hold the
             # lobes (its cubic penalty vanishes for lobes a few tenths of a radian apart), and
-            # unguarded the pass took sphere:2 from 292 flips to 339 and knotted the lobes into
+            # unguarded the pass adds flips (sphere:2: 292 -> 339) and knots the lobes into
             # arrangements no reordering can undo (docs/method.md)
             old = Gaussians(w[vidx], mu[vidx], lam[vidx])
             nbr = Gaussians(w[ids], mu[ids], lam[ids])

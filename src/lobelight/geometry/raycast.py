@@ -59,8 +59,8 @@ class RayCaster:
         self.mesh = mesh
         self.offset = float(offset) * mesh.scale
         self.batch = int(batch)
-        # embreex releases the GIL while it traces, so plain threads trace in parallel
-        # (measured: 1.66x on 2 cores); default one per core torch may use
+        # embreex releases the GIL while it traces, so plain threads trace in parallel; by
+        # default one per core torch may use
         self.threads = max(1, int(threads or min(os.cpu_count() or 1, torch.get_num_threads())))
         self._pool: ThreadPoolExecutor | None = None
         tm = trimesh.Trimesh(

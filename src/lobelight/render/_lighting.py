@@ -161,12 +161,12 @@ class ShRotator:
     """The SH coefficients of one fixed function, rotated, fast enough to do every frame.
 
     ``sh.rotate`` builds a rotation matrix from the basis at rotated quadrature nodes with a few
-    dozen small torch operations (0.5-0.8 ms, measured on the CPUs of this project's machines):
-    more than a whole frame on a GPU. Here the work is three small numpy products. Real SH of
-    band ``l`` are polynomials of degree ``l`` in ``(x, y, z)``, so the function is one fixed
-    polynomial ``f(x) = m(x) . Pc`` of the monomials ``m`` of degree ``< order``; its rotation
-    evaluated at the nodes of :func:`lobelight.lobes.sh._rotation_rule` and projected with that
-    rule's weights is exact (the rule integrates products of two order-``order`` harmonics).
+    dozen small torch operations, which take longer than a whole frame on a GPU. Here the work
+    is three small numpy products. Real SH of band ``l`` are polynomials of degree ``l`` in
+    ``(x, y, z)``, so the function is one fixed polynomial ``f(x) = m(x) . Pc`` of the
+    monomials ``m`` of degree ``< order``; its rotation evaluated at the nodes of
+    :func:`lobelight.lobes.sh._rotation_rule` and projected with that rule's weights is exact
+    (the rule integrates products of two order-``order`` harmonics).
 
     Parameters
     ----------

@@ -164,10 +164,9 @@ def bench_fit(
     interreflection (``bounces``, ``indirect_paths``: default the bake's,
     :data:`lobelight.transport.BOUNCES` and :data:`lobelight.transport.INDIRECT_PATHS`).
 
-    ``knot:2`` has 11,457 vertices (10,368 of them glossy, as the 12,769-vertex ``knot:3`` of
-    the earlier, coarser-tubed knot had); seconds are also given per 10K vertices, and per
-    stage: ``fit`` (transport sampling and fit, with ``indirect_glossy`` the path tracing inside
-    it), ``relax``, ``interreflection`` (the diffuse bounces).
+    ``knot:2`` has 11,457 vertices (10,368 of them glossy); seconds are also given per 10K
+    vertices, and per stage: ``fit`` (transport sampling and fit, with ``indirect_glossy`` the
+    path tracing inside it), ``relax``, ``interreflection`` (the diffuse bounces).
     """
 
     bounces = BOUNCES if bounces is None else bounces

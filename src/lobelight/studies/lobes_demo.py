@@ -114,7 +114,7 @@ def lobes_demo(
             threshold=threshold,
             device=device,
             fused=fused,
-            threads=1,  # measured: 1 thread beats 2 on the shared 2-core machine (bench_lobes)
+            threads=1,  # on a shared 2-core machine a second thread contends (bench_lobes)
         )
         t2 = time.perf_counter()
         H, W = gb["shape"]

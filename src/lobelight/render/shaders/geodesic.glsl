@@ -1,12 +1,12 @@
-// The geodesic view triangles (lobelight.geometry.sphere) and the lookup of the one holding a direction,
-// shared by prt.glsl (vertex stage) and sgbrdf.glsl (fragment stage); render/_gl.py's
+// The geodesic view triangles (lobelight.geometry.sphere) and the lookup of the one holding a
+// direction, shared by prt.glsl (vertex stage) and sgbrdf.glsl (fragment stage); render/_gl.py's
 // upload_geodesic() makes the block, the texture and the defines (CAND_RES, CAND_TEXELS), and
 // _program(..., include / vertex_include=("geodesic",)) prepends this file.
 
 // 3 great-circle normals per geodesic triangle, .w = the view index of the opposite corner.
 // A uniform block, not a texture: every invocation reads the same entry at the same time, which
-// the constant cache broadcasts (as a texture, the 540 fetches per vertex of the full scan were
-// an H100 frame's cost)
+// the constant cache broadcasts (as a texture, the 540 fetches per vertex of a full scan would
+// dominate a GPU frame)
 layout(std140) uniform Planes { vec4 planes[540]; };
 
 // Triangle f's unnormalised barycentrics of d; keep it when its smallest beats the best so far
@@ -29,8 +29,8 @@ void test_face(int f, vec3 d, inout float best, inout vec3 bary, inout ivec3 vid
 uniform sampler2D cand_tex;
 
 // The geodesic triangle holding d: largest smallest barycentric (as sphere.locate_views), among
-// the few candidates of d's texel rather than all 180 (the full scan was three quarters of an
-// H100 frame). Returns its views and unnormalised barycentrics.
+// the few candidates of d's texel rather than all 180 (a full scan would dominate a GPU
+// frame). Returns its views and unnormalised barycentrics.
 void locate_triangle(vec3 d, out vec3 bary, out ivec3 vid) {
     vec3 ad = abs(d);
     int face;
