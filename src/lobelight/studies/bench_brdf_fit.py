@@ -38,10 +38,10 @@ def bench_fit(
     (0.01, 0.2: the paper's, 61 fitted geodesic views), "ggx" or "beckmann" (alpha 0.1). One
     warm-up fit, then ``repeats`` timed fits. ``threads`` sets torch's CPU threads for the run
     (restored after; None keeps the current setting). It defaults to 1: EM is many small
-    operations, and on the shared 2-core machine a contended second thread made the "ward" fit
-    0.5 s -> 4-5 s and "ward_aniso" 3.6 s -> 20-29 s, while an idle second core gains ~15 %.
-    Returns seconds (best and median), the view and lobe counts, the mean fit error, the goal
-    (5 s on a 2-core CPU) and the machine.
+    operations, and on a shared machine a contended second thread makes the fit several times
+    slower while an idle second core gains little (docs/benchmarks.md). Returns seconds (best
+    and median), the view and lobe counts, the mean fit error, the goal (5 s on a 2-core CPU)
+    and the machine.
     """
 
     before = torch.get_num_threads()
