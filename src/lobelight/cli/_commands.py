@@ -225,8 +225,8 @@ def run_info(args) -> dict:
 
 
 def _interreflection(provenance: dict) -> dict:
-    """What a model baked of interreflection: diffuse bounces and indirect glossy paths (a
-    model from before interreflection was baked has no ``bounces``: none)."""
+    """What a model baked of interreflection: diffuse bounces and indirect glossy paths (0 where
+    its provenance does not say)."""
     return {
         "bounces": int(provenance.get("bounces", 0)),
         "indirect_paths": int(provenance.get("indirect_paths", 0)),

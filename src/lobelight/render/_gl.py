@@ -132,8 +132,8 @@ def _atlas(pf: Prefiltered) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     width = 6 * (base + 2)
     pads = [cubemap.pad_seamless(lv).cpu().numpy() for lv in pf.levels]  # (6, P, P, 3)
     height = sum(p.shape[1] for p in pads)
-    # RGBA: llvmpipe filters four-channel float textures faster than three-channel ones
-    # (anisotropic Ward, 16 lobes, 128 x 128: 37-41 -> 47-52 fps); GPUs pad RGB anyway
+    # RGBA: llvmpipe filters four-channel float textures faster than three-channel ones, and
+    # GPUs pad RGB anyway
     atlas = np.ones((height, width, 4), np.float32)
     y = 0
     rows, res = [], []
