@@ -81,7 +81,18 @@ class _Alias(importlib.abc.MetaPathFinder, importlib.abc.Loader):
         new = _home(fullname)
         if new is None:
             return None
-        return importlib.util.spec_from_loader(fullname, self, is_package=False)
+        home = importlib.util.find_spec(new)
+        if home is None:
+            return None
+        return importlib.util.spec_from_loader(
+            fullname, self, is_package=home.submodule_search_locations is not None
+        )
+
+    def get_code(self, fullname: str):
+        # runpy asks for the code of `python -m OLD`: the module's relative imports would not
+        # resolve under the old name, so say the new one
+        old, new = fullname.removesuffix(".__main__"), _home(fullname).removesuffix(".__main__")
+        raise ImportError(f"{old} is now {new}: run python -m {new}")
 
     def create_module(self, spec) -> ModuleType:
         new = _home(spec.name)
