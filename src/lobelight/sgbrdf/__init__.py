@@ -22,7 +22,6 @@ Fitting materials (:mod:`._fit`)
     - accuracy: :func:`mixture_error`, :func:`fit_error`, :func:`interpolation_error`
     - :func:`fit_many` ``(brdfs, **fit options) -> list[SGBRDF]``: several materials in one
       batched EM (materials sharing a view layout share the sweep)
-    - :func:`bench_fit` ``(material="ward", device="cpu") -> dict`` (timing, for the CLI)
 
 Rendering (:mod:`._render`)
     - :func:`shade` ``(model, lighting, normals, views, *, tangents=None) -> (..., 3)`` with
@@ -37,11 +36,12 @@ Baselines and the paper's comparison (docs/sgbrdf.md)
       :func:`hammersley` its point set
     - :func:`shade_wang09` ``(ward, lighting, normals, views) -> (..., 3)`` the single warped
       SG lobe of Wang et al. 2009; :func:`wang09_lobe` the lobe itself
-    - :func:`shade_reference` ``(brdf, env, normals, views, *, tangents, spp, seed) ->
-      (mean, stderr)`` Monte Carlo with MIS of BRDF and environment sampling
-    - :func:`compare_brdf` ``(out, *, env, size, alphas, aniso, device, ref_spp, seed) ->
-      dict`` PSNR / relative L2 / fps of every method per material, image grid and
-      ``compare-brdf.json`` (keys in its docstring); :func:`default_envmap`
+
+Elsewhere: the Monte Carlo reference (MIS of BRDF and environment sampling) is
+:func:`lobelight.reference.sgbrdf.shade_reference`; the comparison of every method per material
+(PSNR, relative L2, fps, image grid, ``compare-brdf.json``) is
+:func:`lobelight.studies.compare_brdf.compare_brdf`; the fit's timing is
+:func:`lobelight.studies.bench_brdf_fit.bench_fit`.
 """
 
 from .. import _moved
