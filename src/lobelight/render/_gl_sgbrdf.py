@@ -45,10 +45,7 @@ from ..envmap import EnvMap, Prefiltered, prefilter
 from ..errors import InputError
 from ..geometry.camera import Camera
 from ..lobes.sg import integral
-from ..sgbrdf._em import KAPPA_MIN
-from ..sgbrdf._fis import FIS_SAMPLES, hammersley
-from ..sgbrdf._fit import SGBRDF
-from ..sgbrdf._render import MipChain
+from ..sgbrdf import FIS_SAMPLES, KAPPA_MIN, SGBRDF, MipChain, hammersley
 from ._gl import (
     _GL_TEXTURE_CUBE_MAP_SEAMLESS,
     _program,
