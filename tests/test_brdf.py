@@ -20,6 +20,7 @@ from scipy import stats
 
 from lobelight import brdf as B
 from lobelight.errors import InputError
+from lobelight.geometry import sphere
 
 F32, F64 = torch.float32, torch.float64
 
@@ -546,10 +547,8 @@ def test_tangent_sets_the_anisotropy_axis():
 
 
 def test_default_frame_is_sphere_frame():
-    from lobelight.geometry.sphere import frame
-
     n = torch.nn.functional.normalize(torch.randn(100, 3), dim=-1)
-    t, _, _ = frame(n)
+    t, _, _ = sphere.frame(n)
     wi = torch.nn.functional.normalize(n + 0.5 * torch.randn(100, 3), dim=-1)
     wo = torch.nn.functional.normalize(n + 0.5 * torch.randn(100, 3), dim=-1)
     m = B.GGX(alpha_u=0.1, alpha_v=0.5)

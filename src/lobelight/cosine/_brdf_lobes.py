@@ -1,6 +1,7 @@
 """Reflectance as cosine lobes: ``f_r(wi, wo) (n . wi)`` as a lobe sum in ``wi`` (paper 5.1).
 
-For a fixed point and view, each supported model is a sum of cosine lobes in ``wi``:
+For a fixed point and view, each supported model is a sum of cosine lobes in ``wi``; the model
+says which (:meth:`lobelight.brdf.BRDF.cosine_lobes`, None for the others):
 
 ``Lambert(albedo)``
     ``albedo / pi * max(n . wi, 0)^1``: already ``f_r`` times the cosine, one exact lobe.
@@ -24,8 +25,6 @@ the sharp limit); ``cosine="none"`` is the paper's form.
 
 from __future__ import annotations
 
-import math
-
 import torch
 
 from .. import brdf as _brdf
@@ -36,67 +35,17 @@ from ._tables import LobeTables
 
 __all__ = ["brdf_lobes"]
 
-_PI = math.pi
 
-
-def _rgb(x: torch.Tensor, batch: tuple[int, ...]) -> torch.Tensor:
-    """A () / (3,) / (..., 3) colour as (*batch, 3)."""
-    if x.ndim == 0:
-        x = x.expand(3)
-    return x.expand(*batch, 3)
-
-
-def _scalar(x: torch.Tensor, batch: tuple[int, ...]) -> torch.Tensor:
-    return x.expand(batch)
-
-
-def _raw_lobes(model: _brdf.BRDF, fr, wo_local: torch.Tensor) -> tuple[list, list]:
-    """Per component: lists of (axis (P, 3), exponent (P,), scale (P, 3)) and "is cosine" flags."""
-    batch = wo_local.shape[:-1]
-    like = wo_local
-    if isinstance(model, _brdf.Sum):
-        lobes, flags = [], []
-        for comp in model.components:
-            lo, fl = _raw_lobes(comp, fr, wo_local)
-            lobes += lo
-            flags += fl
-        return lobes, flags
-    if isinstance(model, _brdf.Lambert):
-        albedo = _rgb(model._get("albedo", like), batch)
-        return [
-            (
-                fr.n.expand(*batch, 3),
-                torch.ones(batch, dtype=like.dtype, device=like.device),
-                albedo / _PI,
-            )
-        ], [True]
-    if isinstance(model, _brdf.Phong):
-        e = _scalar(model._get("exponent", like), batch)
-        ks = _rgb(model._get("specular", like), batch)
-        r_local = wo_local * torch.tensor([-1.0, -1.0, 1.0], dtype=like.dtype, device=like.device)
-        axis = fr.world(r_local)
-        return [(axis, e, ks * ((e + 2) / (2 * _PI)).unsqueeze(-1))], [False]
-    if isinstance(model, _brdf.Lafortune):
-        out = []
-        for j in range(model.n_lobes):
-            cx, cy, cz, e, rho = model._lobe(j, like)
-            d = torch.stack(
-                torch.broadcast_tensors(
-                    cx * wo_local[..., 0], cy * wo_local[..., 1], cz * wo_local[..., 2]
-                ),
-                -1,
-            )
-            norm = torch.linalg.vector_norm(d, dim=-1)
-            tiny = torch.finfo(norm.dtype).tiny
-            axis = fr.world(d / norm.clamp_min(tiny).unsqueeze(-1))
-            e = _scalar(e, batch)
-            # |d|^e, and 0 for a vanishing vector (the lobe is 0 everywhere)
-            mag = torch.where(norm > 0, torch.exp(e * torch.log(norm.clamp_min(tiny))), 0.0)
-            out.append((axis, e, _rgb(rho, batch) * mag.unsqueeze(-1)))
-        return out, [False] * len(out)
-    raise InputError(
-        "brdf", f"{type(model).__name__} is not a cosine-lobe model (Lambert, Phong, Lafortune)"
-    )
+def _lobe_flags(model: _brdf.BRDF) -> tuple[bool, ...]:
+    """``model``'s :attr:`~lobelight.brdf.BRDF.cosine_lobe_flags`; InputError where it has none."""
+    flags = model.cosine_lobe_flags
+    if flags is None:
+        raise InputError(
+            "brdf",
+            f"{type(model).__name__} is not a cosine-lobe model (such as Lambert, Phong, "
+            "Lafortune and their sums)",
+        )
+    return flags
 
 
 def brdf_lobes(
@@ -113,8 +62,8 @@ def brdf_lobes(
 
     Parameters
     ----------
-    model : Lambert, Phong, Lafortune or a Sum of them; parameters of shape () or per point
-        (P,) / (P, 3) (spatially varying)
+    model : a model with cosine lobes (Lambert, Phong, Lafortune or a Sum of them);
+        parameters of shape () or per point (P,) / (P, 3) (spatially varying)
     normals, wo : (P, 3) unit shading normals and directions towards the viewer
     tables : the lobe tables (for the cosine products)
     tangents : optional (P, 3) (the local x axis of anisotropic Lafortune lobes)
@@ -128,6 +77,7 @@ def brdf_lobes(
     """
     if cosine not in ("product", "axis", "none"):
         raise InputError("cosine", f"must be 'product', 'axis' or 'none', got {cosine!r}")
+    _lobe_flags(model)
     axes, exponents, factors, scales = _lobe_parts(
         model, normals, wo, tangents, tables.product_table, tables._grid, cosine,
         bool(preserve_integral),
@@ -147,12 +97,10 @@ def _lobe_parts(model: _brdf.BRDF, normals, wo, tangents, tab, grid, cosine: str
     slower: TorchInductor then computes the table lookups inside the (P, 3) loop of the
     scales, unvectorised.)
     """
-    fr = _brdf._Frame(normals, tangents)
-    wo_local = fr.local(wo)
-    raw, is_cos = _raw_lobes(model, fr, wo_local)
-    front = (wo_local[..., 2] > 0).to(normals.dtype)  # (P,): the models are one-sided
+    lobes = model.cosine_lobes(wo, normals, tangents)
+    front = ((wo * normals).sum(-1) > 0).to(normals.dtype)  # (P,): the models are one-sided
     axes, exponents, factors, scales = [], [], [], []
-    for (axis, e, scale), cos in zip(raw, is_cos, strict=True):
+    for axis, e, scale, cos in lobes:
         factor = front
         if not cos and cosine == "product":  # times max(n . wi, 0)^1, by the table
             ones = torch.ones_like(e)

@@ -27,12 +27,19 @@ import torch
 
 from .. import brdf as _brdf
 from ..errors import InputError
-from ._brdf_lobes import _lobe_parts, brdf_lobes
+from ._brdf_lobes import _lobe_flags, _lobe_parts, brdf_lobes
 from ._fused import fusion, kernel
 from ._light import SphereLight, _geometry, _light_tensors, cap_lobes, cap_scale
 from ._lobeset import Lobes, _integral_flat, multiply
 from ._tables import LobeTables, _cap_lookup, _cpu_threads, get_tables
-from ._visibility import MODES, depth_weights, interp_coefficients, shadow_leaves
+from ._visibility import (
+    MODES,
+    _check_spheres,
+    depth_weights,
+    interp_coefficients,
+    shadow_leaves,
+)
+from ._weights import WEIGHTS
 
 __all__ = ["ShadeResult", "shade_points"]
 
@@ -64,8 +71,6 @@ def _check_points(name: str, x: torch.Tensor, P: int | None = None) -> None:
 
 def default_weights(mode: str, depth: int) -> torch.Tensor:
     """The stored eq. (39) weights of ``(mode, depth)``: ``(depth + 1, 12)`` float32."""
-    from ._weights import WEIGHTS
-
     key = f"{mode}:{int(depth)}"
     if key not in WEIGHTS:
         raise InputError(
@@ -146,8 +151,6 @@ def shade_points(
     sph = None
     if spheres is not None:
         sph = torch.as_tensor(spheres).to(device=dev, dtype=torch.float32)
-        from ._visibility import _check_spheres
-
         _check_spheres(sph)
         if sph.shape[0] == 0:
             sph = None
@@ -416,9 +419,5 @@ def _shadow_products(
 
 def _lobe_counts(model: _brdf.BRDF) -> tuple[int, int]:
     """Reflectance lobes of ``model`` and how many of them are multiplied by the cosine."""
-    if isinstance(model, _brdf.Sum):
-        counts = [_lobe_counts(c) for c in model.components]
-        return sum(c[0] for c in counts), sum(c[1] for c in counts)
-    if isinstance(model, _brdf.Lafortune):
-        return model.n_lobes, model.n_lobes
-    return 1, (0 if isinstance(model, _brdf.Lambert) else 1)
+    flags = _lobe_flags(model)
+    return len(flags), sum(not cos for cos in flags)

@@ -37,7 +37,6 @@ from ..lobes import sg
 from ..transport import Transport
 
 __all__ = [
-    "HALF_VECTOR_MODELS",
     "FitData",
     "gather",
     "graded_cap",
@@ -73,13 +72,11 @@ class FitData:
         return (self.weights[..., None] * self.values**2).sum((-1, -2))
 
 
-#: Specular models whose lobe is a distribution of half vectors about the normal: their local
-#: grid is laid out over half vectors (:func:`gather`).
-HALF_VECTOR_MODELS = (brdf.GGX, brdf.Beckmann, brdf.BlinnPhong, brdf.Ward)
-
-
 def half_vector_lobes(spec: brdf.BRDF | None) -> bool:
-    """Whether ``spec``'s lobe is best resolved over half vectors ``h = normalise(w + v)``.
+    """Whether ``spec``'s lobe is best resolved over half vectors ``h = normalise(w + v)``: the
+    models whose lobe is a distribution of half vectors about the normal
+    (:attr:`lobelight.brdf.BRDF.half_vector_lobe`; their local grid is laid out over half
+    vectors, :func:`gather`).
 
     A microfacet lobe is round in ``h`` (the distribution ``D(h)`` about the normal) but not in
     the light direction ``w = 2 (v.h) h - v``: towards grazing views the map squeezes it across
@@ -89,7 +86,7 @@ def half_vector_lobes(spec: brdf.BRDF | None) -> bool:
     (Phong, Lafortune) are round in ``w`` and squeezed in ``h``, so they keep the light
     directions.
     """
-    return isinstance(spec, HALF_VECTOR_MODELS)
+    return spec is not None and spec.half_vector_lobe
 
 
 def lobe_estimate(

@@ -5,11 +5,12 @@ groups of faces), an environment file and a camera into a ``mi.load_dict`` scene
 per material group (vertex normals included, so Mitsuba shades with the same smooth normals),
 ``envmap`` lighting, a ``perspective`` sensor with a box pixel filter (the reference renderer's
 pixel footprint) and the ``path`` integrator. Materials map one to one: Lambert -> ``diffuse``,
-GGX/Beckmann -> ``roughconductor`` (same parameters by construction of
-:mod:`lobelight.brdf`), and a Lambert + microfacet sum -> a ``blendbsdf`` of the two with their
-reflectances scaled by the blend weights, which is the sum exactly (:func:`_blend`; refused
-where the two parts add up to more than 1 in a channel, beyond Mitsuba's reflectance range).
-Other specular models have no Mitsuba counterpart and are refused rather than approximated.
+a specular model -> its own :meth:`~lobelight.brdf.BRDF.mitsuba_dict` (GGX/Beckmann ->
+``roughconductor``, same parameters by construction of :mod:`lobelight.brdf`), and a Lambert +
+specular sum -> a ``blendbsdf`` of the two with their reflectances scaled by the blend weights,
+which is the sum exactly (:func:`_blend`; refused where the two parts add up to more than 1 in
+a channel, beyond Mitsuba's reflectance range). Specular models without a Mitsuba counterpart
+are refused rather than approximated.
 
 Mitsuba is optional (``pip install mitsuba``; the ``reference`` extra). :func:`scene_dict`
 builds the scene in the variant that is set (``scalar_rgb`` when none is); any RGB variant
@@ -23,6 +24,7 @@ from pathlib import Path
 
 import numpy as np
 import torch
+import trimesh
 
 from .. import brdf as _brdf
 from ..errors import InputError
@@ -36,7 +38,7 @@ def load_mitsuba(variant: str | None = "scalar_rgb"):
     """Import Mitsuba and set ``variant`` (None: keep the variant that is set, else
     ``scalar_rgb``); InputError naming what is missing when it cannot."""
     try:
-        import mitsuba as mi
+        import mitsuba as mi  # optional: the reference extra
     except ImportError as exc:
         raise InputError("mitsuba", f"is not installed ({exc}); pip install mitsuba") from None
     if variant is None:
@@ -74,31 +76,12 @@ def _groups(scene: Scene) -> list[tuple[np.ndarray, dict]]:
         if has_spec and float(d.max()) > 0:
             out.append((fid, _blend(d, s)))
         elif has_spec:
-            out.append((fid, _microfacet(s)))
+            out.append((fid, s.mitsuba_dict()))
         else:
             out.append(
                 (fid, {"type": "diffuse", "reflectance": {"type": "rgb", "value": d.tolist()}})
             )
     return out
-
-
-def _microfacet(s: _brdf.BRDF) -> dict:
-    if not isinstance(s, (_brdf.GGX, _brdf.Beckmann)):
-        raise InputError("materials", f"{s.type_name} has no Mitsuba counterpart")
-    p = {k: v.reshape(-1).tolist() for k, v in s.params.items()}
-    d: dict = {"type": "roughconductor", "distribution": s.type_name}
-    if "alpha" in p:
-        d["alpha"] = float(p["alpha"][0])
-    else:
-        d["alpha_u"], d["alpha_v"] = float(p["alpha_u"][0]), float(p["alpha_v"][0])
-    if "eta" in p:
-        d["eta"] = {"type": "rgb", "value": (p["eta"] * 3)[:3]}
-        d["k"] = {"type": "rgb", "value": (p["k"] * 3)[:3]}
-    else:
-        d["material"] = "none"
-    col = p.get("specular", [1.0])
-    d["specular_reflectance"] = {"type": "rgb", "value": (col * 3)[:3]}
-    return d
 
 
 def _blend(diffuse: torch.Tensor, s: _brdf.BRDF) -> dict:
@@ -110,7 +93,7 @@ def _blend(diffuse: torch.Tensor, s: _brdf.BRDF) -> dict:
     every channel (``specular``: the lobe's factor, Mitsuba's ``specular_reflectance``), and
     picks each part for sampling in proportion to its largest value.
     """
-    micro = _microfacet(s)
+    micro = s.mitsuba_dict()
     d = diffuse.double().reshape(-1).expand(3)
     spec = torch.tensor(micro["specular_reflectance"]["value"], dtype=torch.float64)  # (3,)
     if bool((d + spec > 1 + 1e-6).any()):
@@ -149,8 +132,6 @@ def scene_dict(
     max_depth : path length as Mitsuba counts it (2 = direct lighting)
     variant : the Mitsuba variant to set (None: keep the one that is set, else ``scalar_rgb``)
     """
-    import trimesh
-
     mi = load_mitsuba(variant)
     cam = camera or scene.camera
     work = Path(workdir or tempfile.mkdtemp(prefix="lobelight-mi-"))

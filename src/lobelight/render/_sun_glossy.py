@@ -21,11 +21,13 @@ variances, ``alpha'^2 = alpha^2 + sigma^2 / 4`` (Blinn-Phong through its Beckman
 ``1 / e' = 1 / e + sigma^2 / 2``. Each distribution stays normalised, so the highlight keeps its
 light and takes the disc's size.
 
-Supported (``prt.glsl`` carries the same formulas; parameters constant or per vertex):
-modified Phong and normalised Blinn-Phong (:class:`lobelight.brdf.Phong`,
-:class:`lobelight.brdf.BlinnPhong`) and the isotropic rough conductors
-(:class:`lobelight.brdf.GGX`, :class:`lobelight.brdf.Beckmann`, with or without conductor
-Fresnel). Other specular BRDFs keep the sun in the Gaussians' lighting, as the paper does.
+Supported (``prt.glsl`` carries the same formulas; parameters constant or per vertex): the
+models with a :attr:`~lobelight.brdf.BRDF.sun_model`, today modified Phong and normalised
+Blinn-Phong (:class:`lobelight.brdf.Phong`, :class:`lobelight.brdf.BlinnPhong`) and the rough
+conductors built with one ``alpha`` (:class:`lobelight.brdf.GGX`,
+:class:`lobelight.brdf.Beckmann`, with or without conductor Fresnel); each widens itself by the
+disc (:meth:`~lobelight.brdf.BRDF.sun_widened`). Other specular BRDFs keep the sun in the
+Gaussians' lighting, as the paper does.
 
 The sun's *indirect* glossy light (the sun in a mirror seen in a mirror) has no BRDF to shade
 it per pixel: a model's indirect Gaussians (:attr:`lobelight.model.Model.indirect_lobes`) carry
@@ -41,7 +43,6 @@ from __future__ import annotations
 import numpy as np
 import torch
 
-from .. import brdf
 from ..lobes import sg
 
 __all__ = [
@@ -54,16 +55,10 @@ __all__ = [
 ]
 
 
-#: Shader model numbers (``sun_model`` in ``prt.glsl``).
-_MODELS = {brdf.GGX: 0, brdf.Beckmann: 1, brdf.Phong: 2, brdf.BlinnPhong: 3}
-
-
 def sun_glossy_supported(spec) -> bool:
     """Whether the sun's glossy reflection off ``spec`` (a specular BRDF or None) can be shaded
-    per pixel."""
-    if type(spec) not in _MODELS:
-        return False
-    return not isinstance(spec, (brdf.GGX, brdf.Beckmann)) or spec.isotropic
+    per pixel: whether it has a shader formula (:attr:`lobelight.brdf.BRDF.sun_model`)."""
+    return spec is not None and spec.sun_model is not None
 
 
 def sun_widened(spec, spread: float):
@@ -71,26 +66,19 @@ def sun_widened(spec, spread: float):
     sun disc of RMS angle ``spread`` radians (module docstring); ``spec`` itself for 0."""
     if spread <= 0.0:
         return spec
-    s2 = spread * spread
-    p = spec.params
-    if isinstance(spec, (brdf.GGX, brdf.Beckmann)):
-        return spec.replace(alpha=(p["alpha"] ** 2 + s2 / 4).sqrt())
-    e = p["exponent"]
-    if isinstance(spec, brdf.BlinnPhong):
-        a2 = 2 / (e + 2) + s2 / 4
-        return spec.replace(exponent=(2 / a2 - 2).clamp_min(0))
-    return spec.replace(exponent=e / (1 + e * s2 / 2))  # modified Phong
+    return spec.sun_widened(spread)
 
 
 def sun_glossy_uniforms(spec) -> dict[str, float | int]:
     """The shader's per-material switches: ``sun_model`` (0 GGX, 1 Beckmann, 2 Phong,
     3 Blinn-Phong) and ``sun_fresnel`` (1 conductor Fresnel, 0 none)."""
-    return {"sun_model": _MODELS[type(spec)], "sun_fresnel": float(getattr(spec, "fresnel", 0))}
+    return {"sun_model": spec.sun_model, "sun_fresnel": float(spec.fresnel)}
 
 
 def sun_glossy_vertex_params(spec, n_vertices: int) -> np.ndarray:
-    """Per-vertex BRDF parameters for the shader, ``(V, 10)`` float32: alpha (the exponent for
-    the Phong models), specular RGB, eta RGB, k RGB (0 where the model has none)."""
+    """Per-vertex BRDF parameters for the shader, ``(V, 10)`` float32: the model's
+    :attr:`~lobelight.brdf.BRDF.sun_param` (alpha, or the exponent of the Phong models),
+    specular RGB, eta RGB, k RGB (0 where the model has none)."""
     v = n_vertices
 
     def per_vertex(name: str, width: int) -> torch.Tensor:
@@ -101,8 +89,7 @@ def sun_glossy_vertex_params(spec, n_vertices: int) -> np.ndarray:
             return t.expand(v, width)
         return t.reshape(-1, width).expand(v, width)  # (3,) constant, (V,) / (V, 3) per vertex
 
-    first = "alpha" if isinstance(spec, (brdf.GGX, brdf.Beckmann)) else "exponent"
-    parts = ((first, 1), ("specular", 3), ("eta", 3), ("k", 3))
+    parts = ((spec.sun_param, 1), ("specular", 3), ("eta", 3), ("k", 3))
     cols = [per_vertex(name, w) for name, w in parts]
     return torch.cat(cols, 1).numpy().astype(np.float32)
 

@@ -1,11 +1,12 @@
 """Per-vertex materials: a Lambert diffuse albedo plus one specular lobe with per-vertex parameters.
 
 A material here is ``f = diffuse / pi + f_spec`` where ``f_spec`` is one of the specular models of
-:mod:`lobelight.brdf` (phong, blinn_phong, ward, lafortune, ggx, beckmann) whose colour and
-shape parameters may differ per vertex. One specular *model* per scene keeps the transport and
-the fit vectorised (every vertex evaluates the same formula); the parameters carry the spatial
-variation, e.g. the paper's bird that goes from diffuse yellow to highly specular green is a
-gradient of ``diffuse``, ``specular`` and ``exponent`` of one Phong model.
+:mod:`lobelight.brdf` (:data:`SPECULAR_MODELS`, the registered models with
+:attr:`~lobelight.brdf.BRDF.scene_params`: phong, blinn_phong, ward, lafortune, ggx, beckmann)
+whose colour and shape parameters may differ per vertex. One specular *model* per scene keeps
+the transport and the fit vectorised (every vertex evaluates the same formula); the parameters
+carry the spatial variation, e.g. the paper's bird that goes from diffuse yellow to highly
+specular green is a gradient of ``diffuse``, ``specular`` and ``exponent`` of one Phong model.
 
 Material specs (scene files, built-ins) are plain mappings::
 
@@ -20,7 +21,7 @@ mesh's ``--material``), e.g. ``"ggx:alpha=0.1,specular=0.04,diffuse=0.5,0.5,0.5"
 
 from __future__ import annotations
 
-from collections.abc import Mapping, Sequence
+from collections.abc import Iterator, Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any
 
@@ -41,29 +42,61 @@ __all__ = [
     "uniform",
 ]
 
-#: Specular models a material may use (keys of :func:`lobelight.brdf.from_dict`).
-SPECULAR_MODELS = ("phong", "blinn_phong", "ward", "lafortune", "ggx", "beckmann")
 _NUMBER, _COLOUR, _LOBES = "number", "colour", "lobes"
-_MICROFACET = {
-    "alpha": _NUMBER,
-    "alpha_u": _NUMBER,
-    "alpha_v": _NUMBER,
-    "eta": _COLOUR,
-    "k": _COLOUR,
-    "specular": _COLOUR,
-}
+
+
+def _specular_classes() -> dict[str, type[_brdf.BRDF]]:
+    """The registered models a material may use as its specular lobe, by name."""
+    return {n: c for n, c in _brdf.REGISTRY.items() if c.scene_params is not None}
+
+
+class _SpecularModels(Sequence[str]):
+    """The names of :func:`_specular_classes`, read from the registry at each use (a model
+    registered later is a specular model too)."""
+
+    def __getitem__(self, index):
+        return tuple(_specular_classes())[index]
+
+    def __len__(self) -> int:
+        return len(_specular_classes())
+
+    def __iter__(self) -> Iterator[str]:
+        return iter(tuple(_specular_classes()))
+
+    def __contains__(self, name: object) -> bool:
+        return name in _specular_classes()
+
+    def __repr__(self) -> str:
+        return repr(tuple(_specular_classes()))
+
+
+class _ModelParams(Mapping[str, Mapping[str, str]]):
+    """Each specular model's :attr:`~lobelight.brdf.BRDF.scene_params`, read from the registry
+    at each use."""
+
+    def __getitem__(self, name: str) -> Mapping[str, str]:
+        return _specular_classes()[name].scene_params
+
+    def __iter__(self) -> Iterator[str]:
+        return iter(tuple(_specular_classes()))
+
+    def __len__(self) -> int:
+        return len(_specular_classes())
+
+    def __repr__(self) -> str:
+        return repr(dict(self))
+
+
+#: Specular models a material may use: the registered models of :mod:`lobelight.brdf` with
+#: :attr:`~lobelight.brdf.BRDF.scene_params` (a read-only sequence of their names, in the
+#: registry's order; a model registered later is in it).
+SPECULAR_MODELS: Sequence[str] = _SpecularModels()
 #: The keys of a material spec besides ``diffuse`` and ``model``, per specular model (the
-#: arguments of its :mod:`lobelight.brdf` constructor), and what each takes: ``"number"`` one
-#: number, ``"colour"`` one number (grey) or an RGB triple, ``"lobes"`` a list of
-#: :data:`LOBE_PARAMS` tables.
-MODEL_PARAMS: dict[str, dict[str, str]] = {
-    "phong": {"specular": _COLOUR, "exponent": _NUMBER},
-    "blinn_phong": {"specular": _COLOUR, "exponent": _NUMBER},
-    "ward": {"specular": _COLOUR, "alpha_x": _NUMBER, "alpha_y": _NUMBER},
-    "lafortune": {"lobes": _LOBES},
-    "ggx": _MICROFACET,
-    "beckmann": _MICROFACET,
-}
+#: arguments of its :mod:`lobelight.brdf` constructor, its
+#: :attr:`~lobelight.brdf.BRDF.scene_params`), and what each takes: ``"number"`` one number,
+#: ``"colour"`` one number (grey) or an RGB triple, ``"lobes"`` a list of :data:`LOBE_PARAMS`
+#: tables. A read-only mapping over :data:`SPECULAR_MODELS`.
+MODEL_PARAMS: Mapping[str, Mapping[str, str]] = _ModelParams()
 #: The keys of one Lafortune lobe and what each takes (as :data:`MODEL_PARAMS`).
 LOBE_PARAMS = {"cx": _NUMBER, "cy": _NUMBER, "cz": _NUMBER, "exponent": _NUMBER, "rho": _COLOUR}
 #: Names a material spec string may give for a material with no specular lobe.
@@ -272,8 +305,8 @@ def gradient(
     model = mb if ma == "none" else ma
     if model == "none":
         return Materials(diffuse, None)
-    if model == "lafortune":
-        raise InputError(name, "gradients of Lafortune lobes are not supported; use uniform")
+    if _LOBES in MODEL_PARAMS[model].values():
+        raise InputError(name, f"gradients of {model} lobes are not supported; use uniform")
     # a missing end takes the other's shape with no specular colour
     pa = {**pb, "specular": [0.0] * 3} if ma == "none" else pa
     pb = {**pa, "specular": [0.0] * 3} if mb == "none" else pb
@@ -349,7 +382,7 @@ def material_table(spec: str, *, what: str = "--material") -> dict[str, Any]:
         known_keys = {"diffuse", "color"}
     elif model in SPECULAR_MODELS:
         known_keys = {"diffuse", *MODEL_PARAMS[model]} - {"lobes"}
-        if model == "lafortune":
+        if "lobes" in MODEL_PARAMS[model]:  # a spec string gives them one lobe= at a time
             known_keys.add("lobe")
     else:
         known = ", ".join((*SPECULAR_MODELS, *_DIFFUSE_MODELS))

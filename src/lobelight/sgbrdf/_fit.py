@@ -65,7 +65,7 @@ from typing import Any
 
 import torch
 
-from ..brdf import BRDF, GGX, Beckmann, Lafortune, Sum, Ward
+from ..brdf import BRDF
 from ..errors import InputError
 from ..geometry import sphere
 from ..lobes.sg import evaluate_mixture, integral
@@ -185,19 +185,8 @@ def view_transport(v_from: torch.Tensor, v_to: torch.Tensor) -> torch.Tensor:
 
 def is_isotropic(brdf: BRDF) -> bool:
     """Whether ``brdf`` is invariant under rotations about the normal (its lobes only depend on
-    the elevation of the view). Lafortune lobes count as isotropic when ``cx == cy``."""
-    if isinstance(brdf, Sum):
-        return all(is_isotropic(c) for c in brdf.components)
-    p = brdf.params
-    if isinstance(brdf, Ward):
-        return bool(torch.equal(p["alpha_x"], p["alpha_y"]))
-    if isinstance(brdf, (GGX, Beckmann)):
-        return brdf.isotropic or bool(torch.equal(p["alpha_u"], p["alpha_v"]))
-    if isinstance(brdf, Lafortune):
-        return all(
-            bool(torch.equal(p[f"lobes[{j}].cx"], p[f"lobes[{j}].cy"])) for j in range(brdf.n_lobes)
-        )
-    return True  # Lambert, Phong, Blinn-Phong
+    the elevation of the view): :attr:`lobelight.brdf.BRDF.isotropic`."""
+    return brdf.isotropic
 
 
 # --------------------------------------------------------------------------------------------

@@ -58,8 +58,8 @@ ALPHAS = (0.02, 0.05, 0.1, 0.25, 0.5)
 
 def metal(sc: Scene, model: str, alpha: float) -> Scene:
     """``sc`` with every vertex a black-diffuse GGX or Beckmann conductor, Fresnel 1."""
-    cls = {"ggx": brdf.GGX, "beckmann": brdf.Beckmann}[model]
-    mats = Materials(torch.zeros(sc.mesh.n_vertices, 3), cls(alpha))
+    spec = brdf.from_dict({"type": model, "alpha": alpha})
+    mats = Materials(torch.zeros(sc.mesh.n_vertices, 3), spec)
     return dataclasses.replace(sc, materials=mats, name=f"{sc.name}-{model}-{alpha}")
 
 
@@ -247,7 +247,7 @@ def study_case(
     sc: Scene,
     vidx: torch.Tensor,
     *,
-    n_lobes: int = 1,
+    n_gaussians: int = 1,
     conserve: bool = True,
     white: envmap.Prefiltered | None = None,
     seed: int = 0,
@@ -266,7 +266,7 @@ def study_case(
     ref = reference_integral(tr, vidx, views)[..., 0]  # (B, J); grey metals: one channel
     t1 = time.perf_counter()
     data = fit.gather(tr, vidx, views)
-    g, terms = fit.fit_batch(data, n_lobes, nbr, conserve=conserve)
+    g, terms = fit.fit_batch(data, n_gaussians, nbr, conserve=conserve)
     t2 = time.perf_counter()
     seen = (data.weights[..., None] * data.values).sum(2)[..., 0]
     carried = fitted_integral(g)[..., 0]
@@ -379,7 +379,7 @@ def energy_study(
     models=MODELS,
     alphas=ALPHAS,
     vertices: int = 8,
-    n_lobes: int = 1,
+    n_gaussians: int = 1,
     conserve: bool = True,
     progress=None,
 ) -> dict:
@@ -388,7 +388,7 @@ def energy_study(
     (self-occlusion and its ground), each as a GGX and a Beckmann metal at each roughness,
     ``vertices`` vertices each. A ``--json``-able dict; ``progress(result)`` is called with the
     result so far after each step."""
-    res: dict = {"n_lobes": n_lobes, "conserve": conserve, "prefilter": [], "cases": []}
+    res: dict = {"n_gaussians": n_gaussians, "conserve": conserve, "prefilter": [], "cases": []}
     for base in (128, 512):
         res["prefilter"].append(prefilter_check(base_res=base))
         if progress is not None:
@@ -407,7 +407,7 @@ def energy_study(
                 r = study_case(
                     metal(sc, model, alpha),
                     vidx,
-                    n_lobes=n_lobes,
+                    n_gaussians=n_gaussians,
                     conserve=conserve,
                     white=white,
                 )
@@ -432,7 +432,7 @@ def main(argv=None) -> int:
     ap = argparse.ArgumentParser(prog="python -m lobelight.studies.energy", description=__doc__)
     ap.add_argument("--json", help="write the result here")
     ap.add_argument("--vertices", type=int, default=8)
-    ap.add_argument("--lobes", type=int, default=1)
+    ap.add_argument("--gaussians", "--lobes", type=int, default=1)
     ap.add_argument("--no-conserve", action="store_true", help="plain L2 weights")
     args = ap.parse_args(argv)
 
@@ -445,7 +445,7 @@ def main(argv=None) -> int:
 
     energy_study(
         vertices=args.vertices,
-        n_lobes=args.lobes,
+        n_gaussians=args.gaussians,
         conserve=not args.no_conserve,
         progress=report,
     )
