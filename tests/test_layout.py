@@ -141,7 +141,6 @@ def test_no_module_imports_a_higher_layer():
     assert not bad, "imports from a lower layer to a higher one:\n" + "\n".join(bad)
 
 
-@pytest.mark.xfail(strict=True, reason="the imports are being moved to the top")
 def test_every_function_local_import_is_an_optional_dependency():
     """Imports sit at the top; inside a function only an optional dependency's, with a comment
     on its line (or the line above) that names which."""

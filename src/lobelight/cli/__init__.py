@@ -193,6 +193,14 @@ def _parser() -> argparse.ArgumentParser:
     )
     b.add_argument("--float16", action="store_true", help="store half floats (half the size)")
     b.add_argument("--seed", type=int, default=0, help="seed of the fit's random starts")
+    b.add_argument(
+        "--checkpoint-every",
+        type=float,
+        default=30.0,
+        metavar="SECONDS",
+        help="save the bake's state at most this often (and after each stage) to "
+        "MODEL.ckpt, from which an interrupted bake resumes; 0 after every chunk",
+    )
 
     i = cmd("info", "run_info", "describe a model file")
     i.add_argument("model", help="a model file written by bake")

@@ -153,6 +153,8 @@ def run_bake(args) -> dict:
         raise InputError("--indirect-paths", f"must be >= 0, got {args.indirect_paths}")
     if args.bounces < 0:
         raise InputError("--bounces", f"must be >= 0, got {args.bounces}")
+    if not args.checkpoint_every >= 0:  # NaN too
+        raise InputError("--checkpoint-every", f"must be >= 0 seconds, got {args.checkpoint_every}")
     prog = _progress(args)
     sc = load_scene(args.scene, device=args.device, material=args.material)
     if args.env:  # the model's default lighting (render, view, compare), as a scene file's
@@ -177,6 +179,7 @@ def run_bake(args) -> dict:
         progress=prog,
         seed=args.seed,
         checkpoint=ckpt,
+        checkpoint_every=args.checkpoint_every,
     )
     info = m.save(out, float16=args.float16)
     if ckpt.exists():

@@ -35,6 +35,7 @@ def fit_model(
     progress: bool | Callable[[str, int, int], None] | None = True,
     seed: int = 0,
     checkpoint: str | os.PathLike | None = None,
+    checkpoint_every: float = 30.0,
     shadows: bool = True,
     n_lobes: int | None = None,
 ):
@@ -45,6 +46,10 @@ def fit_model(
     indirect glossy, and ``bounces`` bounces of diffuse interreflection in the SH transfer
     (:data:`lobelight.transport.INDIRECT_PATHS`, :data:`lobelight.transport.BOUNCES`); 0 turns
     either off.
+
+    ``checkpoint``: a file the bake's state is saved to, at most every ``checkpoint_every``
+    seconds and after each stage; a bake that finds one of the same scene and settings resumes
+    from it to the same model (:func:`fit_mesh`).
 
     ``progress``: True reports each stage on stderr (bars on a terminal, plain lines
     elsewhere: :mod:`lobelight.progress`), None or False is silent, a callable
@@ -74,6 +79,7 @@ def fit_model(
         progress=resolve(progress),
         seed=seed,
         checkpoint=checkpoint,
+        checkpoint_every=checkpoint_every,
         shadows=shadows,
     )
     seconds = {**mf.seconds, "total": time.perf_counter() - t0}

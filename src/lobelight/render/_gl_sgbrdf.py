@@ -312,7 +312,7 @@ class GLSGBRDFRenderer:
         self.defines = defines
 
         self.ctx = ctx if ctx is not None else create_context()  # InputError without GL
-        import moderngl  # importable once a context exists
+        import moderngl  # optional: the gl extra (importable once a context exists)
 
         self.own_ctx = ctx is None
         ctx = self.ctx

@@ -51,6 +51,11 @@ from . import _shapes
 from ._materials import Materials, gradient, parse_material, uniform
 from ._mesh import MESH_SUFFIXES, Mesh, load_mesh, mesh_from_arrays
 
+try:
+    import tomllib
+except ImportError:  # Python 3.10: the tomli backport, a dependency there
+    import tomli as tomllib  # type: ignore[no-redef]
+
 __all__ = [
     "BARE_MESH_MATERIAL",
     "BUILTIN_SCENES",
@@ -234,10 +239,6 @@ def _read_description(p: Path) -> dict[str, Any]:
         if p.suffix.lower() == ".json":
             data = json.loads(text_bytes.decode("utf-8"))
         else:
-            try:
-                import tomllib
-            except ImportError:  # Python 3.10
-                import tomli as tomllib  # type: ignore[no-redef]
             data = tomllib.loads(text_bytes.decode("utf-8"))
     except Exception as exc:
         raise InputError(str(p), f"not a valid scene file: {exc}") from None
