@@ -93,8 +93,8 @@ def _lobe_parts(model: _brdf.BRDF, normals, wo, tangents, tab, grid, cosine: str
 
     Returns per lobe: axes (P, 3), exponents (P,), factors (P,) (the cosine product's scale
     times the one-sided mask) and the model's scales (P, 3), as lists; the caller stacks them
-    and multiplies the factors in. (Stacking and multiplying here as well was measured ~1.2x
-    slower: TorchInductor then computes the table lookups inside the (P, 3) loop of the
+    and multiplies the factors in. (Stacking and multiplying here as well is slower:
+    TorchInductor then computes the table lookups inside the (P, 3) loop of the
     scales, unvectorised.)
     """
     lobes = model.cosine_lobes(wo, normals, tangents)
