@@ -22,6 +22,7 @@ from conftest import tiny_table_params
 from lobelight import cosine, envmap, model, scene
 from lobelight.errors import InputError
 from lobelight.fit import Gaussians, MeshFit
+from lobelight.geometry import sphere
 
 LOADERS = {
     "model": (model.load, "m.npz"),
@@ -263,12 +264,12 @@ def test_tables_absurd_header_values(tmp_path, table_arrays, change):
 # materials entry goes through Materials.from_dict (fixed in lobelight/scene/_materials.py)
 
 
-def _tiny_fit(v: int, j: int = 4, n: int = 2) -> MeshFit:
+def _tiny_fit(v: int, j: int = 92, n: int = 2) -> MeshFit:
     g = torch.Generator().manual_seed(1)
     w = torch.rand(v, j, n, 3, generator=g)
     mu = torch.nn.functional.normalize(torch.randn(v, j, n, 3, generator=g), dim=-1)
     lam = torch.rand(v, j, n, generator=g) * 100 + 1
-    views = torch.nn.functional.normalize(torch.randn(j, 3, generator=g), dim=-1)
+    views = sphere.geodesic_views()[:j]  # a model's views are the 92 geodesic ones
     return MeshFit(Gaussians(w, mu, lam), torch.rand(v, 9, 3, generator=g), views, torch.zeros(v))
 
 
@@ -381,6 +382,13 @@ MODEL_CASES = {
     ),
     "no_faces": (
         lambda d, a: _npz({**a, "faces": np.zeros((0, 3), np.int32)}), "accepted: no triangles"
+    ),
+    "views_not_the_geodesic_set": (
+        lambda d, a: _npz({**a, "views": np.roll(a["views"], 1, axis=0)}),
+        "accepted by info, refused by render (its views blend by the geodesic triangles)",
+    ),
+    "sh_order_11": (
+        lambda d, a: _npz(_with_meta(a, sh_order=11)), "accepted by info, refused by render"
     ),
     "all_vertices_coincide": (
         lambda d, a: _npz({**a, "vertices": np.zeros_like(a["vertices"])}),

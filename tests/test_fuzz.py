@@ -38,6 +38,7 @@ from conftest import tiny_table_params
 from lobelight import cosine, envmap, model, scene
 from lobelight.errors import InputError
 from lobelight.fit import Gaussians, MeshFit
+from lobelight.geometry import sphere
 
 # one load may take this long before it counts as a hang (loads here take milliseconds)
 LOAD_SECONDS = 10.0
@@ -211,7 +212,7 @@ def _tiny_fit(v: int, j: int, n: int) -> MeshFit:
     mu = torch.nn.functional.normalize(torch.randn(v, j, n, 3, generator=g), dim=-1)
     lam = torch.rand(v, j, n, generator=g) * 100 + 1
     diffuse = torch.rand(v, 9, 3, generator=g)
-    views = torch.nn.functional.normalize(torch.randn(j, 3, generator=g), dim=-1)
+    views = sphere.geodesic_views()[:j]  # a model's views are the 92 geodesic ones
     return MeshFit(Gaussians(w, mu, lam), diffuse, views, torch.zeros(v))
 
 
@@ -220,7 +221,7 @@ def model_files(tmp_path_factory):
     """Small valid model files: float32 (uncompressed-size friendly) and float16."""
     d = tmp_path_factory.mktemp("model")
     sc = scene.builtin("sphere", subdivisions=0, model="ggx", roughness=0.2)
-    mf = _tiny_fit(sc.mesh.n_vertices, 4, 2)
+    mf = _tiny_fit(sc.mesh.n_vertices, 92, 2)
     out = _Files()
     for half in (False, True):
         p = d / f"m{int(half)}.npz"

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import io
 import json
 import zipfile
@@ -11,6 +12,7 @@ import pytest
 import torch
 
 from lobelight import fit, model, scene
+from lobelight.cli import main
 from lobelight.errors import InputError
 
 
@@ -128,3 +130,29 @@ def test_weights_near_the_float_range_are_refused(tmp_path, fitted):
     _rewrite(tmp_path / "m.npz", tmp_path / "huge.npz", gaussians=g)
     with pytest.raises(InputError, match=r"huge\.npz: a Gaussian carries .* of light"):
         model.load(tmp_path / "huge.npz")
+
+
+def test_what_info_reads_render_draws(tmp_path, fitted):
+    """One reader for both: a model file whose views are not the 92 geodesic views is refused
+    at load (every renderer blends between them), and one of another SH order loads and
+    renders (the lighting is projected to the model's order)."""
+    sc, mf = fitted
+    good = tmp_path / "good.npz"
+    model.save(good, sc.mesh, sc.materials, mf)
+    _rewrite(good, tmp_path / "turned.npz", views=np.roll(np.load(good)["views"], 1, axis=0))
+    for cmd in ("info", "render"):
+        args = [cmd, str(tmp_path / "turned.npz")]
+        args += ["-o", str(tmp_path / "x.png"), "--backend", "torch"] if cmd == "render" else []
+        assert main([*args, "-q"]) == 2
+
+    order4 = dataclasses.replace(
+        mf,
+        diffuse=mf.diffuse[:, :16].contiguous(),
+        bounce=None if mf.bounce is None else mf.bounce[:, :16].contiguous(),
+    )
+    model.save(tmp_path / "sh4.npz", sc.mesh, sc.materials, order4)
+    assert model.load(tmp_path / "sh4.npz").sh_order == 4
+    assert main(["info", str(tmp_path / "sh4.npz"), "-q"]) == 0
+    out = tmp_path / "sh4.png"
+    argv = ["render", str(tmp_path / "sh4.npz"), "-o", str(out), "--backend", "torch"]
+    assert main([*argv, "--size", "32", "--samples", "1", "-q"]) == 0 and out.is_file()

@@ -242,7 +242,10 @@ def read(path) -> dict[str, Any]:
         name,
         f"indirect_gaussians must be a whole number in 0..{n - 1}, got {ni!r}",
     )
-    _need(1 <= j <= 4096, name, f"n_views must be 1..4096, got {j}")
+    # every renderer and Model.transport blend between the 92 geodesic views
+    _need(
+        j == sphere.N_VIEWS, name, f"n_views must be {sphere.N_VIEWS} (the geodesic views), got {j}"
+    )
     _need(3 <= v <= 1 << 26, name, f"n_vertices must be 3..{1 << 26}, got {v}")
     shapes = {
         "vertices": (v, 3),
@@ -275,10 +278,22 @@ def read(path) -> dict[str, Any]:
     _need(float(np.ptp(a["vertices"], axis=0).max()) > 0, name, "all vertices coincide (no extent)")
     for k in ("normals", "views"):
         _need(bool((np.linalg.norm(a[k], axis=-1) > 1e-6).all()), name, f"{k} has zero vectors")
+    geodesic = sphere.geodesic_views(dtype=torch.float64).numpy()
+    unit = a["views"] / np.linalg.norm(a["views"], axis=-1, keepdims=True)
+    # within float32 rounding of the geodesic set, in its order
     _need(
-        a["diffuse"].shape[1] == int(meta.get("sh_order", 5)) ** 2
-        if isinstance(meta.get("sh_order", 5), int)
-        else False,
+        float((unit * geodesic).sum(-1).min()) > 1 - 1e-6,
+        name,
+        "views are not the 92 geodesic views in their order",
+    )
+    order = meta.get("sh_order", 5)
+    _need(
+        isinstance(order, int) and not isinstance(order, bool) and 1 <= order <= 10,
+        name,
+        f"sh_order must be a whole number in 1..10, got {order!r}",
+    )
+    _need(
+        a["diffuse"].shape[1] == order**2,
         name,
         f"diffuse has {a['diffuse'].shape[1]} SH coefficients, sh_order {meta.get('sh_order')!r}",
     )

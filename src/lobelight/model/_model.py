@@ -84,6 +84,11 @@ class Model:
         return self.indirect_gaussians
 
     @property
+    def sh_order(self) -> int:
+        """Order of the SH diffuse transfer (``order**2`` coefficients per vertex)."""
+        return round(self.diffuse.shape[1] ** 0.5)
+
+    @property
     def device(self) -> torch.device:
         return self.gaussians.w.device
 

@@ -103,7 +103,9 @@ class Renderer:
         if isinstance(env, Lighting):
             self.lighting = env
         elif isinstance(env, EnvMap):
-            self.lighting = Lighting(env, base_res=base_res, device=model.device, sun=sun)
+            self.lighting = Lighting(
+                env, base_res=base_res, device=model.device, sun=sun, sh_order=model.sh_order
+            )
         else:
             raise InputError("env", f"expected an EnvMap or Lighting, got {type(env).__name__}")
         if model.diffuse.shape[1] != self.lighting.sh.shape[0]:

@@ -226,12 +226,16 @@ def compare(
     if model is None:
         model = fit_model(scene, n_gaussians, device=device, progress=progress)
         timings["fit"] = time.perf_counter() - t0
-    lighting = Lighting(env, base_res=base_res, device=model.device, sun=sun)
+    lighting = Lighting(
+        env, base_res=base_res, device=model.device, sun=sun, sh_order=model.sh_order
+    )
     # the paper's lighting (all of it in the SH diffuse), sharing the prefiltered chain
     plain = (
         lighting
         if lighting.sun is None
-        else Lighting(env, device=model.device, prefiltered=lighting.prefiltered)
+        else Lighting(
+            env, device=model.device, prefiltered=lighting.prefiltered, sh_order=model.sh_order
+        )
     )
     if backend == "auto":
         backend = "gl" if gl_available() else "torch"

@@ -295,7 +295,9 @@ def _scene(
     key = str(find_map(sc, data))
     if key not in lightings:
         env = envmap.load(key)
-        lightings[key] = Lighting(env, base_res=base_res, device=m.device, sun=sun)
+        lightings[key] = Lighting(
+            env, base_res=base_res, device=m.device, sun=sun, sh_order=m.sh_order
+        )
     h, w = ref.mask.shape
     t = time.perf_counter()
     with Renderer(m, lightings[key], w, h, backend=backend, samples=samples) as ren:
