@@ -156,3 +156,29 @@ def test_what_info_reads_render_draws(tmp_path, fitted):
     out = tmp_path / "sh4.png"
     argv = ["render", str(tmp_path / "sh4.npz"), "-o", str(out), "--backend", "torch"]
     assert main([*argv, "--size", "32", "--samples", "1", "-q"]) == 0 and out.is_file()
+
+
+def test_a_zip_bomb_is_refused_before_it_is_decompressed(tmp_path, fitted):
+    """A model file with a member that deflates 1000:1 (200 MB of zeros in ~200 kB) is refused
+    from the sizes the zip directory declares, before anything is decompressed: a read takes
+    at most model._format.EXPANSION_SLACK + EXPANSION times the file's size."""
+    sc, mf = fitted
+    good = tmp_path / "good.npz"
+    model.save(good, sc.mesh, sc.materials, mf)
+    bomb = tmp_path / "bomb.npz"
+    bomb.write_bytes(good.read_bytes())
+    size = 200 << 20
+    with zipfile.ZipFile(bomb, "a", compression=zipfile.ZIP_DEFLATED) as zf:
+        with zf.open("pad.npy", "w", force_zip64=True) as f:
+            header = io.BytesIO()
+            np.lib.format.write_array_header_1_0(
+                header, {"descr": "|u1", "fortran_order": False, "shape": (size,)}
+            )
+            f.write(header.getvalue())
+            chunk = bytes(1 << 20)
+            for _ in range(size >> 20):
+                f.write(chunk)
+    assert bomb.stat().st_size < 2 << 20
+    with pytest.raises(InputError, match="would decompress to"):
+        model.load(bomb)
+    assert model.load(good).mesh.n_vertices == sc.mesh.n_vertices  # a real model is well within

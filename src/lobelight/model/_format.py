@@ -164,6 +164,27 @@ def _not_a_model(path: Path) -> str:
     return "not a lobelight model file (not an .npz archive)"
 
 
+#: Decompressed bytes a model file may hold beyond ``EXPANSION`` times its own size: a model's
+#: arrays are floats, which deflate compresses by a few times at most, while a zip bomb's
+#: members expand by a thousand times and more.
+EXPANSION_SLACK = 64 << 20
+EXPANSION = 100
+
+
+def _check_sizes(archive: zipfile.ZipFile, file_bytes: int, name: str) -> None:
+    """Refuse an archive whose members would decompress to more than ``EXPANSION`` times the
+    file's size plus ``EXPANSION_SLACK``: the memory a read takes is bounded by that. The
+    sizes are those the zip directory declares, which decompression never exceeds."""
+    total = sum(info.file_size for info in archive.infolist())
+    limit = EXPANSION_SLACK + EXPANSION * file_bytes
+    _need(
+        total <= limit,
+        name,
+        f"its members would decompress to {total:,} bytes, over {limit:,} for a file of "
+        f"{file_bytes:,} bytes: not a model file",
+    )
+
+
 def read(path) -> dict[str, Any]:
     """Read and check a model file: the :class:`lobelight.model.Model` fields it holds.
 
@@ -191,6 +212,7 @@ def read(path) -> dict[str, Any]:
         with z:
             missing = [k for k in _ARRAYS if k not in z.files]
             _need(not missing, name, f"not a lobelight model file (missing {missing})")
+            _check_sizes(z.zip, p.stat().st_size, name)  # before anything is decompressed
             a = {k: z[k] for k in _ARRAYS}
             bounce_arr = z["bounce"] if "bounce" in z.files else None
     except InputError:
