@@ -729,3 +729,18 @@ def test_from_dict_on_a_subclass_checks_the_type():
     with pytest.raises(InputError) as err:
         B.GGX.from_dict({"type": "lambert", "albedo": 0.5})
     assert err.value.what == "type"
+
+
+def test_a_lafortune_of_many_lobes_checks_its_shapes_in_linear_time(monkeypatch):
+    """Each parameter's shape is checked against one running shape, not against every other
+    parameter: 400 lobes (2,000 parameters) took quadratic time, two million comparisons."""
+    calls = []
+    real = torch.broadcast_shapes
+    monkeypatch.setattr(torch, "broadcast_shapes", lambda *s: calls.append(s) or real(*s))
+    lobe = {"cx": -1.0, "cy": -1.0, "cz": 1.0, "exponent": 10.0, "rho": 0.1}
+    B.Lafortune([lobe] * 400)
+    assert len(calls) <= 2 * 5 * 400
+    with pytest.raises(
+        InputError, match=r"specular.*\(5,\) does not broadcast with alpha's \(4,\)"
+    ):
+        B.GGX(torch.full((4,), 0.1), specular=torch.ones(5, 3))
