@@ -10,7 +10,7 @@ import textwrap
 
 import pytest
 
-from lobelight import _io
+from lobelight import _io, model
 
 #: Each writer writes whole files of one repeated byte; a torn or mixed file has two values.
 _WRITER = textwrap.dedent(
@@ -48,6 +48,44 @@ def test_two_processes_writing_one_path_leave_one_whole_file(tmp_path):
     assert len(data) == 1 << 20 and set(data) in ({1}, {2})
     assert sorted(p.name for p in tmp_path.iterdir()) == ["model.npz"]
     assert reads > 0
+
+
+#: Saves one model (a tiny sphere whose light depends on ``tag``) ``count`` times.
+_SAVER = textwrap.dedent(
+    """
+    import sys
+    from lobelight.studies.bench import synthetic_model
+    path, tag, count = sys.argv[1], float(sys.argv[2]), int(sys.argv[3])
+    m = synthetic_model(40, 1)
+    m.diffuse[:, 0] = tag
+    print("ready", flush=True)
+    for _ in range(count):
+        m.save(path)
+    """
+)
+
+
+def test_two_processes_saving_one_model_200_times_each(tmp_path):
+    """The concurrent-writers reproducer with models: two processes save to one path 200 times
+    each while this one loads it. Every save succeeds, every load gives one writer's whole
+    model, and nothing but the model is left (fixed temporary names crashed saves and tore
+    reads)."""
+    target = tmp_path / "m.npz"
+    savers = [
+        subprocess.Popen(
+            [sys.executable, "-c", _SAVER, str(target), tag, "200"], stdout=subprocess.PIPE
+        )
+        for tag in ("0.25", "0.75")
+    ]
+    for s in savers:  # both started before the race is watched
+        assert s.stdout.readline().strip() == b"ready"
+    loads = set()
+    while any(s.poll() is None for s in savers):
+        if target.exists():
+            loads.add(round(float(model.load(target).diffuse[0, 0, 0]), 4))
+    assert [s.wait() for s in savers] == [0, 0]
+    assert loads <= {0.25, 0.75} and loads
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["m.npz"]
 
 
 def test_an_error_leaves_the_old_file_and_no_temporary(tmp_path):
