@@ -12,9 +12,9 @@ embeds lobelight may call :func:`tune` once, early, for the same effect.
 - :func:`short_openmp_spin`: a process that shades cosine lobes fused holds two OpenMP runtimes
   (torch's, and the system's ``libgomp`` that TorchInductor's kernels and numba load), each
   with a worker per core that spins after its parallel region; on few cores the spinning
-  workers of one take the cores from the other. A short spin lets them sleep sooner. The
-  system runtime reads the setting when it loads, so this must run before the first compiled
-  kernel.
+  workers of one take the cores from the other. A short spin lets the system runtime's
+  workers sleep sooner. It reads the setting when it loads, so this runs after torch is
+  imported (torch's own runtime keeps its default) and before the first compiled kernel.
 """
 
 from __future__ import annotations

@@ -428,11 +428,13 @@ def _main(argv: list[str] | None) -> int:
         args = _parser().parse_args(argv)
     except _UsageError as e:
         return _fail(json_mode, "", str(e), 2)
-    tune()  # the process is ours: its allocator and OpenMP settings (lobelight._process)
     try:
         # the commands (and torch) load once the line is parsed: --help and a mistyped
         # command answer at once
         commands = importlib.import_module("lobelight.cli._commands")
+        # the process is ours: its allocator and OpenMP settings (lobelight._process), made
+        # once torch is loaded, so that the short spin reaches only the runtimes loaded later
+        tune()
         args.device = commands.check_device(args.device)
         summary = getattr(commands, args.run)(args)
     except InputError as e:

@@ -428,7 +428,12 @@ def run_bench(args) -> dict:
     if w == "transport":
         return bench.bench_transport(scene=args.scene, device=args.device)
     if w == "fit":
-        return bench.bench_fit(scene=args.scene, n_gaussians=args.gaussians, device=args.device)
+        return bench.bench_fit(
+            scene=args.scene,
+            n_gaussians=args.gaussians,
+            device=args.device,
+            progress=_progress(args),
+        )
     if w == "render":
         return bench.bench_render(
             backend=args.backend if args.backend != "auto" else "gl",

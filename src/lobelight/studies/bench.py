@@ -159,6 +159,7 @@ def bench_fit(
     device: str = "cpu",
     bounces: int | None = None,
     indirect_paths: int | None = None,
+    progress=True,
 ) -> dict:
     """Transport and fit of a whole model (a 10K-vertex, 92-view, N = 1 model), with a bake's
     interreflection (``bounces``, ``indirect_paths``: default the bake's,
@@ -167,13 +168,21 @@ def bench_fit(
     ``knot:2`` has 11,457 vertices (10,368 of them glossy); seconds are also given per 10K
     vertices, and per stage: ``fit`` (transport sampling and fit, with ``indirect_glossy`` the
     path tracing inside it), ``relax``, ``interreflection`` (the diffuse bounces).
+    ``progress`` as :func:`lobelight.fit.fit_model`'s (``lobelight bench fit -q``: None).
     """
 
     bounces = BOUNCES if bounces is None else bounces
     indirect_paths = INDIRECT_PATHS if indirect_paths is None else indirect_paths
     sc = load(scene)
     t0 = time.perf_counter()
-    m = fit_model(sc, n_gaussians, device=device, bounces=bounces, indirect_paths=indirect_paths)
+    m = fit_model(
+        sc,
+        n_gaussians,
+        device=device,
+        bounces=bounces,
+        indirect_paths=indirect_paths,
+        progress=progress,
+    )
     _sync(device)
     total = time.perf_counter() - t0
     v = sc.mesh.n_vertices
