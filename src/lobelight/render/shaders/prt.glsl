@@ -144,7 +144,7 @@ uniform float sun_spread;         // the sun disc's RMS angle (radians)
 
 const float PI = 3.14159265358979;
 
-// microfacet distribution at a half vector with cosine c to the normal (brdf._Microfacet._D)
+// microfacet distribution at a half vector with cosine c to the normal (brdf.microfacet, _D)
 float mf_d(float c, float a) {
     float c2 = c * c;
     float s2 = max(1.0 - c2, 0.0);
@@ -171,7 +171,7 @@ float mf_g1(float vz, float vm, float a) {
     return 2.0 / (1.0 + sqrt(1.0 + tan2));
 }
 
-// unpolarised conductor Fresnel (brdf._fresnel_conductor)
+// unpolarised conductor Fresnel (brdf.microfacet, _fresnel_conductor)
 vec3 fresnel_conductor(float c, vec3 eta, vec3 k) {
     float c2 = c * c;
     float s2 = 1.0 - c2;
@@ -188,7 +188,8 @@ vec3 fresnel_conductor(float c, vec3 eta, vec3 k) {
     return 0.5 * (rs + rp);
 }
 
-// pos(a.w)^e for unit vectors, from the half squared chord (brdf._cospow: precise near the peak)
+// pos(a.w)^e for unit vectors, from the half squared chord (brdf._base._cospow: precise near
+// the peak)
 float cospow(vec3 a, vec3 w, float e) {
     if (dot(a, w) <= 0.0) return 0.0;
     vec3 d = a - w;
