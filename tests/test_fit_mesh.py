@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import io
+import json
 import sys
 
 import numpy as np
@@ -123,7 +125,7 @@ def test_killed_fit_resumes_to_the_same_model(tmp_path, n, stage, batch):
         assert log[0] == ("fit", 1)
 
 
-@pytest.mark.parametrize("damage", ["truncated", "flipped"])
+@pytest.mark.parametrize("damage", ["truncated", "flipped", "next_not_a_count", "nan_weights"])
 def test_a_corrupt_checkpoint_is_moved_aside_and_the_bake_starts_afresh(tmp_path, caplog, damage):
     """A checkpoint cut short or with bytes flipped in its members (numpy's header parser then
     raises errors no plain OSError covers) used to stop every later bake until deleted by hand."""
@@ -136,6 +138,20 @@ def test_a_corrupt_checkpoint_is_moved_aside_and_the_bake_starts_afresh(tmp_path
     raw = bytearray(ck.read_bytes())
     if damage == "truncated":
         raw = raw[: len(raw) // 2]
+    elif damage in ("next_not_a_count", "nan_weights"):
+        # whole files whose contents a bake never writes (the fuzz run found the first
+        # crashing every later bake with a TypeError)
+        with np.load(ck, allow_pickle=False) as z:
+            arrays = {k: z[k] for k in z.files}
+        meta = json.loads(bytes(arrays["meta"]).decode())
+        if damage == "next_not_a_count":
+            meta["next"] = [1]
+        else:
+            arrays["w"] = np.full_like(arrays["w"], np.nan)
+        arrays["meta"] = np.frombuffer(json.dumps(meta).encode(), np.uint8)
+        buf = io.BytesIO()
+        np.savez(buf, **arrays)
+        raw = bytearray(buf.getvalue())
     else:  # every member's header and data: bytes of the middle third turned over
         third = len(raw) // 3
         raw[third : 2 * third] = bytes(b ^ 0x5A for b in raw[third : 2 * third])

@@ -12,15 +12,21 @@ hang (each load runs under an alarm).
 
 Hypothesis runs with ``derandomize=True`` and no example database, so CI sees the same inputs
 every time; the example counts keep the whole file within about a minute on a 2-core machine.
+The long run (``tools/fuzz.py``, not in CI) runs the same tests with random inputs and its own
+counts (``LOBELIGHT_FUZZ_EXAMPLES``), a memory limit per process (``LOBELIGHT_FUZZ_MEMORY_GB``)
+and a tally of the outcomes per test (``LOBELIGHT_FUZZ_TALLY``: a JSON file written at the end).
 """
 
 from __future__ import annotations
 
+import collections
 import contextlib
 import copy
 import io
 import json
 import math
+import os
+import resource
 import signal
 import time
 from pathlib import Path
@@ -35,25 +41,49 @@ from hypothesis import HealthCheck, Phase, given, settings
 from hypothesis import strategies as st
 
 from conftest import tiny_table_params
-from lobelight import cosine, envmap, model, scene
+from lobelight import cosine, envmap, fit, model, scene
 from lobelight.errors import InputError
-from lobelight.fit import Gaussians, MeshFit
+from lobelight.fit import Gaussians, MeshFit, _floodfill
 from lobelight.geometry import sphere
 
 # one load may take this long before it counts as a hang (loads here take milliseconds)
 LOAD_SECONDS = 10.0
 
+#: The long run's settings (tools/fuzz.py); unset in CI.
+LONG_EXAMPLES = int(os.environ.get("LOBELIGHT_FUZZ_EXAMPLES", "0"))
+TALLY_FILE = os.environ.get("LOBELIGHT_FUZZ_TALLY")
+if os.environ.get("LOBELIGHT_FUZZ_MEMORY_GB"):
+    # a load that asks for more raises MemoryError, which fails the test: a memory blow-up
+    _limit = int(float(os.environ["LOBELIGHT_FUZZ_MEMORY_GB"]) * (1 << 30))
+    resource.setrlimit(resource.RLIMIT_AS, (_limit, _limit))
+
+#: Per test: loads that gave a clean InputError, and loads that were accepted (and sane).
+TALLY: dict[str, collections.Counter] = collections.defaultdict(collections.Counter)
+
+
+def _tally(outcome: str) -> None:
+    test = os.environ.get("PYTEST_CURRENT_TEST", "?").split("::")[-1].split(" ")[0]
+    TALLY[test][outcome] += 1
+
+
+@pytest.fixture(scope="module", autouse=True)
+def _write_tally():
+    yield
+    if TALLY_FILE:
+        Path(TALLY_FILE).write_text(json.dumps({k: dict(v) for k, v in TALLY.items()}))
+
 
 def fuzz(n: int):
-    """Deterministic hypothesis settings for ``n`` examples (no database, no deadline).
+    """Deterministic hypothesis settings for ``n`` examples (no database, no deadline); in the
+    long run, ``LOBELIGHT_FUZZ_EXAMPLES`` random examples instead.
 
     No shrinking: a failing example is already a handful of mutations of a small file, and
     shrinking a loader fuzz can take minutes; the first failure is reported as generated.
     """
     return settings(
-        max_examples=n,
+        max_examples=LONG_EXAMPLES or n,
         deadline=None,
-        derandomize=True,
+        derandomize=not LONG_EXAMPLES,
         database=None,
         phases=(Phase.explicit, Phase.generate),
         report_multiple_bugs=False,
@@ -96,12 +126,15 @@ def load_or_input_error(loader, path: Path, *names: str):
     """
     with _time_limit(LOAD_SECONDS):
         try:
-            return loader(path)
+            result = loader(path)
         except InputError as exc:
             msg = str(exc)
             assert any(n in msg for n in (str(path), *names)), f"message names no file: {msg}"
             assert "\n" not in msg, f"not a one-line error: {msg!r}"
+            _tally("clean_errors")
             return None
+    _tally("accepted")
+    return result
 
 
 # --------------------------------------------------------------------------------------------
@@ -708,3 +741,75 @@ def test_fuzz_tables_structured(tmp_path, table_file, mut):
     p = tmp_path / "t.npz"
     p.write_bytes(_npz_bytes(arrays))
     _load_tables(p)
+
+
+# --------------------------------------------------------------------------------------------
+# bake checkpoints
+
+
+class _Stop(Exception):
+    pass
+
+
+@pytest.fixture(scope="module")
+def checkpoint_file(tmp_path_factory):
+    """A real checkpoint: a bake of a 12-vertex sphere stopped after its first chunk."""
+    sc = scene.builtin("sphere", subdivisions=0, model="phong", exponent=200.0)
+    path = tmp_path_factory.mktemp("ckpt") / "bake.ckpt.npz"
+
+    def stop(stage, done, total):
+        if stage == "fit" and done == 1:
+            raise _Stop
+
+    with pytest.raises(_Stop):
+        fit.fit_mesh(sc, n=1, batch=2, checkpoint=path, checkpoint_every=0, progress=stop)
+    with np.load(path, allow_pickle=False) as z:
+        key = json.loads(bytes(z["meta"]).decode())["key"]
+        shapes = {k: (z[k].shape, z[k].dtype) for k in z.files if k != "meta"}
+    return path.read_bytes(), key, shapes, _floodfill
+
+
+def _resume_or_start_afresh(tmp_path, checkpoint_file, data: bytes) -> None:
+    """A damaged checkpoint is moved aside and the bake starts afresh; a whole one resumes
+    into finite state: never an exception, never a NaN model."""
+    _, key, shapes, ff = checkpoint_file
+    path = tmp_path / "bake.ckpt.npz"
+    path.write_bytes(data)
+    (tmp_path / "bake.ckpt.npz.corrupt").unlink(missing_ok=True)
+    state = {k: torch.zeros(s, dtype=torch.from_numpy(np.zeros(0, d)).dtype) for k, (s, d) in
+             shapes.items()}  # fmt: skip
+    with _time_limit(LOAD_SECONDS):
+        stage, nxt, fb, fa = ff._resume(path, key, state)
+    assert stage in ff._STAGES and nxt >= 0
+    assert all(isinstance(x, int) for x in (*fb, *fa))
+    if (stage, nxt) == ff._FRESH[:2]:
+        _tally("clean_errors")
+    else:
+        assert all(_finite(t) for t in state.values() if t.is_floating_point())
+        _tally("accepted")
+
+
+@fuzz(300)
+@given(ops=byte_ops)
+def test_fuzz_checkpoint_bytes(tmp_path, checkpoint_file, ops):
+    _resume_or_start_afresh(tmp_path, checkpoint_file, mutate_bytes(checkpoint_file[0], ops))
+
+
+@fuzz(200)
+@given(mut=meta_mutation())
+def test_fuzz_checkpoint_meta(tmp_path, checkpoint_file, mut):
+    raw = checkpoint_file[0]
+    with np.load(io.BytesIO(raw), allow_pickle=False) as z:
+        arrays = {k: z[k] for k in z.files}
+    meta = json.loads(bytes(arrays["meta"]).decode())
+    kind, arg = mut
+    if kind == "json":
+        text = json.dumps(mutate_json(meta, arg)).encode()
+    elif kind == "raw":
+        text = mutate_bytes(json.dumps(meta).encode(), arg)
+    elif kind == "version":  # the stage and the next chunk replaced
+        text = json.dumps({**meta, "stage": arg[0], "next": arg[1]}).encode()
+    else:
+        text = json.dumps(arg).encode()
+    arrays["meta"] = np.frombuffer(text, dtype=np.uint8)
+    _resume_or_start_afresh(tmp_path, checkpoint_file, _npz_bytes(arrays))

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import builtins
+import io as io_module
 import os
 import stat
 import subprocess
@@ -109,3 +111,24 @@ def test_a_written_file_has_the_usual_permissions(tmp_path):
         os.umask(mask)
     mode = stat.S_IMODE((tmp_path / "sub" / "x.json").stat().st_mode)
     assert mode == 0o644
+
+
+def test_reading_an_input_asks_for_memory_by_the_file_not_the_limit(tmp_path, monkeypatch):
+    """A read of n bytes allocates n bytes at once: reading a 1 kB map with f.read(4 GiB + 1)
+    asked for 4 GiB (the fuzz run's memory limit caught it on every map). Reads are sized by
+    the file, and a file that grows while it is read is still refused at the limit."""
+    asked = []
+
+    class Recording(io_module.BufferedReader):
+        def read(self, n=-1):
+            asked.append(n)
+            return super().read(n)
+
+    real_open = builtins.open
+    monkeypatch.setattr(
+        builtins, "open", lambda p, mode="r", *a, **k: Recording(real_open(p, "rb", buffering=0))
+    )
+    p = tmp_path / "map.hdr"
+    real_open(p, "wb").write(bytes(1000))
+    assert _io.read_input(p, limit=4 << 30) == bytes(1000)
+    assert asked[0] == 1001 and max(asked) <= 1 << 20  # then MiB steps to see the end

@@ -102,13 +102,20 @@ def check_input(path: str | os.PathLike, *, limit: int) -> int:
 
 def read_input(path: str | os.PathLike, *, limit: int) -> bytes:
     """The bytes of ``path``, a regular file of at most ``limit`` bytes (:func:`check_input`),
-    read in one call that stops past the limit (a file that grows meanwhile is refused)."""
-    check_input(path, limit=limit)
+    read in reads sized by the file, not by the limit (a read asks for that much memory at
+    once), and refused if it grows past the limit meanwhile."""
+    size = check_input(path, limit=limit)
+    chunks: list[bytes] = []
+    total = 0
     try:
         with open(path, "rb") as f:
-            data = f.read(limit + 1)
+            want = size + 1  # one read for a file that does not change, and one to see its end
+            while chunk := f.read(min(want, limit + 1 - total)):
+                chunks.append(chunk)
+                total += len(chunk)
+                if total > limit:
+                    raise InputError(str(path), f"grew past {limit:,} bytes while it was read")
+                want = 1 << 20
     except OSError as e:
         raise InputError(str(path), f"cannot read the file ({e.strerror or e})") from None
-    if len(data) > limit:
-        raise InputError(str(path), f"grew past {limit:,} bytes while it was read")
-    return data
+    return b"".join(chunks)

@@ -544,7 +544,13 @@ def _save_checkpoint(
 
 def _resume(path: Path, key: str, state: dict) -> tuple:
     """Load a matching checkpoint into ``state``; returns ``(stage, next chunk, flips before,
-    flips after)``."""
+    flips after)``.
+
+    A checkpoint of another scene or other settings is left alone and the bake starts over; a
+    damaged one (cut short, bits flipped, fields of the wrong type, arrays of the wrong kind
+    or not finite) is moved aside as ``NAME.corrupt`` with one warning, and the bake starts
+    afresh: it never stands in the way of a bake.
+    """
     fresh = _FRESH
     if not path.is_file():
         return fresh
@@ -557,9 +563,15 @@ def _resume(path: Path, key: str, state: dict) -> tuple:
                 or meta.get("stage") not in _STAGES
             ):
                 return fresh  # another scene or other settings: start over
+            position = _position(meta)
             loaded = {k: torch.from_numpy(z[k]) for k in state}
-    except UNREADABLE as e:
-        # damaged (cut short, bits flipped): kept aside for a look, never in the way of a bake
+        for k, v in loaded.items():
+            if v.shape != state[k].shape:
+                return fresh
+            if v.dtype != state[k].dtype or (v.is_floating_point() and not v.isfinite().all()):
+                raise ValueError(f"{k}: {v.dtype} values, not finite {state[k].dtype} ones")
+    except (*UNREADABLE, TypeError) as e:
+        # damaged: kept aside for a look, never in the way of a bake
         aside = path.with_name(path.name + ".corrupt")
         os.replace(path, aside)
         logger.warning(
@@ -568,11 +580,28 @@ def _resume(path: Path, key: str, state: dict) -> tuple:
         )  # fmt: skip
         return fresh
     for k, v in loaded.items():
-        if v.shape != state[k].shape:
-            return fresh
-    for k, v in loaded.items():
-        state[k].copy_(v.to(state[k].device, state[k].dtype))
-    fb = meta.get("flips_before", [0, 0])
-    fb = (int(fb), 0) if isinstance(fb, int) else (int(fb[0]), int(fb[1]))
-    fa = meta.get("flips_after", [0, 0])
-    return (str(meta["stage"]), int(meta["next"]), fb, (int(fa[0]), int(fa[1])))
+        state[k].copy_(v.to(state[k].device))
+    return position
+
+
+def _position(meta: dict) -> tuple:
+    """``(stage, next chunk, flips before, flips after)`` of a checkpoint's metadata; raises
+    ValueError or TypeError where a field is not what a bake writes."""
+
+    def count(x) -> int:
+        if isinstance(x, bool) or not isinstance(x, int) or x < 0:
+            raise ValueError(f"{x!r} is not a count")
+        return x
+
+    def pair(x) -> tuple[int, int]:
+        if isinstance(x, int) and not isinstance(x, bool):  # a single count
+            return count(x), 0
+        a, b = x  # TypeError / ValueError for anything but a pair
+        return count(a), count(b)
+
+    return (
+        str(meta["stage"]),
+        count(meta["next"]),
+        pair(meta.get("flips_before", [0, 0])),
+        pair(meta.get("flips_after", [0, 0])),
+    )
