@@ -356,7 +356,10 @@ def _environment(p: Path, s: str, d: dict[str, Any]) -> str:
     if env == "builtin":
         return env
     env_path = _entry_path(p, s, d, "environment")
-    found = resolve_envmap(env, relative_to=p.parent)
+    try:
+        found = resolve_envmap(env, relative_to=p.parent)
+    except InputError as e:  # a file of another kind: named as this scene file's entry
+        raise InputError(f"{s}: environment", f"{env_path} {e.problem}") from None
     if found is not None:
         return found
     raise InputError(
