@@ -489,3 +489,16 @@ def test_a_scene_whose_environment_is_not_a_map_is_refused(tmp_path):
         InputError, match=r"s\.toml: environment: .*notes\.txt is not an environment"
     ):
         scene.load(tmp_path / "s.toml")
+
+
+def test_an_error_quoting_the_input_stays_one_line(tmp_path):
+    """A material key holding a line break was quoted into a two-line error (the long fuzz run
+    found it); names and values from the input are escaped."""
+    _ascii_ply(tmp_path)
+    (tmp_path / "s.json").write_text(
+        '{"mesh": "full.ply", "material": {"diffuse": 0.5, "a\\nb": 1, "\\u001b[2J": 2}}'
+    )
+    with pytest.raises(InputError) as e:
+        scene.load(tmp_path / "s.json")
+    assert "\n" not in str(e.value) and "\x1b" not in str(e.value)
+    assert str(tmp_path / "s.json") in str(e.value)

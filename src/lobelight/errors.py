@@ -26,6 +26,16 @@ class InputError(LobelightError, ValueError):
     """
 
     def __init__(self, what: str, problem: str):
-        self.what = str(what)
-        self.problem = problem
-        super().__init__(f"{self.what}: {problem}")
+        # names and values quoted from the input may hold line breaks or other control
+        # characters: escaped, so that the message stays one line
+        self.what = _one_line(str(what))
+        self.problem = _one_line(str(problem))
+        super().__init__(f"{self.what}: {self.problem}")
+
+
+def _one_line(text: str) -> str:
+    """``text`` with every non-printable character (a line break, a terminal escape) written as
+    its escape sequence."""
+    if text.isprintable():
+        return text
+    return "".join(c if c.isprintable() else repr(c)[1:-1] for c in text)
