@@ -41,7 +41,8 @@ from hypothesis import HealthCheck, Phase, given, settings
 from hypothesis import strategies as st
 
 from conftest import tiny_table_params
-from lobelight import cosine, envmap, fit, model, scene
+from lobelight import cli, cosine, envmap, fit, model, scene
+from lobelight.cli import _commands
 from lobelight.errors import InputError
 from lobelight.fit import Gaussians, MeshFit, _floodfill
 from lobelight.geometry import sphere
@@ -813,3 +814,105 @@ def test_fuzz_checkpoint_meta(tmp_path, checkpoint_file, mut):
         text = json.dumps(arg).encode()
     arrays["meta"] = np.frombuffer(text, dtype=np.uint8)
     _resume_or_start_afresh(tmp_path, checkpoint_file, _npz_bytes(arrays))
+
+
+# --------------------------------------------------------------------------------------------
+# command-line arguments
+
+
+class _WorkStarted(BaseException):
+    """Raised by the heavy steps a command reaches once its arguments are checked."""
+
+
+#: The steps each command's work starts with, stood in for so that an input is a parse and
+#: the checks, not a bake or a render.
+_WORK = [
+    "fit_model", "Renderer", "turntable", "view", "compare", "compare_brdf", "figure5",
+    "gallery_main", "lobes_demo", "demo", "bench_lobes", "bench_tables", "bench_brdf_fit",
+]  # fmt: skip
+_BENCH_WORK = ["bench_prefilter", "bench_transport", "bench_fit", "bench_render"]
+_COMMANDS = [
+    "bake", "info", "render", "view", "compare", "compare-brdf", "figure5", "gallery",
+    "lobes-demo", "bench", "demo", "nope",
+]  # fmt: skip
+_FLAGS = [
+    "--json", "-q", "--device", "-o", "--out", "--width", "--height", "--size", "--spp", "--sun",
+    "--no-sun", "--backend", "--gaussians", "--lobes", "--bounces", "--indirect-paths",
+    "--float16", "--seed", "--checkpoint-every", "--env", "--material", "--camera", "--rotate",
+    "--exposure", "--samples", "--turntable", "--spin", "--parts", "--tonemap", "--base-res",
+    "--model", "--baselines", "--frames", "--fused", "--repeats", "--scene", "--refs", "--data",
+]  # fmt: skip
+_WORDS = [
+    "0", "1", "2", "3", "-1", "nan", "inf", "1e309", "abc", "", "8x8", "16", "0x0", "cpu",
+    "cuda", "cuda:7", "bogus", "auto", "gl", "torch", "both", "builtin", "knot", "sphere:0",
+    "prefilter", "fit", "render", "lobes", "list", "ggx:alpha=0.1", "diffuse:color=2",
+    "0,0,4:0,0,0:40", "1,2:3", "glossy", "aces", "x.png", "x.jpg", "x.gif", "x.bmp",
+    "/dev/null", "/etc/passwd",
+]  # fmt: skip
+_ARG_VALUES = st.one_of(st.sampled_from(_WORDS), st.text(max_size=12), st.floats().map(repr))
+#: Paths the arguments may name (filled in with the fixture's folder).
+_PATHS = ["{m}", "{s}", "{t}", "{d}", "{d}/missing.npz", "{o}/x.png", "x"]
+
+
+@st.composite
+def argv_strategy(draw):
+    argv = [draw(st.sampled_from(_COMMANDS))]
+    if draw(st.booleans()):
+        argv.append(draw(st.sampled_from(_PATHS)))
+    for _ in range(draw(st.integers(0, 5))):
+        argv.append(draw(st.sampled_from(_FLAGS)))
+        if draw(st.booleans()):
+            argv.append(draw(st.one_of(st.sampled_from(_PATHS), _ARG_VALUES)))
+    return argv
+
+
+@pytest.fixture(scope="module")
+def cli_files(tmp_path_factory, model_files):
+    """A real model and scene, a text file, and a folder, for the arguments to name."""
+    d = tmp_path_factory.mktemp("cli")
+    (d / "m.npz").write_bytes(model_files[False][0])
+    trimesh.creation.icosphere(0).export(d / "ball.obj")
+    (d / "s.toml").write_text('mesh = "ball.obj"\n')
+    (d / "notes.txt").write_text("not a model")
+    (d / "out").mkdir()
+    return d
+
+
+@fuzz(300)
+@given(argv=argv_strategy())
+def test_fuzz_cli_arguments(cli_files, monkeypatch, capsys, argv):
+    """Any command line: a bad argument ends with exit 2 and one line on stderr (and under
+    --json stdout holds the JSON error alone) before any work starts; good ones reach the work
+    (stood in for) or, for info, succeed."""
+    d = cli_files
+    argv = [
+        a.replace("{m}", str(d / "m.npz")).replace("{s}", str(d / "s.toml"))
+        .replace("{t}", str(d / "notes.txt")).replace("{o}", str(d / "out")).replace("{d}", str(d))
+        for a in argv
+    ]  # fmt: skip
+
+    def work(*args, **kwargs):
+        raise _WorkStarted
+
+    with monkeypatch.context() as mp:
+        for name in _WORK:
+            mp.setattr(_commands, name, work)
+        for name in _BENCH_WORK:
+            mp.setattr(_commands.bench, name, work)
+        capsys.readouterr()
+        with _time_limit(LOAD_SECONDS):
+            try:
+                code = cli.main(argv)
+            except _WorkStarted:
+                _tally("accepted")
+                return
+    out, err = capsys.readouterr()
+    if code == 0:
+        _tally("accepted")
+        return
+    assert code == 2, (argv, code, err)
+    lines = [x for x in err.splitlines() if x.startswith("lobelight: error")]
+    assert len(lines) == 1 and err.strip() == lines[0].strip(), (argv, err)
+    if "--json" in argv:
+        assert set(json.loads(out)) == {"error"}, (argv, out)
+    _tally("clean_errors")

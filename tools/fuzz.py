@@ -10,7 +10,7 @@ hypothesis stops a test at its first and reports it).
     python tools/fuzz.py --inputs 100000 --jobs 2 -o fuzz-summary.json
 
 Targets: model files, meshes, scene files, environment maps, cosine-lobe tables, bake
-checkpoints.
+checkpoints, command-line arguments (every command, its checks run and its work stood in for).
 """
 
 from __future__ import annotations
@@ -40,6 +40,7 @@ TARGETS = {
     ],
     "tables": ["test_fuzz_tables_bytes", "test_fuzz_tables_structured"],
     "checkpoint": ["test_fuzz_checkpoint_bytes", "test_fuzz_checkpoint_meta"],
+    "cli": ["test_fuzz_cli_arguments"],
 }
 
 

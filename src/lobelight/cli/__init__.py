@@ -51,7 +51,9 @@ class _UsageError(Exception):
 
 class _Parser(argparse.ArgumentParser):
     def error(self, message: str):  # argparse prints usage and exits; we report one line
-        raise _UsageError(f"{self.prog}: {message}")
+        # "lobelight: error: bake: ..." names the command; the top level needs no name twice
+        command = self.prog.removeprefix("lobelight").strip()
+        raise _UsageError(f"{command}: {message}" if command else message)
 
 
 class _Help(argparse.ArgumentDefaultsHelpFormatter):

@@ -1,0 +1,7 @@
+"""``python -m lobelight.cli ...``: the same as ``lobelight ...``."""
+
+import sys
+
+from . import main
+
+sys.exit(main())
