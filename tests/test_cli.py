@@ -231,3 +231,11 @@ def test_help_and_parsing_load_no_torch():
     )
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
     assert out.stdout.split() == ["False", "False"]
+
+
+def test_a_usage_error_quoting_control_characters_stays_one_line(capsys):
+    """argparse quotes unrecognised arguments: a group separator or carriage return in one
+    split the error over lines (the long fuzz run found it); they are escaped."""
+    assert main(["figure5", "x", "--parts", "6\x1d\r2"]) == 2
+    err = capsys.readouterr().err
+    assert len(err.splitlines()) == 1 and "\\x1d" in err

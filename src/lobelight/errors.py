@@ -7,7 +7,7 @@ it as a single line and exit with a documented code instead of a traceback.
 
 from __future__ import annotations
 
-__all__ = ["InputError", "LobelightError"]
+__all__ = ["InputError", "LobelightError", "one_line"]
 
 
 class LobelightError(Exception):
@@ -28,12 +28,12 @@ class InputError(LobelightError, ValueError):
     def __init__(self, what: str, problem: str):
         # names and values quoted from the input may hold line breaks or other control
         # characters: escaped, so that the message stays one line
-        self.what = _one_line(str(what))
-        self.problem = _one_line(str(problem))
+        self.what = one_line(str(what))
+        self.problem = one_line(str(problem))
         super().__init__(f"{self.what}: {self.problem}")
 
 
-def _one_line(text: str) -> str:
+def one_line(text: str) -> str:
     """``text`` with every non-printable character (a line break, a terminal escape) written as
     its escape sequence."""
     if text.isprintable():

@@ -29,7 +29,7 @@ import threading
 from .. import __version__
 from .._process import tune
 from ..data import envmap_names
-from ..errors import InputError
+from ..errors import InputError, one_line
 from ..studies.gallery import add_arguments as gallery_arguments
 
 #: A bake's interreflection defaults, :data:`lobelight.transport.BOUNCES` and
@@ -395,6 +395,7 @@ def _join_signed(argv: list[str]) -> list[str]:
 
 def _fail(json_mode: bool, what: str, problem: str, code: int) -> int:
     """Report an error: one line on stderr, and the JSON error object on stdout under --json."""
+    what, problem = one_line(what), one_line(problem)  # a usage error quotes the arguments
     print(f"lobelight: error: {what}: {problem}" if what else f"lobelight: error: {problem}",
           file=sys.stderr)  # fmt: skip
     if json_mode:
