@@ -182,3 +182,8 @@ def test_a_zip_bomb_is_refused_before_it_is_decompressed(tmp_path, fitted):
     with pytest.raises(InputError, match="would decompress to"):
         model.load(bomb)
     assert model.load(good).mesh.n_vertices == sc.mesh.n_vertices  # a real model is well within
+
+
+def test_a_device_is_not_reported_as_a_missing_model():
+    with pytest.raises(InputError, match="/dev/zero: is not a regular file"):
+        model.load("/dev/zero")

@@ -40,7 +40,7 @@ import numpy as np
 import torch
 
 from .. import __version__
-from .._io import atomic_writer
+from .._io import atomic_writer, check_input
 from ..errors import InputError
 from ..geometry import sphere
 from ..lobes import sg
@@ -164,6 +164,9 @@ def _not_a_model(path: Path) -> str:
     return "not a lobelight model file (not an .npz archive)"
 
 
+#: The largest model file read (a 50K-vertex model with three Gaussians is about 100 MB).
+MAX_FILE_BYTES = 1 << 36
+
 #: Decompressed bytes a model file may hold beyond ``EXPANSION`` times its own size: a model's
 #: arrays are floats, which deflate compresses by a few times at most, while a zip bomb's
 #: members expand by a thousand times and more.
@@ -202,8 +205,7 @@ def read(path) -> dict[str, Any]:
     """
     p = Path(path)
     name = str(p)
-    if not p.is_file():
-        raise InputError(name, "no such file")
+    check_input(p, limit=MAX_FILE_BYTES)  # a regular file (not a device or pipe)
     _need(_is_zip(p), name, _not_a_model(p))
     try:
         z = np.load(p, allow_pickle=False)
