@@ -384,20 +384,26 @@ def meta_mutation(draw):
     return kind, draw(json_values)  # something other than an object at the top
 
 
+def mutated_meta(meta: dict, mut, pair: tuple[str, str]) -> bytes:
+    """The metadata's JSON text after a :func:`meta_mutation` (its "version" kind replaces the
+    two keys ``pair``: the format and version of a model, the stage and next chunk of a
+    checkpoint)."""
+    kind, arg = mut
+    if kind == "json":
+        return json.dumps(mutate_json(meta, arg)).encode()
+    if kind == "raw":
+        return mutate_bytes(json.dumps(meta).encode(), arg)
+    if kind == "version":
+        return json.dumps({**meta, pair[0]: arg[0], pair[1]: arg[1]}).encode()
+    return json.dumps(arg).encode()
+
+
 @fuzz(500)
 @given(half=st.booleans(), mut=meta_mutation())
 def test_fuzz_model_meta(tmp_path, model_files, half, mut):
     _, arrays = model_files[half]
     meta = json.loads(bytes(arrays["meta"]).decode())
-    kind, arg = mut
-    if kind == "json":
-        text = json.dumps(mutate_json(meta, arg)).encode()
-    elif kind == "raw":
-        text = mutate_bytes(json.dumps(meta).encode(), arg)
-    elif kind == "version":
-        text = json.dumps({**meta, "format": arg[0], "version": arg[1]}).encode()
-    else:
-        text = json.dumps(arg).encode()
+    text = mutated_meta(meta, mut, ("format", "version"))
     arrays = {**arrays, "meta": np.frombuffer(text, dtype=np.uint8)}
     p = tmp_path / "m.npz"
     p.write_bytes(_npz_bytes(arrays))
@@ -803,15 +809,7 @@ def test_fuzz_checkpoint_meta(tmp_path, checkpoint_file, mut):
     with np.load(io.BytesIO(raw), allow_pickle=False) as z:
         arrays = {k: z[k] for k in z.files}
     meta = json.loads(bytes(arrays["meta"]).decode())
-    kind, arg = mut
-    if kind == "json":
-        text = json.dumps(mutate_json(meta, arg)).encode()
-    elif kind == "raw":
-        text = mutate_bytes(json.dumps(meta).encode(), arg)
-    elif kind == "version":  # the stage and the next chunk replaced
-        text = json.dumps({**meta, "stage": arg[0], "next": arg[1]}).encode()
-    else:
-        text = json.dumps(arg).encode()
+    text = mutated_meta(meta, mut, ("stage", "next"))
     arrays["meta"] = np.frombuffer(text, dtype=np.uint8)
     _resume_or_start_afresh(tmp_path, checkpoint_file, _npz_bytes(arrays))
 

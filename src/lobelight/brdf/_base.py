@@ -307,6 +307,12 @@ class BRDF(abc.ABC):
         """(name, per-element shape) of every parameter."""
         return [(name, _batch_shape(t, self._kind[name])) for name, t in self._p.items()]
 
+    @property
+    def per_element_params(self) -> list[str]:
+        """The parameters with a per-element dimension (per-vertex materials), a Sum's
+        components' included: empty for a material of single values."""
+        return [name for name, shape in self._batch_shapes() if shape]
+
     def _check_shapes(self) -> None:
         """Per-element shapes of all parameters must broadcast together.
 

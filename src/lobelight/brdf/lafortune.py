@@ -78,13 +78,18 @@ class Lafortune(BRDF):
         """Per lobe: unit axis d^ (..., 3), |d| (...), exponent, rho."""
         out = []
         for j in range(self.n_lobes):
-            cx, cy, cz, e, rho = self._lobe(j, wo)
-            d = torch.stack(
-                torch.broadcast_tensors(cx * wo[..., 0], cy * wo[..., 1], cz * wo[..., 2]), -1
-            )
-            norm = torch.linalg.vector_norm(d, dim=-1)
+            d, norm, e, rho = self._lobe_vector(j, wo)
             out.append((_normalize(d), norm, e, rho))
         return out
+
+    def _lobe_vector(self, j: int, wo: torch.Tensor):
+        """Lobe ``j``'s non-unit axis ``d = (cx wo_x, cy wo_y, cz wo_z)`` (..., 3), its length
+        (...), exponent and rho."""
+        cx, cy, cz, e, rho = self._lobe(j, wo)
+        d = torch.stack(
+            torch.broadcast_tensors(cx * wo[..., 0], cy * wo[..., 1], cz * wo[..., 2]), -1
+        )
+        return d, torch.linalg.vector_norm(d, dim=-1), e, rho
 
     @staticmethod
     def _scale(norm: torch.Tensor, e: torch.Tensor) -> torch.Tensor:
@@ -187,11 +192,7 @@ class Lafortune(BRDF):
         batch = wo.shape[:-1]
         out = []
         for j in range(self.n_lobes):
-            cx, cy, cz, e, rho = self._lobe(j, wo)
-            d = torch.stack(
-                torch.broadcast_tensors(cx * wo[..., 0], cy * wo[..., 1], cz * wo[..., 2]), -1
-            )
-            norm = torch.linalg.vector_norm(d, dim=-1)
+            d, norm, e, rho = self._lobe_vector(j, wo)
             tiny = torch.finfo(norm.dtype).tiny
             axis = d / norm.clamp_min(tiny).unsqueeze(-1)
             e = e.expand(batch)

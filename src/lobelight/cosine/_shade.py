@@ -181,7 +181,7 @@ def shade_points(
             whole = s == 0 and chunk >= P  # one chunk: the model as it is, no gather
             m = (
                 model.take(torch.arange(s, min(s + chunk, P), device=dev))
-                if _per_point(model) and not whole
+                if model.per_element_params and not whole
                 else model
             )
             r = _shade_chunk(
@@ -205,18 +205,6 @@ def shade_points(
             prods.append(r[1])
             nleaves.append(r[2])
     return ShadeResult(torch.cat(outs), torch.cat(prods), torch.cat(nleaves))
-
-
-def _per_point(model: _brdf.BRDF) -> bool:
-    """Whether any parameter has a per-point dimension (then chunks take their slice)."""
-    kinds = getattr(model, "_kind", {})
-    for name, t in model.params.items():
-        kind = kinds.get(name)
-        if kind is None:  # a Sum: look at its components
-            return any(_per_point(c) for c in getattr(model, "components", ()))
-        if t.ndim > kind:
-            return True
-    return False
 
 
 def _shade_chunk(

@@ -20,7 +20,6 @@ import torch
 
 from .. import brdf as _brdf
 from ..cosine import SphereLight
-from ..cosine._shade import _per_point as pp
 from ..errors import InputError
 from ..geometry.sphere import frame
 
@@ -143,7 +142,11 @@ def direct_mc(
                 vis &= ~((tp > 1e-9 * dist.reshape(-1, 1, 1)) & (tp < t_light.unsqueeze(-1))).any(
                     -1
                 )
-            mp = model.take(torch.arange(a, a + p, device=dev)) if _per_point(model) else model
+            mp = (
+                model.take(torch.arange(a, a + p, device=dev))
+                if model.per_element_params
+                else model
+            )
             # per-point parameters broadcast over the leading sample axis: (S, p, 3) layout
             wt = w.transpose(0, 1)
             f = mp.eval(wt, vp.expand_as(wt), npt.expand_as(wt)).transpose(0, 1)  # (p, S, 3)
@@ -154,7 +157,3 @@ def direct_mc(
             halves = est.reshape(p, 2, S // 2, 3).mean(2) if S % 2 == 0 else est[:, :2]
             var[sl] += ((halves[:, 0] - halves[:, 1]) / 2) ** 2
     return total, var.sqrt()
-
-
-def _per_point(model: _brdf.BRDF) -> bool:
-    return pp(model)

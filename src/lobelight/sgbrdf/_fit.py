@@ -453,7 +453,7 @@ def fit_many(
     for nm, brdf in zip(names, brdfs, strict=True):
         if not isinstance(brdf, BRDF):
             raise InputError(nm, f"must be a lobelight.brdf.BRDF, got {type(brdf).__name__}")
-        per_element = [name for name, shape in brdf._batch_shapes() if shape]
+        per_element = brdf.per_element_params
         if per_element:
             raise InputError(
                 f"{nm}.{per_element[0]}", "must be a single value (fit one material at a time)"

@@ -50,7 +50,7 @@ __all__ = ["shade_wang09", "wang09_lobe"]
 def _check_ward(brdf: Any) -> Ward:
     if not isinstance(brdf, Ward):
         raise InputError("brdf", f"the Wang 2009 baseline is for Ward, got {type(brdf).__name__}")
-    per_element = [name for name, shape in brdf._batch_shapes() if shape]
+    per_element = brdf.per_element_params
     if per_element:
         raise InputError(f"brdf.{per_element[0]}", "must be a single value")
     return brdf
