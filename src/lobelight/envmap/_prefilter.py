@@ -50,6 +50,7 @@ import logging
 import math
 import os
 from dataclasses import dataclass, field
+from functools import lru_cache
 from pathlib import Path
 
 import numpy as np
@@ -212,11 +213,43 @@ class Prefiltered:
 # building
 
 
+@lru_cache(maxsize=16)
+def _downsample_weights(
+    res: int, device: torch.device, dtype: torch.dtype
+) -> tuple[torch.Tensor, torch.Tensor]:
+    """Texel solid angles ``(R, R, 1)`` of a face and their 2 x 2 sums ``(R/2, R/2, 1)``: the
+    weights of :func:`_downsample`, the same for every face."""
+    om = cubemap.texel_solid_angles(res, device=device, dtype=dtype)[0]
+    h = res // 2
+    return om[..., None], om.reshape(h, 2, h, 2).sum((1, 3))[..., None]
+
+
+def _downsample(cube: torch.Tensor) -> torch.Tensor:
+    """:func:`lobelight.geometry.cubemap.downsample` of a ``(6, R, R, C)`` cube: the 2 x 2
+    solid-angle-weighted average. The pairs of rows, then of columns, of the weighted texels
+    are summed as two additions of strided halves (no reduction kernel)."""
+    res, ch = cube.shape[1], cube.shape[-1]
+    if res % 2:
+        raise InputError("cube", f"resolution must be even to downsample, got {res}")
+    h = res // 2
+    om, den = _downsample_weights(res, cube.device, cube.dtype)
+    x = (cube * om).view(6, h, 2, res * ch)
+    rows = (x[:, :, 0] + x[:, :, 1]).view(6, h, h, 2 * ch)
+    return (rows[..., :ch] + rows[..., ch:]).div_(den)
+
+
 def _downsample_to(cube: torch.Tensor, res: int) -> torch.Tensor:
     """Solid-angle-weighted 2 x 2 downsamples of ``(6, R, R, C)`` until the faces are ``res``."""
     while cube.shape[1] > res:
-        cube = cubemap.downsample(cube)
+        cube = _downsample(cube)
     return cube
+
+
+def _mean_cosine(lam: float) -> float:
+    """Mean cosine of a vMF of sharpness ``lam``: ``coth(lam) - 1/lam``, its series near 0."""
+    if lam < 1e-3:
+        return lam / 3
+    return 1 / math.tanh(lam) - 1 / lam
 
 
 def _inverse_langevin(a: float) -> float:
@@ -228,7 +261,7 @@ def _inverse_langevin(a: float) -> float:
     lo, hi = 1e-9, 1e9
     for _ in range(200):  # bisection in log space: 200 halvings reach float64 resolution
         mid = math.sqrt(lo * hi)
-        if float(_langevin(torch.tensor(mid))) < a:
+        if _mean_cosine(mid) < a:
             lo = mid
         else:
             hi = mid
@@ -280,9 +313,11 @@ def clear_memory_caches() -> None:
     state, for timing a cold start)."""
     for fn in (
         _convolve._halo_plan,
-        _convolve._halo_sources,
         _convolve._unfold_plan,
         _convolve._basis,
+        _convolve._anisotropic_plan,
+        _convolve._windowed_plan,
+        _downsample_weights,
         cubemap._pad_plan,
     ):
         fn.cache_clear()
@@ -385,9 +420,16 @@ def _build(
     rho = 4 ** (1 / phases)
     lam0 = (base_res / (2 * TEXELS_PER_SIGMA)) ** 2
     lambdas = lam0 * rho ** -torch.arange(n_levels, dtype=torch.float64)
+    lams = lambdas.tolist()
+    # the map itself at each resolution it is needed at, each downsample done once
+    pyramid = {base_res: base}
 
-    def mc(lam: float) -> float:  # mean cosine of a vMF: widths compose by multiplying it
-        return float(_langevin(torch.tensor(lam, dtype=torch.float64)))
+    def source(res: int) -> torch.Tensor:
+        r = min(pyramid)
+        while r > res:
+            pyramid[r // 2] = _downsample(pyramid[r])
+            r //= 2
+        return pyramid[res]
 
     levels: list[torch.Tensor | None] = [None] * n_levels
     # Fine levels: a cascade of narrow increments. Widths are tracked as vMF mean cosines,
@@ -395,7 +437,7 @@ def _build(
     # is adding variances 1/lam). The base's texels and each 2 x 2 downsample are box filters
     # of variance h^2/12 and h^2/16 (h = 2/R, the texel size at a face centre).
     cur, cur_res = base, base_res
-    cur_mc = mc(12 * (base_res / 2) ** 2)
+    cur_mc = _mean_cosine(12 * (base_res / 2) ** 2)
     for k in range(n_levels):
         res = res_of[k]
         if res <= SH_MAX_RES:
@@ -403,13 +445,13 @@ def _build(
         if cur_res >= SEPARABLE_MIN_RES > res:
             # Re-seed the exact part of the cascade from the map itself, so the separable
             # passes' residual error (about 1 % near bright texels) does not flow into it.
-            cur, cur_res = _downsample_to(base, res), res
-            cur_mc = mc(12 * (res / 2) ** 2)
+            cur, cur_res = source(res), res
+            cur_mc = _mean_cosine(12 * (res / 2) ** 2)
         while cur_res > res:
-            cur = cubemap.downsample(cur)
+            cur = _downsample(cur)
             cur_res //= 2
-            cur_mc *= mc(16 * (cur_res / 2) ** 2)
-        target = mc(float(lambdas[k]))
+            cur_mc *= _mean_cosine(16 * (cur_res / 2) ** 2)
+        target = _mean_cosine(lams[k])
         if target < cur_mc:
             lam_inc = _inverse_langevin(target / cur_mc)
             if res >= SEPARABLE_MIN_RES:
@@ -421,8 +463,8 @@ def _build(
     # Wide levels: exact band factors on a 64^2 copy of the map (no cascade error).
     wide = [k for k in range(n_levels) if levels[k] is None]
     if wide:
-        src = _downsample_to(base, min(base_res, 64))
-        got = _convolve.sh_levels(src, [float(lambdas[k]) for k in wide], [res_of[k] for k in wide])
+        src = source(min(base_res, 64))
+        got = _convolve.sh_levels(src, [lams[k] for k in wide], [res_of[k] for k in wide])
         for k, lv in zip(wide, got, strict=True):
             levels[k] = lv
     # Reconstruction prefilter for the bilinear lookup (replaces a bilinear-variance fudge).

@@ -205,18 +205,33 @@ def _check_cube(cube: torch.Tensor, name: str = "cube") -> None:
 
 
 @lru_cache(maxsize=64)
-def _pad_plan(res: int, pad: int, device: torch.device) -> torch.Tensor:
-    """Flat texel index of every texel of the padded faces, ``(6 n^2,)`` int64 (n = res + 2 pad).
+def _pad_plan(res: int, pad: int, device: torch.device) -> tuple[torch.Tensor, ...]:
+    """Border texels of the padded faces, the texels they copy, and the corner texels.
 
-    Depends on the resolution only, so it is kept between calls. Built in float64 on the CPU,
-    one face at a time (``O(6 n^2)`` elementwise work), then moved to ``device``.
+    Returns ``dst, src`` ``(B,)`` int64: flat indices into the padded faces ``(6, n, n)``
+    (n = res + 2 pad) and into the faces ``(6, res, res)``; ``rows, cols`` ``(4, 4)`` int64: the
+    four corner texels of the border (column 0) and the three texels each averages (columns 1
+    to 3: the face's own corner texel and the two across its edges). Depends on the resolution
+    only, so it is kept between calls. Built in float64 on the CPU (``O(6 n pad)`` elementwise
+    work), then moved to ``device``.
     """
-    k = torch.arange(-pad, res + pad, dtype=torch.float64)
-    c = (2 * k + 1) / res - 1  # extended texel centres
-    v, u = c[:, None], c[None, :]  # (n, 1) rows follow v, (1, n) columns u
+    n = res + 2 * pad
+    k = torch.arange(-pad, res + pad)
+    inside = (k >= 0) & (k < res)
+    rows, cols = (~(inside[:, None] & inside[None, :])).nonzero(as_tuple=True)  # (B/6,)
+    v = (2 * rows.double() - 2 * pad + 1) / res - 1  # extended texel centres
+    u = (2 * cols.double() - 2 * pad + 1) / res - 1
     one = torch.ones((), dtype=torch.float64)
-    idx = [_face_plane_texels(f, one, u, v, res) for f in range(6)]
-    return torch.stack(idx).reshape(-1).to(device)
+    src = torch.stack([_face_plane_texels(f, one, u, v, res) for f in range(6)])
+    dst = torch.arange(6)[:, None] * (n * n) + rows * n + cols
+    lo, hi = pad - 1, res + pad
+    ci = torch.tensor([lo, lo, hi, hi])
+    cj = torch.tensor([lo, hi, lo, hi])
+    di = torch.tensor([1, 1, -1, -1])
+    dj = torch.tensor([1, -1, 1, -1])
+    corner_rows = torch.stack([ci, ci + di, ci, ci + di], 1)  # corner, own, across i, across j
+    corner_cols = torch.stack([cj, cj + dj, cj + dj, cj], 1)
+    return tuple(t.to(device) for t in (dst.reshape(-1), src.reshape(-1), corner_rows, corner_cols))
 
 
 def pad_seamless(cube: torch.Tensor, pad: int = 1) -> torch.Tensor:
@@ -238,17 +253,17 @@ def pad_seamless(cube: torch.Tensor, pad: int = 1) -> torch.Tensor:
     _check_cube(cube)
     res = cube.shape[1]
     n = res + 2 * pad
-    idx = _pad_plan(res, pad, cube.device)
-    out = cube.reshape(6 * res * res, -1)[idx].reshape(6, n, n, *cube.shape[3:])
-    if pad >= 1:
-        # Corner blocks of the border have no unique neighbour face: use the GL-recommended
-        # average of the three texels that meet at the corner (own corner + two across edges).
-        lo, hi = pad - 1, res + pad
-        for ci, cj, di, dj in ((lo, lo, 1, 1), (lo, hi, 1, -1), (hi, lo, -1, 1), (hi, hi, -1, -1)):
-            own = out[:, ci + di, cj + dj]
-            across_i = out[:, ci, cj + dj]
-            across_j = out[:, ci + di, cj]
-            out[:, ci, cj] = (own + across_i + across_j) / 3
+    out = cube.new_empty(6, n, n, *cube.shape[3:])
+    out[:, pad : pad + res, pad : pad + res] = cube
+    if pad < 1:
+        return out
+    dst, src, rows, cols = _pad_plan(res, pad, cube.device)
+    flat = cube.reshape(6 * res * res, -1)
+    out.view(6 * n * n, -1).index_copy_(0, dst, flat.index_select(0, src))
+    # Corner blocks of the border have no unique neighbour face: use the GL-recommended
+    # average of the three texels that meet at the corner (own corner + two across edges).
+    three = out[:, rows[:, 1:], cols[:, 1:]]  # (6, 4, 3, C)
+    out[:, rows[:, 0], cols[:, 0]] = (three[:, :, 0] + three[:, :, 1] + three[:, :, 2]) / 3
     return out
 
 
