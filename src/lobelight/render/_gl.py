@@ -3,8 +3,10 @@
 Everything per frame stays on the GPU (the paper's bottleneck was repacking the three nearest
 views' data on the CPU every frame): the Gaussians of every (vertex, view) live in a float
 texture, the 180 geodesic triangles' great-circle planes in a uniform block, and the vertex
-shader finds each vertex's view triangle itself. Per frame the CPU uploads only the camera, the
-lighting rotation and the rotated lighting's 25 SH coefficients.
+shader finds each vertex's view triangle itself. The per-frame values (camera, lighting rotation,
+the rotated lighting's 25 SH coefficients, the sun) live in one uniform block
+(``shaders/frame.glsl``), filled in Python and written in one buffer write when a value changes:
+a frame with the camera and lighting of the one before writes no uniform at all.
 
 Prefiltered levels: each level's six faces, each with the one-texel seamless border of
 :func:`lobelight.geometry.cubemap.pad_seamless`, are packed into one atlas texture; hardware
@@ -17,6 +19,8 @@ linearly in level, which is less accurate).
 
 from __future__ import annotations
 
+import contextlib
+import time
 from functools import cache
 from importlib import resources
 
@@ -39,6 +43,7 @@ from ._sun_glossy import (
 
 __all__ = [
     "GLRenderer",
+    "PassTimer",
     "create_context",
     "gl_available",
     "load_shader",
@@ -56,6 +61,37 @@ BACKGROUND_RES = 512
 #: Resolution of the sun's shadow map (texels across the mesh's bounding sphere).
 SHADOW_RES = 4096
 _GL_TEXTURE_CUBE_MAP_SEAMLESS = 0x884F
+#: Colour target texel types: float32 (what ``read`` returns exactly) and half float (display).
+HDR_DTYPES = ("f4", "f2")
+#: Uniform-block bindings of the PRT programs: the geodesic planes, frame.glsl's two blocks.
+_PLANES_BINDING, _FRAME_BINDING, _SAMPLE_BINDING = 0, 1, 2
+#: Offsets in floats of the members of frame.glsl's ``Frame`` block (std140: a scalar fills the
+#: fourth float after a vec3, a mat3 is three vec4 columns, a vec4 array element is 4 floats);
+#: ``sh_sun`` follows ``sh_light``'s ``N_SH`` vec4s.
+_FRAME = {
+    "eye": 0,
+    "sun_on": 3,
+    "cam_left": 4,
+    "shadow_scale": 7,
+    "cam_up": 8,
+    "shadow_offset": 11,
+    "cam_dir": 12,
+    "shadow_bias": 15,
+    "sun_dir": 16,
+    "diffuse_on": 19,
+    "sun_e": 20,
+    "glossy_on": 23,
+    "shadow_center": 24,
+    "tan_half": 28,
+    "depth_range": 30,
+    "rot_t": 32,
+    "shadow_frame": 44,
+    "sh_light": 56,
+}
+#: Buffers the frame block's writes go round (more than the frames a driver keeps in flight).
+_FRAME_BUFFERS = 4
+#: A context manager that does nothing (a pass's timing when no PassTimer is attached).
+_UNTIMED = contextlib.nullcontext()
 
 
 @cache
@@ -199,18 +235,186 @@ def set_uniforms(prog, values: dict) -> None:
             prog[k].value = v
 
 
+class _FrameBlock:
+    """frame.glsl's ``Frame`` uniform block: a float32 copy ``(56 + 8 N_SH,)`` filled member by
+    member (offsets in :data:`_FRAME`), written by :meth:`flush` in one write when it differs
+    from what was written last.
+
+    Each write goes into the next of :data:`_FRAME_BUFFERS` buffers (:attr:`buffer` is the one
+    written last), so that it never touches a buffer that a frame still in flight reads: a
+    driver would wait for that frame, or copy the buffer, first.
+    """
+
+    def __init__(self, ctx, n_sh: int):
+        self.n_sh = n_sh
+        self.data = np.zeros(_FRAME["sh_light"] + 8 * n_sh, np.float32)
+        self.buffers = [ctx.buffer(reserve=self.data.nbytes) for _ in range(_FRAME_BUFFERS)]
+        self.buffer = self.buffers[0]
+        self._next = 0
+        self._written: np.ndarray | None = None  # what self.buffer holds
+
+    def set(self, name: str, value) -> None:
+        """A scalar or vector member."""
+        v = np.asarray(value, np.float32).reshape(-1)
+        o = _FRAME[name]
+        self.data[o : o + v.size] = v
+
+    def set_columns(self, name: str, columns) -> None:
+        """A mat3 member from its ``(3, 3)`` columns (row ``j`` = column ``j``)."""
+        o = _FRAME[name]
+        self.data[o : o + 12].reshape(3, 4)[:, :3] = np.asarray(columns, np.float32)
+
+    def set_sh(self, name: str, coeffs) -> None:
+        """``sh_light`` or ``sh_sun`` from ``(N_SH, 3)`` coefficients."""
+        o = _FRAME["sh_light"] + (4 * self.n_sh if name == "sh_sun" else 0)
+        rows = self.data[o : o + 4 * self.n_sh].reshape(self.n_sh, 4)
+        rows[:, :3] = np.asarray(coeffs, np.float32)
+
+    def flush(self) -> bool:
+        """Write the block if it changed; returns whether it wrote."""
+        if self._written is not None and np.array_equal(self.data, self._written):
+            return False
+        self.buffer = self.buffers[self._next]
+        self._next = (self._next + 1) % len(self.buffers)
+        self.buffer.write(self.data.tobytes())
+        self._written = self.data.copy()
+        return True
+
+    def release(self) -> None:
+        for b in self.buffers:
+            b.release()
+
+
+class PassTimer:
+    """GPU and CPU time of each pass of the frames a :class:`GLRenderer` draws while it is the
+    renderer's :attr:`~GLRenderer.timer`; a frame is one ``draw`` and what follows it until the
+    next (``present``).
+
+    Passes: ``uniforms`` (the per-frame block), ``shadow`` (the sun's shadow map, when it is
+    redrawn), ``clear``, ``depth`` (the object's depth pre-pass), ``prt`` (the object's
+    shading), ``background``, ``resolve`` (adding a sample into the frame, with several samples
+    per pixel), ``tonemap`` (``present``); a pass run once per sample sums over the samples.
+
+    GPU time: one GL_TIME_ELAPSED query (core in GL 3.3) around each pass, from when the GPU
+    reaches its first command to its last. On llvmpipe it is CPU wall-clock time taken by its
+    rasteriser threads, which work through a frame tile by tile with the passes interleaved:
+    the sum over the passes roughly follows the frame's time but the split between them does
+    not (vertex shading runs inside the draw call there, so it counts as the pass's CPU time,
+    and a pass that samples what an earlier one drew waits for it in its CPU time). Every
+    query is read by :meth:`summary` after ``ctx.finish()``, never during the frames, so
+    timing does not make the CPU wait for the GPU; a query is reused only after it was read.
+    CPU time: wall-clock seconds spent in the pass's calls (with a GPU driver: building and
+    submitting its commands). ``frames``: how many frames are recorded (later frames are not
+    timed). Without timer queries (a query cannot be made, its result cannot be read, or every
+    result is zero) :meth:`summary` has no GPU times.
+    """
+
+    def __init__(self, ctx, frames: int = 64):
+        self.ctx = ctx
+        self.max_frames = int(frames)
+        self._frames: list[list[tuple[str, object, float]]] = []
+        self._current: list | None = None
+        self._active = False  # TIME_ELAPSED queries cannot nest
+        self._free: list = []
+        try:
+            self._free.append(ctx.query(time=True))
+            self.gpu = True
+        except Exception:
+            self.gpu = False
+
+    def new_frame(self) -> None:
+        """Start recording a frame (nothing once ``frames`` frames are recorded)."""
+        if len(self._frames) >= self.max_frames:
+            self._current = None
+            return
+        self._current = []
+        self._frames.append(self._current)
+
+    @contextlib.contextmanager
+    def section(self, name: str):
+        """Time the calls inside as pass ``name`` of the current frame."""
+        rec = self._current
+        if rec is None or self._active:
+            yield
+            return
+        q = None
+        if self.gpu:
+            q = self._free.pop() if self._free else self.ctx.query(time=True)
+        self._active = True
+        if q is not None:
+            q.mglo.begin()
+        t0 = time.perf_counter()
+        try:
+            yield
+        finally:
+            cpu = time.perf_counter() - t0
+            if q is not None:
+                q.mglo.end()
+            self._active = False
+            rec.append((name, q, cpu))
+
+    def summary(self) -> dict:
+        """Mean time per recorded frame of each pass, in ms (call after ``ctx.finish()``).
+
+        Returns
+        -------
+        ``{"frames": n, "cpu_ms": {pass: ms}, "gpu_ms": {pass: ms}}`` in the order the passes
+        first ran; ``gpu_ms`` is absent without timer queries. The records are cleared.
+        """
+        n = max(len(self._frames), 1)
+        cpu: dict[str, float] = {}
+        gpu: dict[str, float] = {}
+        ok = self.gpu
+        for frame in self._frames:
+            for name, q, t in frame:
+                cpu[name] = cpu.get(name, 0.0) + t
+                if q is None:
+                    continue
+                if ok:
+                    try:
+                        gpu[name] = gpu.get(name, 0.0) + float(q.elapsed)
+                    except Exception:
+                        ok = False
+                self._free.append(q)
+        out = {"frames": len(self._frames), "cpu_ms": {k: 1e3 * v / n for k, v in cpu.items()}}
+        if ok and sum(gpu.values()) > 0:
+            out["gpu_ms"] = {k: 1e-6 * gpu.get(k, 0.0) / n for k in cpu}
+        self._frames, self._current = [], None
+        return out
+
+
 class GLRenderer:
     """Shader implementation behind :class:`lobelight.render.Renderer` (``backend="gl"``).
 
     ``offsets`` ``(S, 2)``: the sub-pixel sample positions in ``[0, 1)`` (x right, y down) of
     each frame (:func:`lobelight.render.sample_offsets`); default the pixel centre. With more
-    than one, each sample is a pass with the image shifted by its offset (the ``jitter``
-    uniform), added into :attr:`color` with weight ``1 / S``: the frame is the box-filtered
+    than one, each sample is a pass with the image shifted by its offset (frame.glsl's
+    ``jitter``), added into :attr:`color` with weight ``1 / S``: the frame is the box-filtered
     average of the samples and its alpha the fraction of them on the object.
+
+    ``hdr_dtype``: the colour targets' texel type, ``"f4"`` (RGBA32F: :meth:`read` returns the
+    shaded floats) or ``"f2"`` (RGBA16F, 11 significant bits: enough for :meth:`present`'s
+    8-bit display, half the memory traffic); :meth:`set_hdr_dtype` changes it.
+
+    Per frame the CPU fills frame.glsl's block and writes it when it changed (one buffer write;
+    none for a frame like the one before); uniforms outside it are written when their value
+    changes. Each sample draws the object's depth first (:attr:`depth_prepass`, default on),
+    then shades the object where its depth is the pre-pass's, so every covered pixel runs the
+    fragment stage once (back faces drawn before the front ones would run it too), then the
+    background where the object left the far plane. :attr:`timer`: a :class:`PassTimer` to
+    time each pass of the next frames (None: untimed).
     """
 
     def __init__(
-        self, model, lighting: Lighting, width: int, height: int, *, ctx=None, offsets=None
+        self,
+        model,
+        lighting: Lighting,
+        width: int,
+        height: int,
+        *,
+        ctx=None,
+        offsets=None,
+        hdr_dtype: str = "f4",
     ):
         import moderngl  # optional (the gl extra)
 
@@ -219,6 +423,8 @@ class GLRenderer:
         self.width, self.height = int(width), int(height)
         ctx = self.ctx
         ctx.enable_direct(_GL_TEXTURE_CUBE_MAP_SEAMLESS)
+        self.timer: PassTimer | None = None
+        self._uniform_values: dict = {}  # (program, name) -> the value written last
         n_gaussians = model.n_gaussians
         n_sh = int(model.diffuse.shape[1])
         if n_sh != lighting.sh.shape[0]:
@@ -228,29 +434,40 @@ class GLRenderer:
         # the sun's glossy reflection per pixel where the BRDF allows (render/_sun_glossy.py);
         # the Gaussians then integrate the map without the sun
         spec = model.materials.specular
-        self.sun_glossy = lighting.sun is not None and sun_glossy_supported(spec)
+        self.has_sun = lighting.sun is not None
+        self.sun_glossy = self.has_sun and sun_glossy_supported(spec)
         pf = lighting.rest_prefiltered if self.sun_glossy else lighting.prefiltered
         self.n_levels = len(pf.levels)
         self.planes_ubo, self.cand_tex, geo_defines = upload_geodesic(ctx)
+        prt_defines = {
+            "N_GAUSSIANS": n_gaussians,
+            "N_INDIRECT": model.indirect_gaussians,
+            "N_SH": n_sh,
+            "MAX_LEVELS": self.n_levels,
+            "FLOOR": f"{model_module.LIVE_FLOOR:.6e}",
+            "MIN_SAY": f"{model_module.MIN_SAY:.6e}",
+            "HAS_BOUNCE": int(model.bounce is not None and self.has_sun),
+            "HAS_SUN": int(self.has_sun),
+            "SUN_GLOSSY": int(self.sun_glossy),
+            **geo_defines,
+        }
         self.prog = _program(
             ctx,
             "prt",
-            {
-                "N_GAUSSIANS": n_gaussians,
-                "N_INDIRECT": model.indirect_gaussians,
-                "N_SH": n_sh,
-                "MAX_LEVELS": self.n_levels,
-                "FLOOR": f"{model_module.LIVE_FLOOR:.6e}",
-                "MIN_SAY": f"{model_module.MIN_SAY:.6e}",
-                "HAS_BOUNCE": int(model.bounce is not None and lighting.sun is not None),
-                **geo_defines,
-            },
-            include=("prefiltered",),
-            vertex_include=("geodesic",),
+            {**prt_defines, "DEPTH_ONLY": 0},
+            include=("frame", "prefiltered"),
+            vertex_include=("frame", "geodesic"),
         )
-        self.bg_prog = _program(ctx, "background")
+        # the depth pre-pass: the object's depth alone, from the same projection code
+        # (prt.glsl's project, invariant gl_Position) so that the shading pass's depths equal it
+        self.depth_prog = _program(
+            ctx, "prt", {**prt_defines, "DEPTH_ONLY": 1}, ("frame",), ("frame",)
+        )
+        self.depth_prepass = True
+        self.bg_prog = _program(ctx, "background", {"N_SH": n_sh}, ("frame",), ("frame",))
         self.tm_prog = _program(ctx, "tonemap")
         self.acc_prog = _program(ctx, "accumulate")
+        self.shadow_prog = _program(ctx, "shadow", {"N_SH": n_sh}, ("frame",), ("frame",))
 
         # Gaussians: record (v, j, k) -> texels 2r, 2r + 1 with r = (v J + j) N + k
         g = model.gaussians
@@ -277,7 +494,7 @@ class GLRenderer:
         self.gauss_tex = self._data_texture(img)
         self.diff_tex = self._data_texture(dimg)
         # the interreflected part of the transfer, lit by the sun as well (Model.bounce)
-        self.has_bounce = model.bounce is not None and lighting.sun is not None
+        self.has_bounce = model.bounce is not None and self.has_sun
         bounce = model.bounce if self.has_bounce else torch.zeros_like(model.diffuse[:1])
         bimg, tw3 = _wrap(
             torch.cat([bounce, torch.zeros_like(bounce[..., :1])], -1)
@@ -298,52 +515,65 @@ class GLRenderer:
         p = self.prog
         p["tex_width"].value = tw
         set_uniforms(p, atlas_uniforms)
-        p["Planes"].binding = 0
+        p["Planes"].binding = _PLANES_BINDING
+        for prog in (p, self.depth_prog, self.bg_prog, self.shadow_prog):
+            for block, binding in (("Frame", _FRAME_BINDING), ("Sample", _SAMPLE_BINDING)):
+                if prog.get(block, None) is not None:  # the shadow pass has no jitter
+                    prog[block].binding = binding
         units = (
             ("gauss_tex", 0),
             ("diff_tex", 1),
             ("cand_tex", 2),
             ("atlas", 3),
+            ("shadow_map", 6),
             ("bounce_tex", 8),
         )
         for name, unit in units:
-            if p.get(name, None) is not None:  # bounce_tex is compiled out without a bounce
+            if p.get(name, None) is not None:  # compiled out without a sun or a bounce
                 p[name].value = unit
         self.bg_prog["env"].value = 4
+        self.tm_prog["image"].value = 5
+        self.acc_prog["image"].value = 7
         self.lighting = lighting
+
+        self.frame_block = _FrameBlock(ctx, n_sh)
+        if p["Frame"].size != self.frame_block.data.nbytes:  # frame.glsl and _FRAME disagree
+            raise RuntimeError(
+                f"Frame block of {p['Frame'].size} bytes, expected {self.frame_block.data.nbytes}"
+            )
+        self._camera: Camera | None = None  # the camera and rotation the block holds
+        self._rot: np.ndarray | None = None
+        self._sun_frame: np.ndarray | None = None  # (3, 3) rows: the shadow map's frame
 
         verts = model.mesh.vertices.detach().cpu().numpy().astype(np.float32)
         faces_np = model.mesh.faces.cpu().numpy().astype(np.uint32)
         self.vbo = ctx.buffer(verts.tobytes())
         self.ibo = ctx.buffer(faces_np.tobytes())
         normals = model.mesh.normals.detach().cpu().numpy().astype(np.float32)
-        albedo = model.materials.diffuse.detach().cpu().numpy().astype(np.float32)
         self.nbo = ctx.buffer(normals.tobytes())
-        self.abo = ctx.buffer(albedo.tobytes())
-        v = model.mesh.n_vertices
+        content = [(self.vbo, "3f", "in_pos"), (self.nbo, "3f", "in_normal")]
+        self.abo = self.sbo = None  # per-vertex inputs of the sun's shading, when it has one
+        if self.has_sun:
+            albedo = model.materials.diffuse.detach().cpu().numpy().astype(np.float32)
+            self.abo = ctx.buffer(albedo.tobytes())
+            content.append((self.abo, "3f", "in_albedo"))
         if self.sun_glossy:
+            v = model.mesh.n_vertices
             sb = sun_glossy_vertex_params(sun_widened(spec, lighting.sun.spread), v)
             set_uniforms(p, sun_glossy_uniforms(spec))
             if p.get("sun_spread", None) is not None:  # compiled out without indirect lobes
                 p["sun_spread"].value = float(lighting.sun.spread)
-        else:
-            sb = np.zeros((v, 10), np.float32)
-        p["sun_glossy"].value = float(self.sun_glossy)
-        self.sbo = ctx.buffer(sb.tobytes())
-        self.vao = ctx.vertex_array(
-            p,
-            [
-                (self.vbo, "3f", "in_pos"),
-                (self.nbo, "3f", "in_normal"),
-                (self.abo, "3f", "in_albedo"),
-                (self.sbo, "4f 3f 3f", "in_sb0", "in_eta", "in_k"),
-            ],
-            self.ibo,
-            4,
+            self.sbo = ctx.buffer(sb.tobytes())
+            content.append((self.sbo, "4f 3f 3f", "in_sb0", "in_eta", "in_k"))
+        self.vao = ctx.vertex_array(p, content, self.ibo, 4)
+        self.depth_vao = ctx.vertex_array(
+            self.depth_prog, [(self.vbo, "3f", "in_pos")], self.ibo, 4
         )
-        # the sun's shadow map (a 1-texel stand-in without a sun: the sampler stays valid)
-        self.shadow_res = SHADOW_RES if lighting.sun is not None else 1
-        self.shadow_prog = _program(ctx, "shadow")
+        center = model.mesh.vertices.mean(0)
+        self.center = center.detach().cpu().numpy()
+        self.radius = float((model.mesh.vertices - center).norm(dim=-1).max())
+        # the sun's shadow map (a 1-texel stand-in without a sun)
+        self.shadow_res = SHADOW_RES if self.has_sun else 1
         self.shadow_tex = ctx.depth_texture((self.shadow_res,) * 2)
         self.shadow_tex.compare_func = "<="
         self.shadow_tex.filter = (moderngl.LINEAR, moderngl.LINEAR)  # 2x2 PCF
@@ -352,23 +582,59 @@ class GLRenderer:
         self.shadow_vao = ctx.vertex_array(
             self.shadow_prog, [(self.vbo, "3f", "in_pos")], self.ibo, 4
         )
-        p["shadow_map"].value = 6
         self._shadow_key = None  # the sun frame the shadow map was last rendered for
+        blk = self.frame_block
+        if self.has_sun:  # what the sun's shading holds still while the light turns
+            scale = 1.0 / (1.02 * self.radius)
+            texel = 2.0 / (scale * self.shadow_res)  # world size of a shadow-map texel
+            blk.set("sun_e", [float(x) for x in lighting.sun.irradiance])
+            blk.set("shadow_center", self.center)
+            blk.set("shadow_scale", scale)
+            blk.set("shadow_offset", 1.5 * texel)
+            blk.set("shadow_bias", 1.0 / self.shadow_res)
         quad = np.array([-1, -1, 1, -1, -1, 1, 1, 1], np.float32)
         self.quad = ctx.buffer(quad.tobytes())
         self.bg_vao = ctx.vertex_array(self.bg_prog, [(self.quad, "2f", "in_xy")])
         self.tm_vao = ctx.vertex_array(self.tm_prog, [(self.quad, "2f", "in_xy")])
         self.acc_vao = ctx.vertex_array(self.acc_prog, [(self.quad, "2f", "in_xy")])
-        # a texture (not a renderbuffer) so that the window's tone-mapping pass can read it
-        self.color = ctx.texture((self.width, self.height), 4, dtype="f4")
         self.depth = ctx.depth_renderbuffer((self.width, self.height))
-        self.fbo = ctx.framebuffer([self.color], self.depth)
+        # a texture (not a renderbuffer) so that the window's tone-mapping pass can read it
+        self.color = self.fbo = None
         # the per-sample pass's target when there are several samples (made on first use)
         self._pass_color = self._pass_fbo = None
+        self.hdr_dtype = None
+        self.set_hdr_dtype(hdr_dtype)
+        # the sample records of frame.glsl's Sample block, one per sample at the alignment GL
+        # requires of a bound range
+        align = int(ctx.info.get("GL_UNIFORM_BUFFER_OFFSET_ALIGNMENT", 256))
+        self._sample_stride = max(16, -(-align // 16) * 16)
+        self.sample_ubo = None
         self.set_offsets(offsets)
-        center = model.mesh.vertices.mean(0)
-        self.center = center.detach().cpu().numpy()
-        self.radius = float((model.mesh.vertices - center).norm(dim=-1).max())
+
+    def time_passes(self, frames: int = 64) -> PassTimer:
+        """Attach a new :class:`PassTimer` as :attr:`timer` for the next ``frames`` frames and
+        return it (read it with :meth:`PassTimer.summary` after ``ctx.finish()``; set
+        :attr:`timer` to None to stop timing)."""
+        self.timer = PassTimer(self.ctx, frames)
+        return self.timer
+
+    def set_hdr_dtype(self, dtype: str) -> None:
+        """The colour targets' texel type (``"f4"`` or ``"f2"``, see the class); their
+        content is undefined until the next :meth:`draw`."""
+        if dtype not in HDR_DTYPES:
+            raise InputError("hdr_dtype", f"must be one of {HDR_DTYPES}, got {dtype!r}")
+        if dtype == self.hdr_dtype:
+            return
+        self.hdr_dtype = dtype
+        for o in (self.fbo, self.color, self._pass_fbo, self._pass_color):
+            if o is not None:
+                o.release()
+        size = (self.width, self.height)
+        self.color = self.ctx.texture(size, 4, dtype=dtype)
+        self.fbo = self.ctx.framebuffer([self.color], self.depth)
+        if self._pass_color is not None:
+            self._pass_color = self.ctx.texture(size, 4, dtype=dtype)
+            self._pass_fbo = self.ctx.framebuffer([self._pass_color], self.depth)
 
     def set_offsets(self, offsets=None) -> None:
         """The sub-pixel sample positions ``(S, 2)`` of the next frames (None: the centre)."""
@@ -379,8 +645,16 @@ class GLRenderer:
             raise InputError("offsets", "sub-pixel positions must lie in [0, 1)")
         self.offsets = off
         if off.shape[0] > 1 and self._pass_fbo is None:
-            self._pass_color = self.ctx.texture((self.width, self.height), 4, dtype="f4")
+            size = (self.width, self.height)
+            self._pass_color = self.ctx.texture(size, 4, dtype=self.hdr_dtype)
             self._pass_fbo = self.ctx.framebuffer([self._pass_color], self.depth)
+        stride = self._sample_stride // 4
+        rec = np.zeros((off.shape[0], stride), np.float32)
+        rec[:, :2] = [self._jitter(o) for o in off]  # a loop over samples, not pixels
+        if self.sample_ubo is not None:
+            self.sample_ubo.release()
+        self.sample_ubo = self.ctx.buffer(rec.tobytes())
+        self._uniform(self.acc_prog, "weight", 1.0 / off.shape[0])
 
     def _jitter(self, offset) -> tuple[float, float]:
         """The NDC shift that puts the sample at ``offset`` (x right, y down) under the pixel
@@ -396,13 +670,64 @@ class GLRenderer:
         t.filter = (moderngl.NEAREST, moderngl.NEAREST)
         return t
 
-    def _camera_uniforms(self, prog, camera: Camera) -> None:
-        f = camera.frame(dtype=torch.float64).numpy()
-        tx, ty = camera.tan_half(self.width, self.height)
-        prog["cam_left"].value = tuple(f[0])
-        prog["cam_up"].value = tuple(f[1])
-        prog["cam_dir"].value = tuple(f[2])
-        prog["tan_half"].value = (tx, ty)
+    def _uniform(self, prog, name: str, value) -> None:
+        """Write a uniform outside the frame block when its value differs from the last one
+        written (programs keep uniform values)."""
+        key = (prog.glo, name)
+        if self._uniform_values.get(key) != value:
+            prog[name].value = value
+            self._uniform_values[key] = value
+
+    def _section(self, name: str):
+        """The timing of pass ``name`` (:class:`PassTimer`), or nothing when untimed."""
+        return _UNTIMED if self.timer is None else self.timer.section(name)
+
+    def _update_frame(self, camera: Camera, rot: torch.Tensor, diffuse: bool, glossy: bool):
+        """Fill the frame block with what changed since the last frame and write it; returns
+        whether the sun is shaded this frame."""
+        blk = self.frame_block
+        if camera != self._camera:  # a frozen dataclass: equal cameras look alike
+            f = camera.frame(dtype=torch.float64).numpy()
+            tx, ty = camera.tan_half(self.width, self.height)
+            blk.set("cam_left", f[0])
+            blk.set("cam_up", f[1])
+            blk.set("cam_dir", f[2])
+            blk.set("tan_half", (tx, ty))
+            eye = np.asarray(camera.origin, np.float64)
+            dist = float(np.linalg.norm(eye - self.center))
+            near = max(dist - 1.01 * self.radius, 1e-3 * self.radius)
+            blk.set("depth_range", (near, dist + 1.01 * self.radius))
+            blk.set("eye", eye)
+            self._camera = camera
+        r = rot.detach().cpu().numpy().astype(np.float32)
+        if self._rot is None or not np.array_equal(r, self._rot):
+            blk.set_columns("rot_t", r)  # R^T's columns are R's rows
+            blk.set_sh("sh_light", self.lighting.sh_rotated(rot).cpu().numpy())
+            if self.has_bounce:
+                blk.set_sh("sh_sun", self.lighting.sun_sh_rotated(rot).numpy())
+            if self.has_sun:
+                l = self.lighting.sun_direction(rot).detach().cpu().double().numpy()
+                l = l / np.linalg.norm(l)
+                a = np.array([1.0, 0.0, 0.0]) if abs(l[0]) < 0.9 else np.array([0.0, 1.0, 0.0])
+                u = np.cross(l, a)
+                u /= np.linalg.norm(u)
+                v = np.cross(l, u)
+                self._sun_frame = np.stack([u, v, l]).astype(np.float32)  # rows
+                blk.set_columns("shadow_frame", self._sun_frame.T)
+                blk.set("sun_dir", l)
+            self._rot = r
+        sun_on = self.has_sun and (diffuse or (glossy and self.sun_glossy))
+        blk.set("diffuse_on", float(diffuse))
+        blk.set("glossy_on", float(glossy))
+        blk.set("sun_on", float(sun_on))
+        blk.flush()
+        return sun_on
+
+    def _bind_blocks(self) -> None:
+        """Bind the uniform buffers the programs read (another renderer on the context may
+        have bound its own to the same points)."""
+        self.frame_block.buffer.bind_to_uniform_block(_FRAME_BINDING)
+        self.planes_ubo.bind_to_uniform_block(_PLANES_BINDING)
 
     def draw(
         self,
@@ -418,153 +743,136 @@ class GLRenderer:
         sample of :attr:`offsets`."""
         import moderngl  # optional (the gl extra)
 
+        if self.timer is not None:
+            self.timer.new_frame()
         ctx = self.ctx
         out = fbo or self.fbo
-        r = rot.detach().cpu().numpy().astype(np.float32)
-        rt_bytes = r.tobytes()  # row-major R is column-major R^T: the shaders' rot_t
-        if background:
-            self._camera_uniforms(self.bg_prog, camera)
-            self.bg_prog["rot_t"].write(rt_bytes)
-        p = self.prog
-        self._camera_uniforms(p, camera)
-        eye = np.asarray(camera.origin, np.float64)
-        dist = float(np.linalg.norm(eye - self.center))
-        near = max(dist - 1.01 * self.radius, 1e-3 * self.radius)
-        p["depth_range"].value = (near, dist + 1.01 * self.radius)
-        p["eye"].value = tuple(float(x) for x in eye)
-        p["rot_t"].write(rt_bytes)
-        p["sh_light"].write(
-            self.lighting.sh_rotated(rot).cpu().numpy().astype(np.float32).tobytes()
-        )
-        if self.has_bounce:
-            p["sh_sun"].write(
-                self.lighting.sun_sh_rotated(rot).numpy().astype(np.float32).tobytes()
-            )
-        p["parts"].value = (float(diffuse), float(glossy))
-        self._sun_pass(rot, on=diffuse or (glossy and self.sun_glossy))
+        with self._section("uniforms"):
+            sun_on = self._update_frame(camera, rot, diffuse, glossy)
+            self._bind_blocks()
+        if sun_on:
+            self._shadow_pass()
         n = self.offsets.shape[0]
         if n == 1:
-            self._draw_sample(out, self._jitter(self.offsets[0]), background)
+            self._draw_sample(out, 0, background)
             return
-        out.use()
-        ctx.viewport = (0, 0, self.width, self.height)
-        out.clear(0.0, 0.0, 0.0, 0.0)
-        self.acc_prog["image"].value = 7
-        self.acc_prog["weight"].value = 1.0 / n
-        for offset in self.offsets:
-            self._draw_sample(self._pass_fbo, self._jitter(offset), background)
+        with self._section("clear"):
             out.use()
             ctx.viewport = (0, 0, self.width, self.height)
-            ctx.disable(moderngl.DEPTH_TEST)
-            ctx.enable(moderngl.BLEND)
-            ctx.blend_func = moderngl.ONE, moderngl.ONE
-            ctx.blend_equation = moderngl.FUNC_ADD
-            self._pass_color.use(7)
-            self.acc_vao.render(moderngl.TRIANGLE_STRIP)
-            ctx.disable(moderngl.BLEND)
+            out.clear(0.0, 0.0, 0.0, 0.0)
+        for i in range(n):
+            self._draw_sample(self._pass_fbo, i, background)
+            with self._section("resolve"):
+                out.use()
+                ctx.viewport = (0, 0, self.width, self.height)
+                ctx.disable(moderngl.DEPTH_TEST)
+                ctx.enable(moderngl.BLEND)
+                ctx.blend_func = moderngl.ONE, moderngl.ONE
+                ctx.blend_equation = moderngl.FUNC_ADD
+                self._pass_color.use(7)
+                self.acc_vao.render(moderngl.TRIANGLE_STRIP)
+                ctx.disable(moderngl.BLEND)
 
-    def _draw_sample(self, fbo, jitter: tuple[float, float], background: bool) -> None:
-        """One sample of every pixel into ``fbo``: background, then the object (the uniforms
-        but ``jitter`` are set by :meth:`draw`)."""
+    def _draw_sample(self, fbo, i: int, background: bool) -> None:
+        """Sample ``i`` of every pixel into ``fbo``: the object's depth, its shading where the
+        depth is the front-most, then the background where the object left the depth at the far
+        plane (the frame block is written by :meth:`draw`)."""
         import moderngl  # optional (the gl extra)
 
         ctx = self.ctx
-        fbo.use()
-        ctx.viewport = (0, 0, self.width, self.height)
-        if background:  # the background pass writes every pixel: clear the depth alone
-            # (moderngl applies a framebuffer's colour mask when it is bound)
-            fbo.color_mask = (False, False, False, False)
+        with self._section("clear"):
             fbo.use()
-            fbo.clear(depth=1.0)
-            fbo.color_mask = (True, True, True, True)
-            fbo.use()
-            ctx.disable(moderngl.DEPTH_TEST)
-            self.bg_prog["jitter"].value = jitter
-            self.env_cube.use(4)
-            self.bg_vao.render(moderngl.TRIANGLE_STRIP)
-        else:
-            fbo.clear(0.0, 0.0, 0.0, 0.0, depth=1.0)
+            ctx.viewport = (0, 0, self.width, self.height)
+            if background:  # object and background write every pixel: clear the depth alone
+                # (moderngl applies a framebuffer's colour mask when it is bound)
+                fbo.color_mask = (False, False, False, False)
+                fbo.use()
+                fbo.clear(depth=1.0)
+                fbo.color_mask = (True, True, True, True)
+                fbo.use()
+            else:
+                fbo.clear(0.0, 0.0, 0.0, 0.0, depth=1.0)
+        s = self._sample_stride
+        self.sample_ubo.bind_to_uniform_block(_SAMPLE_BINDING, offset=i * s, size=16)
         ctx.enable(moderngl.DEPTH_TEST)
-        self.prog["jitter"].value = jitter
-        self.shadow_tex.use(6)
-        self.gauss_tex.use(0)
-        self.diff_tex.use(1)
-        self.cand_tex.use(2)
-        self.bounce_tex.use(8)
-        self.planes_ubo.bind_to_uniform_block(0)
-        self.atlas.use(3)
-        self.vao.render(moderngl.TRIANGLES)
+        if self.depth_prepass:
+            with self._section("depth"):
+                ctx.depth_func = "<"
+                fbo.color_mask = (False, False, False, False)
+                fbo.use()
+                self.depth_vao.render(moderngl.TRIANGLES)
+                fbo.color_mask = (True, True, True, True)
+                fbo.use()
+        with self._section("prt"):
+            ctx.depth_func = "<=" if self.depth_prepass else "<"
+            if self.has_sun:
+                self.shadow_tex.use(6)
+            self.gauss_tex.use(0)
+            self.diff_tex.use(1)
+            self.cand_tex.use(2)
+            if self.has_bounce:
+                self.bounce_tex.use(8)
+            self.atlas.use(3)
+            self.vao.render(moderngl.TRIANGLES)
+        if background:
+            with self._section("background"):
+                # the quad lies at the far plane: it passes where the depth is still clear
+                ctx.depth_func = "<="
+                self.env_cube.use(4)
+                self.bg_vao.render(moderngl.TRIANGLE_STRIP)
+                ctx.depth_func = "<"
 
-    def _sun_pass(self, rot: torch.Tensor, *, on: bool) -> None:
-        """Set the sun's uniforms and render its shadow map (when the lighting has a sun)."""
+    def _shadow_pass(self) -> None:
+        """Render the sun's shadow map when its direction changed since the last one."""
         import moderngl  # optional (the gl extra)
 
-        p = self.prog
-        sun = self.lighting.sun
-        p["sun_on"].value = float(on and sun is not None)
-        if not (on and sun is not None):
-            return
-        l = self.lighting.sun_direction(rot).detach().cpu().double().numpy()
-        l = l / np.linalg.norm(l)
-        a = np.array([1.0, 0.0, 0.0]) if abs(l[0]) < 0.9 else np.array([0.0, 1.0, 0.0])
-        u = np.cross(l, a)
-        u /= np.linalg.norm(u)
-        v = np.cross(l, u)
-        frame = np.stack([u, v, l]).astype(np.float32)  # rows; GLSL mat3 is column-major
-        scale = 1.0 / (1.02 * self.radius)
-        texel = 2.0 / (scale * self.shadow_res)  # world size of a shadow-map texel
-        for prog in (p, self.shadow_prog):
-            prog["shadow_frame"].write(frame.T.copy().tobytes())
-            prog["shadow_center"].value = tuple(float(x) for x in self.center)
-            prog["shadow_scale"].value = scale
-        p["sun_dir"].value = tuple(float(x) for x in l)
-        p["sun_e"].value = tuple(float(x) for x in sun.irradiance)
-        p["shadow_offset"].value = 1.5 * texel
-        p["shadow_bias"].value = 1.0 / self.shadow_res
-        key = frame.tobytes()
+        key = self._sun_frame.tobytes()
         if key == self._shadow_key:  # the map depends on the sun's direction alone
             return
         self._shadow_key = key
         ctx = self.ctx
-        self.shadow_fbo.use()
-        ctx.viewport = (0, 0, self.shadow_res, self.shadow_res)
-        self.shadow_fbo.clear(depth=1.0)
-        ctx.enable(moderngl.DEPTH_TEST)
-        self.shadow_vao.render(moderngl.TRIANGLES)
+        with self._section("shadow"):
+            self.shadow_fbo.use()
+            ctx.viewport = (0, 0, self.shadow_res, self.shadow_res)
+            self.shadow_fbo.clear(depth=1.0)
+            ctx.enable(moderngl.DEPTH_TEST)
+            ctx.depth_func = "<"
+            self.shadow_vao.render(moderngl.TRIANGLES)
 
     def present(self, screen, *, exposure: float = 0.0, curve: str = "srgb") -> None:
         """Tone-map the last frame onto ``screen`` (a window's framebuffer)."""
         import moderngl  # optional (the gl extra)
 
-        screen.use()
-        self.ctx.disable(moderngl.DEPTH_TEST)
-        self.color.use(5)
-        self.tm_prog["image"].value = 5
-        self.tm_prog["scale"].value = float(2.0**exposure)
-        self.tm_prog["curve"].value = 1 if curve == "aces" else 0
-        self.tm_vao.render(moderngl.TRIANGLE_STRIP)
+        with self._section("tonemap"):
+            screen.use()
+            self.ctx.disable(moderngl.DEPTH_TEST)
+            self.color.use(5)
+            self._uniform(self.tm_prog, "scale", float(2.0**exposure))
+            self._uniform(self.tm_prog, "curve", 1 if curve == "aces" else 0)
+            self.tm_vao.render(moderngl.TRIANGLE_STRIP)
 
     def read(self) -> tuple[torch.Tensor, torch.Tensor]:
-        """The float framebuffer as ``(H, W, 3)`` radiance and ``(H, W)`` float32 coverage (the
-        fraction of the pixel's samples on the object)."""
+        """The colour target as ``(H, W, 3)`` radiance and ``(H, W)`` float32 coverage (the
+        fraction of the pixel's samples on the object); float32 values, of half-float
+        precision when :attr:`hdr_dtype` is ``"f2"``."""
         raw = self.fbo.read(components=4, dtype="f4")
         img = np.frombuffer(raw, np.float32).reshape(self.height, self.width, 4)[::-1]
         img = torch.from_numpy(img.copy())
         return img[..., :3].contiguous(), img[..., 3].contiguous()
 
     def release(self) -> None:
-        for o in (self._pass_fbo, self._pass_color):
+        for o in (self._pass_fbo, self._pass_color, self.abo, self.sbo):
             if o is not None:
                 o.release()
         for o in (
             self.vao,
+            self.depth_vao,
+            self.depth_prog,
             self.shadow_vao,
             self.shadow_fbo,
             self.shadow_tex,
             self.shadow_prog,
             self.nbo,
-            self.abo,
-            self.sbo,
             self.bg_vao,
             self.tm_vao,
             self.acc_vao,
@@ -578,6 +886,7 @@ class GLRenderer:
             self.diff_tex,
             self.bounce_tex,
             self.planes_ubo,
+            self.sample_ubo,
             self.cand_tex,
             self.atlas,
             self.env_cube,
@@ -587,5 +896,6 @@ class GLRenderer:
             self.acc_prog,
         ):
             o.release()
+        self.frame_block.release()
         if self.own_ctx:
             self.ctx.release()

@@ -182,7 +182,7 @@ def sun_stage(
         )
         ray = l.expand_as(ng)
         origin = caster.spawn(pos[lit], ng, ray, offset=_SHADOW_OFFSET)
-        vis = ~caster.occluded(origin.cpu(), ray.cpu()).to(dev)
+        vis = ~caster.occluded(origin, ray)  # on the device: Warp's rays stay there
         e = lighting.sun.irradiance.to(dev)
         if diffuse:
             out[lit] = albedo[lit] / math.pi * e * (cos[lit] * vis)[:, None]
@@ -236,7 +236,7 @@ def render_torch(
         if px is not None:
             o, d = o[px[:, 0], px[:, 1]], d[px[:, 0], px[:, 1]]
         shape = d.shape[:-1]
-        o, d = o.reshape(-1, 3), d.reshape(-1, 3)
+        o, d = o.reshape(-1, 3).to(dev), d.reshape(-1, 3).to(dev)
         tri, _, bary = caster.first_hit(o, d)
         hit = tri >= 0
         one = torch.zeros(o.shape[0], 3, device=dev)

@@ -79,6 +79,8 @@ def view(
         ctx = moderngl.create_context()
         fb_w, fb_h = glfw.get_framebuffer_size(win)
         ren = Renderer(model, env, fb_w, fb_h, backend="gl", ctx=ctx, sun=sun, samples=samples)
+        # the window shows 8-bit tone-mapped frames: half-float radiance loses nothing there
+        ren._gl.set_hdr_dtype("f2")
         verts = model.mesh.vertices
         centre = ((verts.amin(0) + verts.amax(0)) / 2).tolist()
         radius = float((verts - verts.mean(0)).norm(dim=-1).max())

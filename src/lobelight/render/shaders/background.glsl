@@ -1,5 +1,7 @@
 // The environment behind the object: the ray of each pixel (Mitsuba's perspective sensor)
-// looked up in the rotated environment.
+// looked up in the rotated environment. Drawn after the object at the far plane with the depth
+// test on, so only the pixels the object leaves uncovered run it; the camera, rotation and
+// jitter come from frame.glsl.
 
 #if defined VERTEX_SHADER
 
@@ -15,12 +17,6 @@ void main() {
 
 in vec2 v_ndc;
 uniform samplerCube env;
-uniform vec3 cam_left;
-uniform vec3 cam_up;
-uniform vec3 cam_dir;
-uniform vec2 tan_half;
-uniform mat3 rot_t;
-uniform vec2 jitter;  // the sample's shift from the pixel centre (NDC), as in prt.glsl
 out vec4 frag;
 
 void main() {

@@ -4,46 +4,72 @@
 // times its integral) blends linearly; width and mean blend over the live records (carrying at
 // least FLOOR) with renormalised barycentrics. Per pixel the rasteriser does that with
 // varyings premultiplied by the live flag, divided by the interpolated flag.
-// Stages are selected by VERTEX_SHADER / FRAGMENT_SHADER; N_GAUSSIANS (Gaussians per view) and N_INDIRECT (how
-// many of the last hold indirect glossy transport, lobelight.model.Model.indirect_lobes) are
-// defined by the loader. The torch path (render/_torch.py) mirrors this file step by step.
+// Stages are selected by VERTEX_SHADER / FRAGMENT_SHADER; N_GAUSSIANS (Gaussians per view),
+// N_INDIRECT (how many of the last hold indirect glossy transport,
+// lobelight.model.Model.indirect_lobes), HAS_SUN (the lighting has a sun) and SUN_GLOSSY (its
+// glossy reflection is shaded per pixel) and DEPTH_ONLY (1: the depth pre-pass, which projects
+// the vertices and shades nothing) are defined by the loader, and the per-frame values (camera,
+// rotation, SH lighting, sun) come from frame.glsl's block. The torch path (render/_torch.py)
+// mirrors this file step by step.
+//
+// Two vec4 varyings per Gaussian: a float array varying takes a whole interpolator slot per
+// element on many GPUs, so (e, live) and (mu offset, sigma) share slots; the sun's per-vertex
+// inputs are compiled out when they are not shaded.
 
 #if defined VERTEX_SHADER
 
 in vec3 in_pos;
 in vec3 in_normal;
+#if HAS_SUN
 in vec3 in_albedo;
+#endif
+#if SUN_GLOSSY
 in vec4 in_sb0;                // the sun's glossy BRDF (render/_sun_glossy.py): alpha, specular
 in vec3 in_eta;                // conductor index eta + i k
 in vec3 in_k;
+#endif
 
 uniform sampler2D gauss_tex;   // RGBA32F, 2 texels per record (e.rgb, sigma), (mu.xyz, 0)
 uniform sampler2D diff_tex;    // RGBA32F, N_SH texels per vertex: transfer RGB
 uniform sampler2D bounce_tex;  // RGBA32F, N_SH texels per vertex: its interreflected part
-uniform vec3 sh_sun[N_SH];     // the rotated sun alone as SH (zeros without a sun)
 // the geodesic triangles and locate_triangle() come from geodesic.glsl
 uniform int tex_width;         // width of gauss_tex and diff_tex
-uniform vec3 sh_light[N_SH];   // the rotated lighting's SH coefficients
-uniform vec3 eye;
-uniform vec3 cam_left;
-uniform vec3 cam_up;
-uniform vec3 cam_dir;
-uniform vec2 tan_half;         // tan of the half field of view along x and y
-uniform vec2 depth_range;      // near, far
-uniform vec2 jitter;           // the sample's shift from the pixel centre, in NDC units
 
-out vec3 v_e[N_GAUSSIANS];        // carried light
-out float v_live[N_GAUSSIANS];    // 1 if the vertex's lobe is live (carries light), else 0
-out vec3 v_mu[N_GAUSSIANS];       // live flag times (mean - the vertex's mirror direction)
-out float v_sigma[N_GAUSSIANS];   // live flag times sigma
+// per Gaussian k: [2k] (carried light e, 1 if the vertex's lobe is live else 0),
+// [2k + 1] (live flag times (mean - the vertex's mirror direction), live flag times sigma)
+out vec4 v_lobe[2 * N_GAUSSIANS];
 out vec3 v_diffuse;
 out vec3 v_pos;
 out vec3 v_normal;
+#if HAS_SUN
 out vec3 v_albedo;
+#endif
+#if SUN_GLOSSY
 out vec4 v_sb0;
 out vec3 v_eta;
 out vec3 v_k;
+#endif
 
+// the depth pre-pass and the shading pass must rasterise the same depths
+invariant gl_Position;
+
+// Mitsuba's perspective sensor: x runs against cam_left, y along cam_up
+vec4 project(vec3 p) {
+    vec3 q = p - eye;
+    float zc = dot(q, cam_dir);
+    float n = depth_range.x, fa = depth_range.y;
+    // the image moves by the sample's offset so that the pixel centres see the sample points
+    // (Renderer's supersampling; zero for one sample per pixel)
+    return vec4(-dot(q, cam_left) / tan_half.x + jitter.x * zc,
+                dot(q, cam_up) / tan_half.y + jitter.y * zc,
+                zc * (fa + n) / (fa - n) - 2.0 * fa * n / (fa - n), zc);
+}
+
+#if DEPTH_ONLY
+void main() {
+    gl_Position = project(in_pos);
+}
+#else
 ivec2 at(int i) { return ivec2(i % tex_width, i / tex_width); }
 
 void main() {
@@ -75,75 +101,70 @@ void main() {
         e = dot(in_normal, d) > 0.0 && above >= MIN_SAY ? e / above : e;
         bool ok = say >= MIN_SAY;
         float live = ok && (e.r + e.g + e.b) / 3.0 >= FLOOR ? 1.0 : 0.0;
-        v_e[k] = ok ? e : vec3(0.0);
-        v_live[k] = live;
-        v_sigma[k] = ok ? live * sigma / say : 0.0;
         // the mean as an offset from this vertex's mirror direction (divide first: no underflow)
-        v_mu[k] = ok ? live * (normalize(mu / say) - mirror) : vec3(0.0);
+        v_lobe[2 * k] = vec4(ok ? e : vec3(0.0), live);
+        v_lobe[2 * k + 1] = vec4(ok ? live * (normalize(mu / say) - mirror) : vec3(0.0),
+                                 ok ? live * sigma / say : 0.0);
     }
 
     vec3 diffuse = vec3(0.0);
     for (int i = 0; i < N_SH; ++i) {
-        diffuse += texelFetch(diff_tex, at(v * N_SH + i), 0).rgb * sh_light[i];
+        diffuse += texelFetch(diff_tex, at(v * N_SH + i), 0).rgb * sh_light[i].rgb;
     }
 #if HAS_BOUNCE
     // the sun's light bounced off the object (lobelight.model.Model.bounce)
     for (int i = 0; i < N_SH; ++i) {
-        diffuse += texelFetch(bounce_tex, at(v * N_SH + i), 0).rgb * sh_sun[i];
+        diffuse += texelFetch(bounce_tex, at(v * N_SH + i), 0).rgb * sh_sun[i].rgb;
     }
 #endif
     v_diffuse = diffuse;
     v_pos = in_pos;
     v_normal = in_normal;
+#if HAS_SUN
     v_albedo = in_albedo;
+#endif
+#if SUN_GLOSSY
     v_sb0 = in_sb0;
     v_eta = in_eta;
     v_k = in_k;
+#endif
 
-    // Mitsuba's perspective sensor: x runs against cam_left, y along cam_up
-    vec3 q = in_pos - eye;
-    float zc = dot(q, cam_dir);
-    float n = depth_range.x, fa = depth_range.y;
-    // the image moves by the sample's offset so that the pixel centres see the sample points
-    // (Renderer's supersampling; zero for one sample per pixel)
-    gl_Position = vec4(-dot(q, cam_left) / tan_half.x + jitter.x * zc,
-                       dot(q, cam_up) / tan_half.y + jitter.y * zc,
-                       zc * (fa + n) / (fa - n) - 2.0 * fa * n / (fa - n), zc);
+    gl_Position = project(in_pos);
 }
+#endif
+
+#elif defined FRAGMENT_SHADER && DEPTH_ONLY
+
+void main() {}
 
 #elif defined FRAGMENT_SHADER
 
-in vec3 v_e[N_GAUSSIANS];
-in float v_live[N_GAUSSIANS];
-in vec3 v_mu[N_GAUSSIANS];
-in float v_sigma[N_GAUSSIANS];
+in vec4 v_lobe[2 * N_GAUSSIANS];
 in vec3 v_diffuse;
 in vec3 v_pos;
 in vec3 v_normal;
+#if HAS_SUN
 in vec3 v_albedo;
+
+// the sun taken out of the diffuse lighting (render/_lighting.py), with its shadow map; its
+// direction, irradiance and the map's frame are frame.glsl's
+uniform sampler2DShadow shadow_map;
+#endif
+#if SUN_GLOSSY
 in vec4 v_sb0;
 in vec3 v_eta;
 in vec3 v_k;
 
-// the sun taken out of the diffuse lighting (render/_lighting.py), with its shadow map
-uniform float sun_on;
-uniform vec3 sun_dir;             // towards the sun, rotated with the lighting
-uniform vec3 sun_e;               // its irradiance at normal incidence (RGB)
-uniform sampler2DShadow shadow_map;
-uniform mat3 shadow_frame;        // as in shadow.glsl
-uniform vec3 shadow_center;
-uniform float shadow_scale;
-uniform float shadow_offset;      // normal offset against self-shadowing (world units)
-uniform float shadow_bias;        // depth bias (shadow-map depth units)
 // the sun's glossy reflection per pixel (render/_sun_glossy.py): then the Gaussians' lighting is
 // the map without the sun; the BRDFs are lobelight.brdf's
-uniform float sun_glossy;         // 1: on
 uniform int sun_model;            // 0 GGX, 1 Beckmann, 2 modified Phong, 3 Blinn-Phong
 uniform float sun_fresnel;        // 1 conductor Fresnel, 0 none (F = 1)
 uniform float sun_spread;         // the sun disc's RMS angle (radians)
+#endif
 
 const float PI = 3.14159265358979;
 
+#if SUN_GLOSSY
 // microfacet distribution at a half vector with cosine c to the normal (brdf.microfacet, _D)
 float mf_d(float c, float a) {
     float c2 = c * c;
@@ -230,43 +251,53 @@ float sun_through(vec3 mu, float lam) {
     float integral = lam < 1e-4 ? 4.0 * PI * (1.0 - lam) : 2.0 * PI * (1.0 - exp(-2.0 * lam)) / lam;
     return ratio * g / integral;
 }
+#endif
 
 // the prefiltered lookups (integrate, level_lookup) come from prefiltered.glsl
-uniform vec3 eye;
-uniform mat3 rot_t;               // R^T: the rotated lighting seen by mu is the original at R^T mu
-uniform vec2 parts;               // (diffuse on, glossy on)
 
 out vec4 frag;
 
 void main() {
-    vec3 c = parts.x * v_diffuse;
+    vec3 c = diffuse_on * v_diffuse;
     vec3 n = normalize(v_normal);
     vec3 d = normalize(eye - v_pos);
-    bool sun_gl = parts.y > 0.0 && sun_glossy > 0.0;
-    if (sun_on > 0.0 && (parts.x > 0.0 || sun_gl)) {
+#if SUN_GLOSSY
+    bool sun_gl = glossy_on > 0.0;
+#else
+    const bool sun_gl = false;
+#endif
+#if HAS_SUN
+    if (sun_on > 0.0 && (diffuse_on > 0.0 || sun_gl)) {
         float cosine = dot(n, sun_dir);
         if (cosine > 0.0) {
             vec3 q = shadow_frame * (v_pos + shadow_offset * n - shadow_center) * shadow_scale;
             // hardware 2x2 percentage-closer filtering of the depth comparison
             float vis = texture(shadow_map, vec3(q.xy * 0.5 + 0.5, -q.z * 0.5 + 0.5 - shadow_bias));
-            if (parts.x > 0.0) c += v_albedo * (0.3183098861837907 * cosine * vis) * sun_e;
+            if (diffuse_on > 0.0) c += v_albedo * (0.3183098861837907 * cosine * vis) * sun_e;
+#if SUN_GLOSSY
             if (sun_gl) c += sun_brdf_cos(sun_dir, d, n) * vis * sun_e;
+#endif
         }
     }
-    if (parts.y > 0.0) {
+#endif
+    if (glossy_on > 0.0) {
         // the pixel's own mirror direction, from its interpolated normal and view direction:
         // the blended offsets are re-based on it (lobelight.model.blend_lobes, frame=)
         vec3 mirror = 2.0 * dot(n, d) * n - d;
         for (int k = 0; k < N_GAUSSIANS; ++k) {
-            float say = v_live[k];  // the live corners' barycentric weight
+            vec4 el = v_lobe[2 * k];
+            vec4 ms = v_lobe[2 * k + 1];
+            float say = el.w;  // the live corners' barycentric weight
             if (say < MIN_SAY) continue;
-            float sigma = v_sigma[k] / say;
-            vec3 mu = normalize(mirror + v_mu[k] / say);
-            c += v_e[k] * prefiltered_lookup(rot_t * mu, 1.0 / (sigma * sigma));
+            float sigma = ms.w / say;
+            vec3 mu = normalize(mirror + ms.xyz / say);
+            c += el.rgb * prefiltered_lookup(rot_t * mu, 1.0 / (sigma * sigma));
+#if SUN_GLOSSY
             // the sun's light reflected off the object into the indirect lobes
             if (sun_gl && sun_on > 0.0 && k >= N_GAUSSIANS - N_INDIRECT) {
-                c += v_e[k] * sun_e * sun_through(mu, 1.0 / (sigma * sigma));
+                c += el.rgb * sun_e * sun_through(mu, 1.0 / (sigma * sigma));
             }
+#endif
         }
     }
     frag = vec4(c, 1.0);
