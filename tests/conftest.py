@@ -28,6 +28,7 @@ for _var, _sub in [
     ("LOBELIGHT_CACHE", "lobelight"),  # lobelight._cache.cache_dir()
     ("NUMBA_CACHE_DIR", "numba"),  # the compiled visibility walk (cosine._walk, cache=True)
     ("DRJIT_CACHE_DIR", "drjit"),  # Mitsuba's kernel cache (else ~/.drjit)
+    ("WARP_CACHE_PATH", "warp"),  # NVIDIA Warp's compiled kernels (the Warp ray engine)
     ("MPLCONFIGDIR", "matplotlib"),  # matplotlib's font cache (else ~/.cache/matplotlib)
     ("HYPOTHESIS_STORAGE_DIRECTORY", "hypothesis"),  # its example database (else ./.hypothesis)
 ]:

@@ -86,6 +86,12 @@ def _parser() -> argparse.ArgumentParser:
             "--device", default="cpu", help="torch device of the heavy work (cpu, cuda, cuda:1)"
         )
         sp.add_argument("-q", "--quiet", action="store_true", help="no progress on stderr")
+        sp.add_argument(
+            "--rays",
+            default="auto",
+            choices=["auto", "embree", "warp"],
+            help="ray engine (auto: Warp on a CUDA device, Embree on the CPU)",
+        )
         sp.set_defaults(run=fn)
         return sp
 
@@ -320,8 +326,25 @@ def _parser() -> argparse.ArgumentParser:
     be = cmd("bench", "run_bench", "benchmarks with machine-readable output")
     be.add_argument(
         "what",
-        choices=["prefilter", "transport", "fit", "render", "lobe-tables", "lobes", "brdf-fit"],
-        help="which benchmark",
+        choices=[
+            "all",
+            "prefilter",
+            "transport",
+            "fit",
+            "render",
+            "rays",
+            "lobe-tables",
+            "lobes",
+            "brdf-fit",
+        ],
+        help="which benchmark (all: every benchmark with a goal, on --device, in one run)",
+    )
+    output(be, None, "bench all: JSON file of the results, rewritten after each benchmark")
+    be.add_argument(
+        "--budget",
+        type=float,
+        default=None,
+        help="bench all: seconds after which benchmarks not yet started are skipped",
     )
     be.add_argument("--scene", default="knot:2", help="scene of transport/fit (knot:2: 11.5K)")
     gaussians(be)
@@ -439,6 +462,7 @@ def _main(argv: list[str] | None) -> int:
         # once torch is loaded, so that the short spin reaches only the runtimes loaded later
         tune()
         args.device = commands.check_device(args.device)
+        commands.use_rays(args.rays)
         summary = getattr(commands, args.run)(args)
     except InputError as e:
         return _fail(args.json, e.what, e.problem, 2)

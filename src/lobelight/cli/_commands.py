@@ -23,6 +23,7 @@ from ..envmap import builtin
 from ..envmap import load as load_env
 from ..errors import InputError
 from ..fit import fit_model
+from ..geometry import raycast
 from ..geometry.camera import Camera
 from ..model import load as load_model
 from ..progress import Reporter
@@ -39,8 +40,10 @@ from ..render import (
 from ..scene import default_camera
 from ..scene import load as load_scene
 from ..studies import bench
+from ..studies.bench_all import bench_all
 from ..studies.bench_brdf_fit import bench_fit as bench_brdf_fit
 from ..studies.bench_lobes import bench_lobes, bench_tables
+from ..studies.bench_rays import bench_rays
 from ..studies.compare import compare
 from ..studies.compare_brdf import compare_brdf
 from ..studies.demo import demo
@@ -61,6 +64,7 @@ __all__ = [
     "run_lobes_demo",
     "run_render",
     "run_view",
+    "use_rays",
 ]
 
 # --------------------------------------------------------------------------------------------
@@ -137,9 +141,13 @@ def _size(args) -> tuple[int, int]:
 
 def _model_path(scene: str, output: str | None) -> Path:
     out = Path(output) if output else Path(f"{Path(str(scene)).stem}.lobelight.npz")
-    out = Path(str(out).replace(":", "-"))
+    return _writable_file(Path(str(out).replace(":", "-")))
+
+
+def _writable_file(out: Path) -> Path:
+    """``out`` if a file can be written there (checked before any work), else an InputError."""
     if out.is_dir():
-        raise InputError(str(out), "is a directory: name the model file (-o DIR/NAME.npz)")
+        raise InputError(str(out), "is a directory: name the file (-o DIR/NAME)")
     if not out.parent.is_dir():
         raise InputError(str(out), f"the directory {str(out.parent)!r} does not exist")
     if not os.access(out.parent, os.W_OK):
@@ -423,6 +431,19 @@ def run_bench(args) -> dict:
     w = args.what
     # each benchmark's own default count unless --repeats is given
     reps = {} if args.repeats is None else {"repeats": args.repeats}
+    if w == "all":
+        if args.budget is not None and not (math.isfinite(args.budget) and args.budget > 0):
+            raise InputError("--budget", f"must be a positive number of seconds, got {args.budget}")
+        if args.output is not None:
+            _writable_file(Path(args.output))
+        return bench_all(
+            device=args.device,
+            output=args.output,
+            budget_seconds=args.budget,
+            progress=_progress(args),
+        )
+    if w == "rays":
+        return bench_rays(device=args.device)
     if w == "prefilter":
         return bench.bench_prefilter(base_res=args.base_res, device=args.device, **reps)
     if w == "transport":
@@ -465,6 +486,13 @@ def run_demo(args) -> dict:
             progress=_progress(args),
         ),
     }
+
+
+def use_rays(engine: str) -> None:
+    """``--rays``: the ray engine every ray caster of this command uses (auto, embree, warp)."""
+    if engine == "warp" and not raycast.warp_available():
+        raise InputError("--rays", "warp: NVIDIA Warp is not installed (pip install warp-lang)")
+    raycast.set_default_engine(engine)
 
 
 def check_device(text: str) -> str:
