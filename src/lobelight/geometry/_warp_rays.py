@@ -10,7 +10,8 @@ Warp is an optional dependency (the ``gpu`` extra). Its kernels must be defined 
 Warp (``wp.config.kernel_cache_dir``), so only a machine's first run pays the compile.
 """
 
-from __future__ import annotations
+# no `from __future__ import annotations`: Warp releases before 1.5 read kernel annotations as
+# objects, and string annotations make their code generator fail on the kernels below
 
 import sys
 from collections.abc import Callable
