@@ -59,7 +59,7 @@ def test_table_gives_each_goal_its_gap():
         "device": "cuda",
         "machine": {"gpu": "NVIDIA H200", "torch": "2.11"},
         "results": {
-            "prefilter": {"seconds_best": 0.010},
+            "prefilter": {"seconds_best": 0.5, "seconds_dynamic_best": 0.010},
             "bake_10k": {"seconds_per_10k_vertices": 5.0},
             "bake_50k": {"error": "RuntimeError: boom"},
             "render": {
@@ -79,7 +79,8 @@ def test_table_gives_each_goal_its_gap():
     text = ba.table(summary)
     rows = {line.split("|")[1].strip(): line for line in text.splitlines() if line.startswith("|")}
     assert "NVIDIA H200" in text
-    assert "2.00x" in rows["prefilter"]  # 10 ms against at most 5 ms: twice the goal
+    # the GPU goal is a dynamic environment's: 10 ms against at most 5 ms, twice the goal
+    assert "seconds_dynamic_best" in rows["prefilter"] and "2.00x" in rows["prefilter"]
     assert "0.50x" in rows["bake_10k"]  # 5 s against at most 10 s: half
     assert "boom" in rows["bake_50k"]
     assert "2.00x" in rows["render_n1"]  # 500 fps against at least 1000: twice too slow

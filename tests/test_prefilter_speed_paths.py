@@ -121,6 +121,25 @@ def test_one_padded_window_group_equals_per_size_groups(res, lam, monkeypatch):
     assert _rel(per_size, C.dense_increment(cube, lam)) < 1e-3
 
 
+@pytest.mark.parametrize(("res", "pad"), [(32, 13), (64, 40)])
+def test_gathered_halo_equals_the_sparse_product(res, pad, monkeypatch):
+    # the GPU (and meta) gather each border texel's sources and weights, the CPU multiplies by
+    # a sparse matrix: the same weights, summed in another order
+    level = _spiky(res)
+    sparse = C.extend(level, pad)
+    C._halo_plan.cache_clear()
+    monkeypatch.setattr(C, "_sparse_halo", lambda device: False)
+    try:
+        gathered = C.extend(level, pad)
+        _, (idx, w) = C._halo_plan(res, C._halo_pad(pad), torch.device("cpu"), torch.float32)
+    finally:
+        C._halo_plan.cache_clear()
+    assert _rel(gathered, sparse) < 1e-6
+    # the padding entries weigh nothing, and every border texel's weights sum to one
+    torch.testing.assert_close(w.sum(1), torch.ones(idx.shape[0], 1))
+    assert idx.dtype == torch.int32 and idx.shape[1] <= C.HALO_SUBSAMPLES**2
+
+
 def test_downsample_equals_the_cubemap_one():
     cube = _spiky(64)
     assert _rel(P._downsample(cube), cubemap.downsample(cube)) < 1e-6

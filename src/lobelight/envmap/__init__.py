@@ -9,16 +9,20 @@
   shadows of the diffuse part.
 - :func:`prefilter` -> :class:`Prefiltered`, whose ``integrate(mu, lam)`` approximates
   ``int exp(lam (mu.w - 1)) L(w) dw`` with one interpolated lookup per lobe.
+- :class:`ChainBuilder` the same chain rebuilt from one map after another (a dynamic
+  environment each frame); on CUDA one graph launch per map.
 """
 
 from ..lobes.sg import integral as sg_integral  # the SG integral's home is lobelight.lobes.sg
 from ._builtin import builtin
+from ._chain_builder import ChainBuilder
 from ._envmap import EnvMap
 from ._io import load, save
 from ._prefilter import Prefiltered, prefilter
 from ._sun import Sun, extract_sun
 
 __all__ = [
+    "ChainBuilder",
     "EnvMap",
     "Prefiltered",
     "Sun",

@@ -144,15 +144,17 @@ def _halo_plan(
     sub-samples of the texels they fall in: an area average, without the blur of a bilinear
     resampling (which smears a bright texel across the border by a third of a texel). Sub-samples
     that fall in the same texel are merged into one weighted entry (a handful per border texel
-    remain), and all the averages are one sparse matrix product.
+    remain), and all the averages are one sparse matrix product or one gather.
 
     ``pad`` must be a multiple of ``HALO_PAD_STEP`` (:func:`extend` rounds up and slices).
 
     Returns
     -------
     dst : (H,) int64 flat indices into ``(6, n, n)`` with ``n = res + 2 pad``
-    avg : (H, 6 res^2) sparse CSR matrix over the flat texels of ``(6, res, res)``: weights
-        that are multiples of ``1 / HALO_SUBSAMPLES^2``, each row summing to 1
+    avg : the averages, weights that are multiples of ``1 / HALO_SUBSAMPLES^2``, each border
+        texel's summing to 1, over the flat texels of ``(6, res, res)``: an ``(H, 6 res^2)``
+        sparse CSR matrix, or (:func:`_sparse_halo`) a pair ``(src (H, M) int32, w (H, M, 1))``
+        of each border texel's ``M`` sources and weights (padded with zero weights)
     """
     n = res + 2 * pad
     rows, cols, src = _halo_sources(res, pad)
@@ -165,9 +167,28 @@ def _halo_plan(
     # in row-major order a run ends where the next one starts.
     start = new.reshape(-1).nonzero().squeeze(1)
     length = torch.diff(start, append=start.new_full((1,), src.numel()))
-    crow = torch.cat([torch.zeros(1, dtype=torch.long), new.sum(-1).cumsum(0)])
-    avg = _csr(crow, src.reshape(-1)[start], (length / s).to(dtype), (dst.numel(), 6 * res * res))
-    return dst.to(device), avg.to(device)
+    counts = new.sum(-1)  # (H,) entries per border texel
+    col, weight = src.reshape(-1)[start], (length / s).to(dtype)
+    if _sparse_halo(device):
+        crow = torch.cat([torch.zeros(1, dtype=torch.long), counts.cumsum(0)])
+        avg = _csr(crow, col, weight, (dst.numel(), 6 * res * res))
+        return dst.to(device), avg.to(device)
+    # padded rows: entry e of border texel h sits at column e; the padding reads texel 0 at
+    # weight 0
+    row = torch.repeat_interleave(torch.arange(dst.numel()), counts)
+    slot = torch.arange(col.numel()) - (counts.cumsum(0) - counts)[row]
+    width = int(counts.max())
+    idx = torch.zeros(dst.numel(), width, dtype=torch.int32)
+    w = torch.zeros(dst.numel(), width, dtype=dtype)
+    idx[row, slot], w[row, slot] = col.int(), weight
+    return dst.to(device), (idx.to(device), w[..., None].to(device))
+
+
+def _sparse_halo(device: torch.device) -> bool:
+    """Whether the halo's averages are a sparse matrix product (the CPU: the fewest operations)
+    or a padded gather and weighted sum (elsewhere: three dense kernels, which a CUDA graph can
+    capture and which run on any device, including ``meta``)."""
+    return device.type == "cpu"
 
 
 def _csr(crow, col, vals, size) -> torch.Tensor:
@@ -191,7 +212,13 @@ def _extend_full(level: torch.Tensor, pad: int) -> torch.Tensor:
     dst, avg = _halo_plan(res, pad, level.device, level.dtype)
     out = level.new_empty(6, n, n, ch)
     out[:, pad : pad + res, pad : pad + res] = level
-    out.view(-1, ch).index_copy_(0, dst, avg @ level.reshape(-1, ch))
+    flat = level.reshape(-1, ch)
+    if isinstance(avg, tuple):
+        idx, w = avg
+        border = (flat.index_select(0, idx.view(-1)).view(*idx.shape, ch) * w).sum(1)
+    else:
+        border = avg @ flat
+    out.view(-1, ch).index_copy_(0, dst, border)
     return out
 
 
@@ -745,6 +772,26 @@ def _basis(res: int, order: int, device: torch.device) -> torch.Tensor:
     return out
 
 
+@lru_cache(maxsize=8)
+def _sh_plan(
+    src_res: int, lams: tuple, resolutions: tuple, device: torch.device, dtype: torch.dtype
+) -> tuple:
+    """What :func:`sh_levels` needs besides the map, ``(order, om, groups)``: the SH order, the
+    source's texel solid angles ``(6 S^2, 1)`` and, per output resolution, ``(res, which, fac)``
+    with the output indices of its levels and their band factors ``(order^2, L, 1)``."""
+    box = (2 / src_res) ** 2 / 12  # variance already in the source's texels
+    eff = [1 / max(1 / lam - box, 1e-12) for lam in lams]
+    order = sh_order_for(max(eff))
+    om = cubemap.texel_solid_angles(src_res, device=device, dtype=dtype).reshape(-1, 1)
+    band = np.repeat(np.arange(order), 2 * np.arange(order) + 1)
+    groups = []
+    for res in sorted(set(resolutions)):
+        which = [i for i, r in enumerate(resolutions) if r == res]
+        fac = np.stack([vmf_band_factors(eff[i], order)[band] for i in which], 1)  # (o^2, L)
+        groups.append((res, which, torch.as_tensor(fac[:, :, None], device=device, dtype=dtype)))
+    return order, om, groups
+
+
 def sh_levels(
     source: torch.Tensor, lams: list[float], resolutions: list[int]
 ) -> list[torch.Tensor]:
@@ -763,22 +810,18 @@ def sh_levels(
     One projection, then one reconstruction per resolution for all its levels together.
     """
     dev, dt = source.device, source.dtype
-    s = source.shape[1]
-    box = (2 / s) ** 2 / 12  # variance already in the source's texels
-    eff = [1 / max(1 / lam - box, 1e-12) for lam in lams]
-    order = sh_order_for(max(eff))
-    om = cubemap.texel_solid_angles(s, device=dev, dtype=dt).reshape(-1, 1)
+    order, om, groups = _sh_plan(
+        source.shape[1], tuple(map(float, lams)), tuple(resolutions), dev, dt
+    )
     # a fourth channel of ones: dividing by its reconstruction keeps a constant map exactly
     # constant (the cube's midpoint quadrature leaks ~1e-5 of it into higher bands otherwise)
     ones = torch.ones_like(source[..., :1])
-    coef = _basis(s, order, dev).to(dt) @ (torch.cat([source, ones], -1).reshape(-1, 4) * om)
-    band = np.repeat(np.arange(order), 2 * np.arange(order) + 1)
+    coef = _basis(source.shape[1], order, dev).to(dt) @ (
+        torch.cat([source, ones], -1).reshape(-1, 4) * om
+    )
     out: list[torch.Tensor | None] = [None] * len(lams)
-    for res in sorted(set(resolutions)):
-        which = [i for i, r in enumerate(resolutions) if r == res]
-        fac = np.stack([vmf_band_factors(eff[i], order)[band] for i in which], 1)  # (o^2, L)
-        fac = torch.as_tensor(fac, device=dev, dtype=dt)
-        scaled = (coef[:, None, :] * fac[:, :, None]).reshape(order * order, -1)  # (o^2, 4L)
+    for res, which, fac in groups:
+        scaled = (coef[:, None, :] * fac).reshape(order * order, -1)  # (o^2, 4L)
         rec = (_basis(res, order, dev).to(dt).T @ scaled).reshape(6, res, res, len(which), 4)
         val = rec[..., :3] / rec[..., 3:]
         for col, i in enumerate(which):

@@ -110,7 +110,7 @@ class Prefiltered:
 
     def __post_init__(self) -> None:
         if not self._padded:
-            self._padded = [cubemap.pad_seamless(lv) for lv in self.levels]
+            self._padded = _per_resolution(self.levels, sharpen=False)[1]
 
     @property
     def device(self) -> torch.device:
@@ -317,7 +317,9 @@ def clear_memory_caches() -> None:
         _convolve._basis,
         _convolve._anisotropic_plan,
         _convolve._windowed_plan,
+        _convolve._sh_plan,
         _downsample_weights,
+        _schedule,
         cubemap._pad_plan,
     ):
         fn.cache_clear()
@@ -370,12 +372,7 @@ def prefilter(
     else:
         env = as_tensor(env, device=device, dtype=torch.float32)
         source, kind = env, "cube"
-        shape = tuple(env.shape)
-        finer = env.ndim == 4 and env.shape[0] == 6 and env.shape[1] > base_res
-        if shape != (6, base_res, base_res, 3) and not finer:
-            raise InputError(
-                "env", f"expected a (6, {base_res}, {base_res}, 3) cube map, got {shape}"
-            )
+        _check_cube(env, base_res)
     if folder is not None:
         description = _description(kind, base_res, phases)
         key = _chain_cache.chain_key(source, description)
@@ -388,17 +385,43 @@ def prefilter(
             return Prefiltered(
                 levels=levels, lambdas=lambdas, phases=phases, blend=blend, name=name
             )
-    if is_map:
-        base = env.to_cubemap(base_res)
-    else:
-        base = env if env.shape[1] == base_res else _downsample_to(env, base_res)
-    levels, lambdas = _build(base.to(torch.float32), base_res, phases)
+    base = base_cube(env, base_res)
+    levels, padded = _build(base, base_res, phases)
+    lambdas = _lambdas(base_res, phases).to(base.device)
     if folder is not None:
         try:
             _chain_cache.write_chain(path, key, description, lambdas, levels)
         except OSError as exc:  # a cache that cannot be written only costs the next run time
             logger.warning("could not write the prefiltered chain to %s: %s", path, exc)
-    return Prefiltered(levels=levels, lambdas=lambdas, phases=phases, blend=blend, name=name)
+    return Prefiltered(
+        levels=levels, lambdas=lambdas, phases=phases, blend=blend, name=name, _padded=padded
+    )
+
+
+def _check_cube(cube: torch.Tensor, base_res: int) -> None:
+    """Refuse a cube map that is neither ``(6, base_res, base_res, 3)`` nor a finer cube."""
+    shape = tuple(cube.shape)
+    finer = cube.ndim == 4 and shape[0] == 6 and shape[1] == shape[2] > base_res
+    if shape != (6, base_res, base_res, 3) and not (finer and shape[3] == 3):
+        raise InputError("env", f"expected a (6, {base_res}, {base_res}, 3) cube map, got {shape}")
+
+
+def base_cube(env, base_res: int, *, check_finite: bool = True) -> torch.Tensor:
+    """The ``(6, base_res, base_res, 3)`` float32 cube map a chain is built from, on the env's
+    device: an EnvMap resampled, a finer cube box-downsampled. Refuses NaN and Inf values
+    (``check_finite``: one value read back to the host).
+
+    Parameters
+    ----------
+    env : EnvMap, or a (6, R, R, 3) float32 tensor with ``R >= base_res`` (checked by the caller)
+    """
+    if hasattr(env, "to_cubemap"):
+        base = env.to_cubemap(base_res).to(torch.float32)
+    else:
+        base = env if env.shape[1] == base_res else _downsample_to(env, base_res)
+    if check_finite and not bool(torch.isfinite(base).all()):
+        raise InputError("env", "cube map has NaN or Inf values")
+    return base
 
 
 def _resolutions(base_res: int, phases: int) -> list[int]:
@@ -407,20 +430,78 @@ def _resolutions(base_res: int, phases: int) -> list[int]:
     return [base_res >> (k // phases) for k in range(n_mips * phases)]
 
 
+def _lambdas(base_res: int, phases: int) -> torch.Tensor:
+    """Sharpness of every level, ``(K,)`` float64: ``lam_0 rho**-k``."""
+    n_levels = len(_resolutions(base_res, phases))
+    lam0 = (base_res / (2 * TEXELS_PER_SIGMA)) ** 2
+    return lam0 * (4 ** (1 / phases)) ** -torch.arange(n_levels, dtype=torch.float64)
+
+
+@dataclass(frozen=True)
+class _Step:
+    """How one cascade level is made from the one before: ``reseed`` starts over from the map
+    at ``res``; ``downsamples`` 2 x 2 downsamples follow; then an increment of sharpness ``lam``
+    by ``op`` ("separable", "windowed", or None when the level needs no blur of its own)."""
+
+    res: int
+    reseed: bool
+    downsamples: int
+    op: str | None
+    lam: float
+
+
+@lru_cache(maxsize=8)
+def _schedule(
+    base_res: int, phases: int
+) -> tuple[tuple[_Step, ...], tuple[tuple[float, int], ...]]:
+    """The chain's recipe, which depends only on the settings: a :class:`_Step` for each
+    cascade level (the first levels) and the sharpness and resolution of each level made from
+    spherical harmonics (the rest)."""
+    res_of = _resolutions(base_res, phases)
+    lams = _lambdas(base_res, phases).tolist()
+    # Widths are tracked as vMF mean cosines, which multiply under convolution (exactly for the
+    # first SH band; for narrow lobes this is adding variances 1/lam). The base's texels and
+    # each 2 x 2 downsample are box filters of variance h^2/12 and h^2/16 (h = 2/R, the texel
+    # size at a face centre).
+    steps: list[_Step] = []
+    cur_res = base_res
+    cur_mc = _mean_cosine(12 * (base_res / 2) ** 2)
+    for k, res in enumerate(res_of):
+        if res <= SH_MAX_RES:
+            break
+        # Re-seed the exact part of the cascade from the map itself, so the separable passes'
+        # residual error (about 1 % near bright texels) does not flow into it.
+        reseed = cur_res >= SEPARABLE_MIN_RES > res
+        if reseed:
+            cur_res, cur_mc = res, _mean_cosine(12 * (res / 2) ** 2)
+        downsamples = 0
+        while cur_res > res:
+            cur_res //= 2
+            downsamples += 1
+            cur_mc *= _mean_cosine(16 * (cur_res / 2) ** 2)
+        target = _mean_cosine(lams[k])
+        op, lam_inc = None, 0.0
+        if target < cur_mc:
+            op = "separable" if res >= SEPARABLE_MIN_RES else "windowed"
+            lam_inc = _inverse_langevin(target / cur_mc)
+            cur_mc = target
+        steps.append(_Step(res, reseed, downsamples, op, lam_inc))
+    wide = tuple((lams[k], res_of[k]) for k in range(len(steps), len(res_of)))
+    return tuple(steps), wide
+
+
 def _build(
     base: torch.Tensor, base_res: int, phases: int
-) -> tuple[list[torch.Tensor], torch.Tensor]:
-    """The levels of the chain of a ``(6, base_res, base_res, 3)`` float32 cube map and their
-    ``(K,)`` float64 sharpness, on the cube's device."""
-    if not bool(torch.isfinite(base).all()):
-        raise InputError("env", "cube map has NaN or Inf values")
-    dev = base.device
-    res_of = _resolutions(base_res, phases)
-    n_levels = len(res_of)
-    rho = 4 ** (1 / phases)
-    lam0 = (base_res / (2 * TEXELS_PER_SIGMA)) ** 2
-    lambdas = lam0 * rho ** -torch.arange(n_levels, dtype=torch.float64)
-    lams = lambdas.tolist()
+) -> tuple[list[torch.Tensor], list[torch.Tensor]]:
+    """The levels of the chain of a finite ``(6, base_res, base_res, 3)`` float32 cube map and
+    the same levels padded by one seamless texel (:func:`lobelight.geometry.cubemap.pad_seamless`),
+    on the cube's device.
+
+    Reads no values back to the host and makes no tensor from host data once the plans of
+    :mod:`._convolve` are in memory (after one build at these settings on this device), so a
+    CUDA graph can capture it (:class:`lobelight.envmap.ChainBuilder`).
+    """
+    steps, wide = _schedule(base_res, phases)
     # the map itself at each resolution it is needed at, each downsample done once
     pyramid = {base_res: base}
 
@@ -431,42 +512,68 @@ def _build(
             r //= 2
         return pyramid[res]
 
-    levels: list[torch.Tensor | None] = [None] * n_levels
-    # Fine levels: a cascade of narrow increments. Widths are tracked as vMF mean cosines,
-    # which multiply under convolution (exactly for the first SH band; for narrow lobes this
-    # is adding variances 1/lam). The base's texels and each 2 x 2 downsample are box filters
-    # of variance h^2/12 and h^2/16 (h = 2/R, the texel size at a face centre).
-    cur, cur_res = base, base_res
-    cur_mc = _mean_cosine(12 * (base_res / 2) ** 2)
-    for k in range(n_levels):
-        res = res_of[k]
-        if res <= SH_MAX_RES:
-            break
-        if cur_res >= SEPARABLE_MIN_RES > res:
-            # Re-seed the exact part of the cascade from the map itself, so the separable
-            # passes' residual error (about 1 % near bright texels) does not flow into it.
-            cur, cur_res = source(res), res
-            cur_mc = _mean_cosine(12 * (res / 2) ** 2)
-        while cur_res > res:
+    levels: list[torch.Tensor] = []
+    cur = base
+    # Fine levels: a cascade of narrow increments, each level the previous one convolved with
+    # the narrow vMF that takes its width to the next, after a downsample when the mip changes.
+    for st in steps:
+        if st.reseed:
+            cur = source(st.res)
+        for _ in range(st.downsamples):
             cur = _downsample(cur)
-            cur_res //= 2
-            cur_mc *= _mean_cosine(16 * (cur_res / 2) ** 2)
-        target = _mean_cosine(lams[k])
-        if target < cur_mc:
-            lam_inc = _inverse_langevin(target / cur_mc)
-            if res >= SEPARABLE_MIN_RES:
-                cur = _convolve.anisotropic_increment(cur, lam_inc)
-            else:
-                cur = _convolve.windowed_increment(cur, lam_inc)
-            cur_mc = target
-        levels[k] = cur
+        if st.op == "separable":
+            cur = _convolve.anisotropic_increment(cur, st.lam)
+        elif st.op == "windowed":
+            cur = _convolve.windowed_increment(cur, st.lam)
+        levels.append(cur)
     # Wide levels: exact band factors on a 64^2 copy of the map (no cascade error).
-    wide = [k for k in range(n_levels) if levels[k] is None]
     if wide:
         src = source(min(base_res, 64))
-        got = _convolve.sh_levels(src, [lams[k] for k in wide], [res_of[k] for k in wide])
-        for k, lv in zip(wide, got, strict=True):
-            levels[k] = lv
+        levels += _convolve.sh_levels(src, [lam for lam, _ in wide], [res for _, res in wide])
     # Reconstruction prefilter for the bilinear lookup (replaces a bilinear-variance fudge).
-    levels = [_convolve.sharpen(lv) if lv.shape[1] >= SHARPEN_MIN_RES else lv for lv in levels]
-    return levels, lambdas.to(dev)
+    return _per_resolution(levels, sharpen=True)
+
+
+def _per_resolution(
+    levels: list[torch.Tensor], *, sharpen: bool
+) -> tuple[list[torch.Tensor], list[torch.Tensor]]:
+    """Levels sharpened (``sharpen``, at ``R >= SHARPEN_MIN_RES``; else the levels given) and
+    padded by one seamless texel, as two lists of ``(6, R, R, 3)`` and ``(6, R + 2, R + 2, 3)``
+    tensors.
+
+    Both steps act on each channel alone, so where :func:`_stack_levels` says so the levels of
+    one resolution are stacked along the channels and go through them together: one set of
+    kernels per resolution, not per level.
+    """
+    out: list[torch.Tensor] = []
+    padded: list[torch.Tensor] = []
+    stack = bool(levels) and _stack_levels(levels[0].device)
+    start = 0
+    while start < len(levels):
+        res = levels[start].shape[1]
+        stop = start + 1
+        while stack and stop < len(levels) and levels[stop].shape[1] == res:
+            stop += 1
+        group = levels[start:stop]
+        x = torch.cat(group, -1) if len(group) > 1 else group[0]  # (6, R, R, 3 L)
+        if sharpen and res >= SHARPEN_MIN_RES:
+            x = _convolve.sharpen(x)
+        p = cubemap.pad_seamless(x)
+        out += _unstack(x, len(group)) if sharpen else group
+        padded += _unstack(p, len(group))
+        start = stop
+    return out, padded
+
+
+def _stack_levels(device: torch.device) -> bool:
+    """Whether :func:`_per_resolution` stacks the levels of a resolution: on a GPU, where a
+    kernel launch costs more than the three copies stacking takes; not on the CPU, where the
+    copies cost more than the operators they save."""
+    return device.type != "cpu"
+
+
+def _unstack(x: torch.Tensor, count: int) -> list[torch.Tensor]:
+    """``count`` levels stacked along the channels, ``(6, n, n, 3 count)``, as contiguous
+    ``(6, n, n, 3)`` tensors (views of one ``(count, 6, n, n, 3)`` array)."""
+    n = x.shape[1]
+    return list(x.reshape(6, n, n, count, 3).permute(3, 0, 1, 2, 4).contiguous().unbind(0))

@@ -12,12 +12,13 @@ from pathlib import Path
 
 import torch
 import trimesh
+from torch.utils._python_dispatch import TorchDispatchMode
 
 from .. import scene as _scene
 from .. import transport
 from .._machine import machine
 from .._machine import sync as _sync
-from ..envmap import builtin, prefilter
+from ..envmap import ChainBuilder, builtin, prefilter
 from ..envmap._prefilter import clear_memory_caches
 from ..fit import Gaussians, fit_model
 from ..geometry import cubemap
@@ -51,8 +52,15 @@ def bench_prefilter(
     - ``seconds_best`` / ``seconds_median`` of ``repeats`` builds after it (plans in memory, no
       disk cache);
     - ``seconds_cached``: median of ``repeats`` reads of the chain from a disk cache in a
-      temporary folder (written once, outside the timing), what a later process pays.
+      temporary folder (written once, outside the timing), what a later process pays;
+    - ``seconds_dynamic_best`` / ``seconds_dynamic_median``: a dynamic environment, a different
+      map each build (two maps in turn) through one :class:`lobelight.envmap.ChainBuilder`, from
+      the map on the device to the chain ready (its finiteness check included); on CUDA each is
+      one CUDA graph launch. ``dynamic_repeats`` builds (at least 20 on CUDA) after the first,
+      which is ``seconds_dynamic_first`` (on CUDA: warm-up and capture).
 
+    ``ops_per_build`` counts the operators of one eager build on ``device`` that compute (views
+    and allocations left out): on CUDA, the kernels a build launches without a graph.
     ``bytes`` is the chain in memory, ``bytes_on_disk`` its cache entry.
     """
     cube = builtin().to(device).to_cubemap(base_res)
@@ -79,6 +87,21 @@ def bench_prefilter(
             _sync(device)
             cached.append(time.perf_counter() - t0)
     cached.sort()
+    ops = _count_ops(lambda: prefilter(cube, base_res=base_res, phases=phases, cache=False))
+    maps = [cube, cube.flip(2).contiguous()]  # the sky mirrored: another map, the same shape
+    builder = ChainBuilder(base_res=base_res, phases=phases, device=device)
+    t0 = time.perf_counter()
+    builder(maps[1])
+    _sync(device)
+    dyn_first = time.perf_counter() - t0
+    dyn_repeats = max(repeats, 20) if builder.graph else repeats
+    dynamic = []
+    for i in range(dyn_repeats):
+        t0 = time.perf_counter()
+        builder(maps[i % 2])
+        _sync(device)
+        dynamic.append(time.perf_counter() - t0)
+    dynamic.sort()
     return {
         "benchmark": "prefilter",
         "base_res": base_res,
@@ -90,11 +113,40 @@ def bench_prefilter(
         "seconds_median": times[len(times) // 2],
         "seconds_cached": cached[len(cached) // 2],
         "repeats": repeats,
+        "seconds_dynamic_first": dyn_first,
+        "seconds_dynamic_best": dynamic[0],
+        "seconds_dynamic_median": dynamic[len(dynamic) // 2],
+        "dynamic_repeats": dyn_repeats,
+        "cuda_graph": builder.graph,
+        "ops_per_build": ops,
         "bytes": pf.nbytes(),
         "bytes_on_disk": on_disk,
         "goal_seconds": 0.005 if device.startswith("cuda") else 0.5,
         "machine": machine(device),
     }
+
+
+class _OpCounter(TorchDispatchMode):
+    """Counts the operators that compute: not views, not bare allocations."""
+
+    IDLE = frozenset({"empty", "new_empty", "empty_strided", "lift_fresh", "detach", "alias"})
+
+    def __init__(self) -> None:
+        super().__init__()
+        self.count = 0
+
+    def __torch_dispatch__(self, func, types, args=(), kwargs=None):
+        if not func.is_view and func.__name__.split(".")[0] not in self.IDLE:
+            self.count += 1
+        return func(*args, **(kwargs or {}))
+
+
+def _count_ops(fn) -> int:
+    """Operators that compute in one call of ``fn``."""
+    counter = _OpCounter()
+    with counter:
+        fn()
+    return counter.count
 
 
 def bench_transport(

@@ -2,8 +2,8 @@
 
 One call measures what the goals in ``docs/benchmarks.md`` are about, on one device:
 
-- ``prefilter``: the Gaussian-prefiltered chain at base 512 (goal: 5 ms on one H100/H200,
-  0.5 s on the 2-core CPU);
+- ``prefilter``: the Gaussian-prefiltered chain at base 512 (goals: 5 ms on one H100/H200 for a
+  dynamic environment, a new map each build through a CUDA graph; 0.5 s on the 2-core CPU);
 - ``rays``: the ray engines side by side on the same rays (Embree and Warp; on CUDA, Warp on
   the device);
 - ``bake_10k`` and ``bake_50k``: transport and fit, 92 views, N = 1, with the bake's default
@@ -40,7 +40,7 @@ BENCHMARKS = ("prefilter", "rays", "bake_10k", "bake_50k", "render")
 #: Goals on one H100/H200 (``cuda``) and on the 2-core CPU: (figure's key, goal, direction).
 GOALS = {
     "cuda": {
-        "prefilter": ("seconds_best", 0.005, "at most"),
+        "prefilter": ("seconds_dynamic_best", 0.005, "at most"),
         "bake_10k": ("seconds_per_10k_vertices", 10.0, "at most"),
         "bake_50k": ("seconds_per_50k_vertices", 60.0, "at most"),
         "render_n1": ("fps", 1000.0, "at least"),
