@@ -278,6 +278,21 @@ def test_warp_prints_nothing():
     assert p.stdout == ""
 
 
+def test_warp_is_imported_only_when_asked_for():
+    # importing Warp takes a third of a second: a run on Embree alone does not pay it
+    code = (
+        "import sys, torch; from lobelight import scene; from lobelight.geometry import raycast; "
+        "m = scene.load('sphere:1').mesh; "
+        "raycast.RayCaster(m).first_hit(torch.zeros(4, 3), torch.eye(3)[[0]]); "
+        "print('warp' in sys.modules); raycast.RayCaster(m, engine='warp'); "
+        "print('warp' in sys.modules)"
+    )
+    env = {**os.environ, "WARP_CACHE_PATH": wp.config.kernel_cache_dir}
+    p = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env)
+    assert p.returncode == 0, p.stderr
+    assert p.stdout.split() == ["False", "True"]
+
+
 def _ball_on_floor() -> Scene:
     """A glossy ball over a floor: the ball shadows and reflects onto the floor, and the
     floor onto the ball (21 vertices)."""

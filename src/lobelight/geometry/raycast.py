@@ -41,7 +41,6 @@ import trimesh
 from trimesh.ray.ray_pyembree import RayMeshIntersector
 
 from ..errors import InputError
-from . import _warp_rays
 
 __all__ = [
     "ENGINES",
@@ -74,9 +73,17 @@ MIN_RAYS_PER_THREAD = 1 << 14
 _default = "auto"
 
 
+def _warp_engine():
+    """:mod:`._warp_rays`, imported on first use: it imports NVIDIA Warp, which takes a third of
+    a second that a run on Embree alone need not pay."""
+    from . import _warp_rays  # optional dependency (NVIDIA Warp): imported when first asked for
+
+    return _warp_rays
+
+
 def warp_available() -> bool:
-    """Whether NVIDIA Warp (``pip install warp-lang``) imported, i.e. ``engine="warp"`` works."""
-    return _warp_rays.available()
+    """Whether NVIDIA Warp (``pip install warp-lang``) imports, i.e. ``engine="warp"`` works."""
+    return _warp_engine().available()
 
 
 def _check_engine(name: str) -> str:
@@ -148,7 +155,7 @@ class _EmbreeRays:
         self._rt.intersects_first(np.zeros((1, 3)), np.array([[0.0, 0.0, 1.0]]))
 
     def occluded(self, o: torch.Tensor, d: torch.Tensor, parts) -> torch.Tensor:
-        """(R,) bool on the CPU for (R, 3) rays, split by ``parts`` (:data:`_warp_rays.Parts`)."""
+        """(R,) bool on the CPU for (R, 3) rays, split by ``parts`` (:data:`._warp_rays.Parts`)."""
         return self._run(self._rt.intersects_any, o, d, torch.bool, parts)
 
     def first_face(self, o: torch.Tensor, d: torch.Tensor, parts) -> torch.Tensor:
@@ -215,7 +222,7 @@ class RayCaster:
         keep = torch.linalg.cross(tri[:, 1], tri[:, 2]).norm(dim=-1) > 0
         faces = mesh.faces if bool(keep.all()) else mesh.faces[keep]
         if self.engine == "warp":
-            self._rays = _warp_rays.WarpRays(mesh.vertices, faces)
+            self._rays = _warp_engine().WarpRays(mesh.vertices, faces)
         else:
             self._rays = _EmbreeRays(mesh.vertices, faces)
         #: index in the mesh of each triangle the engine has, (F',) int64 on its device; None
