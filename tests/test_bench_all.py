@@ -1,7 +1,8 @@
 """``lobelight bench all``: every benchmark in one run, its file kept whole, and its table.
 
 The benchmarks themselves are stood in for (their figures are measured by hand and recorded in
-docs/benchmarks.md); what is tested is the run's bookkeeping and the table made from it.
+docs/benchmarks.md); what is tested is the run's bookkeeping and the table made from it, and
+that the prefilter's record keeps its figures when its CUDA graph cannot be captured.
 """
 
 from __future__ import annotations
@@ -11,6 +12,7 @@ import json
 import pytest
 
 from lobelight.cli import _commands, main
+from lobelight.studies import bench
 from lobelight.studies import bench_all as ba
 
 
@@ -125,3 +127,22 @@ def test_bench_all_command_passes_its_settings(tmp_path, capsys, monkeypatch):
     assert main(["bench", "all", "--budget", "60", "-o", str(out), "--json", "-q"]) == 0
     assert got["device"] == "cpu" and got["budget_seconds"] == 60 and got["output"] == str(out)
     assert json.loads(capsys.readouterr().out)["benchmark"] == "all"
+
+
+def test_bench_prefilter_times_the_dynamic_path_and_survives_a_failed_capture(monkeypatch):
+    record = bench.bench_prefilter(base_res=16, repeats=2)
+    assert record["cuda_graph"] is False and record["cuda_graph_error"] is None
+    assert 0 < record["seconds_dynamic_best"] <= record["seconds_dynamic_median"]
+    assert record["dynamic_repeats"] == 2 and record["ops_per_build"] > 0
+
+    real = bench.ChainBuilder
+
+    def no_capture(**kwargs):  # as a CUDA device whose capture fails would
+        if kwargs["graph"] is None:
+            raise RuntimeError("operation not permitted when stream is capturing")
+        return real(**kwargs)
+
+    monkeypatch.setattr(bench, "ChainBuilder", no_capture)
+    record = bench.bench_prefilter(base_res=16, repeats=2)
+    assert "not permitted" in record["cuda_graph_error"]
+    assert record["cuda_graph"] is False and record["seconds_dynamic_best"] > 0

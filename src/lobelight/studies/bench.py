@@ -20,6 +20,7 @@ from .._machine import machine
 from .._machine import sync as _sync
 from ..envmap import ChainBuilder, builtin, prefilter
 from ..envmap._prefilter import clear_memory_caches
+from ..errors import one_line
 from ..fit import Gaussians, fit_model
 from ..geometry import cubemap
 from ..geometry import sphere as sph
@@ -57,7 +58,8 @@ def bench_prefilter(
       map each build (two maps in turn) through one :class:`lobelight.envmap.ChainBuilder`, from
       the map on the device to the chain ready (its finiteness check included); on CUDA each is
       one CUDA graph launch. ``dynamic_repeats`` builds (at least 20 on CUDA) after the first,
-      which is ``seconds_dynamic_first`` (on CUDA: warm-up and capture).
+      which is ``seconds_dynamic_first`` (on CUDA: warm-up and capture). Should the capture
+      fail, ``cuda_graph_error`` says why and the figures are of eager builds.
 
     ``ops_per_build`` counts the operators of one eager build on ``device`` that compute (views
     and allocations left out): on CUDA, the kernels a build launches without a graph.
@@ -89,19 +91,12 @@ def bench_prefilter(
     cached.sort()
     ops = _count_ops(lambda: prefilter(cube, base_res=base_res, phases=phases, cache=False))
     maps = [cube, cube.flip(2).contiguous()]  # the sky mirrored: another map, the same shape
-    builder = ChainBuilder(base_res=base_res, phases=phases, device=device)
-    t0 = time.perf_counter()
-    builder(maps[1])
-    _sync(device)
-    dyn_first = time.perf_counter() - t0
-    dyn_repeats = max(repeats, 20) if builder.graph else repeats
-    dynamic = []
-    for i in range(dyn_repeats):
-        t0 = time.perf_counter()
-        builder(maps[i % 2])
-        _sync(device)
-        dynamic.append(time.perf_counter() - t0)
-    dynamic.sort()
+    graph_error = None
+    try:
+        dynamic, dyn_first, graph = _time_builder(maps, base_res, phases, device, None, repeats)
+    except RuntimeError as exc:  # a graph that cannot be captured: the eager path's figures
+        graph_error = one_line(f"{type(exc).__name__}: {exc}")
+        dynamic, dyn_first, graph = _time_builder(maps, base_res, phases, device, False, repeats)
     return {
         "benchmark": "prefilter",
         "base_res": base_res,
@@ -116,14 +111,32 @@ def bench_prefilter(
         "seconds_dynamic_first": dyn_first,
         "seconds_dynamic_best": dynamic[0],
         "seconds_dynamic_median": dynamic[len(dynamic) // 2],
-        "dynamic_repeats": dyn_repeats,
-        "cuda_graph": builder.graph,
+        "dynamic_repeats": len(dynamic),
+        "cuda_graph": graph,
+        "cuda_graph_error": graph_error,
         "ops_per_build": ops,
         "bytes": pf.nbytes(),
         "bytes_on_disk": on_disk,
         "goal_seconds": 0.005 if device.startswith("cuda") else 0.5,
         "machine": machine(device),
     }
+
+
+def _time_builder(maps, base_res, phases, device, graph, repeats) -> tuple[list, float, bool]:
+    """Sorted times of builds from ``maps`` in turn through one ChainBuilder (at least 20 with a
+    CUDA graph), the first build's time apart, and whether it used a graph."""
+    builder = ChainBuilder(base_res=base_res, phases=phases, device=device, graph=graph)
+    t0 = time.perf_counter()
+    builder(maps[1])
+    _sync(device)
+    first = time.perf_counter() - t0
+    times = []
+    for i in range(max(repeats, 20) if builder.graph else repeats):
+        t0 = time.perf_counter()
+        builder(maps[i % 2])
+        _sync(device)
+        times.append(time.perf_counter() - t0)
+    return sorted(times), first, builder.graph
 
 
 class _OpCounter(TorchDispatchMode):
