@@ -66,6 +66,9 @@ class ChainBuilder:
             self.device = torch.device("cpu" if device is None else device)
         except (RuntimeError, TypeError) as exc:
             raise InputError("device", f"is not a torch device: {device!r}") from exc
+        if self.device.type == "cuda" and self.device.index is None and torch.cuda.is_available():
+            # the device the tensors it makes report (a bare "cuda" is the current one)
+            self.device = torch.device("cuda", torch.cuda.current_device())
         if graph is None:
             graph = self.device.type == "cuda"
         if graph and self.device.type != "cuda":

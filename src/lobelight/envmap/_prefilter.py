@@ -117,6 +117,12 @@ class Prefiltered:
         return self.levels[0].device
 
     @property
+    def padded(self) -> list[torch.Tensor]:
+        """The levels with a border of one seamless texel, ``(6, R_k + 2, R_k + 2, 3)`` each
+        (:func:`lobelight.geometry.cubemap.pad_seamless`): what a bilinear lookup reads."""
+        return self._padded
+
+    @property
     def base_res(self) -> int:
         return int(self.levels[0].shape[1])
 

@@ -30,7 +30,7 @@ import torch
 from .. import model as model_module
 from ..envmap import Prefiltered
 from ..errors import InputError
-from ..geometry import cubemap, sphere
+from ..geometry import sphere
 from ..geometry.camera import Camera
 from ..lobes import sg
 from ._lighting import Lighting
@@ -141,6 +141,15 @@ def create_context():
             ) from None
 
 
+def make_current(ctx, owned: bool) -> None:
+    """Make ``ctx`` current if its renderer made it (``owned``). Each headless renderer has a
+    context of its own, GL commands go to whichever is current, and making or releasing
+    another (another renderer, :func:`gl_available`) changes which that is. A context a
+    renderer was given (a window's) is its owner's to keep current."""
+    if owned:
+        ctx.__enter__()
+
+
 def gl_available() -> bool:
     """Whether a headless context can be made here."""
     try:
@@ -166,7 +175,7 @@ def _atlas(pf: Prefiltered) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     res per level."""
     base = pf.base_res
     width = 6 * (base + 2)
-    pads = [cubemap.pad_seamless(lv).cpu().numpy() for lv in pf.levels]  # (6, P, P, 3)
+    pads = [p.cpu().numpy() for p in pf.padded]  # (6, P, P, 3)
     height = sum(p.shape[1] for p in pads)
     # RGBA: llvmpipe filters four-channel float textures faster than three-channel ones, and
     # GPUs pad RGB anyway
@@ -181,6 +190,12 @@ def _atlas(pf: Prefiltered) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         res.append(size - 2)
         y += size
     return atlas, np.asarray(rows, np.float32), np.asarray(res, np.float32)
+
+
+def _background(lighting: Lighting) -> np.ndarray:
+    """The map as the background's cube texture, ``(6, BACKGROUND_RES, BACKGROUND_RES, 3)``."""
+    cube = lighting.env.to_cubemap(BACKGROUND_RES)
+    return cube.detach().cpu().numpy().astype(np.float32)
 
 
 def upload_prefiltered(ctx, pf: Prefiltered):
@@ -434,6 +449,7 @@ class GLRenderer:
         # the sun's glossy reflection per pixel where the BRDF allows (render/_sun_glossy.py);
         # the Gaussians then integrate the map without the sun
         spec = model.materials.specular
+        self._specular, self._n_vertices = spec, model.mesh.n_vertices
         self.has_sun = lighting.sun is not None
         self.sun_glossy = self.has_sun and sun_glossy_supported(spec)
         pf = lighting.rest_prefiltered if self.sun_glossy else lighting.prefiltered
@@ -508,8 +524,10 @@ class GLRenderer:
             raise InputError("model", "the bounce table exceeds the texture size")
         self.bounce_tex = self._data_texture(bimg)
         self.atlas, atlas_uniforms = upload_prefiltered(ctx, pf)
-        cube = lighting.env.to_cubemap(BACKGROUND_RES).detach().cpu().numpy().astype(np.float32)
-        self.env_cube = ctx.texture_cube((BACKGROUND_RES,) * 2, 3, cube.tobytes(), dtype="f4")
+        self._atlas_uniforms = atlas_uniforms
+        self.env_cube = ctx.texture_cube(
+            (BACKGROUND_RES,) * 2, 3, _background(lighting).tobytes(), dtype="f4"
+        )
         self.env_cube.filter = (moderngl.LINEAR, moderngl.LINEAR)
 
         p = self.prog
@@ -611,16 +629,65 @@ class GLRenderer:
         self.sample_ubo = None
         self.set_offsets(offsets)
 
+    def make_current(self) -> None:
+        """Make the renderer's context current when the renderer made it
+        (:func:`make_current`); every method that issues GL commands starts here."""
+        make_current(self.ctx, self.own_ctx)
+
+    def set_lighting(self, lighting: Lighting) -> bool:
+        """Light the next frames by ``lighting``: its chain, background, SH and sun written
+        into this renderer's textures, buffers and uniforms in place (no program, model data
+        or target is made again).
+
+        Returns False, changing nothing, when the programs were compiled for another kind of
+        lighting: a sun where there was none or none where there was one, or another number
+        of SH coefficients or chain layout (base resolution, levels); then a new renderer is
+        needed.
+        """
+        self.make_current()
+        sun_glossy = lighting.sun is not None and sun_glossy_supported(self._specular)
+        pf = lighting.rest_prefiltered if sun_glossy else lighting.prefiltered
+        if (
+            (lighting.sun is not None) != self.has_sun
+            or sun_glossy != self.sun_glossy
+            or lighting.sh.shape[0] != self.frame_block.n_sh
+            or len(pf.levels) != self.n_levels
+            or pf.base_res != int(self._atlas_uniforms["level_res"][0])
+            or float(pf.lambdas[0]) != self._atlas_uniforms["lam0"]
+        ):
+            return False
+        self.atlas.write(_atlas(pf)[0].tobytes())
+        for face, data in enumerate(_background(lighting)):
+            self.env_cube.write(face, data.tobytes())
+        if self.has_sun:
+            sun = lighting.sun
+            self.frame_block.set("sun_e", [float(x) for x in sun.irradiance])
+            if self.sun_glossy:
+                sb = sun_glossy_vertex_params(
+                    sun_widened(self._specular, sun.spread), self._n_vertices
+                )
+                self.sbo.write(sb.tobytes())
+                if self.prog.get("sun_spread", None) is not None:
+                    self._uniform(self.prog, "sun_spread", float(sun.spread))
+        self.lighting = lighting
+        # the rotation-dependent values (SH, the sun's direction) and the shadow map follow
+        # the new lighting at the next frame
+        self._rot = None
+        self._shadow_key = None
+        return True
+
     def time_passes(self, frames: int = 64) -> PassTimer:
         """Attach a new :class:`PassTimer` as :attr:`timer` for the next ``frames`` frames and
         return it (read it with :meth:`PassTimer.summary` after ``ctx.finish()``; set
         :attr:`timer` to None to stop timing)."""
+        self.make_current()
         self.timer = PassTimer(self.ctx, frames)
         return self.timer
 
     def set_hdr_dtype(self, dtype: str) -> None:
         """The colour targets' texel type (``"f4"`` or ``"f2"``, see the class); their
         content is undefined until the next :meth:`draw`."""
+        self.make_current()
         if dtype not in HDR_DTYPES:
             raise InputError("hdr_dtype", f"must be one of {HDR_DTYPES}, got {dtype!r}")
         if dtype == self.hdr_dtype:
@@ -638,6 +705,7 @@ class GLRenderer:
 
     def set_offsets(self, offsets=None) -> None:
         """The sub-pixel sample positions ``(S, 2)`` of the next frames (None: the centre)."""
+        self.make_current()
         off = np.full((1, 2), 0.5) if offsets is None else np.asarray(offsets, np.float64)
         if off.ndim != 2 or off.shape[1] != 2 or off.shape[0] < 1:
             raise InputError("offsets", f"expected (S, 2) sub-pixel positions, got {off.shape}")
@@ -743,6 +811,8 @@ class GLRenderer:
         sample of :attr:`offsets`."""
         import moderngl  # optional (the gl extra)
 
+        self.make_current()
+
         if self.timer is not None:
             self.timer.new_frame()
         ctx = self.ctx
@@ -843,6 +913,8 @@ class GLRenderer:
         """Tone-map the last frame onto ``screen`` (a window's framebuffer)."""
         import moderngl  # optional (the gl extra)
 
+        self.make_current()
+
         with self._section("tonemap"):
             screen.use()
             self.ctx.disable(moderngl.DEPTH_TEST)
@@ -855,12 +927,14 @@ class GLRenderer:
         """The colour target as ``(H, W, 3)`` radiance and ``(H, W)`` float32 coverage (the
         fraction of the pixel's samples on the object); float32 values, of half-float
         precision when :attr:`hdr_dtype` is ``"f2"``."""
+        self.make_current()
         raw = self.fbo.read(components=4, dtype="f4")
         img = np.frombuffer(raw, np.float32).reshape(self.height, self.width, 4)[::-1]
         img = torch.from_numpy(img.copy())
         return img[..., :3].contiguous(), img[..., 3].contiguous()
 
     def release(self) -> None:
+        self.make_current()
         for o in (self._pass_fbo, self._pass_color, self.abo, self.sbo):
             if o is not None:
                 o.release()

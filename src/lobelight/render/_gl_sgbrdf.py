@@ -50,6 +50,7 @@ from ._gl import (
     _GL_TEXTURE_CUBE_MAP_SEAMLESS,
     _program,
     create_context,
+    make_current,
     upload_geodesic,
     upload_prefiltered,
 )
@@ -447,6 +448,7 @@ class GLSGBRDFRenderer:
 
         if camera is not None and not isinstance(camera, Camera):
             raise InputError("camera", f"must be a Camera or None, got {type(camera).__name__}")
+        make_current(self.ctx, self.own_ctx)
         ctx = self.ctx
         prog, vao = self._program(camera is None)
         self.fbo.use()
@@ -487,6 +489,7 @@ class GLSGBRDFRenderer:
     def read(self) -> tuple[torch.Tensor, torch.Tensor]:
         """The framebuffer as ``(H, W, 3)`` float32 radiance (row 0 at the top, as
         :func:`lobelight.sgbrdf.render_sphere`) and the ``(H, W)`` bool object mask."""
+        make_current(self.ctx, self.own_ctx)
         raw = self.fbo.read(components=4, dtype="f4")
         img = np.frombuffer(raw, np.float32).reshape(self.height, self.width, 4)[::-1]
         img = torch.from_numpy(img.copy())
@@ -500,6 +503,7 @@ class GLSGBRDFRenderer:
 
     def release(self) -> None:
         """Free the GL objects (and the context when this renderer made it)."""
+        make_current(self.ctx, self.own_ctx)
         objs = [*self._vaos.values(), *self._progs.values(), *self._textures, *self._buffers]
         for o in (*objs, self.fbo, self.color, self.depth):
             o.release()

@@ -22,7 +22,7 @@ import math
 import numpy as np
 import torch
 
-from ..envmap import EnvMap, Prefiltered, Sun, extract_sun, prefilter
+from ..envmap import ChainBuilder, EnvMap, Prefiltered, Sun, extract_sun, prefilter
 from ..errors import InputError
 from ..lobes import sh
 
@@ -62,11 +62,16 @@ class Lighting:
     sun : take a dominant sun out of the diffuse lighting and shade it per pixel with shadows
         (module docstring); a map without one (:func:`lobelight.envmap.extract_sun`) is used
         whole, and ``self.sun`` is None
+    builders : None, or two :class:`lobelight.envmap.ChainBuilder` at ``base_res`` on
+        ``device`` that build the chains (the whole map's, the map's without its sun) instead
+        of :func:`lobelight.envmap.prefilter` and its disk cache: for lighting that changes
+        every frame. A builder's chain is overwritten when it builds again, so such a Lighting
+        holds until the next one made with the same builders builds its chains.
 
     Attributes
     ----------
     prefiltered : Prefiltered (built on first use);  sh : (sh_order**2, 3) float32;  env : EnvMap
-    sun : Sun or None
+    sun : Sun or None;  sun_split : the ``sun`` asked for
     rest_prefiltered : the prefiltered chain of the map without its sun (built on first use)
     """
 
@@ -79,11 +84,22 @@ class Lighting:
         device=None,
         prefiltered: Prefiltered | None = None,
         sun: bool = False,
+        builders: tuple[ChainBuilder, ChainBuilder] | None = None,
     ):
         if not isinstance(env, EnvMap):
             raise InputError("env", f"expected an EnvMap, got {type(env).__name__}")
         self.env = env.to(device) if device is not None else env
         self.device = self.env.device
+        if builders is not None:
+            if len(builders) != 2 or any(
+                not isinstance(b, ChainBuilder) or b.base_res != base_res or b.device != self.device
+                for b in builders
+            ):
+                raise InputError(
+                    "builders", f"must be two ChainBuilders at base_res {base_res} on {self.device}"
+                )
+        self._builders = builders
+        self.sun_split = bool(sun)
         # both chains are built on first use: a renderer that shades the sun's glossy part
         # per pixel needs only the one without the sun (a chain at 256^2 takes seconds)
         self._pf = prefiltered
@@ -107,7 +123,7 @@ class Lighting:
     def prefiltered(self) -> Prefiltered:
         """The prefiltered chain of the whole map."""
         if self._pf is None:
-            self._pf = prefilter(self.env, base_res=self._base_res, device=self.device)
+            self._pf = self._chain(self.env, 0)
         return self._pf
 
     @property
@@ -116,8 +132,15 @@ class Lighting:
         if self.sun is None:
             return self.prefiltered
         if self._rest_pf is None:
-            self._rest_pf = prefilter(self._rest_env, base_res=self._base_res, device=self.device)
+            self._rest_pf = self._chain(self._rest_env, 1)
         return self._rest_pf
+
+    def _chain(self, env: EnvMap, which: int) -> Prefiltered:
+        """The chain of ``env``: from builder ``which`` when there are builders, else from
+        :func:`lobelight.envmap.prefilter` (and its disk cache)."""
+        if self._builders is not None:
+            return self._builders[which](env)
+        return prefilter(env, base_res=self._base_res, device=self.device)
 
     def sun_sh_rotated(self, rot: torch.Tensor) -> torch.Tensor:
         """The sun alone as SH of the transfer's order, turned by ``rot``: ``E Y_lm(R s)`` (its

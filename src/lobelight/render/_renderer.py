@@ -7,7 +7,7 @@ import math
 import numpy as np
 import torch
 
-from ..envmap import EnvMap
+from ..envmap import ChainBuilder, EnvMap
 from ..errors import InputError
 from ..geometry.camera import Camera
 from ..geometry.raycast import RayCaster
@@ -121,10 +121,69 @@ class Renderer:
         self.offsets = sample_offsets(self.samples)
         self._gl = None
         self._caster = None  # the torch path's BVH, built on first use and kept
+        self._builders: tuple[ChainBuilder, ChainBuilder] | None = None  # set_environment's
         if backend == "gl":
             self._gl = GLRenderer(
                 model, self.lighting, self.width, self.height, ctx=ctx, offsets=self.offsets
             )
+
+    def set_environment(self, env) -> None:
+        """Light the next frames by another environment: relighting without a new renderer.
+
+        Parameters
+        ----------
+        env : EnvMap, prepared as the current lighting was (its base resolution, SH order and
+            ``sun``) with the chains built by two :class:`lobelight.envmap.ChainBuilder` the
+            renderer keeps (no disk cache; on CUDA one graph launch per chain), or a
+            :class:`Lighting` with the model's SH order.
+
+        The shader path writes the new chain, background, SH and sun into its textures and
+        uniforms in place, keeping its programs, the model's data and its targets; only when
+        the map's sun appears or disappears (a sun is found in one map and not the other), or
+        a Lighting of another base resolution is given, does it make them again. The torch path
+        reads the lighting at each frame. A Lighting made here from an EnvMap holds until the
+        next call, which rebuilds its chains in the same buffers.
+        """
+        if isinstance(env, EnvMap):
+            old = self.lighting
+            if self._builders is None:
+                dev = old.device
+                self._builders = tuple(
+                    ChainBuilder(base_res=old.base_res, device=dev) for _ in range(2)
+                )
+            lighting = Lighting(
+                env,
+                base_res=old.base_res,
+                sh_order=self.model.sh_order,
+                device=old.device,
+                sun=old.sun_split,
+                builders=self._builders,
+            )
+        elif isinstance(env, Lighting):
+            lighting = env
+        else:
+            raise InputError("env", f"expected an EnvMap or Lighting, got {type(env).__name__}")
+        if lighting.sh.shape[0] != self.model.diffuse.shape[1]:
+            raise InputError(
+                "env",
+                f"lighting projected to {lighting.sh.shape[0]} SH coefficients, the model's "
+                f"diffuse transfer has {self.model.diffuse.shape[1]}",
+            )
+        if self._gl is not None and not self._gl.set_lighting(lighting):
+            gl = self._gl
+            gl.make_current()  # the new renderer's objects go into the old one's context
+            self._gl = GLRenderer(
+                self.model,
+                lighting,
+                self.width,
+                self.height,
+                ctx=gl.ctx,
+                offsets=self.offsets,
+                hdr_dtype=gl.hdr_dtype,
+            )
+            self._gl.own_ctx, gl.own_ctx = gl.own_ctx, False  # the context passes to the new
+            gl.release()
+        self.lighting = lighting
 
     def render(
         self,
