@@ -123,7 +123,7 @@ def test_switched_chains_come_from_the_builders_not_the_disk_cache(model, maps, 
 def test_bad_environments_are_refused_and_the_lighting_kept(model, maps):
     r = render.Renderer(model, maps["sky"], W, H, backend="torch", base_res=BASE, samples=1)
     kept = r.lighting
-    with pytest.raises(InputError, match="env.*EnvMap or Lighting"):
+    with pytest.raises(InputError, match=r"env.*EnvMap or Lighting"):
         r.set_environment("sky.hdr")
     with pytest.raises(InputError, match="9 SH coefficients"):
         r.set_environment(render.Lighting(maps["turned"], base_res=BASE, sh_order=3))

@@ -20,7 +20,7 @@ import torch
 
 from .._backend import as_tensor
 from ..errors import InputError
-from ._prefilter import Prefiltered, _build, _check_cube, _lambdas, base_cube
+from ._prefilter import Prefiltered, _build, _check_cube, _lambdas, base_cube, check_settings
 
 __all__ = ["ChainBuilder"]
 
@@ -56,12 +56,7 @@ class ChainBuilder:
         graph: bool | None = None,
         check_finite: bool = True,
     ) -> None:
-        if base_res < 1 or base_res & (base_res - 1):
-            raise InputError("base_res", f"must be a power of two, got {base_res}")
-        if phases < 1:
-            raise InputError("phases", f"must be >= 1, got {phases}")
-        if blend not in ("moment", "l2"):
-            raise InputError("blend", f"must be 'moment' or 'l2', got {blend!r}")
+        check_settings(base_res, phases, blend)
         try:
             self.device = torch.device("cpu" if device is None else device)
         except (RuntimeError, TypeError) as exc:

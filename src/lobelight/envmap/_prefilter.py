@@ -48,6 +48,7 @@ from __future__ import annotations
 
 import logging
 import math
+import numbers
 import os
 from dataclasses import dataclass, field
 from functools import lru_cache
@@ -362,12 +363,7 @@ def prefilter(
     -------
     Prefiltered
     """
-    if base_res < 1 or base_res & (base_res - 1):
-        raise InputError("base_res", f"must be a power of two, got {base_res}")
-    if phases < 1:
-        raise InputError("phases", f"must be >= 1, got {phases}")
-    if blend not in ("moment", "l2"):
-        raise InputError("blend", f"must be 'moment' or 'l2', got {blend!r}")
+    check_settings(base_res, phases, blend)
     name = getattr(env, "name", "envmap")
     is_map = hasattr(env, "to_cubemap")
     folder = _folder(cache, is_map)
@@ -402,6 +398,18 @@ def prefilter(
     return Prefiltered(
         levels=levels, lambdas=lambdas, phases=phases, blend=blend, name=name, _padded=padded
     )
+
+
+def check_settings(base_res: int, phases: int, blend: str) -> None:
+    """Refuse a chain's settings that :func:`prefilter` cannot build, naming the setting."""
+    if isinstance(base_res, bool) or not isinstance(base_res, numbers.Integral) or base_res < 1:
+        raise InputError("base_res", f"must be a power of two, got {base_res!r}")
+    if base_res & (base_res - 1):
+        raise InputError("base_res", f"must be a power of two, got {base_res}")
+    if isinstance(phases, bool) or not isinstance(phases, numbers.Integral) or phases < 1:
+        raise InputError("phases", f"must be an integer >= 1, got {phases!r}")
+    if blend not in ("moment", "l2"):
+        raise InputError("blend", f"must be 'moment' or 'l2', got {blend!r}")
 
 
 def _check_cube(cube: torch.Tensor, base_res: int) -> None:

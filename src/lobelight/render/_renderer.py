@@ -100,20 +100,8 @@ class Renderer:
         if device is not None:
             model = model.to(device)
         self.model = model
-        if isinstance(env, Lighting):
-            self.lighting = env
-        elif isinstance(env, EnvMap):
-            self.lighting = Lighting(
-                env, base_res=base_res, device=model.device, sun=sun, sh_order=model.sh_order
-            )
-        else:
-            raise InputError("env", f"expected an EnvMap or Lighting, got {type(env).__name__}")
-        if model.diffuse.shape[1] != self.lighting.sh.shape[0]:
-            raise InputError(
-                "env",
-                f"lighting projected to {self.lighting.sh.shape[0]} SH coefficients, the "
-                f"model's diffuse transfer has {model.diffuse.shape[1]}",
-            )
+        self._builders: tuple[ChainBuilder, ChainBuilder] | None = None  # set_environment's
+        self.lighting = self._as_lighting(env, base_res, sun)
         self.width, self.height = int(width), int(height)
         self.backend = backend
         self.samples = int(samples)
@@ -121,7 +109,6 @@ class Renderer:
         self.offsets = sample_offsets(self.samples)
         self._gl = None
         self._caster = None  # the torch path's BVH, built on first use and kept
-        self._builders: tuple[ChainBuilder, ChainBuilder] | None = None  # set_environment's
         if backend == "gl":
             self._gl = GLRenderer(
                 model, self.lighting, self.width, self.height, ctx=ctx, offsets=self.offsets
@@ -144,31 +131,8 @@ class Renderer:
         reads the lighting at each frame. A Lighting made here from an EnvMap holds until the
         next call, which rebuilds its chains in the same buffers.
         """
-        if isinstance(env, EnvMap):
-            old = self.lighting
-            if self._builders is None:
-                dev = old.device
-                self._builders = tuple(
-                    ChainBuilder(base_res=old.base_res, device=dev) for _ in range(2)
-                )
-            lighting = Lighting(
-                env,
-                base_res=old.base_res,
-                sh_order=self.model.sh_order,
-                device=old.device,
-                sun=old.sun_split,
-                builders=self._builders,
-            )
-        elif isinstance(env, Lighting):
-            lighting = env
-        else:
-            raise InputError("env", f"expected an EnvMap or Lighting, got {type(env).__name__}")
-        if lighting.sh.shape[0] != self.model.diffuse.shape[1]:
-            raise InputError(
-                "env",
-                f"lighting projected to {lighting.sh.shape[0]} SH coefficients, the model's "
-                f"diffuse transfer has {self.model.diffuse.shape[1]}",
-            )
+        old = self.lighting
+        lighting = self._as_lighting(env, old.base_res, old.sun_split, rebuilt=True)
         if self._gl is not None and not self._gl.set_lighting(lighting):
             gl = self._gl
             gl.make_current()  # the new renderer's objects go into the old one's context
@@ -184,6 +148,36 @@ class Renderer:
             self._gl.own_ctx, gl.own_ctx = gl.own_ctx, False  # the context passes to the new
             gl.release()
         self.lighting = lighting
+
+    def _as_lighting(self, env, base_res: int, sun: bool, *, rebuilt: bool = False) -> Lighting:
+        """``env`` as the model's Lighting: a Lighting as it is, an EnvMap prepared at
+        ``base_res`` with ``sun`` on the model's device (``rebuilt``: its chains by the
+        renderer's ChainBuilders); InputError unless its SH order is the model's."""
+        model = self.model
+        if isinstance(env, Lighting):
+            lighting = env
+        elif isinstance(env, EnvMap):
+            if rebuilt and self._builders is None:
+                self._builders = tuple(
+                    ChainBuilder(base_res=base_res, device=model.device) for _ in range(2)
+                )
+            lighting = Lighting(
+                env,
+                base_res=base_res,
+                device=model.device,
+                sun=sun,
+                sh_order=model.sh_order,
+                builders=self._builders if rebuilt else None,
+            )
+        else:
+            raise InputError("env", f"expected an EnvMap or Lighting, got {type(env).__name__}")
+        if lighting.sh.shape[0] != model.diffuse.shape[1]:
+            raise InputError(
+                "env",
+                f"lighting projected to {lighting.sh.shape[0]} SH coefficients, the model's "
+                f"diffuse transfer has {model.diffuse.shape[1]}",
+            )
+        return lighting
 
     def render(
         self,
