@@ -88,11 +88,12 @@ class ChainBuilder:
         if not self.graph:
             levels, padded = _build(cube, self.base_res, self.phases)
             return self._chain_of(levels, padded, name)
-        if self._cuda_graph is None:
-            self._capture(cube)
-        else:
-            self._input.copy_(cube)
-            self._cuda_graph.replay()
+        with torch.cuda.device(self.device):  # the graph's streams are the current device's
+            if self._cuda_graph is None:
+                self._capture(cube)
+            else:
+                self._input.copy_(cube)
+                self._cuda_graph.replay()
         self._chain.name = name
         return self._chain
 
