@@ -239,3 +239,34 @@ def test_a_usage_error_quoting_control_characters_stays_one_line(capsys):
     assert main(["figure5", "x", "--parts", "6\x1d\r2"]) == 2
     err = capsys.readouterr().err
     assert len(err.splitlines()) == 1 and "\\x1d" in err
+
+
+def test_view_reads_every_map_at_the_door(tmp_path, capsys, monkeypatch):
+    # no window here: the display check and the window stand in; what view is given is the
+    # maps, each read before the window would open, in the order given
+    from lobelight import fit, scene
+    from lobelight.cli import _commands
+
+    m = fit.fit_model(scene.builtin("sphere", subdivisions=0), 1)
+    m.save(tmp_path / "m.npz")
+    seen = {}
+    monkeypatch.setattr(_commands, "require_display", lambda: None)
+
+    def window(model, env, **kw):
+        seen["env"] = env
+        return {"command": "view", "frames": 0}
+
+    monkeypatch.setattr(_commands, "view", window)
+    hdr = tmp_path / "sky.hdr"
+    from lobelight import envmap
+
+    envmap.save(envmap.builtin(height=16), hdr)
+    assert main(["view", str(tmp_path / "m.npz"), "--env", "builtin", "--env", str(hdr)]) == 0
+    assert [e.name for e in seen["env"]] == ["builtin-sky", str(hdr)]
+    seen.clear()
+    assert main(["view", str(tmp_path / "m.npz")]) == 0  # the model's map alone
+    assert len(seen["env"]) == 1
+    seen.clear()
+    bad = ["view", str(tmp_path / "m.npz"), "--env", "builtin", "--env", "no/such/sky.hdr"]
+    assert main(bad) == 2
+    assert "no/such/sky.hdr" in capsys.readouterr().err and not seen

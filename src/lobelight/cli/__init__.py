@@ -156,9 +156,10 @@ def _parser() -> argparse.ArgumentParser:
             help="anti-aliasing samples per pixel, each a full shading pass (1: none)",
         )
 
-    def env(sp, what):
+    def env(sp, what, *, repeat: bool = False):
         sp.add_argument(
             "--env",
+            action="append" if repeat else "store",
             help=f".hdr/.exr file, a bundled map's name ({_bundled()}) or 'builtin'; {what}",
         )
 
@@ -255,10 +256,15 @@ def _parser() -> argparse.ArgumentParser:
         "view",
         "run_view",
         "interactive window: drag to orbit, right-drag to turn the "
-        "light, wheel to zoom, d/g/b diffuse/glossy/both, +/- exposure",
+        "light, wheel to zoom, d/g/b diffuse/glossy/both, +/- exposure, e next map",
     )
     v.add_argument("model", help="a model file written by bake")
-    env(v, "default: the model's, else the built-in sky")
+    env(
+        v,
+        "repeat it for several, which e cycles through (default: the model's, else the "
+        "built-in sky)",
+        repeat=True,
+    )
     sun(v)
     size(v, 1024, 768)
 

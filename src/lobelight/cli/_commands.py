@@ -345,7 +345,8 @@ def run_view(args) -> dict:
     # checked before a window opens; its stored environment is the default
     m = load_model(args.model)
     width, height = _size(args)
-    return view(m, env=_env(args.env, m.provenance), width=width, height=height, sun=args.sun)
+    envs = [_env(path, m.provenance) for path in (args.env or [None])]  # each read at the door
+    return view(m, env=envs, width=width, height=height, sun=args.sun)
 
 
 def run_compare(args) -> dict:

@@ -3,7 +3,8 @@
 Left-drag orbits the camera, right-drag turns the lighting, the wheel zooms; ``d``/``g``/``b``
 show the diffuse part, the glossy part or both; ``+``/``-`` change the exposure, ``t`` toggles
 the ACES curve, ``a`` switches anti-aliasing between the renderer's samples per pixel and one,
-``Esc`` quits. The title shows the frame rate and the samples per pixel.
+``e`` lights the model by the next of the maps given (:meth:`Renderer.set_environment`), ``Esc``
+quits. The title shows the frame rate, the samples per pixel and the map.
 """
 
 from __future__ import annotations
@@ -69,8 +70,12 @@ def view(
 ) -> dict:
     """Open the window and run until it is closed; returns frames drawn and the mean fps.
 
-    ``model_path``: a model file, or a loaded :class:`~lobelight.model.Model`; ``samples``:
-    samples per pixel while anti-aliasing is on (the ``a`` key)."""
+    ``model_path``: a model file, or a loaded :class:`~lobelight.model.Model`; ``env``: an
+    EnvMap, or a list of them that the ``e`` key cycles through; ``samples``: samples per pixel
+    while anti-aliasing is on (the ``a`` key)."""
+    maps = list(env) if isinstance(env, (list, tuple)) else [env]
+    if not maps:
+        raise InputError("env", "needs at least one environment map")
     glfw, win = _open_window(width, height, "lobelight")
     import moderngl  # optional (the gl extra)
 
@@ -78,7 +83,7 @@ def view(
         model = model_path if isinstance(model_path, Model) else load(model_path)
         ctx = moderngl.create_context()
         fb_w, fb_h = glfw.get_framebuffer_size(win)
-        ren = Renderer(model, env, fb_w, fb_h, backend="gl", ctx=ctx, sun=sun, samples=samples)
+        ren = Renderer(model, maps[0], fb_w, fb_h, backend="gl", ctx=ctx, sun=sun, samples=samples)
         # the window shows 8-bit tone-mapped frames: half-float radiance loses nothing there
         ren._gl.set_hdr_dtype("f2")
         verts = model.mesh.vertices
@@ -93,6 +98,7 @@ def view(
             "parts": (True, True),
             "aces": False,
             "samples": ren.samples,
+            "map": 0,
             "drag": None,
             "last": (0.0, 0.0),
         }
@@ -135,6 +141,10 @@ def view(
             elif key == glfw.KEY_A:
                 st["samples"] = 1 if st["samples"] > 1 else ren.samples
                 ren._gl.set_offsets(sample_offsets(st["samples"]))
+            elif key == glfw.KEY_E and len(maps) > 1:
+                st["map"] = (st["map"] + 1) % len(maps)
+                ren.set_environment(maps[st["map"]])
+                ren._gl.set_offsets(sample_offsets(st["samples"]))  # a remade renderer's
 
         glfw.set_mouse_button_callback(win, on_button)
         glfw.set_cursor_pos_callback(win, on_move)
@@ -161,7 +171,7 @@ def view(
                 glfw.set_window_title(
                     win,
                     f"lobelight  {fps:.1f} fps  exposure {st['exposure']:+.1f}  "
-                    f"{st['samples']} sample(s)/pixel",
+                    f"{st['samples']} sample(s)/pixel  {os.path.basename(maps[st['map']].name)}",
                 )
                 tick, shown = now, frames
         ren.close()
