@@ -151,3 +151,21 @@ def test_renderers_alive_together_each_draw_in_their_own_context(model, maps):
         torch.testing.assert_close(_frame(a), alone, rtol=0, atol=0)
     finally:
         a.close()
+
+
+def test_a_lighting_of_another_base_resolution_then_a_map(model, maps):
+    # the renderer takes the given Lighting's base resolution, and the next map is prepared at
+    # it (its chain builders made again for it)
+    r = render.Renderer(model, maps["sky"], W, H, backend="torch", base_res=BASE, samples=1)
+    r.set_environment(maps["turned"])
+    r.set_environment(render.Lighting(maps["turned"], base_res=16))
+    r.set_environment(maps["smooth"])
+    assert r.lighting.base_res == 16 and r._builders[0].base_res == 16
+    torch.testing.assert_close(
+        _frame(r), _fresh_at(model, maps["smooth"], 16), rtol=1e-5, atol=1e-6
+    )
+
+
+def _fresh_at(model, env, base_res) -> torch.Tensor:
+    r = render.Renderer(model, env, W, H, backend="torch", base_res=base_res, samples=1)
+    return _frame(r)

@@ -157,7 +157,7 @@ class Renderer:
         if isinstance(env, Lighting):
             lighting = env
         elif isinstance(env, EnvMap):
-            if rebuilt and self._builders is None:
+            if rebuilt and (self._builders is None or self._builders[0].base_res != base_res):
                 self._builders = tuple(
                     ChainBuilder(base_res=base_res, device=model.device) for _ in range(2)
                 )
