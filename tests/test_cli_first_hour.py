@@ -150,21 +150,21 @@ def test_every_flag_has_help_text():
 
 
 def test_flag_names_are_shared_across_commands():
-    """The same option means the same thing everywhere; old spellings still parse."""
+    """The same option means the same thing everywhere, under one name."""
     cmds = _subparsers()
     for name, sp in cmds.items():
         opts = {o for a in sp._actions for o in a.option_strings}
         assert {"--json", "--device", "--quiet"} <= opts, name
-        if "--out" in opts or "--output" in opts:
-            assert {"-o", "--output", "--out"} <= opts, name
-        assert "--ref-spp" not in opts or "--spp" in opts, name
+        if "--output" in opts:
+            assert {"-o", "--output"} <= opts, name
+        assert not {"--out", "--ref-spp", "--lobes"} & opts, name
         assert "--no-sun" not in opts or "--sun" in opts, name
-    args = cli._parser().parse_args(["compare-brdf", "--out", "x", "--ref-spp", "8"])
+    args = cli._parser().parse_args(["compare-brdf", "--output", "x", "--spp", "8"])
     assert args.output == "x" and args.spp == 8
     args = cli._parser().parse_args(["bench", "render", "--sun"])
     assert args.sun is True
-    with pytest.raises(cli._UsageError):  # --lobes is 1-3 everywhere
-        cli._parser().parse_args(["bench", "fit", "--lobes", "5"])
+    with pytest.raises(cli._UsageError):  # --gaussians is 1-3 everywhere
+        cli._parser().parse_args(["bench", "fit", "--gaussians", "5"])
 
 
 @pytest.fixture(scope="module")

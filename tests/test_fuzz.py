@@ -835,7 +835,7 @@ _COMMANDS = [
 ]  # fmt: skip
 _FLAGS = [
     "--json", "-q", "--device", "-o", "--out", "--width", "--height", "--size", "--spp", "--sun",
-    "--no-sun", "--backend", "--gaussians", "--lobes", "--bounces", "--indirect-paths",
+    "--no-sun", "--backend", "--gaussians", "--bounces", "--indirect-paths",
     "--float16", "--seed", "--checkpoint-every", "--env", "--material", "--camera", "--rotate",
     "--exposure", "--samples", "--turntable", "--spin", "--parts", "--tonemap", "--base-res",
     "--model", "--baselines", "--frames", "--fused", "--repeats", "--scene", "--refs", "--data",

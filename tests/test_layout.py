@@ -3,23 +3,15 @@
 Every ``import`` in every module counts, function-local ones included (they hide the graph from
 readers, not from this test). The layers, lowest first, are those of ``DEVELOPERS.md``:
 foundations, geometry, lobes, BRDFs, inputs, transport, the model, the fits (the PRT fit and
-the two companion methods), the renderers, ground truth, studies, the command line. The old
-module paths that still resolve (:mod:`lobelight._moved`) are checked here too.
+the two companion methods), the renderers, ground truth, studies, the command line.
 """
 
 from __future__ import annotations
 
 import ast
-import importlib
-import sys
 from pathlib import Path
 
-import pytest
-
 import lobelight
-from lobelight import _moved
-from lobelight.cli import _parser
-from lobelight.studies.bench import synthetic_model
 
 ROOT = Path(lobelight.__file__).parent
 
@@ -34,7 +26,6 @@ LAYERS: list[tuple[str, ...]] = [
         "_size",
         "_machine",
         "_process",
-        "_moved",
         "progress",
         "data",
     ),
@@ -158,33 +149,6 @@ def test_every_function_local_import_is_an_optional_dependency():
     assert not bad, "function-local imports:\n" + "\n".join(bad)
 
 
-@pytest.mark.parametrize(
-    ("old", "new"),
-    [
-        *sorted(_moved.MODULES.items()),
-        ("lobelight.gallery._score", "lobelight.studies.gallery._score"),
-    ],
-)
-def test_an_old_module_path_is_its_new_module(old, new):
-    sys.modules.pop(old, None)
-    with pytest.warns(DeprecationWarning, match=new.replace(".", r"\.")):
-        module = importlib.import_module(old)
-    assert module is importlib.import_module(new)
-    assert module.__spec__.name == new  # the module keeps its one true name
-
-
-@pytest.mark.parametrize(
-    ("package", "name"),
-    [(p, n) for p, names in sorted(_moved.ATTRIBUTES.items()) for n in sorted(names)],
-)
-def test_a_moved_name_is_found_in_its_new_module(package, name):
-    home = importlib.import_module(_moved.ATTRIBUTES[package][name])
-    with pytest.warns(DeprecationWarning, match=home.__name__.replace(".", r"\.")):
-        assert getattr(importlib.import_module(package), name) is getattr(home, name)
-    with pytest.raises(AttributeError, match="no attribute 'not_a_name'"):
-        _ = importlib.import_module(package).not_a_name
-
-
 def test_only_the_process_module_changes_the_process():
     """Environment variables and the allocator are the process owner's (the command line's,
     through :mod:`lobelight._process`), never set by library code as a side effect."""
@@ -197,16 +161,3 @@ def test_only_the_process_module_changes_the_process():
             if needle in text:
                 bad.append(f"{name}: {needle}")
     assert not bad, "\n".join(bad)
-
-
-def test_the_earlier_names_of_the_gaussians_per_view_still_answer():
-    """``n_gaussians`` is the one name (API, file format, shaders, CLI); the earlier ``n_lobes``
-    spellings answer with a DeprecationWarning naming it."""
-    m = synthetic_model(10, 2)
-    for old, new in [("n_lobes", "n_gaussians"), ("direct_lobes", "direct_gaussians")]:
-        with pytest.warns(DeprecationWarning, match=new):
-            assert getattr(m, old) == getattr(m, new)
-    with pytest.warns(DeprecationWarning, match="indirect_gaussians"):
-        assert m.indirect_lobes == m.indirect_gaussians == 0
-    assert _parser().parse_args(["bake", "x", "--lobes", "2"]).gaussians == 2
-    assert _parser().parse_args(["bake", "x", "--gaussians", "3"]).gaussians == 3

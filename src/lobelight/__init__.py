@@ -18,8 +18,4 @@ The package is layered, lowest first (``DEVELOPERS.md``; conventions: ``docs/con
 - :mod:`lobelight.cli` the command line
 """
 
-from . import _moved
-
 __version__ = "0.1.0"
-
-_moved.install()  # the old module paths (lobelight.sg, lobelight.bench, ...) keep working

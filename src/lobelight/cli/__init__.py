@@ -6,8 +6,7 @@ Commands: ``demo``, ``bake``, ``info``, ``render``, ``view``, ``compare``, ``com
 Every command takes ``--json`` (stdout carries only the JSON summary, or a JSON error object),
 ``--device`` and ``--quiet``. Progress goes to stderr: bars on a terminal, plain lines at most
 every few seconds elsewhere (:mod:`lobelight.progress`). Flags share their names across
-commands: ``-o/--output``, ``--width/--height``, ``--spp``, ``--sun/--no-sun``, ``--backend``;
-older spellings (``--out``, ``--ref-spp``, ``--lobes`` for ``--gaussians``) are kept as aliases.
+commands: ``-o/--output``, ``--width/--height``, ``--spp``, ``--sun/--no-sun``, ``--backend``.
 
 Exit codes: 0 success; 1 unexpected error; 2 bad input (one line on stderr naming the input and
 the problem); 130 interrupted (Ctrl-C), 143 terminated (SIGTERM, as batch schedulers send it):
@@ -96,7 +95,7 @@ def _parser() -> argparse.ArgumentParser:
         return sp
 
     def output(sp, default, what):
-        sp.add_argument("-o", "--output", "--out", default=default, help=what)
+        sp.add_argument("-o", "--output", default=default, help=what)
 
     def size(sp, w=512, h=512):
         sp.add_argument("--width", type=int, default=w, help="image width in pixels")
@@ -119,7 +118,6 @@ def _parser() -> argparse.ArgumentParser:
     def gaussians(sp):
         sp.add_argument(
             "--gaussians",
-            "--lobes",
             type=int,
             default=1,
             choices=[1, 2, 3],
@@ -144,9 +142,7 @@ def _parser() -> argparse.ArgumentParser:
         )
 
     def spp(sp, default):
-        sp.add_argument(
-            "--spp", "--ref-spp", type=int, default=default, help="reference samples per pixel"
-        )
+        sp.add_argument("--spp", type=int, default=default, help="reference samples per pixel")
 
     def samples(sp, default):
         sp.add_argument(

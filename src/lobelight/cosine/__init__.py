@@ -42,7 +42,6 @@ tables' build) :mod:`lobelight.studies.bench_lobes`, and the animation to PNGs/G
 :mod:`lobelight.studies.lobes_demo`.
 """
 
-from .. import _moved
 from ._brdf_lobes import brdf_lobes
 from ._light import SphereLight, cap_lobe, light_lobes
 from ._lobe import evaluate, from_vector, integral, product_integral, product_peak
@@ -101,8 +100,3 @@ __all__ = [
     "sphere_set",
     "winding_number",
 ]
-
-
-def __getattr__(name: str):
-    # names this package exported before they moved to the studies and references
-    return _moved.attribute(__name__, name)

@@ -10,7 +10,6 @@ from collections.abc import Callable
 import torch
 
 from .. import __version__
-from .._moved import renamed
 from ..model import Model
 from ..progress import resolve
 from ..scene import Scene
@@ -37,7 +36,6 @@ def fit_model(
     checkpoint: str | os.PathLike | None = None,
     checkpoint_every: float = 30.0,
     shadows: bool = True,
-    n_lobes: int | None = None,
 ):
     """Fit the glossy transport of every vertex with ``n_gaussians`` Gaussians per view, and its
     SH diffuse transfer (:func:`fit_mesh`), and wrap the result as a model.
@@ -60,9 +58,6 @@ def fit_model(
     lobelight.model.Model, with provenance holding the settings, the mean relative data error,
     flip counts and timings
     """
-    if n_lobes is not None:  # the earlier name of n_gaussians, kept working
-        renamed("fit_model(n_lobes=...)", "fit_model(n_gaussians=...)")
-        n_gaussians = n_lobes
     if n_gaussians not in (1, 2, 3):
         raise ValueError(f"n_gaussians must be 1, 2 or 3, got {n_gaussians}")
     t0 = time.perf_counter()

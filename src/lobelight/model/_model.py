@@ -9,7 +9,6 @@ from typing import Any
 
 import torch
 
-from .._moved import renamed
 from ..errors import InputError
 from ..geometry import sphere
 from ..lobes import sg
@@ -66,22 +65,6 @@ class Model:
     def direct_gaussians(self) -> int:
         """Gaussians per view fitted to the direct glossy transport."""
         return self.n_gaussians - self.indirect_gaussians
-
-    @property
-    def n_lobes(self) -> int:
-        # the earlier name of n_gaussians, kept working
-        renamed("Model.n_lobes", "Model.n_gaussians")
-        return self.n_gaussians
-
-    @property
-    def direct_lobes(self) -> int:
-        renamed("Model.direct_lobes", "Model.direct_gaussians")
-        return self.direct_gaussians
-
-    @property
-    def indirect_lobes(self) -> int:
-        renamed("Model.indirect_lobes", "Model.indirect_gaussians")
-        return self.indirect_gaussians
 
     @property
     def sh_order(self) -> int:

@@ -26,7 +26,6 @@
   :mod:`lobelight.geometry.camera`).
 """
 
-from .. import _moved
 from ..geometry.camera import Camera
 from ._gl import create_context, gl_available
 from ._gl_sgbrdf import GLSGBRDFRenderer
@@ -54,8 +53,3 @@ __all__ = [
     "turntable",
     "view",
 ]
-
-
-def __getattr__(name: str):
-    # names this package exported before they moved to the studies
-    return _moved.attribute(__name__, name)

@@ -44,7 +44,6 @@ Elsewhere: the Monte Carlo reference (MIS of BRDF and environment sampling) is
 :func:`lobelight.studies.bench_brdf_fit.bench_fit`.
 """
 
-from .. import _moved
 from ._em import (
     KAPPA_MAX,
     KAPPA_MIN,
@@ -110,8 +109,3 @@ __all__ = [
     "vmf_log_pdf",
     "wang09_lobe",
 ]
-
-
-def __getattr__(name: str):
-    # names this package exported before they moved to the studies and references
-    return _moved.attribute(__name__, name)

@@ -432,7 +432,7 @@ def main(argv=None) -> int:
     ap = argparse.ArgumentParser(prog="python -m lobelight.studies.energy", description=__doc__)
     ap.add_argument("--json", help="write the result here")
     ap.add_argument("--vertices", type=int, default=8)
-    ap.add_argument("--gaussians", "--lobes", type=int, default=1)
+    ap.add_argument("--gaussians", type=int, default=1)
     ap.add_argument("--no-conserve", action="store_true", help="plain L2 weights")
     args = ap.parse_args(argv)
 

@@ -29,8 +29,6 @@ Installing Mitsuba's LLVM variant and rendering the references: DEVELOPERS.md.
 
 import importlib
 
-from ... import _moved
-
 #: Where each public name lives: the submodules load on first use (PEP 562), so that the
 #: command line can add the gallery's arguments without importing torch.
 _HOMES = {
@@ -71,9 +69,6 @@ _HOMES = {
 
 
 def __getattr__(name: str):
-    if name == "LOBES":  # the earlier name of GAUSSIANS, kept working
-        _moved.renamed("lobelight.studies.gallery.LOBES", "GAUSSIANS")
-        name = "GAUSSIANS"
     if name not in _HOMES:
         raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
     value = getattr(importlib.import_module(_HOMES[name], __name__), name)

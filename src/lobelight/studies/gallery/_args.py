@@ -65,13 +65,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     g.add_argument(
         "-o",
         "--output",
-        "--out",
         default="lobelight-gallery",
         help="output folder (models, strips, JSON)",
     )
     g.add_argument(
         "--gaussians",
-        "--lobes",
         type=int,
         default=None,
         choices=[1, 2, 3],
