@@ -15,9 +15,10 @@ import pytest
 import torch
 
 from conftest import REAL_ENVMAPS
-from lobelight.envmap import builtin, load, prefilter, sg_integral
+from lobelight.envmap import builtin, load, prefilter
 from lobelight.errors import InputError
 from lobelight.geometry import cubemap
+from lobelight.lobes.sg import integral as sg_integral
 
 BASE = 64  # chain base resolution in tests: lam_max = (64 / 5)^2 = 164 (CPU time, see below)
 LAMS = [0.5, 1.0, 2.0, 5.0, 12.0, 30.0, 70.0, 150.0]

@@ -14,7 +14,7 @@ from typing import Any, TypeVar
 import numpy as np
 import torch
 
-__all__ = ["as_tensor", "dispatch", "to_numpy"]
+__all__ = ["as_float", "as_tensor", "dispatch", "to_numpy"]
 
 F = TypeVar("F", bound=Callable[..., Any])
 
@@ -31,6 +31,16 @@ def as_tensor(x: Any, *, dtype: torch.dtype | None = None, device: Any = None) -
         t = torch.from_numpy(np.ascontiguousarray(x).reshape(x.shape))
         return t.to(dtype=dtype or t.dtype, device=device or "cpu")
     return torch.as_tensor(x, dtype=dtype or torch.float32, device=device)
+
+
+def as_float(x: Any, *, like: torch.Tensor | None = None) -> torch.Tensor:
+    """A floating tensor: follows ``like`` (dtype, device) for scalars, float32 for integers."""
+    if like is not None and not isinstance(x, torch.Tensor):
+        return as_tensor(x, dtype=like.dtype, device=like.device)
+    t = as_tensor(x)
+    if like is not None:
+        t = t.to(device=like.device)
+    return t if t.is_floating_point() else t.to(torch.float32)
 
 
 def to_numpy(x: Any) -> Any:

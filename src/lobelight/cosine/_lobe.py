@@ -37,9 +37,10 @@ import math
 
 import torch
 
-from .._backend import dispatch
+from .._backend import as_float, dispatch
+from .._checks import check_directions
 from ..errors import InputError
-from ..geometry.sphere import _check_vec, _float, _normalize, frame
+from ..geometry.sphere import frame, normalize
 
 __all__ = [
     "evaluate",
@@ -78,15 +79,15 @@ def evaluate(dirs, axis, exponent, /, scale=None):
     -------
     (...)
     """
-    dirs = _float(dirs)
-    _check_vec(dirs, "dirs")
-    axis = _float(axis, like=dirs)
-    _check_vec(axis, "axis")
-    e = _float(exponent, like=dirs)
+    dirs = as_float(dirs)
+    check_directions(dirs, "dirs")
+    axis = as_float(axis, like=dirs)
+    check_directions(axis, "axis")
+    e = as_float(exponent, like=dirs)
     cos = (dirs * axis).sum(-1)
     pos = cos > 0
     val = torch.where(pos, torch.exp(torch.special.xlogy(e, cos.clamp_min(0))), 0.0)
-    return val if scale is None else val * _float(scale, like=val)
+    return val if scale is None else val * as_float(scale, like=val)
 
 
 @dispatch
@@ -107,9 +108,9 @@ def integral(exponent, /, scale=None):
     -------
     (...)
     """
-    e = _float(exponent)
+    e = as_float(exponent)
     out = _TWO_PI / (e + 1)
-    return out if scale is None else out * _float(scale, like=out)
+    return out if scale is None else out * as_float(scale, like=out)
 
 
 @dispatch
@@ -126,11 +127,11 @@ def from_vector(v, exponent, /):
     -------
     axis : (..., 3) unit;  scale : (...) ``|v|^exponent``
     """
-    v = _float(v)
-    _check_vec(v, "v")
-    e = _float(exponent, like=v)
+    v = as_float(v)
+    check_directions(v, "v")
+    e = as_float(exponent, like=v)
     norm = torch.linalg.vector_norm(v, dim=-1)
-    return _normalize(v), torch.exp(torch.special.xlogy(e, norm))
+    return normalize(v), torch.exp(torch.special.xlogy(e, norm))
 
 
 # --------------------------------------------------------------------------------------------
@@ -224,8 +225,8 @@ def product_peak(e1, e2, angle, /):
     beta : (...) angle from ``a1`` towards ``a2`` in ``[0, angle]``
     log_peak : (...) ``log(c1 c2)`` at the peak (``-inf`` where the product is 0)
     """
-    e1 = _float(e1)
-    e2, angle = _float(e2, like=e1), _float(angle, like=e1)
+    e1 = as_float(e1)
+    e2, angle = as_float(e2, like=e1), as_float(angle, like=e1)
     e1, e2, angle = torch.broadcast_tensors(e1, e2, angle)
     cb, sb, _, _, log_peak = _peak(e1, e2, torch.cos(angle), torch.sin(angle).clamp_min(0))
     return torch.atan2(sb, cb), log_peak
@@ -335,8 +336,8 @@ def product_integral(e1, e2, angle, /, *, nodes: int = 48):
     -------
     (...)
     """
-    e1 = _float(e1)
-    e2, angle = _float(e2, like=e1), _float(angle, like=e1)
+    e1 = as_float(e1)
+    e2, angle = as_float(e2, like=e1), as_float(angle, like=e1)
     _check_exponent(e1, "e1")
     _check_exponent(e2, "e2")
     shape = torch.broadcast_shapes(e1.shape, e2.shape, angle.shape)

@@ -84,10 +84,10 @@ import numpy as np
 import torch
 
 from .. import _cache
-from .._backend import dispatch
+from .._backend import as_float, dispatch
+from .._checks import check_directions
 from .._io import atomic_writer
 from ..errors import InputError
-from ..geometry.sphere import _check_vec, _float
 from ._fused import kernel
 from ._lobe import (
     _axis_pair,
@@ -342,8 +342,8 @@ def fit_product(e1, e2, angle, /, *, nodes: int = 32):
     beta : (...);  scale : (...) the partial scale ``p_r``;  exponent : (...) ``e_r``;
     rel_l2 : (...) ``||c1 c2 - c_r|| / ||c1 c2||`` over the sphere (0 where ``c1 c2 = 0``)
     """
-    e1 = _float(e1)
-    e2, angle = _float(e2, like=e1), _float(angle, like=e1)
+    e1 = as_float(e1)
+    e2, angle = as_float(e2, like=e1), as_float(angle, like=e1)
     _check_exponent(e1, "e1")
     _check_exponent(e2, "e2")
     shape = torch.broadcast_shapes(e1.shape, e2.shape, angle.shape)
@@ -399,7 +399,7 @@ def fit_cap_exponent(theta, /):
     -------
     (...) exponents
     """
-    theta = _float(theta)
+    theta = as_float(theta)
     if not bool(torch.all(theta >= 0)):
         raise InputError("theta", "cap angles must be >= 0")
     th = theta.to(_F64).reshape(-1)
@@ -490,8 +490,8 @@ class LobeTables:
         scale : (...) partial scale ``p_r`` (``q`` interpolated times the exact peak)
         exponent : (...) ``e_r``
         """
-        e1 = _float(e1)
-        e2, angle = _float(e2, like=e1), _float(angle, like=e1)
+        e1 = as_float(e1)
+        e2, angle = as_float(e2, like=e1), as_float(angle, like=e1)
         _check_exponent(e1, "e1")
         _check_exponent(e2, "e2")
         e1, e2, angle = torch.broadcast_tensors(e1, e2, angle)
@@ -516,11 +516,11 @@ class LobeTables:
         -------
         axis : (..., 3) unit;  exponent : (...);  scale : (...)
         """
-        axis1 = _float(axis1)
-        _check_vec(axis1, "axis1")
-        axis2 = _float(axis2, like=axis1)
-        _check_vec(axis2, "axis2")
-        e1, e2 = _float(e1, like=axis1), _float(e2, like=axis1)
+        axis1 = as_float(axis1)
+        check_directions(axis1, "axis1")
+        axis2 = as_float(axis2, like=axis1)
+        check_directions(axis2, "axis2")
+        e1, e2 = as_float(e1, like=axis1), as_float(e2, like=axis1)
         _check_exponent(e1, "e1")
         _check_exponent(e2, "e2")
         axis1, axis2 = torch.broadcast_tensors(axis1, axis2)
@@ -532,7 +532,7 @@ class LobeTables:
         scale = torch.exp(log_scale)
         for extra in (scale1, scale2):
             if extra is not None:
-                scale = scale * _float(extra, like=scale)
+                scale = scale * as_float(extra, like=scale)
         return axis, exponent, scale
 
     # ---- spherical cap
@@ -552,7 +552,7 @@ class LobeTables:
         -------
         (...) exponents (the lobe's scale is 1: ``max(h.w, 0)^e``)
         """
-        theta = _float(theta)
+        theta = as_float(theta)
         return _cap_lookup(theta, self.cap_table.to(theta.device))
 
 
@@ -896,7 +896,7 @@ def product(
     -------
     axis : (..., 3);  exponent : (...);  scale : (...)
     """
-    axis1 = _float(axis1)
+    axis1 = as_float(axis1)
     tables = tables if tables is not None else get_tables(device=axis1.device)
     return tables.product_lobes(
         axis1, e1, axis2, e2, scale1, scale2, preserve_integral=preserve_integral
@@ -909,6 +909,6 @@ def cap_exponent(theta, /, *, tables=None):
 
     See :meth:`LobeTables.cap_exponent`.
     """
-    theta = _float(theta)
+    theta = as_float(theta)
     tables = tables if tables is not None else get_tables(device=theta.device)
     return tables.cap_exponent(theta)

@@ -13,12 +13,11 @@
   environment each frame); on CUDA one graph launch per map.
 """
 
-from ..lobes.sg import integral as sg_integral  # the SG integral's home is lobelight.lobes.sg
 from ._builtin import builtin
 from ._chain_builder import ChainBuilder
 from ._envmap import EnvMap
 from ._io import load, save
-from ._prefilter import Prefiltered, prefilter
+from ._prefilter import Prefiltered, clear_memory_caches, prefilter
 from ._sun import Sun, extract_sun
 
 __all__ = [
@@ -27,9 +26,9 @@ __all__ = [
     "Prefiltered",
     "Sun",
     "builtin",
+    "clear_memory_caches",
     "extract_sun",
     "load",
     "prefilter",
     "save",
-    "sg_integral",
 ]

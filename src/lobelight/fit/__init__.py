@@ -8,7 +8,7 @@
 - :func:`fit_model` ``(scene, n_gaussians=1, *, device, ...) -> lobelight.model.Model`` does it all.
 """
 
-from ._data import FitData, gather, lobe_estimate
+from ._data import FitData, gather, half_vector_lobes, lobe_estimate
 from ._floodfill import MeshFit, count_flips, fit_mesh, wavefronts
 from ._model import fit_model
 from ._objective import Weights, flip_count
@@ -26,6 +26,7 @@ __all__ = [
     "fit_model",
     "flip_count",
     "gather",
+    "half_vector_lobes",
     "initial_guess",
     "lobe_estimate",
     "wavefronts",

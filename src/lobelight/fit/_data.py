@@ -182,7 +182,7 @@ def graded_cap(
     dirs : (..., n_theta n_phi, 3);  weights : (..., n_theta n_phi) solid angles
     """
     dev = axis.device
-    x, wx = sphere._gauss_legendre(n_theta)
+    x, wx = sphere.gauss_legendre(n_theta)
     x, wx = x.to(dev), wx.to(dev)
     c = scale.double()[..., None]  # (..., 1)
     top = torch.log1p(s_max.double()[..., None] / c)

@@ -48,7 +48,8 @@ from typing import Any
 
 import torch
 
-from .._backend import as_tensor, dispatch
+from .._backend import as_float, dispatch
+from .._checks import check_directions
 from ..errors import InputError
 from . import cubemap
 
@@ -60,6 +61,7 @@ __all__ = [
     "face_planes",
     "fibonacci",
     "frame",
+    "gauss_legendre",
     "geodesic_edges",
     "geodesic_faces",
     "geodesic_neighbor_table",
@@ -68,6 +70,7 @@ __all__ = [
     "lobe_cap_angle",
     "local_grid",
     "locate_views",
+    "normalize",
     "random_rotation",
     "rotation_between",
     "rotation_matrix",
@@ -95,22 +98,7 @@ ICOSAHEDRON_FACES: tuple[tuple[int, int, int], ...] = (
 # helpers
 
 
-def _float(x: Any, *, like: torch.Tensor | None = None) -> torch.Tensor:
-    """A floating tensor: follows ``like`` (dtype, device) for scalars, float32 for integers."""
-    if like is not None and not isinstance(x, torch.Tensor):
-        return as_tensor(x, dtype=like.dtype, device=like.device)
-    t = as_tensor(x)
-    if like is not None:
-        t = t.to(device=like.device)
-    return t if t.is_floating_point() else t.to(torch.float32)
-
-
-def _check_vec(x: torch.Tensor, name: str) -> None:
-    if x.ndim < 1 or x.shape[-1] != 3:
-        raise InputError(name, f"must be a (..., 3) array of directions, got {tuple(x.shape)}")
-
-
-def _normalize(v: torch.Tensor) -> torch.Tensor:
+def normalize(v: torch.Tensor) -> torch.Tensor:
     norm = torch.linalg.vector_norm(v, dim=-1, keepdim=True)
     return v / norm.clamp_min(torch.finfo(v.dtype).tiny)
 
@@ -282,8 +270,8 @@ def locate_views(dirs, /, *, chunk: int = 16384):
     -------
     idx : (..., 3) int64 view indices;  bary : (..., 3) weights, dtype of ``dirs``
     """
-    dirs = _float(dirs)
-    _check_vec(dirs, "dirs")
+    dirs = as_float(dirs)
+    check_directions(dirs, "dirs")
     planes, faces = face_planes(dirs.dtype, dirs.device)
     flat = dirs.reshape(-1, 3)  # (M, 3)
     idx_out, bary_out = [], []
@@ -388,7 +376,7 @@ def lobe_cap_angle(lam, /, *, eps: float = 1e-6):
     -------
     (...) angle in radians, dtype of ``lam``
     """
-    lam = _float(lam)
+    lam = as_float(lam)
     s = (math.log(1 / eps) / lam).clamp(max=2.0)  # 1 - cos(theta)
     return 2 * torch.asin(torch.sqrt(s / 2))  # = arccos(1 - s), accurate for small s
 
@@ -420,9 +408,9 @@ def cap_grid(mu, theta_max, /, *, n_theta: int = 16, n_phi: int | None = None):
     weights : (..., n_theta * n_phi) solid angles, summing to the cap area
     ``2 pi (1 - cos theta_max)``
     """
-    mu = _float(mu)
-    _check_vec(mu, "mu")
-    tmax = _float(theta_max, like=mu).double().clamp(0.0, math.pi)
+    mu = as_float(mu)
+    check_directions(mu, "mu")
+    tmax = as_float(theta_max, like=mu).double().clamp(0.0, math.pi)
     s_max = 2 * torch.sin(tmax / 2) ** 2  # 1 - cos(theta_max) without cancellation
     return _cap_from_s(mu, s_max, n_theta=n_theta, n_phi=n_phi)
 
@@ -445,15 +433,16 @@ def local_grid(mu, lam, /, *, eps: float = 1e-6, n_theta: int = 16, n_phi: int |
     -------
     dirs : (..., n_theta * n_phi, 3);  weights : (..., n_theta * n_phi) solid angles
     """
-    mu = _float(mu)
-    _check_vec(mu, "mu")
-    lam = _float(lam, like=mu)
+    mu = as_float(mu)
+    check_directions(mu, "mu")
+    lam = as_float(lam, like=mu)
     s_max = (math.log(1 / eps) / lam.double()).clamp(max=2.0)  # 1 - cos(theta_max)
     return _cap_from_s(mu, s_max, n_theta=n_theta, n_phi=n_phi)
 
 
 @functools.lru_cache(maxsize=32)
-def _gauss_legendre(n: int) -> tuple[torch.Tensor, torch.Tensor]:
+def gauss_legendre(n: int) -> tuple[torch.Tensor, torch.Tensor]:
+    """Gauss-Legendre nodes and weights on [-1, 1], ``(n,)`` float64 each."""
     # Golub-Welsch: nodes are the eigenvalues of the Jacobi matrix, weights 2 v_0^2.
     k = torch.arange(1, n, dtype=torch.float64)
     off = k / torch.sqrt(4 * k * k - 1)
@@ -468,7 +457,7 @@ def _cap_from_s(mu: torch.Tensor, s_max: torch.Tensor, *, n_theta: int, n_phi: i
     if n_theta < 1 or n_phi < 1:
         raise InputError("n_theta/n_phi", f"must be positive, got {n_theta}, {n_phi}")
     dev = mu.device
-    x, wx = _gauss_legendre(n_theta)
+    x, wx = gauss_legendre(n_theta)
     x, wx = x.to(dev), wx.to(dev)
     batch = torch.broadcast_shapes(mu.shape[:-1], s_max.shape)
     s_max = s_max.to(dev).expand(batch).unsqueeze(-1)  # (..., 1)
@@ -509,8 +498,8 @@ def frame(n, /):
     -------
     t, b, n : (..., 3) each
     """
-    n = _float(n)
-    _check_vec(n, "n")
+    n = as_float(n)
+    check_directions(n, "n")
     x, y, z = n.unbind(-1)
     sign = torch.copysign(torch.ones_like(z), z)
     a = -1 / (sign + z)
@@ -534,9 +523,9 @@ def to_local(v, n, /):
     -------
     (..., 3)
     """
-    v = _float(v)
-    _check_vec(v, "v")
-    t, b, n = frame(_float(n, like=v))
+    v = as_float(v)
+    check_directions(v, "v")
+    t, b, n = frame(as_float(n, like=v))
     return torch.stack([(v * t).sum(-1), (v * b).sum(-1), (v * n).sum(-1)], -1)
 
 
@@ -552,9 +541,9 @@ def to_world(v, n, /):
     -------
     (..., 3)
     """
-    v = _float(v)
-    _check_vec(v, "v")
-    t, b, n = frame(_float(n, like=v))
+    v = as_float(v)
+    check_directions(v, "v")
+    t, b, n = frame(as_float(n, like=v))
     return v[..., :1] * t + v[..., 1:2] * b + v[..., 2:] * n
 
 
@@ -570,10 +559,10 @@ def rotation_matrix(axis, angle, /):
     -------
     (..., 3, 3)
     """
-    axis = _float(axis)
-    _check_vec(axis, "axis")
-    angle = _float(angle, like=axis)
-    k = _normalize(axis)
+    axis = as_float(axis)
+    check_directions(axis, "axis")
+    angle = as_float(angle, like=axis)
+    k = normalize(axis)
     batch = torch.broadcast_shapes(k.shape[:-1], angle.shape)
     k = k.expand(*batch, 3)
     c, s = angle.cos().expand(batch), angle.sin().expand(batch)
@@ -607,7 +596,7 @@ def rotation_y(angle, /):
     -------
     (..., 3, 3)
     """
-    angle = _float(angle)
+    angle = as_float(angle)
     c, s = angle.cos(), angle.sin()
     one, zero = torch.ones_like(c), torch.zeros_like(c)
     return torch.stack(
@@ -639,7 +628,7 @@ def euler_to_matrix(angles, /, *, order: str = "xyz"):
     -------
     (..., 3, 3)
     """
-    angles = _float(angles)
+    angles = as_float(angles)
     order = order.lower()
     if len(order) != 3 or any(ch not in _AXES for ch in order):
         raise InputError("order", f"must be three of the letters x, y, z, got {order!r}")
@@ -670,10 +659,10 @@ def rotation_between(a, b, /):
     -------
     (..., 3, 3) with ``R @ a == b``
     """
-    a, b = _float(a), _float(b)
-    _check_vec(a, "a")
-    _check_vec(b, "b")
-    a, b = torch.broadcast_tensors(_normalize(a), _normalize(b.to(a.device)))
+    a, b = as_float(a), as_float(b)
+    check_directions(a, "a")
+    check_directions(b, "b")
+    a, b = torch.broadcast_tensors(normalize(a), normalize(b.to(a.device)))
     v = torch.cross(a, b, dim=-1)
     sin = torch.linalg.vector_norm(v, dim=-1)
     cos = (a * b).sum(-1)
@@ -701,7 +690,7 @@ def random_rotation(
     """
     gdev = generator.device if generator is not None else device
     q = torch.randn(n, 4, generator=generator, dtype=torch.float64, device=gdev)
-    q = _normalize(q)
+    q = normalize(q)
     w, x, y, z = q.unbind(-1)
     R = torch.stack(
         [
@@ -730,8 +719,8 @@ def spherical_to_direction(theta, phi, /):
     -------
     (..., 3) ``(sin theta sin phi, cos theta, sin theta cos phi)``
     """
-    theta = _float(theta)
-    phi = _float(phi, like=theta)
+    theta = as_float(theta)
+    phi = as_float(phi, like=theta)
     st = theta.sin()
     return torch.stack(torch.broadcast_tensors(st * phi.sin(), theta.cos(), st * phi.cos()), -1)
 
@@ -748,8 +737,8 @@ def direction_to_spherical(dirs, /):
     -------
     theta : (...) in ``[0, pi]``;  phi : (...) in ``(-pi, pi]`` (0 at the poles)
     """
-    dirs = _float(dirs)
-    _check_vec(dirs, "dirs")
+    dirs = as_float(dirs)
+    check_directions(dirs, "dirs")
     x, y, z = dirs.unbind(-1)
     # atan2 rather than acos: full precision near the poles
     theta = torch.atan2(torch.sqrt(x * x + z * z), y)

@@ -26,9 +26,9 @@ from dataclasses import dataclass
 
 import torch
 
-from .._backend import dispatch
+from .._backend import as_float, dispatch
+from .._checks import check_directions
 from ..errors import InputError
-from ..geometry.sphere import _check_vec, _float
 
 __all__ = [
     "LAM_RANGE",
@@ -114,15 +114,15 @@ def evaluate(dirs, mu, lam, /, weight=None):
     -------
     (...) values in ``[0, 1]``, or (..., C) with ``weight``
     """
-    dirs = _float(dirs)
-    _check_vec(dirs, "dirs")
-    mu = _float(mu, like=dirs)
-    _check_vec(mu, "mu")
-    lam = _float(lam, like=dirs)
+    dirs = as_float(dirs)
+    check_directions(dirs, "dirs")
+    mu = as_float(mu, like=dirs)
+    check_directions(mu, "mu")
+    lam = as_float(lam, like=dirs)
     g = torch.exp(-lam * _half_chord2(dirs, mu))
     if weight is None:
         return g
-    return g.unsqueeze(-1) * _float(weight, like=g)
+    return g.unsqueeze(-1) * as_float(weight, like=g)
 
 
 @dispatch
@@ -138,9 +138,9 @@ def integral(lam, /, weight=None):
     -------
     (...), or (..., C) with ``weight``
     """
-    lam = _float(lam)
+    lam = as_float(lam)
     out = _TWO_PI * _one_minus_exp_neg2_over(lam)
-    return out if weight is None else out.unsqueeze(-1) * _float(weight, like=out)
+    return out if weight is None else out.unsqueeze(-1) * as_float(weight, like=out)
 
 
 @dispatch
@@ -163,11 +163,11 @@ def product(mu1, lam1, mu2, lam2, /, *, log_scale: bool = False):
     -------
     mu : (..., 3);  lam : (...);  scale : (...) in ``[0, 1]`` (or its log, ``<= 0``)
     """
-    mu1 = _float(mu1)
-    _check_vec(mu1, "mu1")
-    mu2 = _float(mu2, like=mu1)
-    _check_vec(mu2, "mu2")
-    lam1, lam2 = _float(lam1, like=mu1), _float(lam2, like=mu1)
+    mu1 = as_float(mu1)
+    check_directions(mu1, "mu1")
+    mu2 = as_float(mu2, like=mu1)
+    check_directions(mu2, "mu2")
+    lam1, lam2 = as_float(lam1, like=mu1), as_float(lam2, like=mu1)
     um = lam1.unsqueeze(-1) * mu1 + lam2.unsqueeze(-1) * mu2  # (..., 3)
     lam = torch.linalg.vector_norm(um, dim=-1)
     tiny = torch.finfo(lam.dtype).tiny
@@ -198,14 +198,14 @@ def inner_product(mu1, lam1, mu2, lam2, /):
 @dispatch
 def sigma_to_sharpness(sigma, /):
     """``lam = 1 / sigma**2`` (conventions.md), ``sigma`` in radians. (...) -> (...)."""
-    sigma = _float(sigma)
+    sigma = as_float(sigma)
     return 1 / (sigma * sigma)
 
 
 @dispatch
 def sharpness_to_sigma(lam, /):
     """``sigma = 1 / sqrt(lam)``, inverse of :func:`sigma_to_sharpness`. (...) -> (...)."""
-    return torch.rsqrt(_float(lam))
+    return torch.rsqrt(as_float(lam))
 
 
 @dispatch
@@ -214,7 +214,7 @@ def vmf_normalization(lam, /):
 
     With it ``vmf = G * vmf_normalization(kappa)`` is the von Mises-Fisher density (kappa = lam).
     """
-    lam = _float(lam)
+    lam = as_float(lam)
     return 1 / (_TWO_PI * _one_minus_exp_neg2_over(lam))
 
 
@@ -231,7 +231,7 @@ def vmf_pdf(dirs, mu, kappa, /):
     (...) density per steradian
     """
     g = evaluate(dirs, mu, kappa)
-    return g * vmf_normalization(_float(kappa, like=g))
+    return g * vmf_normalization(as_float(kappa, like=g))
 
 
 # --------------------------------------------------------------------------------------------
@@ -303,7 +303,7 @@ def mean_cosine(lam, /):
     -------
     (...) in ``[0, 1)``
     """
-    lam = _float(lam)
+    lam = as_float(lam)
     return _mean_cosine64(lam.double()).to(lam.dtype)
 
 
@@ -342,7 +342,7 @@ def lam_from_mean_cosine(r, /):
     -------
     (...) sharpness, dtype of ``r``
     """
-    r = _float(r)
+    r = as_float(r)
     return _lam_from_gap(1 - r.double()).to(r.dtype)
 
 
@@ -363,14 +363,14 @@ def evaluate_mixture(dirs, mus, lams, weights, /):
     -------
     (..., C)
     """
-    dirs = _float(dirs)
-    _check_vec(dirs, "dirs")
-    mus = _float(mus, like=dirs)
-    _check_vec(mus, "mus")
-    weights = _float(weights, like=dirs)
+    dirs = as_float(dirs)
+    check_directions(dirs, "dirs")
+    mus = as_float(mus, like=dirs)
+    check_directions(mus, "mus")
+    weights = as_float(weights, like=dirs)
     if weights.ndim < 2:
         raise InputError("weights", f"must be (..., N, C), got shape {tuple(weights.shape)}")
-    g = evaluate(dirs.unsqueeze(-2), mus, _float(lams, like=dirs))  # (..., N)
+    g = evaluate(dirs.unsqueeze(-2), mus, as_float(lams, like=dirs))  # (..., N)
     return (g.unsqueeze(-1) * weights).sum(-2)
 
 
@@ -386,9 +386,9 @@ def integrate_mixture_constant(lams, weights, /, *, radiance=1.0):
     -------
     (..., C)
     """
-    weights = _float(weights)
-    lams = _float(lams, like=weights)
-    return integral(lams, weights).sum(-2) * _float(radiance, like=weights)
+    weights = as_float(weights)
+    lams = as_float(lams, like=weights)
+    return integral(lams, weights).sum(-2) * as_float(radiance, like=weights)
 
 
 @dispatch
@@ -405,9 +405,9 @@ def rotate(mu, R, /):
     -------
     (..., 3)
     """
-    mu = _float(mu)
-    _check_vec(mu, "mu")
-    R = _float(R, like=mu)
+    mu = as_float(mu)
+    check_directions(mu, "mu")
+    R = as_float(R, like=mu)
     if R.shape[-2:] != (3, 3):
         raise InputError("R", f"must be a (..., 3, 3) rotation, got shape {tuple(R.shape)}")
     return (R @ mu.unsqueeze(-1)).squeeze(-1)
@@ -436,10 +436,10 @@ def fit_from_samples(dirs, values, weights, /):
     -------
     mu : (..., 3);  lam : (...);  amplitude : (...) or (..., C)
     """
-    dirs = _float(dirs)
-    _check_vec(dirs, "dirs")
-    values = _float(values, like=dirs)
-    w = _float(weights, like=dirs)
+    dirs = as_float(dirs)
+    check_directions(dirs, "dirs")
+    values = as_float(values, like=dirs)
+    w = as_float(weights, like=dirs)
     channels = values.ndim == dirs.ndim
     f = values.sum(-1) if channels else values  # (..., S)
     wf = w * f.clamp_min(0)  # (..., S) density

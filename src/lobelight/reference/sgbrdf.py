@@ -22,7 +22,7 @@ import torch
 from .._backend import as_tensor
 from ..brdf import BRDF
 from ..errors import InputError
-from ..sgbrdf._render import normals_and_views
+from ..sgbrdf import normals_and_views
 from .paths import EnvSampler
 
 __all__ = ["shade_reference"]

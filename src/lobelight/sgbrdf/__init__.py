@@ -57,6 +57,7 @@ from ._em import (
 )
 from ._fis import FIS_SAMPLES, hammersley, shade_fis
 from ._fit import (
+    FIT_SAMPLES,
     SGBRDF,
     brdf_samples,
     elevation_views,
@@ -71,12 +72,21 @@ from ._fit import (
     view_jump,
     view_transport,
 )
-from ._render import COVERAGE, MipChain, mip_chain, render_sphere, shade, sphere_hits
+from ._render import (
+    COVERAGE,
+    MipChain,
+    mip_chain,
+    normals_and_views,
+    render_sphere,
+    shade,
+    sphere_hits,
+)
 from ._wang09 import shade_wang09, wang09_lobe
 
 __all__ = [
     "COVERAGE",
     "FIS_SAMPLES",
+    "FIT_SAMPLES",
     "KAPPA_MAX",
     "KAPPA_MIN",
     "SGBRDF",
@@ -98,6 +108,7 @@ __all__ = [
     "match_components",
     "mip_chain",
     "mixture_error",
+    "normals_and_views",
     "render_sphere",
     "sample_mixture",
     "shade",

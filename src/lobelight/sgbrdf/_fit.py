@@ -99,7 +99,7 @@ THETA_MAX_DEG = 88.0
 #: Geodesic views below the horizon are fitted at this height (the elevation layout's last).
 FOLD_Z = math.cos(math.radians(THETA_MAX_DEG))
 #: Samples per view and EM settings of :func:`fit`.
-SAMPLES = 4096
+FIT_SAMPLES = 4096
 MAX_ITER = 300
 TOL = 1e-6
 PRIOR_STRENGTH = 0.0
@@ -207,7 +207,7 @@ def _frame_tensors(like: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
     return n, t
 
 
-def brdf_samples(brdf: BRDF, views: torch.Tensor, /, *, samples: int = SAMPLES):
+def brdf_samples(brdf: BRDF, views: torch.Tensor, /, *, samples: int = FIT_SAMPLES):
     """Importance samples of ``rho(., o_j) cos`` for each view (module docstring).
 
     Parameters
@@ -371,7 +371,7 @@ def fit(
     n_lobes: int = 8,
     layout: str | None = None,
     n_views: int = N_ELEVATIONS,
-    samples: int = SAMPLES,
+    samples: int = FIT_SAMPLES,
     coherent: bool = True,
     prior_strength: float = PRIOR_STRENGTH,
     max_iter: int = MAX_ITER,
@@ -424,7 +424,7 @@ def fit_many(
     n_lobes: int = 8,
     layout: str | None = None,
     n_views: int = N_ELEVATIONS,
-    samples: int = SAMPLES,
+    samples: int = FIT_SAMPLES,
     coherent: bool = True,
     prior_strength: float = PRIOR_STRENGTH,
     max_iter: int = MAX_ITER,

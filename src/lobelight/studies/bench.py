@@ -18,8 +18,7 @@ from .. import scene as _scene
 from .. import transport
 from .._machine import machine
 from .._machine import sync as _sync
-from ..envmap import ChainBuilder, builtin, prefilter
-from ..envmap._prefilter import clear_memory_caches
+from ..envmap import ChainBuilder, builtin, clear_memory_caches, prefilter
 from ..errors import one_line
 from ..fit import Gaussians, fit_model
 from ..geometry import cubemap

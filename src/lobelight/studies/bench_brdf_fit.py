@@ -7,11 +7,11 @@ from typing import Any
 
 import torch
 
+from .._checks import check_int
 from .._machine import machine
 from ..brdf import BRDF, GGX, Beckmann, Ward
 from ..errors import InputError
-from ..sgbrdf import fit, fit_error
-from ..sgbrdf._fit import SAMPLES, _check_int
+from ..sgbrdf import FIT_SAMPLES, fit, fit_error
 
 __all__ = ["bench_fit"]
 
@@ -46,7 +46,7 @@ def bench_fit(
 
     before = torch.get_num_threads()
     if threads is not None:
-        torch.set_num_threads(_check_int(threads, "threads", minimum=1))
+        torch.set_num_threads(check_int(threads, "threads", minimum=1))
     try:
         return _bench_fit(material, str(device), repeats, machine)
     finally:
@@ -58,7 +58,7 @@ def _bench_fit(material: str, device: str, repeats: int, machine: Any) -> dict:
     fit(brdf, device=device)  # warm-up
     times = []
     model = None
-    for _ in range(_check_int(repeats, "repeats", minimum=1)):
+    for _ in range(check_int(repeats, "repeats", minimum=1)):
         if device.startswith("cuda"):
             torch.cuda.synchronize(device)
         t0 = time.perf_counter()
@@ -75,7 +75,7 @@ def _bench_fit(material: str, device: str, repeats: int, machine: Any) -> dict:
         "layout": model.layout,
         "views": int(model.used.sum()),
         "lobes": model.n_lobes,
-        "samples": SAMPLES,
+        "samples": FIT_SAMPLES,
         "seconds_best": times[0],
         "seconds_median": times[len(times) // 2],
         "repeats": len(times),

@@ -33,7 +33,7 @@ import time
 import torch
 
 from .. import brdf, envmap, fit, scene, transport
-from ..fit._data import half_vector_lobes
+from ..fit import half_vector_lobes
 from ..geometry import cubemap, sphere
 from ..lobes import sg
 from ..model import blend_lobes
@@ -125,7 +125,7 @@ def reference_rule(
     while edges[-1] * ratio < 2:
         edges.append(edges[-1] * ratio)
     edges.append(2.0)
-    x, wx = sphere._gauss_legendre(n_s)
+    x, wx = sphere.gauss_legendre(n_s)
     e = torch.tensor(edges, dtype=torch.float64)
     lo, hi = e[:-1, None], e[1:, None]
     s = (lo + 0.5 * (x + 1) * (hi - lo)).reshape(-1)  # (R,) ring offsets
