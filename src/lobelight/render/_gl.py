@@ -192,6 +192,53 @@ def _atlas(pf: Prefiltered) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     return atlas, np.asarray(rows, np.float32), np.asarray(res, np.float32)
 
 
+def _rgb0(table: torch.Tensor) -> np.ndarray:
+    """``(..., 3)`` values as ``(T, 4)`` float texels (alpha 0)."""
+    rows = torch.cat([table, torch.zeros_like(table[..., :1])], -1)
+    return rows.reshape(-1, 4).detach().cpu().numpy()
+
+
+def _gaussian_records(model) -> np.ndarray:
+    """Two texels per Gaussian ``(2 V J N, 4)``: record ``(v, j, k)`` is texels ``2r`` and
+    ``2r + 1`` with ``r = (v J + j) N + k``, holding the light the lobe carries and its width
+    ``(e, sigma)``, then its axis and whether the record's view is above the vertex's horizon
+    ``(mu, above)`` (prt.glsl's ``gaussian``)."""
+    g = model.gaussians
+    sigma = g.lam.rsqrt()[..., None]
+    # the light each lobe carries (prt.glsl blends it, not the peak weight)
+    e = (g.w.double() * sg.integral(g.lam.double())[..., None]).float()
+    a = torch.cat([e, sigma], -1).reshape(-1, 4)  # (V J N, 4)
+    # .w: the record's view is above the vertex's horizon (model.horizon_scale)
+    above = ((model.views[None] * model.mesh.normals[:, None]).sum(-1) > 0).float()  # (V, J)
+    above = above[:, :, None, None].expand(-1, -1, g.lam.shape[-1], 1)
+    m = torch.cat([g.mu, above], -1).reshape(-1, 4)
+    return torch.stack([a, m], 1).reshape(-1, 4).detach().cpu().numpy()
+
+
+def _transfer_images(model, *, bounce: bool) -> tuple[np.ndarray, np.ndarray, np.ndarray, int]:
+    """The model's transfer as three ``(H, W, 4)`` float32 images of one width ``W``: the
+    Gaussian records (:func:`_gaussian_records`), the diffuse transfer ``(V, N_SH)`` RGB per
+    texel, and the interreflected part of the transfer (``Model.bounce``; one vertex of zeros
+    when ``bounce`` is false); returns them and ``W``."""
+    rec = _gaussian_records(model)
+    img, width = _wrap(rec)
+    dimg, width2 = _wrap(_rgb0(model.diffuse), width)
+    if width2 != width:  # all share one width uniform; wrap again at the larger width
+        img, width = _wrap(rec, width2)
+    table = model.bounce if bounce else torch.zeros_like(model.diffuse[:1])
+    bimg, width3 = _wrap(_rgb0(table), width)
+    if width3 != width:
+        raise InputError("model", "the bounce table exceeds the texture size")
+    return img, dimg, bimg, width
+
+
+def _bounding_sphere(mesh) -> tuple[np.ndarray, float]:
+    """The vertices' centroid ``(3,)`` and the largest distance of a vertex from it."""
+    center = mesh.vertices.mean(0)
+    radius = float((mesh.vertices - center).norm(dim=-1).max())
+    return center.detach().cpu().numpy(), radius
+
+
 def _background(lighting: Lighting) -> np.ndarray:
     """The map as the background's cube texture, ``(6, BACKGROUND_RES, BACKGROUND_RES, 3)``."""
     cube = lighting.env.to_cubemap(BACKGROUND_RES)
@@ -431,38 +478,60 @@ class GLRenderer:
         offsets=None,
         hdr_dtype: str = "f4",
     ):
-        import moderngl  # optional (the gl extra)
-
         self.ctx = ctx if ctx is not None else create_context()
         self.own_ctx = ctx is None
+        self.make_current()
         self.width, self.height = int(width), int(height)
-        ctx = self.ctx
-        ctx.enable_direct(_GL_TEXTURE_CUBE_MAP_SEAMLESS)
+        self.ctx.enable_direct(_GL_TEXTURE_CUBE_MAP_SEAMLESS)
         self.timer: PassTimer | None = None
         self._uniform_values: dict = {}  # (program, name) -> the value written last
-        n_gaussians = model.n_gaussians
         n_sh = int(model.diffuse.shape[1])
         if n_sh != lighting.sh.shape[0]:
             raise InputError(
                 "lighting", f"has {lighting.sh.shape[0]} SH coefficients, the model {n_sh}"
             )
+        pf = self._choose_shading(model, lighting)
+        self.planes_ubo, self.cand_tex, geo_defines = upload_geodesic(self.ctx)
+        self._compile_programs(model, n_sh, geo_defines)
+        tex_width = self._upload_transfer(model)
+        self._upload_lighting(lighting, pf)
+        self._connect_programs(tex_width)
+        self._make_frame_block(n_sh)
+        self._upload_mesh(model, lighting)
+        self.center, self.radius = _bounding_sphere(model.mesh)
+        self._make_shadow_map(lighting)
+        self._make_screen_passes()
+        self._make_targets(hdr_dtype)
+        self.set_offsets(offsets)
+
+    def _choose_shading(self, model, lighting: Lighting) -> Prefiltered:
+        """Which parts the programs shade (a sun, its glossy reflection per pixel, the bounce
+        it lights) and the chain the Gaussians read, which they return."""
         # the sun's glossy reflection per pixel where the BRDF allows (render/_sun_glossy.py);
         # the Gaussians then integrate the map without the sun
         spec = model.materials.specular
         self._specular, self._n_vertices = spec, model.mesh.n_vertices
         self.has_sun = lighting.sun is not None
         self.sun_glossy = self.has_sun and sun_glossy_supported(spec)
+        # the interreflected part of the transfer, lit by the sun as well (Model.bounce)
+        self.has_bounce = model.bounce is not None and self.has_sun
+        self.lighting = lighting
         pf = lighting.rest_prefiltered if self.sun_glossy else lighting.prefiltered
         self.n_levels = len(pf.levels)
-        self.planes_ubo, self.cand_tex, geo_defines = upload_geodesic(ctx)
+        return pf
+
+    def _compile_programs(self, model, n_sh: int, geo_defines: dict) -> None:
+        """The object's shading and depth pre-pass programs (prt.glsl), the background's, the
+        tone mapping's, the sample accumulation's and the shadow map's."""
+        ctx = self.ctx
         prt_defines = {
-            "N_GAUSSIANS": n_gaussians,
+            "N_GAUSSIANS": model.n_gaussians,
             "N_INDIRECT": model.indirect_gaussians,
             "N_SH": n_sh,
             "MAX_LEVELS": self.n_levels,
             "FLOOR": f"{model_module.LIVE_FLOOR:.6e}",
             "MIN_SAY": f"{model_module.MIN_SAY:.6e}",
-            "HAS_BOUNCE": int(model.bounce is not None and self.has_sun),
+            "HAS_BOUNCE": int(self.has_bounce),
             "HAS_SUN": int(self.has_sun),
             "SUN_GLOSSY": int(self.sun_glossy),
             **geo_defines,
@@ -485,54 +554,31 @@ class GLRenderer:
         self.acc_prog = _program(ctx, "accumulate")
         self.shadow_prog = _program(ctx, "shadow", {"N_SH": n_sh}, ("frame",), ("frame",))
 
-        # Gaussians: record (v, j, k) -> texels 2r, 2r + 1 with r = (v J + j) N + k
-        g = model.gaussians
-        sigma = g.lam.rsqrt()[..., None]
-        # the light each lobe carries (prt.glsl blends it, not the peak weight)
-        e = (g.w.double() * sg.integral(g.lam.double())[..., None]).float()
-        a = torch.cat([e, sigma], -1).reshape(-1, 4)  # (V J N, 4)
-        # .w: the record's view is above the vertex's horizon (model.horizon_scale)
-        above = ((model.views[None] * model.mesh.normals[:, None]).sum(-1) > 0).float()  # (V, J)
-        above = above[:, :, None, None].expand(-1, -1, g.lam.shape[-1], 1)
-        m = torch.cat([g.mu, above], -1).reshape(-1, 4)
-        rec = torch.stack([a, m], 1).reshape(-1, 4).detach().cpu().numpy()
-        img, tw = _wrap(rec)
-        dimg, tw2 = _wrap(
-            torch.cat([model.diffuse, torch.zeros_like(model.diffuse[..., :1])], -1)
-            .reshape(-1, 4)
-            .detach()
-            .cpu()
-            .numpy(),
-            tw,
-        )
-        if tw2 != tw:  # both share one width uniform; wrap again at the larger width
-            img, tw = _wrap(rec, tw2)
-        self.gauss_tex = self._data_texture(img)
-        self.diff_tex = self._data_texture(dimg)
-        # the interreflected part of the transfer, lit by the sun as well (Model.bounce)
-        self.has_bounce = model.bounce is not None and self.has_sun
-        bounce = model.bounce if self.has_bounce else torch.zeros_like(model.diffuse[:1])
-        bimg, tw3 = _wrap(
-            torch.cat([bounce, torch.zeros_like(bounce[..., :1])], -1)
-            .reshape(-1, 4)
-            .detach()
-            .cpu()
-            .numpy(),
-            tw,
-        )
-        if tw3 != tw:
-            raise InputError("model", "the bounce table exceeds the texture size")
-        self.bounce_tex = self._data_texture(bimg)
-        self.atlas, atlas_uniforms = upload_prefiltered(ctx, pf)
-        self._atlas_uniforms = atlas_uniforms
-        self.env_cube = ctx.texture_cube(
+    def _upload_transfer(self, model) -> int:
+        """The model's transfer as data textures (:func:`_transfer_images`); returns their
+        width in texels."""
+        gauss, diffuse, bounce, width = _transfer_images(model, bounce=self.has_bounce)
+        self.gauss_tex = self._data_texture(gauss)
+        self.diff_tex = self._data_texture(diffuse)
+        self.bounce_tex = self._data_texture(bounce)
+        return width
+
+    def _upload_lighting(self, lighting: Lighting, pf: Prefiltered) -> None:
+        """The chain's atlas and the background's cube map."""
+        import moderngl  # optional (the gl extra)
+
+        self.atlas, self._atlas_uniforms = upload_prefiltered(self.ctx, pf)
+        self.env_cube = self.ctx.texture_cube(
             (BACKGROUND_RES,) * 2, 3, _background(lighting).tobytes(), dtype="f4"
         )
         self.env_cube.filter = (moderngl.LINEAR, moderngl.LINEAR)
 
+    def _connect_programs(self, tex_width: int) -> None:
+        """The programs' uniform-block bindings, texture units and the uniforms that hold for
+        the renderer's life."""
         p = self.prog
-        p["tex_width"].value = tw
-        set_uniforms(p, atlas_uniforms)
+        p["tex_width"].value = tex_width
+        set_uniforms(p, self._atlas_uniforms)
         p["Planes"].binding = _PLANES_BINDING
         for prog in (p, self.depth_prog, self.bg_prog, self.shadow_prog):
             for block, binding in (("Frame", _FRAME_BINDING), ("Sample", _SAMPLE_BINDING)):
@@ -552,22 +598,28 @@ class GLRenderer:
         self.bg_prog["env"].value = 4
         self.tm_prog["image"].value = 5
         self.acc_prog["image"].value = 7
-        self.lighting = lighting
 
-        self.frame_block = _FrameBlock(ctx, n_sh)
-        if p["Frame"].size != self.frame_block.data.nbytes:  # frame.glsl and _FRAME disagree
+    def _make_frame_block(self, n_sh: int) -> None:
+        """frame.glsl's block (:class:`_FrameBlock`), checked against the compiled one."""
+        self.frame_block = _FrameBlock(self.ctx, n_sh)
+        size = self.prog["Frame"].size
+        if size != self.frame_block.data.nbytes:  # frame.glsl and _FRAME disagree
             raise RuntimeError(
-                f"Frame block of {p['Frame'].size} bytes, expected {self.frame_block.data.nbytes}"
+                f"Frame block of {size} bytes, expected {self.frame_block.data.nbytes}"
             )
         self._camera: Camera | None = None  # the camera and rotation the block holds
         self._rot: np.ndarray | None = None
         self._sun_frame: np.ndarray | None = None  # (3, 3) rows: the shadow map's frame
 
-        verts = model.mesh.vertices.detach().cpu().numpy().astype(np.float32)
-        faces_np = model.mesh.faces.cpu().numpy().astype(np.uint32)
+    def _upload_mesh(self, model, lighting: Lighting) -> None:
+        """The vertex and index buffers, the per-vertex inputs of the sun's shading when there
+        is a sun, and the object's vertex arrays (shading and depth pre-pass)."""
+        ctx, p, mesh = self.ctx, self.prog, model.mesh
+        verts = mesh.vertices.detach().cpu().numpy().astype(np.float32)
+        faces_np = mesh.faces.cpu().numpy().astype(np.uint32)
         self.vbo = ctx.buffer(verts.tobytes())
         self.ibo = ctx.buffer(faces_np.tobytes())
-        normals = model.mesh.normals.detach().cpu().numpy().astype(np.float32)
+        normals = mesh.normals.detach().cpu().numpy().astype(np.float32)
         self.nbo = ctx.buffer(normals.tobytes())
         content = [(self.vbo, "3f", "in_pos"), (self.nbo, "3f", "in_normal")]
         self.abo = self.sbo = None  # per-vertex inputs of the sun's shading, when it has one
@@ -576,8 +628,8 @@ class GLRenderer:
             self.abo = ctx.buffer(albedo.tobytes())
             content.append((self.abo, "3f", "in_albedo"))
         if self.sun_glossy:
-            v = model.mesh.n_vertices
-            sb = sun_glossy_vertex_params(sun_widened(spec, lighting.sun.spread), v)
+            spec = self._specular
+            sb = sun_glossy_vertex_params(sun_widened(spec, lighting.sun.spread), mesh.n_vertices)
             set_uniforms(p, sun_glossy_uniforms(spec))
             if p.get("sun_spread", None) is not None:  # compiled out without indirect lobes
                 p["sun_spread"].value = float(lighting.sun.spread)
@@ -587,10 +639,13 @@ class GLRenderer:
         self.depth_vao = ctx.vertex_array(
             self.depth_prog, [(self.vbo, "3f", "in_pos")], self.ibo, 4
         )
-        center = model.mesh.vertices.mean(0)
-        self.center = center.detach().cpu().numpy()
-        self.radius = float((model.mesh.vertices - center).norm(dim=-1).max())
-        # the sun's shadow map (a 1-texel stand-in without a sun)
+
+    def _make_shadow_map(self, lighting: Lighting) -> None:
+        """The sun's shadow map, its framebuffer and vertex array (a 1-texel stand-in without
+        a sun), and the frame block's values that hold still while the light turns."""
+        import moderngl  # optional (the gl extra)
+
+        ctx = self.ctx
         self.shadow_res = SHADOW_RES if self.has_sun else 1
         self.shadow_tex = ctx.depth_texture((self.shadow_res,) * 2)
         self.shadow_tex.compare_func = "<="
@@ -601,8 +656,8 @@ class GLRenderer:
             self.shadow_prog, [(self.vbo, "3f", "in_pos")], self.ibo, 4
         )
         self._shadow_key = None  # the sun frame the shadow map was last rendered for
-        blk = self.frame_block
         if self.has_sun:  # what the sun's shading holds still while the light turns
+            blk = self.frame_block
             scale = 1.0 / (1.02 * self.radius)
             texel = 2.0 / (scale * self.shadow_res)  # world size of a shadow-map texel
             blk.set("sun_e", [float(x) for x in lighting.sun.irradiance])
@@ -610,12 +665,21 @@ class GLRenderer:
             blk.set("shadow_scale", scale)
             blk.set("shadow_offset", 1.5 * texel)
             blk.set("shadow_bias", 1.0 / self.shadow_res)
+
+    def _make_screen_passes(self) -> None:
+        """The full-screen quad and the vertex arrays of the passes that cover the frame:
+        background, tone mapping, sample accumulation."""
+        ctx = self.ctx
         quad = np.array([-1, -1, 1, -1, -1, 1, 1, 1], np.float32)
         self.quad = ctx.buffer(quad.tobytes())
         self.bg_vao = ctx.vertex_array(self.bg_prog, [(self.quad, "2f", "in_xy")])
         self.tm_vao = ctx.vertex_array(self.tm_prog, [(self.quad, "2f", "in_xy")])
         self.acc_vao = ctx.vertex_array(self.acc_prog, [(self.quad, "2f", "in_xy")])
-        self.depth = ctx.depth_renderbuffer((self.width, self.height))
+
+    def _make_targets(self, hdr_dtype: str) -> None:
+        """The frame's depth buffer and colour target (:meth:`set_hdr_dtype`), and the stride
+        of the sample records (:meth:`set_offsets` writes them)."""
+        self.depth = self.ctx.depth_renderbuffer((self.width, self.height))
         # a texture (not a renderbuffer) so that the window's tone-mapping pass can read it
         self.color = self.fbo = None
         # the per-sample pass's target when there are several samples (made on first use)
@@ -624,10 +688,9 @@ class GLRenderer:
         self.set_hdr_dtype(hdr_dtype)
         # the sample records of frame.glsl's Sample block, one per sample at the alignment GL
         # requires of a bound range
-        align = int(ctx.info.get("GL_UNIFORM_BUFFER_OFFSET_ALIGNMENT", 256))
+        align = int(self.ctx.info.get("GL_UNIFORM_BUFFER_OFFSET_ALIGNMENT", 256))
         self._sample_stride = max(16, -(-align // 16) * 16)
         self.sample_ubo = None
-        self.set_offsets(offsets)
 
     def make_current(self) -> None:
         """Make the renderer's context current when the renderer made it
