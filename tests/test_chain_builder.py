@@ -122,7 +122,7 @@ _PLANS = (
     C._sh_plan,
     P._downsample_weights,
     P._schedule,
-    cubemap._pad_plan,
+    cubemap.seamless_pad_plan,
 )
 
 

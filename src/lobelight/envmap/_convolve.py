@@ -79,7 +79,7 @@ def _halo_sources(res: int, pad: int) -> tuple[torch.Tensor, torch.Tensor, torch
     """Border texels of the extended faces and the sub-samples' source texels, on the CPU.
 
     A sub-sample at face coordinates ``(u, v)`` of face ``f``'s plane falls in the texel that
-    :func:`lobelight.geometry.cubemap._face_plane_texels` gives. Off one edge (``|u| > 1 >= |v|``
+    :func:`lobelight.geometry.cubemap.face_plane_texels` gives. Off one edge (``|u| > 1 >= |v|``
     or the other way round) the point's major axis is the outer coordinate's, so the neighbour
     face and which of ``1`` and the inner coordinate becomes each of its coordinates, with what
     sign, are fixed per edge; these strips take that closed form (one probe point per edge
@@ -110,7 +110,7 @@ def _halo_sources(res: int, pad: int) -> tuple[torch.Tensor, torch.Tensor, torch
         for r, c, outer_v, sign in strips:
             probe = (0.25, 1.5 * sign) if outer_v else (1.5 * sign, 0.25)
             u0, v0 = torch.tensor(probe, dtype=torch.float64)
-            g, a0, b0 = cubemap._major_axis(*cubemap._face_point(f, one, u0, v0))
+            g, a0, b0 = cubemap.components_to_face_uv(*cubemap.face_point(f, one, u0, v0))
             v = line[r][:, :, None, None]  # (rows, S, 1, 1)
             u = line[c][None, None]  # (1, 1, cols, S)
             outer, inner = (v, u) if outer_v else (u, v)
@@ -128,7 +128,7 @@ def _halo_sources(res: int, pad: int) -> tuple[torch.Tensor, torch.Tensor, torch
             for c in (lo, hi):
                 v = line[r][:, None, :, None]  # (rows, 1, S, 1)
                 u = line[c][None, :, None, :]  # (1, cols, 1, S)
-                idx = cubemap._face_plane_texels(f, one, u, v, res)  # (rows, cols, S, S)
+                idx = cubemap.face_plane_texels(f, one, u, v, res)  # (rows, cols, S, S)
                 out[f, where[r, c].reshape(-1)] = idx.reshape(-1, s, s)
     return rows, cols, out.reshape(6, rows.numel(), s * s)
 
@@ -254,7 +254,7 @@ def _unfold_plan(res: int, pad: int, device: torch.device) -> torch.Tensor:
     # folding onto the neighbour's plane: the point on the face's edge, moved in along the normal
     depth = 1 - (ex_u + ex_v)
     uc, vc = u.clamp(-1, 1), v.clamp(-1, 1)
-    out = [cubemap._face_plane_texels(f, depth, uc, vc, res) for f in range(6)]
+    out = [cubemap.face_plane_texels(f, depth, uc, vc, res) for f in range(6)]
     return torch.stack(out).masked_fill_(corner, -1).to(device)
 
 

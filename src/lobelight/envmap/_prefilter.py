@@ -327,7 +327,7 @@ def clear_memory_caches() -> None:
         _convolve._sh_plan,
         _downsample_weights,
         _schedule,
-        cubemap._pad_plan,
+        cubemap.seamless_pad_plan,
     ):
         fn.cache_clear()
 

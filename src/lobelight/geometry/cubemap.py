@@ -17,6 +17,10 @@ texel, from the closed form of the solid angle of a rectangle on the plane ``z =
 Sampling is bilinear and seamless, as GL's ``TEXTURE_CUBE_MAP_SEAMLESS``: a texel needed across
 an edge comes from the neighbouring face, and a corner texel (which has no unique neighbour)
 is the average of the three texels that meet there, the value the GL spec recommends.
+
+Points on a face's extended plane (:func:`face_point`, :func:`components_to_face_uv`,
+:func:`face_plane_texels`) and the padding's index plan (:func:`seamless_pad_plan`) are public
+for the prefilter's tiled convolutions, which build their own borders from them.
 """
 
 from __future__ import annotations
@@ -30,11 +34,15 @@ from ..errors import InputError
 
 __all__ = [
     "FACE_NAMES",
+    "components_to_face_uv",
     "direction_to_face_uv",
     "downsample",
+    "face_plane_texels",
+    "face_point",
     "face_uv_to_direction",
     "pad_seamless",
     "sample",
+    "seamless_pad_plan",
     "texel_directions",
     "texel_solid_angles",
     "texel_uv",
@@ -83,13 +91,23 @@ def direction_to_face_uv(dirs):
     -------
     face : (...) int64 in 0..5;  u, v : (...) in [-1, 1]
     """
-    return _major_axis(*dirs.unbind(-1))
+    return components_to_face_uv(*dirs.unbind(-1))
 
 
-def _major_axis(
+def components_to_face_uv(
     x: torch.Tensor, y: torch.Tensor, z: torch.Tensor
 ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
-    """:func:`direction_to_face_uv` of a direction given as its three ``(...)`` components."""
+    """Face index and face coordinates of directions given by their components (the GL
+    major-axis rule): :func:`direction_to_face_uv` without stacking the components.
+
+    Parameters
+    ----------
+    x, y, z : (...) float, the directions' components (need not be unit)
+
+    Returns
+    -------
+    face : (...) int64 in 0..5;  u, v : (...) in [-1, 1]
+    """
     ax, ay, az = x.abs(), y.abs(), z.abs()
     is_x = (ax >= ay) & (ax >= az)
     is_y = ~is_x & (ay >= az)
@@ -119,12 +137,22 @@ _FACE_AXES = (
 )
 
 
-def _face_point(face: int, n: torch.Tensor, u: torch.Tensor, v: torch.Tensor) -> list[torch.Tensor]:
+def face_point(face: int, n: torch.Tensor, u: torch.Tensor, v: torch.Tensor) -> list[torch.Tensor]:
     """Components ``[x, y, z]`` of the point ``n`` along face ``face``'s normal, at ``(u, v)``.
 
     Each component is ``n``, ``u`` or ``v`` up to its sign, so with ``n = 1`` this equals
     :func:`face_uv_to_direction` for one face bit for bit, without building the other five
     faces' candidates.
+
+    Parameters
+    ----------
+    face : int in 0..5
+    n, u, v : (...) float tensors (broadcasting), the distance along the normal and the face
+        coordinates (which may lie outside [-1, 1], on the extended face plane)
+
+    Returns
+    -------
+    list of three tensors ``[x, y, z]``, each one of ``n``, ``u``, ``v`` or its negation
     """
     comp: list[torch.Tensor] = [n, n, n]
     for (axis, sign), val in zip(_FACE_AXES[face], (n, u, v), strict=True):
@@ -134,7 +162,7 @@ def _face_point(face: int, n: torch.Tensor, u: torch.Tensor, v: torch.Tensor) ->
 
 def _nearest_texel(x: torch.Tensor, y: torch.Tensor, z: torch.Tensor, res: int) -> torch.Tensor:
     """Flat index into ``(6, res, res)`` of the texel each direction falls in, ``(...)`` int64."""
-    face, u, v = _major_axis(x, y, z)
+    face, u, v = components_to_face_uv(x, y, z)
     # |u|, |v| <= 1 (a minor component over the major one), so rounding toward zero is the
     # floor (and torch's floor goes to the thread pool even for small tensors)
     col = ((u + 1) * 0.5 * res).long().clamp_(0, res - 1)
@@ -142,7 +170,7 @@ def _nearest_texel(x: torch.Tensor, y: torch.Tensor, z: torch.Tensor, res: int) 
     return (face * res + row) * res + col
 
 
-def _face_plane_texels(
+def face_plane_texels(
     face: int, n: torch.Tensor, u: torch.Tensor, v: torch.Tensor, res: int
 ) -> torch.Tensor:
     """Texel (flat index into ``(6, res, res)``) that each point of face ``face``'s frame falls in.
@@ -164,7 +192,7 @@ def _face_plane_texels(
     step = 1 << 14
     for a in range(0, u.numel(), step):
         sl = slice(a, a + step)
-        out[sl] = _nearest_texel(*_face_point(face, n[sl], u[sl], v[sl]), res)
+        out[sl] = _nearest_texel(*face_point(face, n[sl], u[sl], v[sl]), res)
     return out.reshape(shape)
 
 
@@ -205,8 +233,9 @@ def _check_cube(cube: torch.Tensor, name: str = "cube") -> None:
 
 
 @lru_cache(maxsize=64)
-def _pad_plan(res: int, pad: int, device: torch.device) -> tuple[torch.Tensor, ...]:
-    """Border texels of the padded faces, the texels they copy, and the corner texels.
+def seamless_pad_plan(res: int, pad: int, device: torch.device) -> tuple[torch.Tensor, ...]:
+    """The index plan of :func:`pad_seamless`: border texels of the padded faces, the texels
+    they copy, and the corner texels.
 
     Returns ``dst, src`` ``(B,)`` int64: flat indices into the padded faces ``(6, n, n)``
     (n = res + 2 pad) and into the faces ``(6, res, res)``; ``rows, cols`` ``(4, 4)`` int64: the
@@ -222,7 +251,7 @@ def _pad_plan(res: int, pad: int, device: torch.device) -> tuple[torch.Tensor, .
     v = (2 * rows.double() - 2 * pad + 1) / res - 1  # extended texel centres
     u = (2 * cols.double() - 2 * pad + 1) / res - 1
     one = torch.ones((), dtype=torch.float64)
-    src = torch.stack([_face_plane_texels(f, one, u, v, res) for f in range(6)])
+    src = torch.stack([face_plane_texels(f, one, u, v, res) for f in range(6)])
     dst = torch.arange(6)[:, None] * (n * n) + rows * n + cols
     lo, hi = pad - 1, res + pad
     ci = torch.tensor([lo, lo, hi, hi])
@@ -257,7 +286,7 @@ def pad_seamless(cube: torch.Tensor, pad: int = 1) -> torch.Tensor:
     out[:, pad : pad + res, pad : pad + res] = cube
     if pad < 1:
         return out
-    dst, src, rows, cols = _pad_plan(res, pad, cube.device)
+    dst, src, rows, cols = seamless_pad_plan(res, pad, cube.device)
     flat = cube.reshape(6 * res * res, -1)
     out.view(6 * n * n, -1).index_copy_(0, dst, flat.index_select(0, src))
     # Corner blocks of the border have no unique neighbour face: use the GL-recommended
