@@ -11,9 +11,9 @@ import json
 
 import pytest
 
+from lobelight.bench import prefilter as bench
+from lobelight.bench import suite as ba
 from lobelight.cli import _commands, main
-from lobelight.studies import bench
-from lobelight.studies import bench_all as ba
 
 
 def _fake(value: dict):

@@ -142,7 +142,7 @@ def test_a_reader_that_stops_early_is_not_an_error(tmp_path):
     # `lobelight info m.npz | head -1`: the pipe closes before the summary is written; the CLI
     # exits 0 without a traceback (it used to die with BrokenPipeError, exit 1)
 
-    from lobelight.studies.bench import synthetic_model
+    from lobelight.bench import synthetic_model
 
     path = tmp_path / "m.lobelight.npz"
     synthetic_model(200, 1).save(path)

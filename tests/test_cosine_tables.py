@@ -26,10 +26,10 @@ import torch
 from scipy import integrate, optimize, special
 
 from lobelight import cosine as C
+from lobelight.bench import bench_tables
 from lobelight.cosine import _tables
 from lobelight.errors import InputError
 from lobelight.geometry import sphere as S
-from lobelight.studies.bench_lobes import bench_tables
 
 F64 = torch.float64
 

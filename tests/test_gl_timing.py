@@ -9,9 +9,9 @@ import pytest
 import torch
 
 from lobelight import envmap, render
+from lobelight.bench import render as bench
 from lobelight.errors import InputError
 from lobelight.render._gl import PassTimer, gl_available
-from lobelight.studies import bench
 
 needs_gl = pytest.mark.skipif(not gl_available(), reason="no headless OpenGL context (EGL)")
 

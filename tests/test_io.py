@@ -56,7 +56,7 @@ def test_two_processes_writing_one_path_leave_one_whole_file(tmp_path):
 _SAVER = textwrap.dedent(
     """
     import sys
-    from lobelight.studies.bench import synthetic_model
+    from lobelight.bench import synthetic_model
     path, tag, count = sys.argv[1], float(sys.argv[2]), int(sys.argv[3])
     m = synthetic_model(40, 1)
     m.diffuse[:, 0] = tag

@@ -9,12 +9,11 @@ import pytest
 import torch
 from PIL import Image
 
-from lobelight import envmap, fit, render, scene
+from lobelight import bench, envmap, fit, render, scene
 from lobelight.errors import InputError
 from lobelight.geometry import sphere
 from lobelight.model import Model
 from lobelight.render._gl import gl_available
-from lobelight.studies import bench
 
 needs_gl = pytest.mark.skipif(not gl_available(), reason="no headless OpenGL context (EGL)")
 BACKENDS = [pytest.param("gl", marks=needs_gl), "torch"]

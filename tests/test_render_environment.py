@@ -14,11 +14,11 @@ import torch
 
 from conftest import smooth_env
 from lobelight import envmap, render
+from lobelight.bench import synthetic_model
 from lobelight.envmap import ChainBuilder, EnvMap
 from lobelight.errors import InputError
 from lobelight.render import _lighting
 from lobelight.render._gl import gl_available
-from lobelight.studies.bench import synthetic_model
 
 needs_gl = pytest.mark.skipif(not gl_available(), reason="no headless OpenGL context (EGL)")
 

@@ -20,6 +20,7 @@ import pytest
 import torch
 
 from conftest import smooth_env
+from lobelight.bench import bench_sgbrdf_gl, time_frames
 from lobelight.brdf import GGX, Ward
 from lobelight.envmap import EnvMap, prefilter
 from lobelight.errors import InputError
@@ -28,7 +29,6 @@ from lobelight.lobes.sg import integral
 from lobelight.render._gl import gl_available
 from lobelight.render._gl_sgbrdf import GLSGBRDFRenderer, gl_mip_chain
 from lobelight.sgbrdf import fit, render_sphere, shade, shade_fis, sphere_hits
-from lobelight.studies.bench_sgbrdf_gl import bench_gl, time_frames
 from lobelight.studies.compare_brdf import compare_brdf
 
 needs_gl = pytest.mark.skipif(not gl_available(), reason="no headless OpenGL context (EGL)")
@@ -206,7 +206,7 @@ def test_mesh_matches_torch(models, env, pf, method):
 def test_bench_gl_reports_both_methods(models, pf, env):
     # structure only: the numbers are machine-dependent and a test times nothing it asserts on
     chain = gl_mip_chain(env, base_res=16)
-    res = bench_gl(models["iso"], pf, chain=chain, size=16, min_seconds=0.02, rounds=1)
+    res = bench_sgbrdf_gl(models["iso"], pf, chain=chain, size=16, min_seconds=0.02, rounds=1)
     assert res["benchmark"] == "sgbrdf_gl"
     assert set(res["fps"]) == {"ours", "fis40"}
     assert all(v > 0 and math.isfinite(v) for v in res["fps"].values())

@@ -1,4 +1,5 @@
-"""Where a benchmark ran, for the records benchmarks write."""
+"""Where a benchmark ran, for the records benchmarks write, and the wait that timings of GPU
+work need."""
 
 from __future__ import annotations
 
@@ -33,7 +34,7 @@ def machine(device: str) -> dict:
     return info
 
 
-def sync(device: str) -> None:
+def sync(device: str | torch.device) -> None:
     """Wait for the device's queued work (timings of GPU work need it)."""
-    if device.startswith("cuda"):
+    if str(device).startswith("cuda"):
         torch.cuda.synchronize(device)

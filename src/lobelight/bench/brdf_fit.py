@@ -3,17 +3,16 @@
 from __future__ import annotations
 
 import time
-from typing import Any
 
 import torch
 
 from .._checks import check_int
-from .._machine import machine
 from ..brdf import BRDF, GGX, Beckmann, Ward
 from ..errors import InputError
 from ..sgbrdf import FIT_SAMPLES, fit, fit_error
+from ._machine import machine, sync
 
-__all__ = ["bench_fit"]
+__all__ = ["bench_brdf_fit"]
 
 
 def _material(name: str) -> BRDF:
@@ -29,7 +28,7 @@ def _material(name: str) -> BRDF:
     return table[name]()
 
 
-def bench_fit(
+def bench_brdf_fit(
     material: str = "ward", device: str = "cpu", *, repeats: int = 3, threads: int | None = 1
 ) -> dict:
     """Time :func:`fit` (coherent, default settings) of all views of one material.
@@ -48,23 +47,21 @@ def bench_fit(
     if threads is not None:
         torch.set_num_threads(check_int(threads, "threads", minimum=1))
     try:
-        return _bench_fit(material, str(device), repeats, machine)
+        return _bench_fit(material, str(device), repeats)
     finally:
         torch.set_num_threads(before)
 
 
-def _bench_fit(material: str, device: str, repeats: int, machine: Any) -> dict:
+def _bench_fit(material: str, device: str, repeats: int) -> dict:
     brdf = _material(material)
     fit(brdf, device=device)  # warm-up
     times = []
     model = None
     for _ in range(check_int(repeats, "repeats", minimum=1)):
-        if device.startswith("cuda"):
-            torch.cuda.synchronize(device)
+        sync(device)
         t0 = time.perf_counter()
         model = fit(brdf, device=device)
-        if device.startswith("cuda"):
-            torch.cuda.synchronize(device)
+        sync(device)
         times.append(time.perf_counter() - t0)
     times.sort()
     err = fit_error(model, brdf, samples=4096)

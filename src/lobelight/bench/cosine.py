@@ -1,4 +1,6 @@
-"""Benchmark of cosine-lobe shading: the paper's two timed configurations (its Figs. 14, 17).
+"""Benchmark of cosine-lobe shading (``lobelight bench lobes``): the paper's two timed
+configurations (its Figs. 14, 17); and of the build of its tables (``lobelight bench
+lobe-tables``).
 
 * ``unoccluded``: 65,536 points (a 256 x 256 grid on the plane), one spherical light, no
   occluder, a spatially varying material (``Lambert + Phong``, albedo and exponent varying per
@@ -7,16 +9,15 @@
 * ``occluded``: 16,384 points (a 128 x 128 grid on the plane around the occluder's shadow),
   64 occluder spheres (a torus), one light, a diffuse material, visibility depth 5,
   aggressive masks, threshold 1e-3: 4.75-15.9 fps in the paper (depending on the shadow's
-  size). The light is the scene's, at the brightness of the Monte Carlo score's scene (the
-  score scales it by 0.96 to make its brightest pixel the paper's 0.70): here the plane's
-  direct radiance peaks at 0.088, so the threshold culls the products of the deepest leaves,
-  and with them the construction of those cells (:func:`~._visibility.useful_depth`). The
-  same frame without a threshold is reported too (``threshold_0``).
+  size). The light is the default scene's: the plane's direct radiance is dim enough that the
+  threshold culls the products of the deepest leaves, and with them the construction of those
+  cells (the threshold of :func:`lobelight.cosine.shade_points`). The same frame without a
+  threshold is reported too (``threshold_0``).
 
 * ``large`` (with ``fused``): the scale of the paper's Figure 18 (480,000 points, 1024
   occluders, two reflectance lobes, depth 5: 6.25 s per image there): the 800 x 600 G-buffer
-  of the default scene (plane and torus, 378,556 points), the torus as 1024 spheres, the
-  scene's Lambert + Phong materials, fused, three frames at ``t = 1e-3`` and at ``t = 0``.
+  of the default scene (plane and torus), the torus as 1024 spheres, the scene's Lambert +
+  Phong materials, fused, three frames at ``t = 1e-3`` and at ``t = 0``.
 
 A frame is everything that depends on the scene's state: reflectance, light and visibility
 lobes, masks, products and integration (``shade_points``), not the G-buffer. Reported: best
@@ -34,7 +35,6 @@ from typing import Any
 import torch
 
 from .. import brdf as _brdf
-from .._machine import machine
 from ..cosine import (
     build_tables,
     default_scene,
@@ -45,8 +45,9 @@ from ..cosine import (
     shade_points,
     sphere_set,
 )
+from ._machine import machine, sync
 
-__all__ = ["bench_lobes", "bench_tables"]
+__all__ = ["bench_tables", "bench_lobes"]
 
 GOALS_FPS = {"unoccluded": 60.0, "occluded": 30.0}
 PAPER_FPS = {"unoccluded": 13.73, "occluded": [4.75, 15.9]}
@@ -93,22 +94,17 @@ def _configs(device: Any):
     return out, [light]
 
 
-def _sync(device: Any) -> None:
-    if str(device).startswith("cuda"):
-        torch.cuda.synchronize(device)
-
-
 def _frames(c: dict, lights, kw: dict, repeats: int, device: Any):
     """One warm-up frame, then ``repeats`` timed ones: (last result, warm-up s, sorted s)."""
     t0 = time.perf_counter()
     res = shade_points(c["points"], c["normals"], c["wo"], c["brdf"], lights, **kw)
-    _sync(device)
+    sync(device)
     warmup = time.perf_counter() - t0
     times = []
     for _ in range(max(1, int(repeats))):
         t0 = time.perf_counter()
         res = shade_points(c["points"], c["normals"], c["wo"], c["brdf"], lights, **kw)
-        _sync(device)
+        sync(device)
         times.append(time.perf_counter() - t0)
     return res, warmup, sorted(times)
 
@@ -129,7 +125,8 @@ def bench_lobes(
         warm-up frame, which for a fused run includes compiling)
     threads : torch CPU thread counts to try for eager runs (None: the process's setting);
         fused runs use the process's setting; ignored on a GPU
-    fused : fusion settings to try (:mod:`._fused`: False eager, True ``torch.compile``)
+    fused : fusion settings to try (``shade_points``' ``fused``: False eager, True
+        ``torch.compile``)
 
     Returns
     -------
@@ -153,8 +150,8 @@ def bench_lobes(
     for name, c in cfgs.items():
         runs = []
         for fz in fused:
-            # compiled kernels keep the thread count they were compiled with (_fused): fused
-            # runs use the process's own
+            # compiled kernels keep the thread count they were compiled with: fused runs use
+            # the process's own
             for th in thread_opts if not fz else (None,):
                 kw = dict(
                     spheres=c["spheres"],
@@ -238,12 +235,6 @@ def _large(dev: torch.device, repeats: int) -> dict:
     return out
 
 
-if __name__ == "__main__":  # pragma: no cover
-    import json
-
-    print(json.dumps(bench_lobes(), indent=1))
-
-
 def bench_tables(device: str = "cpu") -> dict:
     """Time building the default tables from scratch (no cache), plus writing and reading them.
 
@@ -253,13 +244,11 @@ def bench_tables(device: str = "cpu") -> dict:
     shapes, ``bytes`` in memory and on disk, the torch threads of the build, the goal (120 s on
     a 2-core CPU; the paper: ~4 hours) and the machine.
     """
-    if device.startswith("cuda"):
-        torch.cuda.synchronize(device)
+    sync(device)
     threads = 1 if device == "cpu" else None  # build_tables' default on a CPU
     t0 = time.perf_counter()
     tables = build_tables(device=device, threads=threads)
-    if device.startswith("cuda"):
-        torch.cuda.synchronize(device)
+    sync(device)
     seconds = time.perf_counter() - t0
     with tempfile.TemporaryDirectory() as tmp:
         path = Path(tmp) / "tables.npz"

@@ -22,16 +22,14 @@ surface behind in the other).
 from __future__ import annotations
 
 import importlib.metadata
-import json
 import time
 
 import torch
 
 from .. import scene as _scene
-from .._machine import machine
-from .._machine import sync as _sync
 from ..errors import InputError
 from ..geometry import raycast
+from ._machine import machine, sync
 
 __all__ = ["bench_rays"]
 
@@ -63,10 +61,10 @@ def _ray_sets(caster, n: int, seed: int) -> dict[str, tuple[torch.Tensor, torch.
 
 
 def _timed(fn, device: str):
-    _sync(device)
+    sync(device)
     t0 = time.perf_counter()
     out = fn()
-    _sync(device)
+    sync(device)
     return time.perf_counter() - t0, out
 
 
@@ -170,7 +168,3 @@ def bench_rays(
         "versions": {"embreex": _version("embreex"), "warp-lang": _version("warp-lang")},
         "machine": machine(device),
     }
-
-
-if __name__ == "__main__":  # python -m lobelight.studies.bench_rays: the default run, as JSON
-    print(json.dumps(bench_rays(), indent=1))

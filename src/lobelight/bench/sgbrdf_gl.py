@@ -1,7 +1,7 @@
 """Benchmark: the SG-BRDF method against 40-sample filtered importance sampling, both in GLSL.
 
-:func:`time_frames` times one renderer; :func:`bench_gl` times the two methods on the unit
-sphere in one OpenGL context.
+:func:`time_frames` times one renderer; :func:`bench_sgbrdf_gl` times the two methods on the
+unit sphere in one OpenGL context.
 """
 
 from __future__ import annotations
@@ -10,14 +10,14 @@ import math
 import time
 from typing import Any
 
-from .._machine import machine
 from ..brdf import BRDF
 from ..errors import InputError
 from ..geometry.camera import Camera
 from ..render import GLSGBRDFRenderer, create_context
 from ..sgbrdf import FIS_SAMPLES, SGBRDF
+from ._machine import machine
 
-__all__ = ["bench_gl", "time_frames"]
+__all__ = ["bench_sgbrdf_gl", "time_frames"]
 
 
 def time_frames(renderer: GLSGBRDFRenderer, min_seconds: float = 1.0, camera=None) -> dict:
@@ -52,7 +52,7 @@ def time_frames(renderer: GLSGBRDFRenderer, min_seconds: float = 1.0, camera=Non
         frames = max(frames + 1, math.ceil(1.2 * min_seconds * frames / max(secs, 1e-6)))
 
 
-def bench_gl(
+def bench_sgbrdf_gl(
     model: SGBRDF,
     lighting: Any,
     /,

@@ -27,10 +27,12 @@ from collections.abc import Callable
 from pathlib import Path
 
 from .._io import atomic_writer
-from .._machine import machine
 from ..errors import one_line
-from .bench import bench_fit, bench_prefilter, bench_render
-from .bench_rays import bench_rays
+from ._machine import machine
+from .fit import bench_fit
+from .prefilter import bench_prefilter
+from .rays import bench_rays
+from .render import bench_render
 
 __all__ = ["BENCHMARKS", "GOALS", "bench_all", "table"]
 
@@ -181,10 +183,10 @@ def table(summary: dict) -> str:
 
 
 def main(argv: list[str] | None = None) -> None:
-    """``python -m lobelight.studies.bench_all table RESULT.json``: print the Markdown table."""
+    """``python -m lobelight.bench.suite table RESULT.json``: print the Markdown table."""
     args = sys.argv[1:] if argv is None else argv
     if len(args) != 2 or args[0] != "table":
-        raise SystemExit("usage: python -m lobelight.studies.bench_all table RESULT.json")
+        raise SystemExit("usage: python -m lobelight.bench.suite table RESULT.json")
     print(table(json.loads(Path(args[1]).read_text())), end="")
 
 

@@ -17,7 +17,9 @@ from pathlib import Path
 
 import torch
 
+from .. import bench
 from .._size import check_pixels, parse_size
+from ..bench import bench_all, bench_brdf_fit, bench_lobes, bench_rays, bench_tables
 from ..data import resolve_envmap
 from ..envmap import builtin
 from ..envmap import load as load_env
@@ -39,11 +41,6 @@ from ..render import (
 )
 from ..scene import default_camera
 from ..scene import load as load_scene
-from ..studies import bench
-from ..studies.bench_all import bench_all
-from ..studies.bench_brdf_fit import bench_fit as bench_brdf_fit
-from ..studies.bench_lobes import bench_lobes, bench_tables
-from ..studies.bench_rays import bench_rays
 from ..studies.compare import compare
 from ..studies.compare_brdf import compare_brdf
 from ..studies.demo import demo

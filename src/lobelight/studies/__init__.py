@@ -7,12 +7,10 @@
 - :mod:`~lobelight.studies.energy`  the energy of each step of the pipeline against quadrature
 - :mod:`~lobelight.studies.figure5`  the view-dependent PRT paper's Figure 5 (SG vs Haar)
 - :mod:`~lobelight.studies.demo`  the first-run demo (``lobelight demo``)
-- :mod:`~lobelight.studies.lobes_demo`, :mod:`~lobelight.studies.lobes_score`,
-  :mod:`~lobelight.studies.lobes_calibrate`  the cosine-lobe method's animation, scores and the
-  calibration of its weights
-- benchmarks (``lobelight bench``): :mod:`~lobelight.studies.bench` (prefilter, transport, fit,
-  render), :mod:`~lobelight.studies.bench_lobes` (cosine lobes and their tables),
-  :mod:`~lobelight.studies.bench_brdf_fit` (the SG-BRDF fit)
+- :mod:`~lobelight.studies.lobes_demo`, :mod:`~lobelight.studies.lobes_score`  the cosine-lobe
+  method's animation and its scores
 
-Studies import from every layer below them and nothing imports them but the command line.
+Studies import from every layer below them, and from the benchmarks (:mod:`lobelight.bench`)
+the machine record and the GLSL frame timing of :mod:`~lobelight.studies.compare_brdf`; nothing
+imports them but the command line.
 """

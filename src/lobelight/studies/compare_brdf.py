@@ -29,7 +29,7 @@ With ``backend="both"`` two more rows per material come from the OpenGL shaders
 fit and Prefiltered chain) and ``fis40_gl`` (40-sample FIS on a GL cube map whose base level is
 the mip chain's level 0, its coarser levels built by ``glGenerateMipmap``). Their ``fps`` is of
 whole frames of the ``size x size`` image drawn back to back with one ``ctx.finish()``, for at
-least ``GL_MIN_SECONDS`` (:func:`lobelight.studies.bench_sgbrdf_gl.time_frames`), best of
+least ``GL_MIN_SECONDS`` (:func:`lobelight.bench.time_frames`), best of
 ``GL_ROUNDS`` alternating rounds: shader against shader. They are not in the image grid.
 """
 
@@ -48,7 +48,7 @@ from PIL import Image
 
 from .. import envmap
 from .._io import atomic_path, atomic_writer
-from .._machine import machine
+from ..bench import machine, sync, time_frames
 from ..brdf import Ward
 from ..data import DATA_ENV
 from ..envmap import prefilter
@@ -67,7 +67,6 @@ from ..sgbrdf import (
     shade_wang09,
     sphere_hits,
 )
-from .bench_sgbrdf_gl import time_frames
 
 __all__ = ["METHODS", "compare_brdf", "default_envmap"]
 
@@ -144,11 +143,6 @@ def _materials(alphas, aniso) -> list[tuple[str, Ward]]:
     return mats
 
 
-def _sync(device: torch.device) -> None:
-    if device.type == "cuda":
-        torch.cuda.synchronize(device)
-
-
 def _timed_all(runs: dict, repeats: int, device: torch.device) -> tuple[dict, dict]:
     """Results and best times of ``runs`` (name -> zero-argument callable).
 
@@ -160,10 +154,10 @@ def _timed_all(runs: dict, repeats: int, device: torch.device) -> tuple[dict, di
     best = dict.fromkeys(runs, math.inf)
     for _ in range(repeats):
         for name, fn in runs.items():
-            _sync(device)
+            sync(device)
             t0 = time.perf_counter()
             out[name] = fn()
-            _sync(device)
+            sync(device)
             best[name] = min(best[name], time.perf_counter() - t0)
     return out, best
 
@@ -301,12 +295,12 @@ def compare_brdf(
             "fis40": lambda b=b: shade_fis(b, chain, n, v, tangents=tg, samples=FIS_SAMPLES),
             "wang09": lambda b=b: shade_wang09(b, pf, n, v),
         }
-        _sync(dev)
+        sync(dev)
         t0 = time.perf_counter()
         ref, se = shade_reference(
             b, env_map, n, v, tangents=tg, spp=ref_spp, seed=seed, sampler=sampler
         )
-        _sync(dev)
+        sync(dev)
         ref_seconds = time.perf_counter() - t0  # one run: it is the slow, offline method
         got, secs = _timed_all(runs, REPEATS, dev)
         got["reference"], secs["reference"] = ref, ref_seconds
