@@ -22,7 +22,6 @@ from lobelight import envmap
 from lobelight import model as model_io
 from lobelight.errors import InputError
 from lobelight.render import Lighting, Renderer, auto_exposure
-from lobelight.studies.compare import psnr_display
 from lobelight.studies.gallery import (
     MAPS,
     MATERIALS,
@@ -37,7 +36,6 @@ from lobelight.studies.gallery import (
     geometry_sha256,
     load_reference,
     main_from_args,
-    noise_psnr_display,
     prepare_mesh,
     reference_status,
     render_references,
@@ -48,6 +46,7 @@ from lobelight.studies.gallery import (
     summarise,
     write_reference,
 )
+from lobelight.studies.score import noise_psnr_display, psnr_display
 
 
 def _srgb(x: float) -> float:

@@ -25,19 +25,19 @@ the object's pixels (the background is the environment in all of them):
                     albedo zero everywhere) then leaves out glossy light that arrives by way
                     of diffuse surfaces, which a baked model's Gaussians hold
 
-Two PSNRs, both over object pixels: ``psnr`` is ``10 log10(peak^2 / MSE)`` on linear radiance
-with ``peak`` the reference's largest object-pixel value (a sun's reflection makes that peak
-huge and the figure generous), and ``psnr_display`` is the same on the displayed images (the
-reference's auto exposure, clipped to [0, 1], sRGB-encoded, peak 1): what a viewer compares.
-The relative L2 error is ``|a - b| / |b|`` on linear radiance over object pixels. The glossy
-component is compared against a reference of the same scene with its diffuse albedo set to zero.
+Two PSNRs, both over object pixels (:mod:`lobelight.studies.score`): ``psnr`` is
+``10 log10(peak^2 / MSE)`` on linear radiance with ``peak`` the reference's largest object-pixel
+value (a sun's reflection makes that peak huge and the figure generous), and ``psnr_display``
+is the same on the displayed images (the reference's auto exposure, clipped to [0, 1],
+sRGB-encoded, peak 1): what a viewer compares. The relative L2 error is ``|a - b| / |b|`` on
+linear radiance over object pixels. The glossy component is compared against a reference of
+the same scene with its diffuse albedo set to zero.
 """
 
 from __future__ import annotations
 
 import dataclasses
 import json
-import math
 import time
 from pathlib import Path
 from typing import Any
@@ -45,6 +45,7 @@ from typing import Any
 import torch
 
 from .._io import atomic_writer
+from .._tol import DIVISOR_F32
 from ..fit import fit_model, gather
 from ..geometry import sphere
 from ..geometry.camera import Camera
@@ -54,6 +55,7 @@ from ..progress import resolve
 from ..reference import paths as reference
 from ..render import Lighting, Renderer, as_rotation, auto_exposure, gl_available, save_image
 from ..transport import Transport
+from .score import noise_psnr, psnr, psnr_display, relative_l2
 
 #: The factor of the difference images.
 DIFF_SCALE = 4
@@ -70,7 +72,7 @@ def reference_depth(model) -> int:
     return REFERENCE_DEPTH if baked else 2
 
 
-__all__ = ["compare", "psnr", "psnr_display", "relative_l2"]
+__all__ = ["compare", "linear_glossy", "reference_depth", "sh_glossy"]
 
 
 #: What each score and picture of a comparison means (also in ``compare.json``).
@@ -88,38 +90,6 @@ LEGEND = {
     "diff images": f"|image - reference| x {DIFF_SCALE} over object pixels, at the "
     "reference's exposure",
 }
-
-
-def _noise_psnr(ref: torch.Tensor, stderr: torch.Tensor, mask: torch.Tensor) -> float:
-    """The linear PSNR of a perfect image against a reference with per-pixel standard errors
-    ``stderr``: ``peak^2 / mean(stderr^2)`` over ``mask``."""
-    var = float((stderr[mask].double() ** 2).mean())
-    peak = float(ref[mask].double().max())
-    return math.inf if var == 0 else 10 * math.log10(peak * peak / var)
-
-
-def psnr(img: torch.Tensor, ref: torch.Tensor, mask: torch.Tensor) -> float:
-    """PSNR in dB over ``mask`` with the reference's peak (module docstring)."""
-    a, b = img[mask].double(), ref[mask].double()
-    mse = float(((a - b) ** 2).mean())
-    peak = float(b.max())
-    return math.inf if mse == 0 else 10 * math.log10(peak * peak / mse)
-
-
-def psnr_display(img: torch.Tensor, ref: torch.Tensor, mask: torch.Tensor, exposure: float):
-    """PSNR in dB of the displayed images (sRGB in [0, 1] after ``exposure``) over ``mask``."""
-
-    def show(x):
-        x = (x.double() * 2.0**exposure).clamp(0, 1)
-        return torch.where(x <= 0.0031308, 12.92 * x, 1.055 * x.pow(1 / 2.4) - 0.055)
-
-    mse = float(((show(img[mask]) - show(ref[mask])) ** 2).mean())
-    return math.inf if mse == 0 else 10 * math.log10(1.0 / mse)
-
-
-def relative_l2(img: torch.Tensor, ref: torch.Tensor, mask: torch.Tensor) -> float:
-    a, b = img[mask].double(), ref[mask].double()
-    return float((a - b).norm() / b.norm().clamp_min(1e-30))
 
 
 def _hits(model, camera: Camera, width: int, height: int):
@@ -200,8 +170,8 @@ def compare(
     Parameters
     ----------
     scene : Scene;  model : its fitted Model (fitted here when None, with ``n_gaussians``)
-    env : EnvMap (default the scene's);  spp : reference samples per pixel (at 256 the
-        reference's own noise, ~5 % of the mean on the knot, cost the full image 2 dB of PSNR)
+    env : EnvMap (default the scene's);  spp : reference samples per pixel (its own noise
+        bounds the scores: ``reference_noise_psnr``)
     backend : "gl", "torch" or "auto" (gl when a context can be made)
     out : folder for the images (PNG, tone-mapped with the reference's exposure) and
         ``compare.json``; nothing is written when None
@@ -326,8 +296,8 @@ def compare(
         timings[name] = time.perf_counter() - t
 
     noise = {
-        "full": float(err_full[mask].mean() / ref_full[mask].mean().clamp_min(1e-30)),
-        "glossy": float(err_glossy[mask].mean() / ref_glossy[mask].mean().clamp_min(1e-30)),
+        "full": float(err_full[mask].mean() / ref_full[mask].mean().clamp_min(DIVISOR_F32)),
+        "glossy": float(err_glossy[mask].mean() / ref_glossy[mask].mean().clamp_min(DIVISOR_F32)),
     }
     result: dict[str, Any] = {
         "scene": scene.name,
@@ -348,7 +318,7 @@ def compare(
         "legend": LEGEND,
         "reference_depth": depth,
         "reference_noise": noise,
-        "reference_noise_psnr": _noise_psnr(ref_full, err_full, mask),
+        "reference_noise_psnr": noise_psnr(ref_full, err_full, mask),
         "object_pixels": int(mask.sum()),
         "seconds": {**timings, "total": time.perf_counter() - t0},
     }

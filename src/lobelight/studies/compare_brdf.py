@@ -48,6 +48,7 @@ from PIL import Image
 
 from .. import envmap
 from .._io import atomic_path, atomic_writer
+from .._tol import DIVISOR_F32
 from ..bench import machine, sync, time_frames
 from ..brdf import Ward
 from ..data import DATA_ENV
@@ -67,6 +68,7 @@ from ..sgbrdf import (
     shade_wang09,
     sphere_hits,
 )
+from .score import LUMA, display, psnr_from_mse, relative_l2
 
 __all__ = ["METHODS", "compare_brdf", "default_envmap"]
 
@@ -162,23 +164,11 @@ def _timed_all(runs: dict, repeats: int, device: torch.device) -> tuple[dict, di
     return out, best
 
 
-_LUM = (0.2126, 0.7152, 0.0722)
-
-
-def _display(x: torch.Tensor, k: float) -> torch.Tensor:
-    """``srgb(clip(k x, 0, 1))`` of linear radiance ``(..., 3)``."""
-    y = (x.double() * k).clamp(0, 1)
-    return torch.where(y <= 0.0031308, 12.92 * y, 1.055 * y.clamp_min(1e-12) ** (1 / 2.4) - 0.055)
-
-
 def _exposure(ref: torch.Tensor) -> float:
-    lum = (ref.double() * torch.tensor(_LUM, dtype=torch.float64, device=ref.device)).sum(-1)
+    """The display's scale ``k``: the reference's 99th-percentile luminance maps to 1."""
+    lum = (ref.double() * torch.tensor(LUMA, dtype=torch.float64, device=ref.device)).sum(-1)
     p99 = float(torch.quantile(lum.cpu(), 0.99)) if lum.numel() else 1.0
     return 1.0 / p99 if p99 > 0 else 1.0
-
-
-def _psnr(mse: float) -> float:
-    return 10 * math.log10(1 / mse) if mse > 0 else math.inf
 
 
 def _write_png(img: np.ndarray, path: Path) -> None:
@@ -307,16 +297,16 @@ def compare_brdf(
         if gl_ctx is not None:
             _run_gl(gl_ctx, model, b, pf, chain, size, mask, got, secs)
         k = _exposure(ref)
-        d_ref = _display(ref, k)
+        d_ref = display(ref, k)
         # the reference's noise seen through the display curve (central difference)
-        d_noise = 0.5 * (_display(ref + se, k) - _display((ref - se).clamp_min(0), k))
+        d_noise = 0.5 * (display(ref + se, k) - display((ref - se).clamp_min(0), k))
         mse_noise = float((d_noise**2).mean())
         ref_norm = float(ref.double().norm())
         noise.append(
             {
                 "material": label,
-                "rel_stderr": float(se.double().norm()) / max(ref_norm, 1e-30),
-                "psnr_ceiling": _psnr(mse_noise) if mse_noise > 0 else None,
+                "rel_stderr": float(se.double().norm()) / max(ref_norm, DIVISOR_F32),
+                "psnr_ceiling": psnr_from_mse(mse_noise) if mse_noise > 0 else None,
                 "exposure": k,
             }
         )
@@ -327,9 +317,9 @@ def compare_brdf(
             if name == "reference":
                 row.update(psnr=None, rel_l2=None, noise_share=None)
             else:
-                mse = float(((_display(x, k) - d_ref) ** 2).mean())
-                row["psnr"] = _psnr(mse)
-                row["rel_l2"] = float((x.double() - ref.double()).norm()) / max(ref_norm, 1e-30)
+                mse = float(((display(x, k) - d_ref) ** 2).mean())
+                row["psnr"] = psnr_from_mse(mse)
+                row["rel_l2"] = relative_l2(x, ref)
                 row["noise_share"] = mse_noise / mse if mse > 0 else None
             table.append(row)
             if name in METHODS:
@@ -433,9 +423,9 @@ def _tile(x: torch.Tensor, mask: torch.Tensor, k: float, diff_to: Any = None) ->
     """An ``(H, W, 3)`` display image of sphere pixels ``x (P, 3)`` (or of its difference to
     ``diff_to``, amplified), black off the sphere."""
     if diff_to is None:
-        d = _display(x, k)
+        d = display(x, k)
     else:
-        d = ((_display(x, k) - _display(diff_to, k)).abs() * DIFF_GAIN).clamp(0, 1)
+        d = ((display(x, k) - display(diff_to, k)).abs() * DIFF_GAIN).clamp(0, 1)
     img = torch.zeros(*mask.shape, 3, dtype=torch.float64, device=x.device)
     img[mask] = d
     return img.cpu().numpy()

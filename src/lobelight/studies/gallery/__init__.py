@@ -53,7 +53,6 @@ _HOMES = {
     "load_reference": "._references",
     "luminance": "._score",
     "main_from_args": "._cli",
-    "noise_psnr_display": "._score",
     "prepare_mesh": "._scenes",
     "read_manifest": "._references",
     "reference_status": "._references",

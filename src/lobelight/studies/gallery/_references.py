@@ -25,6 +25,7 @@ import torch
 
 from ..._cache import UNREADABLE
 from ..._io import atomic_writer
+from ..._tol import DIVISOR_F32
 from ...errors import InputError
 from ...geometry.camera import Camera
 from ...geometry.raycast import RayCaster
@@ -300,7 +301,9 @@ def render_references(
         image, stderr = _render_mitsuba(mi, out["variant"], scene, settings, progress)
         seconds = time.perf_counter() - t
         m = mask.numpy()
-        noise = float(stderr[m].mean() / max(float(image[m].mean()), 1e-30)) if m.any() else None
+        noise = (
+            float(stderr[m].mean() / max(float(image[m].mean()), DIVISOR_F32)) if m.any() else None
+        )
         entry = {
             "scene_hash": scene_hash(sc, data),
             "geometry_sha256": geometry_sha256(mesh),

@@ -15,10 +15,12 @@ import torch
 from ... import envmap
 from ... import model as model_io
 from ..._io import atomic_writer
+from ..._tol import DIVISOR_F64
 from ...errors import InputError
 from ...fit import fit_model
 from ...progress import resolve
 from ...render import Lighting, Renderer, gl_available, save_image
+from ..score import noise_psnr_display
 from ._references import load_reference, reference_status
 from ._scenes import (
     GalleryScene,
@@ -30,7 +32,7 @@ from ._scenes import (
     sha256_file,
     to_scene,
 )
-from ._score import LEGEND, noise_psnr_display, score
+from ._score import LEGEND, score
 
 __all__ = ["DIFF_SCALE", "FORMAT", "METRICS", "run", "summarise"]
 
@@ -94,7 +96,7 @@ def summarise(scores: dict[str, dict[str, Any]]) -> dict[str, Any]:
         elif better == "min":
             name = max(vals, key=vals.__getitem__)
         else:
-            name = max(vals, key=lambda n: abs(math.log(max(vals[n], 1e-300))))
+            name = max(vals, key=lambda n: abs(math.log(max(vals[n], DIVISOR_F64))))
         worst[k] = {"scene": name, "value": vals[name]}
     return {"median": median, "worst": worst}
 

@@ -8,10 +8,10 @@ the reference):
                         (Rec. 709 weights) to 1: :func:`display_exposure`
 ``psnr_display``        dB over the mask: both images scaled by ``2^exposure``, clipped to
                         [0, 1], sRGB-encoded, ``10 log10(1 / MSE)`` over pixels and channels
-                        (:func:`lobelight.studies.compare.psnr_display`)
+                        (:func:`lobelight.studies.score.psnr_display`)
 ``psnr_display_full``   the same over every pixel, object and background
 ``rel_l2``              ``|img - ref| / |ref|`` on linear radiance over the mask
-                        (:func:`lobelight.studies.compare.relative_l2`)
+                        (:func:`lobelight.studies.score.relative_l2`)
 ``energy_ratio``        sum of ``img``'s luminance over the mask / the same of ``ref``
 """
 
@@ -23,7 +23,7 @@ import numpy as np
 import torch
 
 from ...errors import InputError
-from ..compare import psnr_display, relative_l2
+from ..score import LUMA, psnr_display, relative_l2
 
 __all__ = [
     "LEGEND",
@@ -31,14 +31,11 @@ __all__ = [
     "display_exposure",
     "energy_ratio",
     "luminance",
-    "noise_psnr_display",
     "score",
 ]
 
 #: The reference's luminance percentile over the mask that the display exposure maps to 1.
 PERCENTILE = 99.0
-#: Rec. 709 luminance weights of linear RGB.
-_LUMA = (0.2126, 0.7152, 0.0722)
 
 #: What each score means (also in ``gallery.json``).
 LEGEND = {
@@ -67,7 +64,7 @@ def _check(img: torch.Tensor, ref: torch.Tensor, mask: torch.Tensor) -> None:
 
 def luminance(img: torch.Tensor) -> torch.Tensor:
     """``(...)`` float64 Rec. 709 luminance of ``(..., 3)`` linear RGB."""
-    w = torch.tensor(_LUMA, dtype=torch.float64, device=img.device)
+    w = torch.tensor(LUMA, dtype=torch.float64, device=img.device)
     return img.double() @ w
 
 
@@ -85,20 +82,6 @@ def energy_ratio(img: torch.Tensor, ref: torch.Tensor, mask: torch.Tensor) -> fl
     """Sum of ``img``'s luminance over ``mask`` / the same of ``ref``."""
     den = float(luminance(ref[mask]).sum())
     return float(luminance(img[mask]).sum()) / den if den > 0 else math.inf
-
-
-def noise_psnr_display(
-    ref: torch.Tensor, stderr: torch.Tensor, mask: torch.Tensor, exposure: float
-) -> float:
-    """The displayed PSNR over ``mask`` that the reference's own noise allows a perfect image:
-    ``10 log10(1 / mean((s'(k ref) k stderr)^2))``, ``s`` the sRGB curve, ``k = 2^exposure``
-    (the noise taken through the display's slope; clipped pixels carry none)."""
-    k = 2.0**exposure
-    x = (ref[mask].double() * k).clamp_min(1e-6)  # (P, 3)
-    slope = torch.where(x <= 0.0031308, 12.92, 1.055 / 2.4 * x.pow(1 / 2.4 - 1))
-    slope = torch.where(x >= 1, torch.zeros_like(slope), slope)
-    mse = float(((slope * k * stderr[mask].double()) ** 2).mean())
-    return math.inf if mse == 0 else 10 * math.log10(1.0 / mse)
 
 
 def score(img: torch.Tensor, ref: torch.Tensor, mask: torch.Tensor) -> dict[str, float]:
