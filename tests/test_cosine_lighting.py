@@ -397,8 +397,9 @@ def test_mask_full_cover_and_clipping():
 
 
 def test_weights_are_stored_and_interpolated():
-    from lobelight.cosine._weights import WEIGHTS
+    from lobelight.cosine._calibration import calibrated_weights
 
+    WEIGHTS = calibrated_weights()
     for mode in ("aggressive", "conservative"):
         for d in (3, 4, 5):
             w = torch.tensor(WEIGHTS[f"{mode}:{d}"])

@@ -27,27 +27,30 @@ Direct lighting with soft shadows (method note ``docs/cosine-lobes.md``)
     (spatially varying, and their Sums) into lobe sums of ``f_r cos``; :func:`sphere_set` fits
     ``n`` spheres to a closed mesh (volume k-means, radii by a coverage/fit objective);
     :func:`shadow_leaves` builds the paper's hierarchical visibility masks (quad-tree over the
-    square facing the light, aggressive or conservative leaves) and :func:`shade_points`
+    square facing the light, leaves of one of the :data:`MASK_MODES`) and :func:`shade_points`
     shades a set of points in the paper's order, reflectance x lighting then visibility with
-    the eq. (39) weights (calibrated once by
-    :func:`lobelight.studies.lobes_calibrate.calibrate_weights`, stored in ``_weights.py``),
-    culling products below the threshold ``t``; it returns radiance and products per point (the
-    paper's Figure 16). :func:`default_scene` and :func:`gbuffer` build the paper's kind of
-    scene.
+    the eq. (39) weights (per leaf depth and per ``dist`` in :data:`DIST_NODES`; the package
+    data file ``weights.json``, read by :mod:`._calibration`), culling products below the
+    threshold ``t``; it returns radiance and products per point (the paper's Figure 16).
+    :func:`shadow_features` gives what the weights multiply, for their calibration;
+    :func:`cpu_threads` sets torch's CPU threads for a block. :func:`default_scene` and
+    :func:`gbuffer` build the paper's kind of scene (its torus laid flat by
+    :data:`FLAT_ROTATION`; :func:`rotation_about_y` turns it).
 
 Elsewhere: the independent Monte Carlo reference is :func:`lobelight.reference.cosine.direct_mc`;
 the score against it (and of the tables against adaptive quadrature) is
 :mod:`lobelight.studies.lobes_score`, the benchmarks (the paper's two timed configurations, the
-tables' build) :mod:`lobelight.studies.bench_lobes`, and the animation to PNGs/GIF
-:mod:`lobelight.studies.lobes_demo`.
+tables' build) :mod:`lobelight.studies.bench_lobes`, the animation to PNGs/GIF
+:mod:`lobelight.studies.lobes_demo`, and the calibration of the weights (which writes
+``weights.json``) the source tree's ``tools/calibrate_cosine_weights.py``.
 """
 
 from ._brdf_lobes import brdf_lobes
 from ._light import SphereLight, cap_lobe, light_lobes
 from ._lobe import evaluate, from_vector, integral, product_integral, product_peak
 from ._lobeset import Lobes
-from ._scene import LobeScene, default_scene, gbuffer
-from ._shade import ShadeResult, shade_points
+from ._scene import FLAT_ROTATION, LobeScene, default_scene, gbuffer, rotation_about_y
+from ._shade import ShadeResult, shade_points, shadow_features
 from ._spheres import SphereSet, sphere_set, winding_number
 from ._tables import (
     FORMAT_VERSION,
@@ -56,6 +59,7 @@ from ._tables import (
     build_tables,
     cache_dir,
     cap_exponent,
+    cpu_threads,
     default_path,
     fit_cap_exponent,
     fit_product,
@@ -64,10 +68,13 @@ from ._tables import (
     product,
     save_tables,
 )
-from ._visibility import shadow_leaves
+from ._visibility import DIST_NODES, MASK_MODES, shadow_leaves
 
 __all__ = [
+    "DIST_NODES",
+    "FLAT_ROTATION",
     "FORMAT_VERSION",
+    "MASK_MODES",
     "LobeScene",
     "LobeTables",
     "Lobes",
@@ -80,6 +87,7 @@ __all__ = [
     "cache_dir",
     "cap_exponent",
     "cap_lobe",
+    "cpu_threads",
     "default_path",
     "default_scene",
     "evaluate",
@@ -94,8 +102,10 @@ __all__ = [
     "product",
     "product_integral",
     "product_peak",
+    "rotation_about_y",
     "save_tables",
     "shade_points",
+    "shadow_features",
     "shadow_leaves",
     "sphere_set",
     "winding_number",

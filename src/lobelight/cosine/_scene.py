@@ -26,7 +26,7 @@ from ..scene import mesh_from_arrays
 from ._light import SphereLight
 from ._spheres import SphereSet, sphere_set
 
-__all__ = ["LobeScene", "default_scene", "gbuffer", "rotation_about_y"]
+__all__ = ["FLAT_ROTATION", "LobeScene", "default_scene", "gbuffer", "rotation_about_y"]
 
 
 def rotation_about_y(angle: float) -> torch.Tensor:
@@ -35,8 +35,9 @@ def rotation_about_y(angle: float) -> torch.Tensor:
     return torch.tensor([[c, 0.0, s], [0.0, 1.0, 0.0], [-s, 0.0, c]])
 
 
-# the torus of trimesh lies in its xy plane; this turns it to lie flat (in xz), tilted a little
-_TILT = torch.tensor([[1.0, 0.0, 0.0], [0.0, 0.0, -1.0], [0.0, 1.0, 0.0]])
+#: (3, 3) a quarter turn about +X, ``(x, y, z) -> (x, -z, y)``: it lays trimesh's torus, which
+#: lies in its xy plane, flat in the xz plane (the object's rotation in :func:`default_scene`).
+FLAT_ROTATION = torch.tensor([[1.0, 0.0, 0.0], [0.0, 0.0, -1.0], [0.0, 1.0, 0.0]])
 
 
 @dataclass
@@ -98,7 +99,7 @@ def default_scene(*, spheres: int = 64, seed: int = 0) -> LobeScene:
         vertices=np.asarray(torus.vertices, dtype=np.float64),
         faces=np.asarray(torus.faces, dtype=np.int64),
         spheres=sset,
-        rotation=_TILT.clone(),
+        rotation=FLAT_ROTATION.clone(),
         translation=torch.tensor([0.0, 0.75, 0.0]),
         lights=[light],
         camera=cam,

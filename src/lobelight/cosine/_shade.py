@@ -28,20 +28,20 @@ import torch
 from .. import brdf as _brdf
 from ..errors import InputError
 from ._brdf_lobes import _lobe_flags, _lobe_parts, brdf_lobes
+from ._calibration import default_weights
 from ._fused import fusion, kernel
 from ._light import SphereLight, _geometry, _light_tensors, cap_lobes, cap_scale
 from ._lobeset import Lobes, _integral_flat, multiply
-from ._tables import LobeTables, _cap_lookup, _cpu_threads, get_tables
+from ._tables import LobeTables, _cap_lookup, cpu_threads, get_tables
 from ._visibility import (
-    MODES,
+    MASK_MODES,
     _check_spheres,
     depth_weights,
     interp_coefficients,
     shadow_leaves,
 )
-from ._weights import WEIGHTS
 
-__all__ = ["ShadeResult", "shade_points"]
+__all__ = ["ShadeResult", "shade_points", "shadow_features"]
 
 
 @dataclass
@@ -67,16 +67,6 @@ def _check_points(name: str, x: torch.Tensor, P: int | None = None) -> None:
     # NaN and Inf propagate through min and max: two reductions, no (P, 3) temporaries
     if x.numel() and not bool(torch.isfinite(torch.stack([x.amin(), x.amax()])).all()):
         raise InputError(name, "must be finite (NaN or Inf found)")
-
-
-def default_weights(mode: str, depth: int) -> torch.Tensor:
-    """The stored eq. (39) weights of ``(mode, depth)``: ``(depth + 1, 12)`` float32."""
-    key = f"{mode}:{int(depth)}"
-    if key not in WEIGHTS:
-        raise InputError(
-            "depth", f"no calibrated weights for {key}; have {sorted(WEIGHTS)} (calibrate_weights)"
-        )
-    return torch.tensor(WEIGHTS[key], dtype=torch.float32)
 
 
 def shade_points(
@@ -142,8 +132,8 @@ def shade_points(
     lights = [lights] if isinstance(lights, SphereLight) else list(lights)
     if not lights or not all(isinstance(lt, SphereLight) for lt in lights):
         raise InputError("lights", "must be a SphereLight or a non-empty list of them")
-    if mode not in MODES:
-        raise InputError("mode", f"must be one of {MODES}, got {mode!r}")
+    if mode not in MASK_MODES:
+        raise InputError("mode", f"must be one of {MASK_MODES}, got {mode!r}")
     if cosine not in ("product", "axis", "none"):
         raise InputError("cosine", f"must be 'product', 'axis' or 'none', got {cosine!r}")
     if not (threshold >= 0):
@@ -169,7 +159,7 @@ def shade_points(
     tables = tables if tables is not None else get_tables(device=dev)
     model = brdf.to(dev)
     outs, prods, nleaves = [], [], []
-    ctx = _cpu_threads(threads) if dev.type == "cpu" else contextlib.nullcontext()
+    ctx = cpu_threads(threads) if dev.type == "cpu" else contextlib.nullcontext()
     fuse = contextlib.nullcontext() if fused is None else fusion(fused)
     with ctx, fuse, torch.no_grad():
         if chunk is None:
@@ -205,6 +195,68 @@ def shade_points(
             prods.append(r[1])
             nleaves.append(r[2])
     return ShadeResult(torch.cat(outs), torch.cat(prods), torch.cat(nleaves))
+
+
+def shadow_features(
+    points: torch.Tensor,
+    normals: torch.Tensor,
+    wo: torch.Tensor,
+    brdf: _brdf.BRDF,
+    lights: SphereLight | list[SphereLight],
+    spheres: torch.Tensor,
+    *,
+    depth: int,
+    mode: str,
+    margin: float = 1.0,
+    tables: LobeTables | None = None,
+):
+    """The unshadowed radiance and each shadow leaf's unweighted product: what the eq. (39)
+    weights multiply.
+
+    Shaded radiance is linear in the weights, ``L_o = U - sum_k w(depth_k, dist_k) v_k``; these
+    are ``U`` and the ``v_k``, with every leaf built and nothing culled (threshold 0), the
+    reflectance lobes as :func:`shade_points` makes them by default (``cosine="product"``,
+    integral-preserving products). The weight calibration (``tools/calibrate_cosine_weights.py``)
+    fits the weights to Monte Carlo radiance from them.
+
+    Parameters
+    ----------
+    points, normals, wo : (P, 3) float32, on one device (no chunking: ``P`` bounds the memory)
+    brdf : as :func:`shade_points`;  lights : one :class:`~._light.SphereLight` or a list
+    spheres : (N, 4) float32 occluders ``(x, y, z, radius)``, N >= 1
+    depth, mode, margin : the visibility masks' settings, as :func:`shade_points`
+    tables : lobe tables (default :func:`get_tables` on the points' device)
+
+    Returns
+    -------
+    unshadowed : (P, 3) the radiance without occluders, ``U``
+    features : a list, one entry per light that casts leaves, of ``(point, depth, i0, i1, lam,
+        value)``: each leaf's point and depth (L,) int64, the ``dist`` nodes ``i0, i1`` (L,)
+        int64 between which its weight is interpolated and the interpolation's ``lam`` (L,),
+        and its product ``v_k`` (L, 3)
+    """
+    lights = [lights] if isinstance(lights, SphereLight) else list(lights)
+    tables = tables if tables is not None else get_tables(device=points.device)
+    with torch.no_grad():
+        unshadowed, _, _, features = _shade_chunk(
+            points,
+            normals,
+            wo,
+            brdf,
+            lights,
+            spheres,
+            None,
+            None,
+            tables,
+            depth=depth,
+            mode=mode,
+            threshold=0.0,
+            margin=margin,
+            cosine="product",
+            preserve=True,
+            features=True,
+        )
+    return unshadowed, features
 
 
 def _shade_chunk(

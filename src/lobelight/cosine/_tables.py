@@ -104,6 +104,7 @@ __all__ = [
     "build_tables",
     "cache_dir",
     "cap_exponent",
+    "cpu_threads",
     "default_path",
     "fit_cap_exponent",
     "fit_product",
@@ -645,7 +646,7 @@ def _product_lookup(e1, e2, c, s, tab: torch.Tensor, g: _Grid, preserve_integral
 
 
 @contextlib.contextmanager
-def _cpu_threads(n: int | None):
+def cpu_threads(n: int | None):
     """Run with ``n`` torch intra-op threads (process-wide), restoring the old count after."""
     old = torch.get_num_threads()
     if n is not None:
@@ -683,7 +684,7 @@ def build_tables(
     """
     p = params or TableParams()
     dev = torch.device(device)
-    with _cpu_threads(threads if dev.type == "cpu" else None):
+    with cpu_threads(threads if dev.type == "cpu" else None):
         return _build(p, dev, chunk, progress)
 
 

@@ -30,11 +30,12 @@ linearly interpolated in ``dist`` between the paper's nodes ``{0.25, 0.5, 1, 2, 
 
 The weights are calibrated once, as the paper describes, on a single scene (a plane, an
 object made of spheres, one light at distances that cover the ``dist`` nodes), and stored in
-:mod:`._weights`. The paper sets them by hand, level by level ("first level weight ... perfect
-dark in the umbra; each successive level ... to avoid shadow sharpness"); here
-:func:`~._calibrate.calibrate_weights` does the same thing by least squares: the rendered
-radiance is linear in the weights, so all weights of a ``(mode, max depth)`` are fitted at once
-against Monte Carlo radiance on that scene (non-negative, lightly regularised towards their
+the package data file ``weights.json`` (:mod:`._calibration` reads it). The paper sets them by
+hand, level by level ("first level weight ... perfect dark in the umbra; each successive level
+... to avoid shadow sharpness"); the source tree's ``tools/calibrate_cosine_weights.py`` does
+the same thing by least squares: the rendered radiance is linear in the weights
+(:func:`~._shade.shadow_features`), so all weights of a ``(mode, max depth)`` are fitted at
+once against Monte Carlo radiance on that scene (non-negative, lightly regularised towards their
 neighbours in ``dist``).
 
 Everything is vectorised over flat lists of (cell, occluder) pairs; only the ``depth + 1``
@@ -59,11 +60,13 @@ from ..geometry.sphere import frame
 from . import _walk
 from ._fused import fusion_enabled, kernel
 
-__all__ = ["DIST_NODES", "MODES", "Leaves", "leaf_weights", "shadow_leaves"]
+__all__ = ["DIST_NODES", "MASK_MODES", "Leaves", "leaf_weights", "shadow_leaves"]
 
 #: The paper's distances at which the weights are set (eq. 39 and Figure 12).
 DIST_NODES = (0.25, 0.5, 1.0, 2.0, 3.0, 4.0, 5.0, 6.0, 7.0, 8.0, 9.0, 10.0)
-MODES = ("aggressive", "conservative")
+#: The masks' treatment of a cell still partly covered at the maximal depth: dropped
+#: ("aggressive", the paper's choice) or kept as a shadow leaf ("conservative").
+MASK_MODES = ("aggressive", "conservative")
 _MAX_SQUARE_ANGLE = 1.35  # radians: past ~77 degrees the gnomonic square degenerates
 
 
@@ -163,8 +166,8 @@ def shadow_leaves(
     -------
     :class:`Leaves`
     """
-    if mode not in MODES:
-        raise InputError("mode", f"must be one of {MODES}, got {mode!r}")
+    if mode not in MASK_MODES:
+        raise InputError("mode", f"must be one of {MASK_MODES}, got {mode!r}")
     if not 0 <= int(depth) <= 8:
         raise InputError("depth", f"must be in 0..8, got {depth!r}")
     if not margin > 0:

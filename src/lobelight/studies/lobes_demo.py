@@ -22,8 +22,15 @@ import torch
 from PIL import Image
 
 from .._io import atomic_path
-from ..cosine import SphereLight, default_scene, gbuffer, get_tables, shade_points
-from ..cosine._scene import _TILT, rotation_about_y
+from ..cosine import (
+    FLAT_ROTATION,
+    SphereLight,
+    default_scene,
+    gbuffer,
+    get_tables,
+    rotation_about_y,
+    shade_points,
+)
 from ..errors import InputError
 
 __all__ = ["false_colour", "lobes_demo"]
@@ -95,7 +102,7 @@ def lobes_demo(
             light0.radius,
             light0.radiance,
         )
-        rot = rotation_about_y(0.5 * a) @ rotation_about_x(0.35 * math.sin(a)) @ _TILT
+        rot = rotation_about_y(0.5 * a) @ rotation_about_x(0.35 * math.sin(a)) @ FLAT_ROTATION
         scene = base.moved(
             rotation=rot,
             translation=[0.5 * math.sin(a), 0.8 + 0.35 * math.sin(a), 0.0],
