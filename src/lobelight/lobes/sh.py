@@ -41,7 +41,8 @@ in float64 (results are cast back to the input's dtype); loops run over bands, n
 ``D @ coeffs(f) = coeffs(f(R^T w))``. Each block ``D_l[j, k] = <Y_lj, Y_lk(R^T .)>`` is computed
 with a product Gauss–Legendre (in ``z``) x uniform (in ``phi``) rule that integrates products of
 two order-``n`` harmonics exactly, so ``D`` is exact to float64 rounding, batched over ``R`` and
-differentiable in ``R``.
+differentiable in ``R``. :class:`Rotator` rotates one fixed expansion by one matrix after another
+(a turning sky, every frame) with a few float64 products on the CPU.
 
 *Zonal convolution* (Funk–Hecke): convolving ``f`` with a kernel ``k(w . a)`` whose zonal
 coefficients about +Z are ``k_l`` scales coefficient ``(l, m)`` by ``sqrt(4 pi / (2l + 1)) k_l``.
@@ -62,6 +63,7 @@ from ..errors import InputError
 from ..geometry.cubemap import texel_directions, texel_solid_angles
 
 __all__ = [
+    "Rotator",
     "basis",
     "clamped_cosine_zonal",
     "num_coeffs",
@@ -444,6 +446,72 @@ def rotate(coeffs, R):
     c = coeffs.to(wd)
     out = D.to(wd) @ c if coeffs.ndim == 2 else (D.to(wd) @ c.unsqueeze(-1))[..., 0]
     return out.to(_float_dtype(coeffs))
+
+
+class Rotator:
+    """The coefficients of one fixed function, rotated by one matrix after another: cheap
+    enough to do for every frame of an animation.
+
+    :func:`rotate` builds the rotation matrix from the basis at rotated quadrature nodes, a few
+    dozen small torch operations per call. Here a rotation is three small float64 numpy
+    products on the CPU. Real SH of band ``l`` are polynomials of degree ``l`` in
+    ``(x, y, z)``, so the function is one fixed polynomial ``f(x) = m(x) . Pc`` of the
+    monomials ``m`` of degree ``< order`` (fitted once, here); its rotation evaluated at the
+    nodes of the rule :func:`rotation_matrix` uses and projected with that rule's weights is
+    exact (the rule integrates products of two order-``order`` harmonics), so
+    ``rotator.rotate(R)`` equals ``rotate(coeffs, R)`` to float64 rounding.
+
+    Parameters
+    ----------
+    coeffs : (order**2,) or (order**2, C) coefficients of the function, any device and dtype
+        (kept in float64 on the CPU)
+    """
+
+    def __init__(self, coeffs: torch.Tensor):
+        c = coeffs.detach().cpu().to(torch.float64)
+        order = math.isqrt(c.shape[0])
+        if order * order != c.shape[0]:
+            raise InputError("coeffs", f"needs a square number of rows, got {c.shape[0]}")
+        self.order = order
+        nodes, bw = _rotation_rule(order, torch.device("cpu"), torch.float64)
+        self._nodes, self._bw_t = nodes.numpy(), bw.numpy().T.copy()  # (M, 3), (n2, M)
+        self._exps = np.array(
+            [
+                (a, b, d - a - b)
+                for d in range(order)
+                for a in range(d + 1)
+                for b in range(d - a + 1)
+            ]
+        )  # (P, 3) monomial exponents, total degree < order
+        # the polynomial's coefficients, by least squares at enough points (the monomials are
+        # dependent on the sphere, x^2 + y^2 + z^2 = 1, so take the minimum-norm solution)
+        g = torch.Generator().manual_seed(0)
+        pts = torch.nn.functional.normalize(
+            torch.randn(4 * len(self._exps) + 16, 3, generator=g, dtype=torch.float64), dim=-1
+        )
+        f = (_basis(pts, order) @ c).numpy()  # (K, C)
+        self._pc = np.linalg.lstsq(self._monomials(pts.numpy()), f, rcond=None)[0]  # (P, C)
+
+    def _monomials(self, x: np.ndarray) -> np.ndarray:
+        """``(K, 3) -> (K, P)``: ``x^a y^b z^c`` for each exponent triple."""
+        pw = x[:, :, None] ** np.arange(max(self.order, 1))  # (K, 3, order)
+        e = self._exps
+        return pw[:, 0, e[:, 0]] * pw[:, 1, e[:, 1]] * pw[:, 2, e[:, 2]]
+
+    def rotate(self, R) -> torch.Tensor:
+        """Coefficients of the rotated function ``f(R^T w)``.
+
+        Parameters
+        ----------
+        R : (3, 3) rotation, tensor (any device) or array
+
+        Returns
+        -------
+        (order**2,) or (order**2, C) float64 on the CPU, as ``coeffs``
+        """
+        r = R.detach().cpu().numpy() if isinstance(R, torch.Tensor) else np.asarray(R)
+        rn = self._nodes @ r.astype(np.float64)  # (M, 3) rows p^T R = (R^T p)^T
+        return torch.from_numpy(self._bw_t @ (self._monomials(rn) @ self._pc))
 
 
 # ----------------------------------------------------------------------------------------------

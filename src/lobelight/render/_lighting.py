@@ -19,7 +19,6 @@ from __future__ import annotations
 
 import math
 
-import numpy as np
 import torch
 
 from ..envmap import ChainBuilder, EnvMap, Prefiltered, Sun, extract_sun, prefilter
@@ -112,7 +111,7 @@ class Lighting:
         self._rest_pf: Prefiltered | None = None
         self.sh = sh.project_envmap(diffuse_env, sh_order, res=64).to(torch.float32)
         self.name = env.name
-        self._rotator = ShRotator(self.sh)
+        self._rotator = sh.Rotator(self.sh)
 
     @property
     def base_res(self) -> int:
@@ -156,8 +155,8 @@ class Lighting:
 
     def sh_rotated(self, rot: torch.Tensor) -> torch.Tensor:
         """``(n, 3)`` float32 SH coefficients of the rotated lighting ``L(R^T w)`` (on the CPU:
-        it is computed there once per frame, see :class:`ShRotator`)."""
-        return torch.from_numpy(self._rotator(rot).astype(np.float32))
+        it is computed there once per frame, see :class:`lobelight.lobes.sh.Rotator`)."""
+        return self._rotator.rotate(rot).to(torch.float32)
 
     def integrate(self, mu: torch.Tensor, lam: torch.Tensor, rot: torch.Tensor) -> torch.Tensor:
         """``int G(w; mu, lam) L(R^T w) dw``, ``(..., 3)``: the lookup at ``R^T mu``."""
@@ -178,57 +177,3 @@ class Lighting:
     def background(self, dirs: torch.Tensor, rot: torch.Tensor) -> torch.Tensor:
         """Radiance seen along ``dirs (..., 3)`` in the rotated environment, ``(..., 3)``."""
         return self.env.radiance(dirs @ rot.to(dirs.device, dirs.dtype))
-
-
-class ShRotator:
-    """The SH coefficients of one fixed function, rotated, fast enough to do every frame.
-
-    ``sh.rotate`` builds a rotation matrix from the basis at rotated quadrature nodes with a few
-    dozen small torch operations, which take longer than a whole frame on a GPU. Here the work
-    is three small numpy products. Real SH of band ``l`` are polynomials of degree ``l`` in
-    ``(x, y, z)``, so the function is one fixed polynomial ``f(x) = m(x) . Pc`` of the
-    monomials ``m`` of degree ``< order``; its rotation evaluated at the nodes of
-    :func:`lobelight.lobes.sh._rotation_rule` and projected with that rule's weights is exact
-    (the rule integrates products of two order-``order`` harmonics).
-
-    Parameters
-    ----------
-    coeffs : (order**2, C) coefficients
-    """
-
-    def __init__(self, coeffs: torch.Tensor):
-        c = coeffs.detach().cpu().to(torch.float64)
-        order = math.isqrt(c.shape[0])
-        if order * order != c.shape[0]:
-            raise InputError("coeffs", f"needs a square number of rows, got {c.shape[0]}")
-        self._order = order
-        nodes, bw = sh._rotation_rule(order, torch.device("cpu"), torch.float64)
-        self._nodes, self._bw_t = nodes.numpy(), bw.numpy().T.copy()  # (M, 3), (n2, M)
-        self._exps = np.array(
-            [
-                (a, b, d - a - b)
-                for d in range(order)
-                for a in range(d + 1)
-                for b in range(d - a + 1)
-            ]
-        )  # (P, 3) monomial exponents, total degree < order
-        # the polynomial's coefficients, by least squares at enough points (the monomials are
-        # dependent on the sphere, x^2 + y^2 + z^2 = 1, so take the minimum-norm solution)
-        g = torch.Generator().manual_seed(0)
-        pts = torch.nn.functional.normalize(
-            torch.randn(4 * len(self._exps) + 16, 3, generator=g, dtype=torch.float64), dim=-1
-        )
-        f = (sh._basis(pts, order) @ c).numpy()  # (K, C)
-        self._pc = np.linalg.lstsq(self._monomials(pts.numpy()), f, rcond=None)[0]  # (P, C)
-
-    def _monomials(self, x: np.ndarray) -> np.ndarray:
-        """``(K, 3) -> (K, P)``: ``x^a y^b z^c`` for each exponent triple."""
-        pw = x[:, :, None] ** np.arange(max(self._order, 1))  # (K, 3, order)
-        e = self._exps
-        return pw[:, 0, e[:, 0]] * pw[:, 1, e[:, 1]] * pw[:, 2, e[:, 2]]
-
-    def __call__(self, rot) -> np.ndarray:
-        """``(order**2, C)`` float64 coefficients of ``f(R^T w)`` for a ``(3, 3)`` rotation."""
-        r = rot.detach().cpu().numpy() if isinstance(rot, torch.Tensor) else np.asarray(rot)
-        rn = self._nodes @ r.astype(np.float64)  # rows p^T R = (R^T p)^T
-        return self._bw_t @ (self._monomials(rn) @ self._pc)
