@@ -20,6 +20,7 @@ import torch
 
 from lobelight import envmap
 from lobelight import model as model_io
+from lobelight.cli._gallery import add_arguments, gallery_main
 from lobelight.errors import InputError
 from lobelight.render import Lighting, Renderer, auto_exposure
 from lobelight.studies.gallery import (
@@ -29,13 +30,11 @@ from lobelight.studies.gallery import (
     GalleryScene,
     ReferenceSettings,
     _references,
-    add_arguments,
     coverage_mask,
     display_exposure,
     energy_ratio,
     geometry_sha256,
     load_reference,
-    main_from_args,
     prepare_mesh,
     reference_status,
     render_references,
@@ -333,13 +332,13 @@ def test_arguments_fit_a_parser_that_has_the_common_flags(data_dir):
     add_arguments(p)
     args = p.parse_args(["list", "--scenes", "teapot-diffuse", "--json"])
     assert args.json and args.device == "cpu"
-    assert [s["name"] for s in main_from_args(args)["scenes"]] == [
+    assert [s["name"] for s in gallery_main(args)["scenes"]] == [
         "teapot-diffuse-park",
         "teapot-diffuse-studio",
     ]
     args = p.parse_args(["references", "--data", str(data_dir / "nope")])
     with pytest.raises(InputError, match="--data"):
-        main_from_args(args)
+        gallery_main(args)
 
 
 def test_lambert_plus_ggx_exports_as_their_exact_sum():

@@ -18,7 +18,6 @@ from pathlib import Path
 import torch
 
 from .. import bench
-from .._size import check_pixels, parse_size
 from ..bench import bench_all, bench_brdf_fit, bench_lobes, bench_rays, bench_tables
 from ..data import resolve_envmap
 from ..envmap import builtin
@@ -45,8 +44,9 @@ from ..studies.compare import compare
 from ..studies.compare_brdf import compare_brdf
 from ..studies.demo import demo
 from ..studies.figure5 import figure5
-from ..studies.gallery import main_from_args as gallery_main
 from ..studies.lobes_demo import lobes_demo
+from ._gallery import gallery_main
+from ._size import check_pixels, parse_size
 
 __all__ = [
     "check_device",

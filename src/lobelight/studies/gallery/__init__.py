@@ -21,8 +21,7 @@ from a data folder (``--data DIR`` or ``$LOBELIGHT_DATA``; ``meshes/`` and ``env
 - :func:`score`: displayed PSNR at the exposure that maps the reference's 99th-percentile
   object luminance to 1 (object pixels, and the whole image), relative L2 of linear radiance
   and the energy ratio of the object's luminance (:mod:`._score`).
-- :func:`add_arguments` and :func:`main_from_args` are ``lobelight gallery {list,references,run}``
-  (also ``python -m lobelight.studies.gallery``).
+- The command is ``lobelight gallery {list,references,run}`` (:mod:`lobelight.cli`).
 
 Installing Mitsuba's LLVM variant and rendering the references: DEVELOPERS.md.
 """
@@ -30,9 +29,8 @@ Installing Mitsuba's LLVM variant and rendering the references: DEVELOPERS.md.
 import importlib
 
 #: Where each public name lives: the submodules load on first use (PEP 562), so that the
-#: command line can add the gallery's arguments without importing torch.
+#: command line reads the reference settings' defaults for its parser without importing torch.
 _HOMES = {
-    "DATA_ENV": "..data",
     "GalleryScene": "._scenes",
     "LEGEND": "._score",
     "GAUSSIANS": "._scenes",
@@ -43,7 +41,6 @@ _HOMES = {
     "ReferenceSettings": "._settings",
     "SCENES": "._scenes",
     "VARIANTS": "._settings",
-    "add_arguments": "._args",
     "coverage_mask": "._references",
     "data_folder": "._scenes",
     "default_camera": "._scenes",
@@ -52,7 +49,6 @@ _HOMES = {
     "geometry_sha256": "._scenes",
     "load_reference": "._references",
     "luminance": "._score",
-    "main_from_args": "._cli",
     "prepare_mesh": "._scenes",
     "read_manifest": "._references",
     "reference_status": "._references",

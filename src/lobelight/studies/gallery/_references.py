@@ -62,7 +62,7 @@ FORMAT = "lobelight-gallery-references"
 VERSION = 1
 MANIFEST = "manifest.json"
 #: The command that renders references, for messages.
-COMMAND = "python -m lobelight.studies.gallery references --data DIR --refs DIR"
+COMMAND = "lobelight gallery references --data DIR --refs DIR"
 
 
 @dataclass(frozen=True)

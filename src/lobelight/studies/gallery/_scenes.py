@@ -13,10 +13,10 @@ from pathlib import Path
 import numpy as np
 import trimesh
 
+from ...data import DATA_ENV
 from ...errors import InputError
 from ...geometry.camera import Camera
 from ...scene import Mesh, Scene, load_mesh, mesh_from_arrays, parse_material
-from ._settings import DATA_ENV
 
 __all__ = [
     "GAUSSIANS",

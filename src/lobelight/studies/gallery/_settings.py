@@ -1,14 +1,13 @@
 """The gallery's settings that the command line needs before anything heavy is imported: the
-data folder's variable, the Mitsuba variants tried and how references are rendered."""
+Mitsuba variants tried and how references are rendered."""
 
 from __future__ import annotations
 
 from dataclasses import asdict, dataclass
 
-from ...data import DATA_ENV
 from ...errors import InputError
 
-__all__ = ["DATA_ENV", "VARIANTS", "ReferenceSettings"]
+__all__ = ["VARIANTS", "ReferenceSettings"]
 
 #: Mitsuba variants tried in turn when none is asked for.
 VARIANTS = ("llvm_ad_rgb", "scalar_rgb")

@@ -1,10 +1,10 @@
-"""Image sizes as the command lines take them: ``N`` (square) or ``WxH``."""
+"""Image sizes as the command line takes them: ``N`` (square) or ``WxH``."""
 
 from __future__ import annotations
 
 import re
 
-from .errors import InputError
+from ..errors import InputError
 
 __all__ = ["MAX_PIXELS", "check_pixels", "parse_size"]
 

@@ -2,7 +2,7 @@
 
 They change the whole process, so the library never makes them itself: the command line
 (:func:`lobelight.cli.main`, which owns its process) makes them at start, and a program that
-embeds lobelight may call :func:`tune` once, early, for the same effect.
+embeds lobelight may call :func:`lobelight.cli.tune` once, early, for the same effect.
 
 - :func:`keep_freed_memory`: a fit allocates and frees tensors of 16-32 MB hundreds of times per
   chunk; glibc serves such blocks with ``mmap`` and returns them with ``munmap``, so each

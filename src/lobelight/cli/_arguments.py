@@ -1,0 +1,411 @@
+"""The command line's parser: one builder per command (``_add_bake``, ``_add_render``, ...) and
+the options commands share, each defined once (``--output``, ``--width/--height/--size``,
+``--sun``, ``--gaussians``, ``--backend``, ``--base-res``, ``--spp``, ``--samples``, ``--env``).
+
+Building it imports no torch, so that ``--help`` and a usage error answer at once.
+"""
+
+from __future__ import annotations
+
+import argparse
+
+from .. import __version__
+from ..data import envmap_names
+from ._gallery import add_arguments as add_gallery_arguments
+
+#: A bake's interreflection defaults, :data:`lobelight.transport.BOUNCES` and
+#: :data:`lobelight.transport.INDIRECT_PATHS`, restated so that building the parser imports no
+#: torch (tests/test_cli.py holds them equal).
+_BOUNCES = 4
+_INDIRECT_PATHS = 16
+
+
+class _UsageError(Exception):
+    """A command line argparse cannot parse: reported as bad input (exit 2)."""
+
+
+class _Parser(argparse.ArgumentParser):
+    def error(self, message: str):  # argparse prints usage and exits; we report one line
+        # "lobelight: error: bake: ..." names the command; the top level needs no name twice
+        command = self.prog.removeprefix("lobelight").strip()
+        raise _UsageError(f"{command}: {message}" if command else message)
+
+
+class _Help(argparse.ArgumentDefaultsHelpFormatter):
+    """Shows each flag's default (where it has one) after its help."""
+
+    def _get_help_string(self, action):
+        if action.default in (None, False) or action.default is argparse.SUPPRESS:
+            return action.help
+        return super()._get_help_string(action)
+
+
+def _parser() -> argparse.ArgumentParser:
+    """The ``lobelight`` parser: every command, in the order ``--help`` lists them."""
+    p = _Parser(
+        prog="lobelight",
+        description="Relight 3D objects under HDR environment lighting with spherical lobes.",
+        epilog="Exit codes: 0 ok, 1 unexpected error, 2 bad input, 130 interrupted (Ctrl-C), "
+        "143 terminated (SIGTERM).",
+    )
+    p.add_argument("--version", action="version", version=f"lobelight {__version__}")
+    sub = p.add_subparsers(dest="command", required=True, metavar="COMMAND", parser_class=_Parser)
+    for add in (
+        _add_demo,
+        _add_bake,
+        _add_info,
+        _add_render,
+        _add_view,
+        _add_compare,
+        _add_compare_brdf,
+        _add_gallery,
+        _add_figure5,
+        _add_lobes_demo,
+        _add_bench,
+    ):
+        add(sub)
+    return p
+
+
+# --------------------------------------------------------------------------------------------
+# options the commands share
+
+
+def _command(sub, name: str, run: str, help: str) -> argparse.ArgumentParser:
+    """A command's parser with every command's options: ``--json``, ``--device``, ``-q`` and
+    ``--rays``; ``run`` names its function in :mod:`lobelight.cli._commands`."""
+    sp = sub.add_parser(name, help=help, description=help, formatter_class=_Help)
+    sp.add_argument(
+        "--json",
+        action="store_true",
+        help="print a machine-readable summary on stdout (errors too, as JSON)",
+    )
+    sp.add_argument(
+        "--device", default="cpu", help="torch device of the heavy work (cpu, cuda, cuda:1)"
+    )
+    sp.add_argument("-q", "--quiet", action="store_true", help="no progress on stderr")
+    sp.add_argument(
+        "--rays",
+        default="auto",
+        choices=["auto", "embree", "warp"],
+        help="ray engine (auto: Warp on a CUDA device, Embree on the CPU)",
+    )
+    sp.set_defaults(run=run)
+    return sp
+
+
+def _output(sp, default, what: str) -> None:
+    sp.add_argument("-o", "--output", default=default, help=what)
+
+
+def _size(sp, w: int = 512, h: int = 512) -> None:
+    sp.add_argument("--width", type=int, default=w, help="image width in pixels")
+    sp.add_argument("--height", type=int, default=h, help="image height in pixels")
+    sp.add_argument("--size", help="N or WxH: sets --width and --height together")
+
+
+def _square(sp, n: int) -> None:
+    sp.set_defaults(width=n, height=n)
+    sp.add_argument("--size", default=str(n), help="image size in pixels (square)")
+
+
+def _sun(sp, default: bool = True) -> None:
+    sp.add_argument(
+        "--sun",
+        action=argparse.BooleanOptionalAction,
+        default=default,
+        help="shade the map's sun per pixel with a shadow map (--no-sun: the paper's terms, "
+        "the sun in the SH diffuse and the Gaussians' lighting)",
+    )
+
+
+def _gaussians(sp) -> None:
+    sp.add_argument(
+        "--gaussians",
+        type=int,
+        default=1,
+        choices=[1, 2, 3],
+        help="Gaussians per view fitted to the direct glossy transport (indirect glossy has "
+        "one more of its own)",
+    )
+
+
+def _backend(sp) -> None:
+    sp.add_argument(
+        "--backend",
+        choices=["auto", "gl", "torch"],
+        default="auto",
+        help="renderer: GLSL through EGL, or the torch path (auto: gl where a context opens)",
+    )
+
+
+def _base_res(sp, default: int = 256) -> None:
+    sp.add_argument(
+        "--base-res",
+        type=int,
+        default=default,
+        help="face resolution of the sharpest prefiltered level (a power of two)",
+    )
+
+
+def _spp(sp, default: int) -> None:
+    sp.add_argument("--spp", type=int, default=default, help="reference samples per pixel")
+
+
+def _samples(sp, default: int) -> None:
+    sp.add_argument(
+        "--samples",
+        type=int,
+        default=default,
+        help="anti-aliasing samples per pixel, each a full shading pass (1: none)",
+    )
+
+
+def _env(sp, what: str, *, repeat: bool = False) -> None:
+    sp.add_argument(
+        "--env",
+        action="append" if repeat else "store",
+        help=f".hdr/.exr file, a bundled map's name ({_bundled()}) or 'builtin'; {what}",
+    )
+
+
+def _bundled() -> str:
+    return ", ".join(envmap_names())
+
+
+# --------------------------------------------------------------------------------------------
+# the commands
+
+
+def _add_demo(sub) -> None:
+    d = _command(
+        sub, "demo", "run_demo", "bake the built-in scene, render it, score it, write a report"
+    )
+    _output(d, "lobelight-demo", "output folder")
+    d.add_argument("--scene", default="knot", help="scene to bake")
+    _gaussians(d)
+    _spp(d, 64)
+    _size(d, 960, 720)
+    _sun(d)
+
+
+def _add_bake(sub) -> None:
+    b = _command(sub, "bake", "run_bake", "fit a model of a mesh or scene (resumes if interrupted)")
+    b.add_argument(
+        "scene",
+        help="mesh (.ply .obj .stl .glb .off), scene (.toml .json; docs/scene-format.md) or a "
+        "built-in name (knot, knot:2, sphere:3)",
+    )
+    _output(b, None, "model file (default: NAME.lobelight.npz)")
+    _env(b, "the lighting render, view and compare use by default (default: the scene file's, "
+         "else the built-in sky; the model relights under any)")  # fmt: skip
+    b.add_argument(
+        "--material",
+        help="a bare mesh's material, e.g. 'ggx:alpha=0.05,specular=0.9,0.8,0.6' or "
+        "'diffuse:color=0.7' (the keys of a scene file's [material]; docs/scene-format.md)",
+    )
+    _gaussians(b)
+    b.add_argument(
+        "--bounces",
+        type=int,
+        default=_BOUNCES,
+        help="bounces of diffuse interreflection in the SH transfer, carrying the diffuse and "
+        "glossy light of the points a vertex sees (0: self-shadowed only)",
+    )
+    b.add_argument(
+        "--indirect-paths",
+        type=int,
+        default=_INDIRECT_PATHS,
+        help="paths per vertex and view for indirect glossy, the light glossy surfaces reflect "
+        "off the object (0: direct glossy only)",
+    )
+    b.add_argument("--float16", action="store_true", help="store half floats (half the size)")
+    b.add_argument("--seed", type=int, default=0, help="seed of the fit's random starts")
+    b.add_argument(
+        "--checkpoint-every",
+        type=float,
+        default=30.0,
+        metavar="SECONDS",
+        help="save the bake's state at most this often (and after each stage) to "
+        "MODEL.ckpt, from which an interrupted bake resumes; 0 after every chunk",
+    )
+
+
+def _add_info(sub) -> None:
+    i = _command(sub, "info", "run_info", "describe a model file")
+    i.add_argument("model", help="a model file written by bake")
+
+
+def _add_render(sub) -> None:
+    r = _command(sub, "render", "run_render", "render a model to an image (.png .jpg .exr .hdr)")
+    r.add_argument("model", help="a model file written by bake")
+    _output(r, "render.png", "image (.png/.jpg tone-mapped, .exr/.hdr linear), or a folder "
+            "with --turntable")  # fmt: skip
+    _env(r, "default: the model's, else the built-in sky")
+    r.add_argument("--camera", help="'ox,oy,oz:tx,ty,tz[:fov]' (default: the scene's)")
+    r.add_argument("--rotate", type=float, default=None, help="turn the lighting (degrees)")
+    r.add_argument(
+        "--parts", choices=["both", "diffuse", "glossy"], default="both", help="what to shade"
+    )
+    r.add_argument(
+        "--background",
+        action=argparse.BooleanOptionalAction,
+        default=True,
+        help="draw the environment behind the object",
+    )
+    _sun(r)
+    r.add_argument("--exposure", default="auto", help="stops, or 'auto' (the object's pixels)")
+    r.add_argument(
+        "--tonemap", choices=["srgb", "aces"], default="srgb", help="display curve (.png, .jpg)"
+    )
+    _backend(r)
+    _base_res(r)
+    _samples(r, 4)
+    r.add_argument(
+        "--turntable",
+        type=int,
+        metavar="N",
+        help="render N frames around the object into the folder -o, and an animated GIF",
+    )
+    r.add_argument(
+        "--spin",
+        choices=["camera", "light"],
+        default="camera",
+        help="what --turntable turns",
+    )
+    _size(r)
+
+
+def _add_view(sub) -> None:
+    v = _command(
+        sub,
+        "view",
+        "run_view",
+        "interactive window: drag to orbit, right-drag to turn the "
+        "light, wheel to zoom, d/g/b diffuse/glossy/both, +/- exposure, e next map",
+    )
+    v.add_argument("model", help="a model file written by bake")
+    _env(
+        v,
+        "repeat it for several, which e cycles through (default: the model's, else the "
+        "built-in sky)",
+        repeat=True,
+    )
+    _sun(v)
+    _size(v, 1024, 768)
+
+
+def _add_compare(sub) -> None:
+    c = _command(
+        sub, "compare", "run_compare", "score a model against the path tracer and baselines"
+    )
+    c.add_argument("scene", help="the scene (fitted here unless --model is given)")
+    c.add_argument("--model", help="a model file of that scene")
+    _gaussians(c)
+    _env(c, "default: the scene's")
+    _output(c, "lobelight-compare", "output folder (images, compare.json)")
+    _spp(c, 1024)
+    c.add_argument("--rotate", type=float, default=None, help="turn the lighting (degrees)")
+    _backend(c)
+    c.add_argument(
+        "--baselines",
+        nargs="*",
+        default=["linear", "no_visibility", "sh10"],
+        choices=["linear", "no_visibility", "sh10"],
+        help="the paper's baselines to score as well",
+    )
+    _base_res(c)
+    _sun(c)
+    _size(c, 192, 144)
+
+
+def _add_compare_brdf(sub) -> None:
+    cb = _command(
+        sub,
+        "compare-brdf",
+        "run_compare_brdf",
+        "SG-mixture BRDFs vs filtered importance sampling, Wang 2009 and the reference",
+    )
+    _output(cb, "lobelight-compare-brdf", "output folder")
+    _env(cb, "default: the built-in sky")
+    _square(cb, 128)
+    _spp(cb, 4096)
+    cb.add_argument(
+        "--backend",
+        choices=["auto", "gl", "torch", "both"],
+        default="auto",
+        help="gl (or both) also renders ours and FIS-40 with the GLSL shaders (PSNR and fps "
+        "rows); auto: where a context opens",
+    )
+
+
+def _add_gallery(sub) -> None:
+    ga = _command(
+        sub,
+        "gallery",
+        "run_gallery",
+        "score real scenes against Mitsuba 3 references (DEVELOPERS.md renders them)",
+    )
+    add_gallery_arguments(ga)
+
+
+def _add_figure5(sub) -> None:
+    f = _command(sub, "figure5", "run_figure5", "the paper's Figure 5: Gaussians vs Haar vs SH")
+    _output(f, "lobelight-figure5", "output folder")
+
+
+def _add_lobes_demo(sub) -> None:
+    ld = _command(
+        sub,
+        "lobes-demo",
+        "run_lobes_demo",
+        "cosine lobes: a moving light and occluder with soft shadows, to PNGs and a GIF",
+    )
+    _output(ld, "lobelight-lobes", "output folder")
+    ld.add_argument("--frames", type=int, default=24, help="frames of the animation")
+    _square(ld, 256)
+    ld.add_argument(
+        "--fused",
+        action="store_true",
+        help="shade with torch.compile'd kernels (faster frames after a compile of up to a minute)",
+    )
+
+
+def _add_bench(sub) -> None:
+    be = _command(sub, "bench", "run_bench", "benchmarks with machine-readable output")
+    be.add_argument(
+        "what",
+        choices=[
+            "all",
+            "prefilter",
+            "transport",
+            "fit",
+            "render",
+            "rays",
+            "lobe-tables",
+            "lobes",
+            "brdf-fit",
+        ],
+        help="which benchmark (all: every benchmark with a goal, on --device, in one run)",
+    )
+    _output(be, None, "bench all: JSON file of the results, rewritten after each benchmark")
+    be.add_argument(
+        "--budget",
+        type=float,
+        default=None,
+        help="bench all: seconds after which benchmarks not yet started are skipped",
+    )
+    be.add_argument("--scene", default="knot:2", help="scene of transport/fit (knot:2: 11.5K)")
+    _gaussians(be)
+    be.add_argument("--material", default="ward", help="brdf-fit material (ward, ward_aniso)")
+    _base_res(be, 512)
+    _backend(be)
+    be.add_argument(
+        "--repeats",
+        type=int,
+        default=None,
+        help="timed repeats (default: prefilter 3 builds, lobes 20 frames: on a shared "
+        "machine the best of a few frames is mostly noise)",
+    )
+    _sun(be, default=False)
+    _samples(be, 1)

@@ -1,0 +1,170 @@
+"""``lobelight gallery {list,references,run}``: its arguments (:func:`add_arguments`, built
+without importing torch) and what each action does (:func:`gallery_main`).
+
+The gallery itself, its scenes, references, run and scores, is :mod:`lobelight.studies.gallery`;
+its submodules load when first used, so the parser reads the reference settings' defaults
+without loading the rest.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+from typing import Any
+
+from ..data import DATA_ENV
+from ..errors import InputError
+from ..studies import gallery
+from ._size import check_pixels, parse_size
+
+__all__ = ["ACTIONS", "DEFAULT_REFS", "REFS_ENV", "add_arguments", "gallery_main"]
+
+#: The environment variable that names the references folder when ``--refs`` is not given.
+REFS_ENV = "LOBELIGHT_GALLERY_REFS"
+#: The references folder when neither ``--refs`` nor ``$LOBELIGHT_GALLERY_REFS`` is given.
+DEFAULT_REFS = "gallery-refs"
+ACTIONS = ("list", "references", "run")
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    """The gallery's own arguments: the action (``list``, ``references`` or ``run``), the
+    folders, the reference settings, and the bake and render settings (``--json``, ``--device``
+    and ``-q/--quiet`` are every command's)."""
+    parser.add_argument(
+        "action",
+        choices=ACTIONS,
+        help="list: the scenes; references: render the missing or stale Mitsuba references; "
+        "run: bake, render and score the scenes against their references",
+    )
+    parser.add_argument(
+        "--data",
+        default=None,
+        help=f"data folder with meshes/ and envmaps/ (default ${DATA_ENV})",
+    )
+    parser.add_argument(
+        "--refs",
+        default=None,
+        help=f"references folder (default ${REFS_ENV}, else ./{DEFAULT_REFS})",
+    )
+    parser.add_argument(
+        "--scenes", nargs="+", default=None, help="scene or bake names (default: all of them)"
+    )
+    _add_reference_settings(parser.add_argument_group("references"))
+    _add_run_settings(parser.add_argument_group("run"))
+
+
+def _add_reference_settings(r) -> None:
+    d = gallery.ReferenceSettings()
+    r.add_argument("--spp", type=int, default=d.spp, help="samples per pixel")
+    r.add_argument("--pass-spp", type=int, default=d.pass_spp, help="samples per render pass")
+    r.add_argument("--max-depth", type=int, default=d.max_depth, help="Mitsuba's path depth")
+    r.add_argument("--size", default=f"{d.width}", help="image size: N or WxH")
+    r.add_argument("--seed", type=int, default=d.seed, help="the passes' base seed")
+    r.add_argument(
+        "--variant",
+        default=None,
+        help=f"Mitsuba variant (default: the first of {', '.join(gallery.VARIANTS)} that runs)",
+    )
+    r.add_argument("--force", action="store_true", help="render every reference again")
+
+
+def _add_run_settings(g) -> None:
+    g.add_argument(
+        "-o",
+        "--output",
+        default="lobelight-gallery",
+        help="output folder (models, strips, JSON)",
+    )
+    g.add_argument(
+        "--gaussians",
+        type=int,
+        default=None,
+        choices=[1, 2, 3],
+        help="Gaussians per view of every bake (default: each bake's own, 2 for the metals)",
+    )
+    g.add_argument(
+        "--samples", type=int, default=16, help="our samples per pixel (box filter, 1..256)"
+    )
+    g.add_argument(
+        "--backend", choices=["auto", "gl", "torch"], default="auto", help="our renderer"
+    )
+    g.add_argument(
+        "--base-res",
+        type=int,
+        default=256,
+        help="face resolution of the sharpest prefiltered level",
+    )
+    g.add_argument(
+        "--sun",
+        action=argparse.BooleanOptionalAction,
+        default=True,
+        help="shade the map's sun per pixel with a shadow map",
+    )
+    g.add_argument(
+        "--fit-option",
+        action="append",
+        default=[],
+        metavar="KEY=VALUE",
+        help="another fit_model argument (VALUE read as JSON, else a string); repeatable",
+    )
+
+
+def _fit_options(items: list[str]) -> dict[str, Any]:
+    out: dict[str, Any] = {}
+    for item in items:
+        key, eq, value = item.partition("=")
+        if not eq or not key:
+            raise InputError("--fit-option", f"expected KEY=VALUE, got {item!r}")
+        try:
+            out[key] = json.loads(value)
+        except ValueError:
+            out[key] = value
+    return out
+
+
+def gallery_main(args: argparse.Namespace) -> dict[str, Any]:
+    """Run the action ``args`` ask for (:func:`add_arguments`); returns its summary. Bad input
+    raises :class:`lobelight.errors.InputError` naming it."""
+    progress = not getattr(args, "quiet", False)
+    device = getattr(args, "device", None)
+    refs = args.refs or os.environ.get(REFS_ENV) or DEFAULT_REFS
+    if args.action == "list":
+        return {"scenes": [s.to_dict() for s in gallery.select(args.scenes)]}
+    if args.action == "references":
+        w, h = (check_pixels("--size", v) for v in parse_size(args.size))
+        settings = gallery.ReferenceSettings(
+            spp=args.spp,
+            max_depth=args.max_depth,
+            width=w,
+            height=h,
+            pass_spp=args.pass_spp,
+            seed=args.seed,
+        )
+        return gallery.render_references(
+            args.scenes,
+            data=args.data,
+            refs=refs,
+            settings=settings,
+            variant=args.variant,
+            force=args.force,
+            progress=progress,
+        )
+    if args.action == "run":
+        if not 1 <= args.samples <= 256:
+            raise InputError("--samples", f"must be 1..256, got {args.samples}")
+        return gallery.run(
+            args.scenes,
+            data=args.data,
+            refs=refs,
+            out=args.output,
+            n_gaussians=args.gaussians,
+            samples=args.samples,
+            backend=args.backend,
+            base_res=args.base_res,
+            sun=args.sun,
+            device=device,
+            fit_options=_fit_options(args.fit_option),
+            progress=progress,
+        )
+    raise InputError("action", f"must be one of {ACTIONS}, got {args.action!r}")
