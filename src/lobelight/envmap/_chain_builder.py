@@ -20,7 +20,7 @@ import torch
 
 from .._backend import as_tensor
 from ..errors import InputError
-from ._prefilter import Prefiltered, _build, _check_cube, _lambdas, base_cube, check_settings
+from ._prefilter import Prefiltered, _build, _check_source_cube, _lambdas, base_cube, check_settings
 
 __all__ = ["ChainBuilder"]
 
@@ -103,7 +103,7 @@ class ChainBuilder:
             env = env.to(self.device)
         else:
             env = as_tensor(env, device=self.device, dtype=torch.float32)
-            _check_cube(env, self.base_res)
+            _check_source_cube(env, self.base_res)
         return base_cube(env, self.base_res, check_finite=self.check_finite)
 
     def _chain_of(self, levels, padded, name: str) -> Prefiltered:

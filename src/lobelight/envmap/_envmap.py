@@ -62,6 +62,7 @@ import numpy as np
 import torch
 
 from .._backend import as_tensor
+from .._checks import check_int
 from ..errors import InputError
 from ..geometry import cubemap
 from ._files import save
@@ -268,7 +269,7 @@ class EnvMap:
         (6, R, R, 3) float32 on the map's device. A cube map of the same resolution is returned
         as it is; one whose resolution is a multiple of R is averaged exactly over whole texels.
         """
-        res = _check_int(res, "res")
+        res = check_int(res, "res")
         if self.layout == "cubemap":
             src = self.data.shape[1]
             if src == res:
@@ -291,7 +292,7 @@ class EnvMap:
         -------
         EnvMap with layout ``"latlong"``; this map itself when it already is that size.
         """
-        height = _check_int(height, "height", minimum=3)
+        height = check_int(height, "height", minimum=3)
         if self.layout == "latlong" and self.resolution == (height, 2 * height):
             return self
         cells = _LatlongCells(height, 2 * height, device=self.device)
@@ -750,15 +751,5 @@ def _cube_block_average(cube: torch.Tensor, m: int) -> torch.Tensor:
     return (num / w.sum((2, 4))).float()
 
 
-def _check_int(value: Any, what: str, *, minimum: int = 1) -> int:
-    try:
-        ok = not isinstance(value, bool) and int(value) == value and value >= minimum
-    except (TypeError, ValueError):
-        ok = False
-    if not ok:
-        raise InputError(what, f"must be an integer >= {minimum}, got {value!r}")
-    return int(value)
-
-
 def _check_s(supersample: Any) -> int | None:
-    return None if supersample is None else _check_int(supersample, "supersample")
+    return None if supersample is None else check_int(supersample, "supersample")

@@ -374,7 +374,7 @@ def prefilter(
     else:
         env = as_tensor(env, device=device, dtype=torch.float32)
         source, kind = env, "cube"
-        _check_cube(env, base_res)
+        _check_source_cube(env, base_res)
     if folder is not None:
         description = _description(kind, base_res, phases)
         key = _chain_cache.chain_key(source, description)
@@ -412,8 +412,11 @@ def check_settings(base_res: int, phases: int, blend: str) -> None:
         raise InputError("blend", f"must be 'moment' or 'l2', got {blend!r}")
 
 
-def _check_cube(cube: torch.Tensor, base_res: int) -> None:
-    """Refuse a cube map that is neither ``(6, base_res, base_res, 3)`` nor a finer cube."""
+def _check_source_cube(cube: torch.Tensor, base_res: int) -> None:
+    """Refuse a cube map that is neither ``(6, base_res, base_res, 3)`` nor a finer cube.
+
+    Not :func:`lobelight._checks.check_cube`: a chain's source must have three channels and at
+    least ``base_res`` texels a side, and the message names the shape it expects."""
     shape = tuple(cube.shape)
     finer = cube.ndim == 4 and shape[0] == 6 and shape[1] == shape[2] > base_res
     if shape != (6, base_res, base_res, 3) and not (finer and shape[3] == 3):

@@ -30,6 +30,7 @@ from functools import lru_cache
 import torch
 
 from .._backend import as_tensor, dispatch
+from .._checks import check_cube
 from ..errors import InputError
 
 __all__ = [
@@ -227,11 +228,6 @@ def texel_solid_angles(res: int, *, device=None, dtype=torch.float32) -> torch.T
     return omega.abs().expand(6, res, res).to(dtype).contiguous()
 
 
-def _check_cube(cube: torch.Tensor, name: str = "cube") -> None:
-    if cube.ndim != 4 or cube.shape[0] != 6 or cube.shape[1] != cube.shape[2]:
-        raise InputError(name, f"must be a (6, R, R, C) cube map, got shape {tuple(cube.shape)}")
-
-
 @lru_cache(maxsize=64)
 def seamless_pad_plan(res: int, pad: int, device: torch.device) -> tuple[torch.Tensor, ...]:
     """The index plan of :func:`pad_seamless`: border texels of the padded faces, the texels
@@ -279,8 +275,7 @@ def pad_seamless(cube: torch.Tensor, pad: int = 1) -> torch.Tensor:
     -------
     (6, R + 2 pad, R + 2 pad, C)
     """
-    _check_cube(cube)
-    res = cube.shape[1]
+    res = check_cube(cube)
     n = res + 2 * pad
     out = cube.new_empty(6, n, n, *cube.shape[3:])
     out[:, pad : pad + res, pad : pad + res] = cube
@@ -311,9 +306,8 @@ def sample(
     -------
     (..., C) values, dtype of ``cube``.
     """
-    _check_cube(cube)
+    res = check_cube(cube)
     dirs = as_tensor(dirs, device=cube.device)
-    res = cube.shape[1]
     if padded is None:
         padded = pad_seamless(cube)
     face, u, v = direction_to_face_uv(dirs)
@@ -345,8 +339,7 @@ def downsample(cube: torch.Tensor) -> torch.Tensor:
     -------
     (6, R/2, R/2, C)
     """
-    _check_cube(cube)
-    res = cube.shape[1]
+    res = check_cube(cube)
     if res % 2:
         raise InputError("cube", f"resolution must be even to downsample, got {res}")
     w = texel_solid_angles(res, device=cube.device, dtype=cube.dtype).unsqueeze(-1)

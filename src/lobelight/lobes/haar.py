@@ -51,21 +51,13 @@ import operator
 import torch
 
 from .._backend import as_tensor, dispatch
+from .._checks import check_cube
 from ..errors import InputError
 
 __all__ = ["approximate", "forward", "inverse", "truncate"]
 
 # Rec. 709 / sRGB luminance weights for by="luminance" on RGB.
 _LUMA = (0.2126, 0.7152, 0.0722)
-
-
-def _check_cube(cube: torch.Tensor, name: str) -> int:
-    if cube.ndim != 4 or cube.shape[0] != 6 or cube.shape[1] != cube.shape[2]:
-        raise InputError(name, f"must be a (6, R, R, C) cube map, got shape {tuple(cube.shape)}")
-    res = cube.shape[1]
-    if res < 1 or res & (res - 1):
-        raise InputError(name, f"face resolution must be a power of two, got {res}")
-    return res
 
 
 def _forward(x: torch.Tensor) -> torch.Tensor:
@@ -129,7 +121,7 @@ def forward(cube):
     of ``cube``.
     """
     cube = as_tensor(cube)
-    _check_cube(cube, "cube")
+    check_cube(cube, power_of_two=True)
     return _forward(cube)
 
 
@@ -146,7 +138,7 @@ def inverse(coeffs):
     (6, R, R, C), dtype and device of ``coeffs``.
     """
     coeffs = as_tensor(coeffs)
-    _check_cube(coeffs, "coeffs")
+    check_cube(coeffs, "coeffs", power_of_two=True)
     return _inverse(coeffs)
 
 
@@ -180,7 +172,7 @@ def truncate(coeffs, k, *, by="norm"):
     dtype and device of ``coeffs``.
     """
     coeffs = as_tensor(coeffs)
-    res = _check_cube(coeffs, "coeffs")
+    res = check_cube(coeffs, "coeffs", power_of_two=True)
     total = 6 * res * res
     try:
         kk = None if isinstance(k, bool) else operator.index(k)  # ints and numpy integers

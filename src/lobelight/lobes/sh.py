@@ -59,6 +59,7 @@ import numpy as np
 import torch
 
 from .._backend import as_tensor, dispatch
+from .._checks import check_cube, check_directions
 from ..errors import InputError
 from ..geometry.cubemap import texel_directions, texel_solid_angles
 
@@ -133,11 +134,6 @@ def _band_index(order: int, *, device=None) -> torch.Tensor:
     return torch.repeat_interleave(ls, 2 * ls + 1)
 
 
-def _check_dirs(dirs: torch.Tensor, name: str = "dirs") -> None:
-    if dirs.ndim < 1 or dirs.shape[-1] != 3:
-        raise InputError(name, f"must be an (..., 3) array of directions, got {tuple(dirs.shape)}")
-
-
 def _check_coeffs(coeffs: torch.Tensor) -> int:
     if coeffs.ndim not in (1, 2):
         raise InputError(
@@ -202,7 +198,7 @@ def basis(dirs, order):
     (..., order**2) in the dtype of ``dirs`` (computed in float64), on its device.
     """
     dirs = as_tensor(dirs)
-    _check_dirs(dirs)
+    check_directions(dirs)
     order = _check_order(order)
     out_dtype = _float_dtype(dirs)
     d = torch.nn.functional.normalize(dirs.to(_work_dtype(dirs.device)), dim=-1)
@@ -244,7 +240,7 @@ def project(values, dirs, weights, order):
     (float32 for integer input), on its device. Accumulated in float64.
     """
     values, dirs, weights = as_tensor(values), as_tensor(dirs), as_tensor(weights)
-    _check_dirs(dirs)
+    check_directions(dirs)
     order = _check_order(order)
     lead = dirs.shape[:-1]
     if tuple(weights.shape) != tuple(lead):
@@ -259,11 +255,6 @@ def project(values, dirs, weights, order):
     out = _project(v, dirs.to(dev).reshape(-1, 3), weights.to(dev).reshape(-1), order)
     out = out.to(_float_dtype(values))
     return out[:, 0] if scalar else out
-
-
-def _check_cube(cube: torch.Tensor, name: str = "cube") -> None:
-    if cube.ndim != 4 or cube.shape[0] != 6 or cube.shape[1] != cube.shape[2]:
-        raise InputError(name, f"must be a (6, R, R, C) cube map, got shape {tuple(cube.shape)}")
 
 
 @dispatch
@@ -284,7 +275,7 @@ def project_cubemap(cube, order):
     (order**2, C) in the cube's dtype, on its device.
     """
     cube = as_tensor(cube)
-    _check_cube(cube)
+    check_cube(cube)
     order = _check_order(order)
     res, dev = cube.shape[1], cube.device
     wd = _work_dtype(dev)
@@ -329,7 +320,7 @@ def reconstruct(coeffs, dirs):
     """
     coeffs, dirs = as_tensor(coeffs), as_tensor(dirs)
     order = _check_coeffs(coeffs)
-    _check_dirs(dirs)
+    check_directions(dirs)
     dev = coeffs.device
     wd = _work_dtype(dev)
     lead = dirs.shape[:-1]
@@ -648,7 +639,7 @@ def zonal_to_sh(zonal, axis):
     (..., order**2) in the dtype of ``zonal``.
     """
     zonal, axis = as_tensor(zonal), as_tensor(axis)
-    _check_dirs(axis, "axis")
+    check_directions(axis, "axis")
     if zonal.ndim < 1:
         raise InputError("zonal", "must have a band axis (..., order)")
     order = zonal.shape[-1]
