@@ -71,10 +71,10 @@ import OpenEXR
 import torch
 
 from .._io import IMAGE_LIMIT, read_input
-from .._library_output import library_output
 from ..errors import InputError
 from ._envmap import EnvMap, describe_bad_values
 from ._files import _EXTENSIONS, _GRID, CROSS_FACES, FILE_LAYOUTS, cross_pixels, save
+from ._library_output import library_output
 
 # the layouts and save live in _files (EnvMap.save calls it there without an import circle)
 __all__ = ["CROSS_FACES", "FILE_LAYOUTS", "cross_pixels", "load", "save"]
