@@ -102,33 +102,9 @@ def turntable(
     ``seconds_write`` (the files) and ``seconds`` (all of it)
     """
     t0 = time.perf_counter()
-    if not isinstance(renderer, Renderer):
-        raise InputError("renderer", f"expected a Renderer, got {type(renderer).__name__}")
-    if not isinstance(camera, Camera):
-        raise InputError("camera", f"expected a Camera, got {type(camera).__name__}")
-    if isinstance(n_frames, bool) or not isinstance(n_frames, (int, np.integer)) or n_frames < 1:
-        raise InputError("n_frames", f"must be a positive integer, got {n_frames!r}")
-    n = int(n_frames)
-    if rotate not in ROTATIONS:
-        raise InputError("rotate", f"must be one of {ROTATIONS}, got {rotate!r}")
-    if curve not in CURVES:
-        raise InputError("curve", f"must be one of {CURVES}, got {curve!r}")
-    if exposure is not None and not math.isfinite(float(exposure)):
-        raise InputError("exposure", f"must be a finite number of stops, got {exposure!r}")
-    if not (isinstance(fps, (int, float)) and math.isfinite(fps) and fps > 0):
-        raise InputError("fps", f"must be a positive number, got {fps!r}")
+    n = _check_arguments(renderer, camera, n_frames, rotate, curve, exposure, fps)
     base = as_rotation(light_rotation)
-    out = Path(out_dir)
-    anim = None if animation is None else check_type(out / animation, ANIMATION_TYPES)
-    if anim is not None and anim.suffix.lower() == ".webp" and not features.check("webp"):
-        raise InputError(str(anim), "this Pillow has no WebP support: use .gif")
-    if out.exists() and not out.is_dir():
-        raise InputError(str(out), "is a file, not a folder for the frames")
-    out.mkdir(parents=True, exist_ok=True)
-    digits = max(3, len(str(n - 1)))
-    paths = [check_output_path(out / f"frame_{k:0{digits}d}.png") for k in range(n)]
-    if anim is not None:
-        check_output_path(anim, types=ANIMATION_TYPES)
+    paths, anim = _output_paths(Path(out_dir), n, animation)
     report = resolve(progress)
 
     t_render = t_write = 0.0
@@ -171,6 +147,42 @@ def turntable(
         "seconds_write": t_write,
         "seconds": time.perf_counter() - t0,
     }
+
+
+def _check_arguments(renderer, camera, n_frames, rotate, curve, exposure, fps) -> int:
+    """:func:`turntable`'s arguments checked (InputError naming the first bad one); returns
+    the number of frames."""
+    if not isinstance(renderer, Renderer):
+        raise InputError("renderer", f"expected a Renderer, got {type(renderer).__name__}")
+    if not isinstance(camera, Camera):
+        raise InputError("camera", f"expected a Camera, got {type(camera).__name__}")
+    if isinstance(n_frames, bool) or not isinstance(n_frames, (int, np.integer)) or n_frames < 1:
+        raise InputError("n_frames", f"must be a positive integer, got {n_frames!r}")
+    if rotate not in ROTATIONS:
+        raise InputError("rotate", f"must be one of {ROTATIONS}, got {rotate!r}")
+    if curve not in CURVES:
+        raise InputError("curve", f"must be one of {CURVES}, got {curve!r}")
+    if exposure is not None and not math.isfinite(float(exposure)):
+        raise InputError("exposure", f"must be a finite number of stops, got {exposure!r}")
+    if not (isinstance(fps, (int, float)) and math.isfinite(fps) and fps > 0):
+        raise InputError("fps", f"must be a positive number, got {fps!r}")
+    return int(n_frames)
+
+
+def _output_paths(out: Path, n: int, animation) -> tuple[list[Path], Path | None]:
+    """The ``n`` frames' paths in ``out`` (made if missing) and the animation's path (None
+    for none), each checked as an output before any frame is rendered."""
+    anim = None if animation is None else check_type(out / animation, ANIMATION_TYPES)
+    if anim is not None and anim.suffix.lower() == ".webp" and not features.check("webp"):
+        raise InputError(str(anim), "this Pillow has no WebP support: use .gif")
+    if out.exists() and not out.is_dir():
+        raise InputError(str(out), "is a file, not a folder for the frames")
+    out.mkdir(parents=True, exist_ok=True)
+    digits = max(3, len(str(n - 1)))
+    paths = [check_output_path(out / f"frame_{k:0{digits}d}.png") for k in range(n)]
+    if anim is not None:
+        check_output_path(anim, types=ANIMATION_TYPES)
+    return paths, anim
 
 
 def _write_animation(tmp: str, frames: list[Path], ext: str, fps: float) -> None:

@@ -59,6 +59,107 @@ def _open_window(width: int, height: int, title: str):
     return glfw, win
 
 
+class _Controls:
+    """What the mouse and the keys set (see the module): the camera's orbit about the model,
+    the lighting's turn, the exposure, the parts shown, the curve, the samples per pixel and
+    the map; the window's input callbacks are its methods."""
+
+    def __init__(self, glfw, win, ren: Renderer, maps: list, radius: float):
+        self.glfw, self.win, self.ren, self.maps = glfw, win, ren, maps
+        self.yaw, self.pitch = 0.0, 0.3
+        self.dist = radius / math.sin(math.radians(20)) * 1.1
+        self.light = 0.0
+        self.exposure = 0.0
+        self.parts = (True, True)
+        self.aces = False
+        self.samples = ren.samples
+        self.map = 0
+        self.drag = None
+        self.last = (0.0, 0.0)
+        glfw.set_mouse_button_callback(win, self.on_button)
+        glfw.set_cursor_pos_callback(win, self.on_move)
+        glfw.set_scroll_callback(win, self.on_scroll)
+        glfw.set_key_callback(win, self.on_key)
+
+    def on_button(self, _w, button, action, _mods) -> None:
+        self.drag = button if action == self.glfw.PRESS else None
+        self.last = self.glfw.get_cursor_pos(self.win)
+
+    def on_move(self, _w, x, y) -> None:
+        if self.drag is None:
+            return
+        dx, dy = x - self.last[0], y - self.last[1]
+        self.last = (x, y)
+        if self.drag == self.glfw.MOUSE_BUTTON_LEFT:
+            self.yaw -= dx * 0.01
+            self.pitch = min(1.5, max(-1.5, self.pitch + dy * 0.01))
+        else:
+            self.light += dx * 0.5
+
+    def on_scroll(self, _w, _dx, dy) -> None:
+        self.dist *= 0.9**dy
+
+    def on_key(self, _w, key, _sc, action, _mods) -> None:
+        glfw, ren = self.glfw, self.ren
+        if action != glfw.PRESS:
+            return
+        if key == glfw.KEY_ESCAPE:
+            glfw.set_window_should_close(self.win, True)
+        elif key == glfw.KEY_D:
+            self.parts = (True, False)
+        elif key == glfw.KEY_G:
+            self.parts = (False, True)
+        elif key == glfw.KEY_B:
+            self.parts = (True, True)
+        elif key in (glfw.KEY_EQUAL, glfw.KEY_KP_ADD):
+            self.exposure += 0.5
+        elif key in (glfw.KEY_MINUS, glfw.KEY_KP_SUBTRACT):
+            self.exposure -= 0.5
+        elif key == glfw.KEY_T:
+            self.aces = not self.aces
+        elif key == glfw.KEY_A:
+            self.samples = 1 if self.samples > 1 else ren.samples
+            ren._gl.set_offsets(sample_offsets(self.samples))
+        elif key == glfw.KEY_E and len(self.maps) > 1:
+            self.map = (self.map + 1) % len(self.maps)
+            ren.set_environment(self.maps[self.map])
+            ren._gl.set_offsets(sample_offsets(self.samples))  # a remade renderer's
+
+    def camera(self, centre: list[float]) -> Camera:
+        """The camera on its orbit about ``centre``."""
+        cp, sp = math.cos(self.pitch), math.sin(self.pitch)
+        eye = np.array(centre) + self.dist * np.array(
+            [cp * math.sin(self.yaw), sp, cp * math.cos(self.yaw)]
+        )
+        return Camera.look_at(tuple(eye), tuple(centre), fov=40.0)
+
+    def title(self, fps: float) -> str:
+        return (
+            f"lobelight  {fps:.1f} fps  exposure {self.exposure:+.1f}  "
+            f"{self.samples} sample(s)/pixel  {os.path.basename(self.maps[self.map].name)}"
+        )
+
+
+def _run(glfw, win, ctx, ren: Renderer, controls: _Controls, centre: list[float]) -> int:
+    """Draw frames until the window is closed, the frame rate in the title every half
+    second; returns the frames drawn."""
+    frames, tick, shown = 0, time.perf_counter(), 0
+    while not glfw.window_should_close(win):
+        d, g = controls.parts
+        ren._gl.draw(controls.camera(centre), as_rotation(controls.light), diffuse=d, glossy=g)
+        ren._gl.present(
+            ctx.screen, exposure=controls.exposure, curve="aces" if controls.aces else "srgb"
+        )
+        glfw.swap_buffers(win)
+        glfw.poll_events()
+        frames += 1
+        now = time.perf_counter()
+        if now - tick > 0.5:
+            glfw.set_window_title(win, controls.title((frames - shown) / (now - tick)))
+            tick, shown = now, frames
+    return frames
+
+
 def view(
     model_path,
     *,
@@ -89,91 +190,9 @@ def view(
         verts = model.mesh.vertices
         centre = ((verts.amin(0) + verts.amax(0)) / 2).tolist()
         radius = float((verts - verts.mean(0)).norm(dim=-1).max())
-        st = {
-            "yaw": 0.0,
-            "pitch": 0.3,
-            "dist": radius / math.sin(math.radians(20)) * 1.1,
-            "light": 0.0,
-            "exposure": 0.0,
-            "parts": (True, True),
-            "aces": False,
-            "samples": ren.samples,
-            "map": 0,
-            "drag": None,
-            "last": (0.0, 0.0),
-        }
-
-        def on_button(_w, button, action, _mods):
-            st["drag"] = button if action == glfw.PRESS else None
-            st["last"] = glfw.get_cursor_pos(win)
-
-        def on_move(_w, x, y):
-            if st["drag"] is None:
-                return
-            dx, dy = x - st["last"][0], y - st["last"][1]
-            st["last"] = (x, y)
-            if st["drag"] == glfw.MOUSE_BUTTON_LEFT:
-                st["yaw"] -= dx * 0.01
-                st["pitch"] = min(1.5, max(-1.5, st["pitch"] + dy * 0.01))
-            else:
-                st["light"] += dx * 0.5
-
-        def on_scroll(_w, _dx, dy):
-            st["dist"] *= 0.9**dy
-
-        def on_key(_w, key, _sc, action, _mods):
-            if action != glfw.PRESS:
-                return
-            if key == glfw.KEY_ESCAPE:
-                glfw.set_window_should_close(win, True)
-            elif key == glfw.KEY_D:
-                st["parts"] = (True, False)
-            elif key == glfw.KEY_G:
-                st["parts"] = (False, True)
-            elif key == glfw.KEY_B:
-                st["parts"] = (True, True)
-            elif key in (glfw.KEY_EQUAL, glfw.KEY_KP_ADD):
-                st["exposure"] += 0.5
-            elif key in (glfw.KEY_MINUS, glfw.KEY_KP_SUBTRACT):
-                st["exposure"] -= 0.5
-            elif key == glfw.KEY_T:
-                st["aces"] = not st["aces"]
-            elif key == glfw.KEY_A:
-                st["samples"] = 1 if st["samples"] > 1 else ren.samples
-                ren._gl.set_offsets(sample_offsets(st["samples"]))
-            elif key == glfw.KEY_E and len(maps) > 1:
-                st["map"] = (st["map"] + 1) % len(maps)
-                ren.set_environment(maps[st["map"]])
-                ren._gl.set_offsets(sample_offsets(st["samples"]))  # a remade renderer's
-
-        glfw.set_mouse_button_callback(win, on_button)
-        glfw.set_cursor_pos_callback(win, on_move)
-        glfw.set_scroll_callback(win, on_scroll)
-        glfw.set_key_callback(win, on_key)
-        frames, t0, tick, shown = 0, time.perf_counter(), time.perf_counter(), 0
-        while not glfw.window_should_close(win):
-            cp, sp = math.cos(st["pitch"]), math.sin(st["pitch"])
-            eye = np.array(centre) + st["dist"] * np.array(
-                [cp * math.sin(st["yaw"]), sp, cp * math.cos(st["yaw"])]
-            )
-            cam = Camera.look_at(tuple(eye), tuple(centre), fov=40.0)
-            d, g = st["parts"]
-            ren._gl.draw(cam, as_rotation(st["light"]), diffuse=d, glossy=g)
-            ren._gl.present(
-                ctx.screen, exposure=st["exposure"], curve="aces" if st["aces"] else "srgb"
-            )
-            glfw.swap_buffers(win)
-            glfw.poll_events()
-            frames += 1
-            now = time.perf_counter()
-            if now - tick > 0.5:
-                fps = (frames - shown) / (now - tick)
-                glfw.set_window_title(
-                    win,
-                    f"lobelight  {fps:.1f} fps  exposure {st['exposure']:+.1f}  "
-                    f"{st['samples']} sample(s)/pixel  {os.path.basename(maps[st['map']].name)}",
-                )
-                tick, shown = now, frames
+        controls = _Controls(glfw, win, ren, maps, radius)
+        t0 = time.perf_counter()
+        frames = _run(glfw, win, ctx, ren, controls, centre)
         ren.close()
         return {
             "command": "view",
