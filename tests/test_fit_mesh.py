@@ -157,7 +157,7 @@ def test_a_corrupt_checkpoint_is_moved_aside_and_the_bake_starts_afresh(tmp_path
         raw[third : 2 * third] = bytes(b ^ 0x5A for b in raw[third : 2 * third])
     ck.write_bytes(bytes(raw))
     log: list = []
-    with caplog.at_level("WARNING", logger="lobelight.fit._floodfill"):
+    with caplog.at_level("WARNING", logger="lobelight.fit._checkpoint"):
         done = fit.fit_mesh(sc, **kw, checkpoint=ck, progress=_killer("none", 0, log))
     assert log[0] == ("fit", 1)  # from the start
     _same(done, clean)
@@ -171,8 +171,8 @@ def test_a_corrupt_checkpoint_is_moved_aside_and_the_bake_starts_afresh(tmp_path
     reason="mallopt is glibc's (Linux); elsewhere keep_freed_memory is a documented no-op",
 )
 def test_freed_memory_is_kept_for_reuse_on_glibc():
-    # the fit's allocator setting (lobelight._process): mallopt accepted all three parameters
-    from lobelight._process import keep_freed_memory
+    # the fit's allocator setting (lobelight.cli._process): mallopt accepted all three parameters
+    from lobelight.cli._process import keep_freed_memory
 
     assert keep_freed_memory() is True
     assert keep_freed_memory() is True  # idempotent

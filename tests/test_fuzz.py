@@ -44,7 +44,7 @@ from conftest import tiny_table_params
 from lobelight import cli, cosine, envmap, fit, model, scene
 from lobelight.cli import _commands
 from lobelight.errors import InputError
-from lobelight.fit import Gaussians, MeshFit, _floodfill
+from lobelight.fit import Gaussians, MeshFit, _checkpoint
 from lobelight.geometry import sphere
 
 # one load may take this long before it counts as a hang (loads here take milliseconds)
@@ -773,7 +773,7 @@ def checkpoint_file(tmp_path_factory):
     with np.load(path, allow_pickle=False) as z:
         key = json.loads(bytes(z["meta"]).decode())["key"]
         shapes = {k: (z[k].shape, z[k].dtype) for k in z.files if k != "meta"}
-    return path.read_bytes(), key, shapes, _floodfill
+    return path.read_bytes(), key, shapes, _checkpoint
 
 
 def _resume_or_start_afresh(tmp_path, checkpoint_file, data: bytes) -> None:
@@ -786,10 +786,10 @@ def _resume_or_start_afresh(tmp_path, checkpoint_file, data: bytes) -> None:
     state = {k: torch.zeros(s, dtype=torch.from_numpy(np.zeros(0, d)).dtype) for k, (s, d) in
              shapes.items()}  # fmt: skip
     with _time_limit(LOAD_SECONDS):
-        stage, nxt, fb, fa = ff._resume(path, key, state)
-    assert stage in ff._STAGES and nxt >= 0
+        stage, nxt, fb, fa = ff.Checkpoint(path, key).resume(state)
+    assert stage in ff.STAGES and nxt >= 0
     assert all(isinstance(x, int) for x in (*fb, *fa))
-    if (stage, nxt) == ff._FRESH[:2]:
+    if (stage, nxt) == ff.START[:2]:
         _tally("clean_errors")
     else:
         assert all(_finite(t) for t in state.values() if t.is_floating_point())

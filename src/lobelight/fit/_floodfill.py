@@ -15,42 +15,24 @@ flipped neighbour pairs is reported before and after.
 
 from __future__ import annotations
 
-import hashlib
-import json
-import logging
 import os
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
-from pathlib import Path
 
-import numpy as np
 import torch
 
-from .._cache import UNREADABLE
-from .._io import atomic_writer
 from ..errors import InputError
-from ..geometry import cubemap, sphere
+from ..geometry import sphere
 from ..scene import Mesh, Scene
-from ..transport import BOUNCES, DIFFUSE_ORDER, INDIRECT_PATHS, Transport, diffuse_interreflection
-from ._data import gather, lobe_estimate
-from ._objective import Weights, flip_count, mixture, solve_weights
-from ._optimize import Gaussians, fit_batch, initial_guess
-from ._relax import live_gaussians, reorder_mesh, separated_pairs, vertex_flips
+from ..transport import BOUNCES, INDIRECT_PATHS, Transport, diffuse_interreflection
+from ._checkpoint import Checkpoint, Position, settings_key
+from ._chunk import Bake, Chunk, fit_chunk, plan_chunks, refit_chunk
+from ._objective import Weights, flip_count
+from ._optimize import Gaussians
+from ._relax import SEPARATED, live_gaussians, reorder_mesh, separated_pairs
 
 __all__ = ["MeshFit", "count_flips", "fit_mesh", "wavefronts"]
-
-logger = logging.getLogger(__name__)
-
-#: Face resolution of the cube map the indirect glossy paths are binned on: at 16 paths per view,
-#: 8^2 halves the light's error per (vertex, view) against 16^2 bins (docs/method.md).
-INDIRECT_RES = 8
-#: Processed neighbours a vertex's S term reads (the rest of a high-valence fan is dropped).
-MAX_NEIGHBOURS = 8
-#: Lobes this many widths apart or more have an arrangement that a flip visibly breaks; closer
-#: ones (a sharp core on a broad skirt) are ordered by width, and the direction between them is
-#: noise (:func:`count_flips`).
-SEPARATED = 0.5
 
 
 def wavefronts(mesh: Mesh) -> list[torch.Tensor]:
@@ -182,52 +164,6 @@ def default_batch(device, n: int) -> int:
     return int(min(2048, max(64, (0.5 * free / per_vertex) // 64 * 64)))
 
 
-def _processed_neighbours(
-    mesh: Mesh, vidx: torch.Tensor, done: torch.Tensor
-) -> tuple[torch.Tensor, torch.Tensor]:
-    """Up to MAX_NEIGHBOURS processed neighbours per vertex: ids (B, Q) and mask (B, Q)."""
-    off, nb = mesh.adjacency
-    dev = vidx.device
-    q = MAX_NEIGHBOURS
-    starts, lens = off[vidx], (off[vidx + 1] - off[vidx]).clamp(max=4 * q)
-    slot = torch.arange(4 * q, device=dev)
-    idx = (starts[:, None] + slot).clamp(max=nb.numel() - 1)
-    cand = nb[idx]  # (B, 4Q)
-    ok = (slot[None] < lens[:, None]) & done[cand]
-    # keep the first Q processed ones: sort slots so that valid ones come first
-    order = torch.argsort((~ok).to(torch.int8), dim=1, stable=True)[:, :q]
-    ids = torch.gather(cand, 1, order)
-    mask = torch.gather(ok, 1, order)
-    return ids, mask
-
-
-def _better_start(data, n: int, nbr_views: torch.Tensor, neighbour: Gaussians) -> Gaussians:
-    """Per view, the neighbour's Gaussians or the data's own initial guess, whichever fits the
-    view's samples better (weights solved for both).
-
-    Why: a neighbour's lobes keep the labels coherent across the mesh, but on a coarse mesh
-    neighbouring vertices' mirror directions differ by tens of degrees (60 on the default knot),
-    so a sharp lobe taken over from a neighbour can miss this vertex's data altogether; with no
-    overlap the fit has no gradient and stays there. Measured on the knot with two Gaussians:
-    always starting from the neighbour ends at mean relative error 0.178 (one Gaussian: 0.173),
-    never starting from it at 0.156.
-    """
-    own = initial_guess(data, n, nbr_views=nbr_views)
-    w_nb = solve_weights(data, neighbour.mu, neighbour.lam)
-
-    def per_view(g_w, g_mu, g_lam):
-        r = mixture(data, g_w, g_mu, g_lam) - data.values  # (B, J, S, 3)
-        return (data.weights[..., None] * r * r).sum((-1, -2))  # (B, J)
-
-    take = per_view(w_nb, neighbour.mu, neighbour.lam) <= per_view(own.w, own.mu, own.lam)
-    t = take[..., None]
-    return Gaussians(
-        torch.where(t[..., None], w_nb, own.w),
-        torch.where(t[..., None], neighbour.mu, own.mu),
-        torch.where(t, neighbour.lam, own.lam),
-    )
-
-
 def fit_mesh(
     scene: Scene,
     *,
@@ -254,6 +190,10 @@ def fit_mesh(
     glossy light per pixel and the fitted lobes see the map without it (the light a mirror
     shows of the sun in another mirror); folded into a fitted lobe, that light would light the
     direct reflection's place instead.
+
+    The work runs in stages (:data:`lobelight.fit._checkpoint.STAGES`): the flood fill and the
+    relaxation by chunks of vertices (:class:`lobelight.fit._chunk.Chunk`), then the diffuse
+    interreflection.
 
     Parameters
     ----------
@@ -285,54 +225,12 @@ def fit_mesh(
     tr = Transport(scene, device=device, shadows=shadows)
     dev = tr.device
     batch = default_batch(dev, n) if batch is None else int(batch)
-    if batch < 1:
-        raise InputError("batch", f"must be a positive number of vertices, got {batch}")
-    for name, value in (("indirect_paths", indirect_paths), ("bounces", bounces)):
-        if isinstance(value, bool) or int(value) != value or value < 0:
-            raise InputError(name, f"must be a whole number >= 0 (0: off), got {value!r}")
-    indirect_paths, bounces = int(indirect_paths), int(bounces)
-    mesh = tr.mesh
+    indirect_paths, bounces = _counts(batch, indirect_paths, bounces)
     views = sphere.geodesic_views(device=dev) if views is None else views.to(dev)
-    nbr_views = sphere.geodesic_neighbor_table(device=dev)
-    v, j = mesh.n_vertices, views.shape[0]
-    mu = torch.zeros(v, j, n, 3, device=dev)
-    lam = torch.ones(v, j, n, device=dev)
-    w = torch.zeros(v, j, n, 3, device=dev)
-    # the indirect glossy Gaussian of each (vertex, view)
-    ind_w = torch.zeros(v, j, 1, 3, device=dev)
-    ind_mu = torch.tensor([0.0, 1.0, 0.0], device=dev).expand(v, j, 1, 3).clone()
-    ind_lam = torch.ones(v, j, 1, device=dev)
-    derr = torch.zeros(v, device=dev)
-    diffuse = torch.zeros(v, DIFFUSE_ORDER**2, 3, device=dev)
-    bounce = torch.zeros(v, DIFFUSE_ORDER**2, 3, device=dev)
-    done = torch.zeros(v, dtype=torch.bool, device=dev)
-    # vertices whose material has a glossy lobe (BRDF samples carry weight; known once a
-    # vertex is processed): the others have no glossy transport at all, are given zero weights
-    # without a fit, and are nobody's neighbour in the spatial term (their means are arbitrary)
-    glossy = torch.zeros(v, dtype=torch.bool, device=dev)
-    ddirs = cubemap.texel_directions(16, device=dev).reshape(-1, 3)
-    dom = cubemap.texel_solid_angles(16, device=dev).reshape(-1)
+    bake = Bake.start(tr, views, n=n, weights=weights, indirect_paths=indirect_paths, seed=seed)
     t0 = time.perf_counter()
-    layers = wavefronts(mesh)
-    if n == 1:  # no spatial term: any vertices may share a chunk
-        order = torch.cat(layers)
-        chunks = [order[s : s + batch].to(dev) for s in range(0, v, batch)]
-    else:
-        chunks = [f[s : s + batch].to(dev) for f in layers for s in range(0, f.numel(), batch)]
-    state = {
-        "mu": mu,
-        "lam": lam,
-        "w": w,
-        "derr": derr,
-        "diffuse": diffuse,
-        "bounce": bounce,
-        "done": done,
-        "glossy": glossy,
-        "ind_w": ind_w,
-        "ind_mu": ind_mu,
-        "ind_lam": ind_lam,
-    }
-    key = _settings_key(
+    chunks = plan_chunks(wavefronts(tr.mesh), n=n, batch=batch, device=dev)
+    key = settings_key(
         scene,
         n,
         views,
@@ -342,158 +240,106 @@ def fit_mesh(
         relax,
         seed,
     )
-    ckpt = Path(checkpoint) if checkpoint is not None else None
-    start = _resume(ckpt, key, state) if ckpt is not None else _FRESH
-    stage0 = _STAGES.index(start[0])  # the stage the run (re)starts in
-    last_save = time.perf_counter()
-    before = start[2]  # (all flipped pairs, those of separated lobes), after the flood fill
-    after = start[3]  # the same after the relaxation
-    t_indirect = 0.0
-
-    def save_state(stage: str, nxt: int, *, force: bool = False) -> None:
-        nonlocal last_save
-        if ckpt is None or (not force and time.perf_counter() - last_save < checkpoint_every):
-            return
-        _save_checkpoint(ckpt, key, stage, nxt, state, before, after)
-        last_save = time.perf_counter()
-
-    def fit_chunk(i: int, vidx: torch.Tensor, *, all_neighbours: bool) -> None:
-        nonlocal t_indirect
-        lobe = None
-        if not all_neighbours:
-            diffuse[vidx] = tr.diffuse(vidx, ddirs, dom)
-            done[vidx] = True
-            axis, lam_est, scale = lobe_estimate(tr, vidx, views)
-            gl = (lam_est > 0).any(1)
-            glossy[vidx] = gl
-            rest = ~gl
-            if bool(rest.any()):  # no glossy transport: zero weights, means at the lobe axis
-                mu[vidx[rest]] = axis[rest][:, :, None].expand(-1, -1, n, -1)
-                lam[vidx[rest]], w[vidx[rest]], derr[vidx[rest]] = 1.0, 0.0, 0.0
-            lobe = (axis[gl], lam_est[gl], scale[gl])
-        vidx = vidx[glossy[vidx]]
-        if vidx.numel() == 0:
-            return
-        if indirect_paths > 0 and not all_neighbours:
-            # seeded by chunk, so a resumed run draws the same paths
-            gen = torch.Generator().manual_seed(seed * 1_000_003 + 2 * i)
-            t = time.perf_counter()
-            ig = tr.indirect_lobes(vidx, views, paths=indirect_paths, generator=gen)
-            ind_w[vidx], ind_mu[vidx], ind_lam[vidx] = ig.w, ig.mu, ig.lam
-            t_indirect += time.perf_counter() - t
-        # the relaxation pass samples the transport again rather than keeping it: all of it
-        # (V x J x ~700 samples x 7 floats, 17 GB for 10K vertices) would not fit in memory
-        data = gather(tr, vidx, views, lobe=lobe)
-        if all_neighbours:
-            avail = glossy
-        else:
-            # the chunk's own vertices are fitted together, now: none may read another's
-            # unfitted state (zero means) as a processed neighbour, for S or as a start
-            avail = done & glossy
-            avail[vidx] = False
-        ids, mask = _processed_neighbours(mesh, vidx, avail)
-        nbr_mu = mu[ids] if n > 1 else None  # (B, Q, J, N, 3)
-        init = None
-        if all_neighbours:  # relaxation starts from the current fit
-            init = Gaussians(w[vidx], mu[vidx], lam[vidx])
-        elif n > 1 and bool(mask[:, 0].all()):
-            # start from a processed neighbour's Gaussians (the same correspondence of lobes)
-            # where they fit this vertex's data, from the data's own guess where they do not
-            first = ids[:, 0]
-            init = _better_start(data, n, nbr_views, Gaussians(w[first], mu[first], lam[first]))
-        g, terms = fit_batch(
-            data,
-            n,
-            nbr_views,
-            weights=weights,
-            init=init,
-            nbr_mu=nbr_mu,
-            nbr_mask=mask if n > 1 else None,
-        )
-        if all_neighbours:
-            # The refit keeps a vertex's new lobes only where they add no flipped pair against
-            # its neighbours, counting all pairs and separated ones: S alone does not hold the
-            # lobes (its cubic penalty vanishes for lobes a few tenths of a radian apart), and
-            # unguarded the pass adds flips (sphere:2: 292 -> 339) and knots the lobes into
-            # arrangements no reordering can undo (docs/method.md)
-            old = Gaussians(w[vidx], mu[vidx], lam[vidx])
-            nbr = Gaussians(w[ids], mu[ids], lam[ids])
-            keep = torch.ones(vidx.numel(), dtype=torch.bool, device=dev)
-            for sep in (0.0, SEPARATED):
-                keep &= vertex_flips(g, nbr, mask, min_separation=sep) <= vertex_flips(
-                    old, nbr, mask, min_separation=sep
-                )
-            g = Gaussians(
-                torch.where(keep[:, None, None, None], g.w, old.w),
-                torch.where(keep[:, None, None, None], g.mu, old.mu),
-                torch.where(keep[:, None, None], g.lam, old.lam),
-            )
-            terms["D"] = torch.where(keep, terms["D"], derr[vidx])
-        mu[vidx], lam[vidx], w[vidx] = g.mu, g.lam, g.w
-        derr[vidx] = terms["D"]
-
-    # stages: the flood fill ("fit", by chunks), the relaxation ("relax", by chunks, then the
-    # reordering), the diffuse interreflection ("interreflection", one step: it needs every
-    # vertex's self-shadowed transfer and final Gaussians), then "done"
-    begin = start[1] if stage0 == 0 else len(chunks)
-    for i in range(begin, len(chunks)):
-        fit_chunk(i, chunks[i], all_neighbours=False)
-        save_state("fit", i + 1, force=i + 1 == len(chunks))
-        if progress is not None:
-            progress("fit", i + 1, len(chunks))
+    ckpt = Checkpoint(checkpoint, key, every=checkpoint_every)
+    start = ckpt.resume(bake.state.arrays())
+    bake.flips_before, bake.flips_after = start.flips_before, start.flips_after
+    if start.todo("fit"):
+        _flood_fill(bake, chunks, start, ckpt, progress)
     t1 = time.perf_counter()
-    if stage0 == 0:
-        before = _flips(mesh, Gaussians(w, mu, lam))
-        after = before
-    if relax and n > 1 and stage0 <= 1:
-        begin = start[1] if stage0 == 1 else 0
-        for i in range(begin, len(chunks)):
-            fit_chunk(i, chunks[i], all_neighbours=True)
-            save_state("relax", i + 1, force=False)
-            if progress is not None:
-                progress("relax", i + 1, len(chunks))
-        # then the order of each vertex's Gaussians over the whole mesh, now that every
-        # neighbour is final (the refit above moves lobes, and adds flips on its own)
-        g = reorder_mesh(mesh, Gaussians(w, mu, lam), nbr_views, weights=weights)
-        w.copy_(g.w), mu.copy_(g.mu), lam.copy_(g.lam)
-        after = _flips(mesh, g)
-    if stage0 <= 1:
-        save_state("interreflection", 0, force=True)
+    if start.todo("relax"):
+        if relax and n > 1:
+            _relaxation(bake, chunks, start, ckpt, progress)
+        ckpt.save(_at(bake, "interreflection", 0), bake.state.arrays(), force=True)
     t2 = time.perf_counter()
-    if stage0 <= 2 and bounces > 0:
-        # the hit points' glossy light comes from their Gaussians (direct and indirect
-        # glossy): without it a diffuse floor by a metal wall lost 32-63 % of its light
-        g = _with_indirect(Gaussians(w, mu, lam), ind_w, ind_mu, ind_lam)
-        lobes = (views, g.w, g.mu, g.lam) if bool(glossy.any()) else None
-        total = diffuse_interreflection(
-            tr, diffuse, bounces=bounces, glossy=lobes, progress=progress
-        )
-        bounce.copy_(total - diffuse)
-        diffuse.copy_(total)
-        save_state("done", 0, force=True)
+    if start.todo("interreflection") and bounces > 0:
+        _interreflection(bake, bounces, progress)
+        ckpt.save(_at(bake, "done", 0), bake.state.arrays(), force=True)
     t3 = time.perf_counter()
-    return MeshFit(
-        gaussians=_with_indirect(Gaussians(w, mu, lam), ind_w, ind_mu, ind_lam),
-        indirect_gaussians=1 if bool((ind_w > 0).any()) else 0,
-        diffuse=diffuse,
-        views=views,
-        data_error=derr,
-        bounce=bounce if bounces > 0 else None,
-        flips_before=before[0],
-        flips_after=after[0],
-        separated_flips_before=before[1],
-        separated_flips_after=after[1],
-        seconds={
-            "fit": t1 - t0,
-            "indirect_glossy": t_indirect,
-            "relax": t2 - t1,
-            "interreflection": t3 - t2,
-        },
+    seconds = {
+        "fit": t1 - t0,
+        "indirect_glossy": bake.indirect_seconds,
+        "relax": t2 - t1,
+        "interreflection": t3 - t2,
+    }
+    return _result(bake, bounces, seconds)
+
+
+def _counts(batch: int, indirect_paths, bounces) -> tuple[int, int]:
+    """Checks :func:`fit_mesh`'s counts; returns ``indirect_paths`` and ``bounces`` as ints."""
+    if batch < 1:
+        raise InputError("batch", f"must be a positive number of vertices, got {batch}")
+    for name, value in (("indirect_paths", indirect_paths), ("bounces", bounces)):
+        if isinstance(value, bool) or int(value) != value or value < 0:
+            raise InputError(name, f"must be a whole number >= 0 (0: off), got {value!r}")
+    return int(indirect_paths), int(bounces)
+
+
+def _at(bake: Bake, stage: str, next_chunk: int) -> Position:
+    """The bake's position at the start of chunk ``next_chunk`` of ``stage``."""
+    return Position(stage, next_chunk, bake.flips_before, bake.flips_after)
+
+
+def _run_chunks(stage, work, bake, chunks, start, ckpt, progress, *, force_last: bool) -> None:
+    """Run ``work(bake, chunk)`` on the chunks of ``stage`` not yet done, saving the state and
+    reporting progress after each (a save forced after the last one where ``force_last``)."""
+    total = len(chunks)
+    for chunk in chunks[start.first_chunk(stage) :]:
+        work(bake, chunk)
+        done = chunk.index + 1
+        ckpt.save(_at(bake, stage, done), bake.state.arrays(), force=force_last and done == total)
+        if progress is not None:
+            progress(stage, done, total)
+
+
+def _flood_fill(bake: Bake, chunks: list[Chunk], start, ckpt, progress) -> None:
+    """The flood fill ("fit"): every chunk fitted in wavefront order, then the flipped pairs
+    counted."""
+    _run_chunks("fit", fit_chunk, bake, chunks, start, ckpt, progress, force_last=True)
+    bake.flips_before = _flips(bake.mesh, bake.state.gaussians())
+    bake.flips_after = bake.flips_before
+
+
+def _relaxation(bake: Bake, chunks: list[Chunk], start, ckpt, progress) -> None:
+    """The relaxation ("relax"): every chunk refitted against all its neighbours, then the
+    order of each vertex's Gaussians over the whole mesh, now that every neighbour is final
+    (the refit moves lobes, and adds flips on its own)."""
+    _run_chunks("relax", refit_chunk, bake, chunks, start, ckpt, progress, force_last=False)
+    st = bake.state
+    g = reorder_mesh(bake.mesh, st.gaussians(), bake.nbr_views, weights=bake.weights)
+    st.w.copy_(g.w), st.mu.copy_(g.mu), st.lam.copy_(g.lam)
+    bake.flips_after = _flips(bake.mesh, g)
+
+
+def _interreflection(bake: Bake, bounces: int, progress) -> None:
+    """The diffuse interreflection ("interreflection"), in one step: it needs every vertex's
+    self-shadowed transfer and final Gaussians."""
+    st = bake.state
+    # the hit points' glossy light comes from their Gaussians (direct and indirect glossy):
+    # without it a diffuse floor by a metal wall loses much of its light
+    g = _with_indirect(st.gaussians(), st.ind_w, st.ind_mu, st.ind_lam)
+    lobes = (bake.views, g.w, g.mu, g.lam) if bool(st.glossy.any()) else None
+    total = diffuse_interreflection(
+        bake.transport, st.diffuse, bounces=bounces, glossy=lobes, progress=progress
     )
+    st.bounce.copy_(total - st.diffuse)
+    st.diffuse.copy_(total)
 
 
-# --------------------------------------------------------------------------------------------
-# checkpoints: plain arrays in an npz (no pickle), written to a temporary name and renamed
+def _result(bake: Bake, bounces: int, seconds: dict[str, float]) -> MeshFit:
+    st = bake.state
+    return MeshFit(
+        gaussians=_with_indirect(st.gaussians(), st.ind_w, st.ind_mu, st.ind_lam),
+        indirect_gaussians=1 if bool((st.ind_w > 0).any()) else 0,
+        diffuse=st.diffuse,
+        views=bake.views,
+        data_error=st.derr,
+        bounce=st.bounce if bounces > 0 else None,
+        flips_before=bake.flips_before[0],
+        flips_after=bake.flips_after[0],
+        separated_flips_before=bake.flips_before[1],
+        separated_flips_after=bake.flips_after[1],
+        seconds=seconds,
+    )
 
 
 def _with_indirect(g: Gaussians, w, mu, lam) -> Gaussians:
@@ -502,106 +348,3 @@ def _with_indirect(g: Gaussians, w, mu, lam) -> Gaussians:
     if not bool((w > 0).any()):
         return g
     return Gaussians(torch.cat([g.w, w], 2), torch.cat([g.mu, mu], 2), torch.cat([g.lam, lam], 2))
-
-
-def _settings_key(scene, n, views, weights, batch, indirect_paths, relax, seed) -> str:
-    """A digest of everything the fit's result depends on: geometry, materials and settings."""
-    h = hashlib.sha256()
-    for t in (scene.mesh.vertices, scene.mesh.faces, views):
-        h.update(t.detach().cpu().contiguous().numpy().tobytes())
-    h.update(json.dumps(scene.materials.to_dict(), sort_keys=True).encode())
-    h.update(repr((n, weights, batch, indirect_paths, relax, seed)).encode())
-    return h.hexdigest()
-
-
-#: The stages of a fit, in order, as checkpoints name them.
-_STAGES = ("fit", "relax", "interreflection", "done")
-#: Where a run without a usable checkpoint starts: stage, next chunk, flips before and after.
-_FRESH = ("fit", 0, (0, 0), (0, 0))
-
-
-def _save_checkpoint(
-    path: Path,
-    key: str,
-    stage: str,
-    nxt: int,
-    state: dict,
-    flips_before: tuple[int, int],
-    flips_after: tuple[int, int],
-) -> None:
-    arrays = {k: v.detach().cpu().numpy() for k, v in state.items()}
-    meta = {
-        "key": key,
-        "stage": stage,
-        "next": nxt,
-        "flips_before": list(flips_before),
-        "flips_after": list(flips_after),
-    }
-    arrays["meta"] = np.frombuffer(json.dumps(meta).encode(), dtype=np.uint8)
-    with atomic_writer(path) as f:
-        np.savez(f, **arrays)
-
-
-def _resume(path: Path, key: str, state: dict) -> tuple:
-    """Load a matching checkpoint into ``state``; returns ``(stage, next chunk, flips before,
-    flips after)``.
-
-    A checkpoint of another scene or other settings is left alone and the bake starts over; a
-    damaged one (cut short, bits flipped, fields of the wrong type, arrays of the wrong kind
-    or not finite) is moved aside as ``NAME.corrupt`` with one warning, and the bake starts
-    afresh: it never stands in the way of a bake.
-    """
-    fresh = _FRESH
-    if not path.is_file():
-        return fresh
-    try:
-        with np.load(path, allow_pickle=False) as z:
-            meta = json.loads(bytes(z["meta"]).decode())
-            if (
-                not isinstance(meta, dict)
-                or meta.get("key") != key
-                or meta.get("stage") not in _STAGES
-            ):
-                return fresh  # another scene or other settings: start over
-            position = _position(meta)
-            loaded = {k: torch.from_numpy(z[k]) for k in state}
-        for k, v in loaded.items():
-            if v.shape != state[k].shape:
-                return fresh
-            if v.dtype != state[k].dtype or (v.is_floating_point() and not v.isfinite().all()):
-                raise ValueError(f"{k}: {v.dtype} values, not finite {state[k].dtype} ones")
-    except (*UNREADABLE, TypeError) as e:
-        # damaged: kept aside for a look, never in the way of a bake
-        aside = path.with_name(path.name + ".corrupt")
-        os.replace(path, aside)
-        logger.warning(
-            "%s: unreadable checkpoint (%s), moved to %s; the bake starts afresh",
-            path, type(e).__name__, aside.name,
-        )  # fmt: skip
-        return fresh
-    for k, v in loaded.items():
-        state[k].copy_(v.to(state[k].device))
-    return position
-
-
-def _position(meta: dict) -> tuple:
-    """``(stage, next chunk, flips before, flips after)`` of a checkpoint's metadata; raises
-    ValueError or TypeError where a field is not what a bake writes."""
-
-    def count(x) -> int:
-        if isinstance(x, bool) or not isinstance(x, int) or x < 0:
-            raise ValueError(f"{x!r} is not a count")
-        return x
-
-    def pair(x) -> tuple[int, int]:
-        if isinstance(x, int) and not isinstance(x, bool):  # a single count
-            return count(x), 0
-        a, b = x  # TypeError / ValueError for anything but a pair
-        return count(a), count(b)
-
-    return (
-        str(meta["stage"]),
-        count(meta["next"]),
-        pair(meta.get("flips_before", [0, 0])),
-        pair(meta.get("flips_after", [0, 0])),
-    )

@@ -37,6 +37,7 @@ from ._optimize import Gaussians, _permuted, _swap_gain
 
 __all__ = [
     "FLIP_WEIGHT",
+    "SEPARATED",
     "live_gaussians",
     "neighbour_table",
     "reorder_mesh",
@@ -50,6 +51,10 @@ __all__ = [
 # N = 2: on sphere:2, 1e-3, 1e-2 and 1e-1 leave the same flips within 3 %; on sphere:1, 1e-3
 # moves nothing and 1e-2, 1e-1 and 1 give the same counts.
 FLIP_WEIGHT = 1e-2
+#: Lobes this many widths apart or more have an arrangement that a flip visibly breaks; closer
+#: ones (a sharp core on a broad skirt) are ordered by width, and the direction between them is
+#: noise (:func:`lobelight.fit.count_flips`).
+SEPARATED = 0.5
 
 
 def live_gaussians(g: Gaussians, live_fraction: float = 0.05) -> torch.Tensor:
