@@ -29,6 +29,7 @@ import numpy as np
 import torch
 
 from .. import brdf as _brdf
+from .._tol import SMALL
 from ..errors import InputError
 
 __all__ = [
@@ -322,7 +323,7 @@ def gradient(
         tt = t.reshape(-1, *([1] * va.ndim))
         if key in _GEOMETRIC:
             params[key] = torch.exp(
-                (1 - tt) * va.clamp_min(1e-12).log() + tt * vb.clamp_min(1e-12).log()
+                (1 - tt) * va.clamp_min(SMALL).log() + tt * vb.clamp_min(SMALL).log()
             )
         else:
             params[key] = (1 - tt) * va + tt * vb
@@ -364,29 +365,9 @@ def material_table(spec: str, *, what: str = "--material") -> dict[str, Any]:
     text = spec.strip()
     if not text:
         raise InputError(what, "is empty; give e.g. 'ggx:alpha=0.1,diffuse=0.5'")
-    head, colon, rest = text.partition(":")
-    if colon and "=" not in head:  # MODEL:KEY=VALUES,...
-        model, body = head.strip().lower(), rest
-    elif "=" in text:  # KEY=VALUES,...
-        model, body = "", text
-    else:  # a bare model name
-        model, body = text.lower(), ""
+    model, body = _split_model(text)
     items = _spec_items(body, what) if body.strip() else {}
-    if "model" in items:
-        given = items.pop("model")
-        if model and given != model:
-            raise InputError(what, f"names the model twice ({model!r} and {given!r})")
-        model = str(given)
-    if model in _DIFFUSE_MODELS or not model:
-        model = "none"
-        known_keys = {"diffuse", "color"}
-    elif model in SPECULAR_MODELS:
-        known_keys = {"diffuse", *MODEL_PARAMS[model]} - {"lobes"}
-        if "lobes" in MODEL_PARAMS[model]:  # a spec string gives them one lobe= at a time
-            known_keys.add("lobe")
-    else:
-        known = ", ".join((*SPECULAR_MODELS, *_DIFFUSE_MODELS))
-        raise InputError(what, f"unknown model {model!r}; use one of {known}")
+    model, known_keys = _spec_model(model, items, what)
     for key in items:
         if key not in known_keys:
             of = "a diffuse material" if model == "none" else model
@@ -407,6 +388,35 @@ def material_table(spec: str, *, what: str = "--material") -> dict[str, Any]:
         table["lobes"] = [_lobe(v, j, what) for j, v in enumerate(lobes)]
     table.update({k: _one_or_list(v) for k, v in items.items()})
     return table
+
+
+def _split_model(text: str) -> tuple[str, str]:
+    """A spec's ``MODEL`` (lower case; empty when it names none) and its ``KEY=VALUES`` part."""
+    head, colon, rest = text.partition(":")
+    if colon and "=" not in head:  # MODEL:KEY=VALUES,...
+        return head.strip().lower(), rest
+    if "=" in text:  # KEY=VALUES,...
+        return "", text
+    return text.lower(), ""  # a bare model name
+
+
+def _spec_model(model: str, items: dict[str, Any], what: str) -> tuple[str, set[str]]:
+    """The spec's model (``"none"`` for a diffuse one), taking a ``model=`` item out of
+    ``items``, and the keys that model takes."""
+    if "model" in items:
+        given = items.pop("model")
+        if model and given != model:
+            raise InputError(what, f"names the model twice ({model!r} and {given!r})")
+        model = str(given)
+    if model in _DIFFUSE_MODELS or not model:
+        return "none", {"diffuse", "color"}
+    if model not in SPECULAR_MODELS:
+        known = ", ".join((*SPECULAR_MODELS, *_DIFFUSE_MODELS))
+        raise InputError(what, f"unknown model {model!r}; use one of {known}")
+    known_keys = {"diffuse", *MODEL_PARAMS[model]} - {"lobes"}
+    if "lobes" in MODEL_PARAMS[model]:  # a spec string gives them one lobe= at a time
+        known_keys.add("lobe")
+    return model, known_keys
 
 
 def _spec_items(text: str, what: str) -> dict[str, Any]:
