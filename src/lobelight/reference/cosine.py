@@ -19,6 +19,7 @@ from typing import Any
 import torch
 
 from .. import brdf as _brdf
+from .._tol import DIVISOR_F64
 from ..cosine import SphereLight
 from ..errors import InputError
 from ..geometry.sphere import frame
@@ -138,7 +139,7 @@ def direct_mc(
             if pl is not None:
                 nd = torch.einsum("psk,mk->psm", w, pl[:, :3])  # (p, S, M)
                 dist_pl = pl[:, 3].unsqueeze(0) - xp @ pl[:, :3].T  # (p, M)
-                tp = dist_pl.unsqueeze(1) / torch.where(nd == 0, 1e-300, nd)
+                tp = dist_pl.unsqueeze(1) / torch.where(nd == 0, DIVISOR_F64, nd)
                 vis &= ~((tp > 1e-9 * dist.reshape(-1, 1, 1)) & (tp < t_light.unsqueeze(-1))).any(
                     -1
                 )

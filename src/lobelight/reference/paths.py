@@ -19,6 +19,7 @@ from dataclasses import dataclass
 
 import torch
 
+from .._tol import DIVISOR_F32
 from ..errors import InputError
 from ..geometry import cubemap
 from ..geometry.camera import Camera
@@ -29,6 +30,9 @@ __all__ = ["EnvSampler", "radiance_at", "render"]
 
 #: Cube-map face resolution of the environment's importance-sampling table.
 ENV_SAMPLING_RES = 128
+#: Added to every texel's luminance in the sampling table: an all-black map (mean 0, so no
+#: floor from the mean) still gives every direction a positive density.
+_LUMINANCE_FLOOR = 1e-12
 
 
 class EnvSampler:
@@ -47,7 +51,7 @@ class EnvSampler:
         cube = env.to_cubemap(res)  # (6, R, R, 3)
         lum = (cube * torch.tensor([0.2126, 0.7152, 0.0722], device=dev)).sum(-1).clamp_min(0)
         om = cubemap.texel_solid_angles(res, device=dev)
-        w = (lum + 1e-3 * float(lum.mean()) + 1e-12) * om
+        w = (lum + 1e-3 * float(lum.mean()) + _LUMINANCE_FLOOR) * om
         self.prob = (w / w.sum()).reshape(-1).to(torch.float64)  # (6 R^2,)
         self.cdf = torch.cumsum(self.prob, 0)
         self.cdf[-1] = 1.0
@@ -96,7 +100,7 @@ def _surface(scene: Scene, tri: torch.Tensor, bary: torch.Tensor, wo: torch.Tens
 
 def _power(a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
     a2, b2 = a * a, b * b
-    return torch.where(a2 + b2 > 0, a2 / (a2 + b2).clamp_min(1e-30), torch.zeros_like(a))
+    return torch.where(a2 + b2 > 0, a2 / (a2 + b2).clamp_min(DIVISOR_F32), torch.zeros_like(a))
 
 
 def _trace(

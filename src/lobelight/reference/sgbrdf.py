@@ -20,6 +20,7 @@ from typing import Any
 import torch
 
 from .._backend import as_tensor
+from .._tol import DIVISOR_F32
 from ..brdf import BRDF
 from ..errors import InputError
 from ..sgbrdf import normals_and_views
@@ -110,10 +111,10 @@ def _pair_estimates(b, env, sampler, n, o, t, u) -> torch.Tensor:
     """MIS estimates ``(p, m, 3)`` float64 of sample pairs from uniforms ``u (p, m, 5)``."""
     wi_b, w_b, p_b = b.sample(o, n, u[..., :2], t)  # (p, m, 3), (p, m, 3), (p, m)
     pe_b = sampler.pdf(wi_b)
-    c_b = w_b * (p_b / (p_b + pe_b).clamp_min(1e-30)).unsqueeze(-1) * env.radiance(wi_b)
+    c_b = w_b * (p_b / (p_b + pe_b).clamp_min(DIVISOR_F32)).unsqueeze(-1) * env.radiance(wi_b)
     wi_e, p_e = sampler.sample(u[..., 2:])  # (p, m, 3), (p, m)
     f = b.eval(wi_e, o, n, t)  # (p, m, 3), 0 below either horizon
     cos = (wi_e * n).sum(-1).clamp_min(0)
     pb_e = b.pdf(wi_e, o, n, t)
-    c_e = f * (cos / (p_e + pb_e).clamp_min(1e-30)).unsqueeze(-1) * env.radiance(wi_e)
+    c_e = f * (cos / (p_e + pb_e).clamp_min(DIVISOR_F32)).unsqueeze(-1) * env.radiance(wi_e)
     return (c_b + c_e).double()

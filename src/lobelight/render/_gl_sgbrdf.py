@@ -39,6 +39,7 @@ from typing import Any
 import numpy as np
 import torch
 
+from .._tol import DIVISOR_F64
 from ..brdf import BRDF, Ward
 from ..brdf import from_dict as brdf_from_dict
 from ..envmap import EnvMap, Prefiltered, prefilter
@@ -175,7 +176,7 @@ def _mesh_arrays(mesh: Any) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndar
 def _oct_encode(mu: torch.Tensor) -> torch.Tensor:
     """Octahedral coordinates ``(..., 2)`` in ``[-1, 1]^2`` of unit vectors ``(..., 3)``
     (float64 in, the shader's ``oct_decode`` inverts it to ~1e-7)."""
-    p = mu[..., :2] / mu.abs().sum(-1, keepdim=True).clamp_min(1e-300)
+    p = mu[..., :2] / mu.abs().sum(-1, keepdim=True).clamp_min(DIVISOR_F64)
     sgn = torch.where(p >= 0, 1.0, -1.0).to(p.dtype)
     folded = (1 - p.flip(-1).abs()) * sgn
     return torch.where(mu[..., 2:] < 0, folded, p)

@@ -23,6 +23,9 @@ MAX_MESH_BYTES = 2 * 1024**3
 MAX_COORDINATE = 1e18
 #: Formats trimesh reads for us (by suffix).
 MESH_SUFFIXES = (".obj", ".ply", ".stl", ".glb", ".gltf", ".off")
+#: Floor of an area-weighted normal's length (float64) before it is normalised: a vertex whose
+#: faces' area vectors cancel (two faces back to back) keeps a zero normal instead of NaN.
+_NORMAL_LENGTH_FLOOR = 1e-30
 
 
 @dataclass(frozen=True, eq=False)
@@ -113,7 +116,7 @@ def _area_weighted_normals(v: np.ndarray, f: np.ndarray) -> np.ndarray:
     for k in range(3):
         np.add.at(n, f[:, k], cross)
     length = np.linalg.norm(n, axis=1, keepdims=True)
-    return n / np.maximum(length, 1e-30)
+    return n / np.maximum(length, _NORMAL_LENGTH_FLOOR)
 
 
 def mesh_from_arrays(

@@ -44,6 +44,7 @@ import torch
 
 from .. import envmap
 from .._io import TEXT_LIMIT, read_input
+from .._tol import SMALL
 from ..data import envmap_names, resolve_envmap
 from ..errors import InputError
 from ..geometry.camera import Camera
@@ -385,5 +386,5 @@ def _materials(d: dict[str, Any], mesh: Mesh) -> Materials:
     if axis.shape != (3,) or not bool(torch.isfinite(axis).all()) or float(axis.norm()) == 0:
         raise InputError("gradient.axis", f"must be a non-zero 3-vector, got {g.get('axis')!r:.60}")
     h = mesh.vertices @ (axis / axis.norm()).to(mesh.vertices)
-    t = (h - h.min()) / (h.max() - h.min()).clamp_min(1e-12)
+    t = (h - h.min()) / (h.max() - h.min()).clamp_min(SMALL)
     return gradient(g["from"], g["to"], t)
