@@ -49,6 +49,7 @@ import numpy as np
 import scipy.special
 import torch
 
+from .._tol import SMALL
 from ..geometry import cubemap
 
 #: Window half-width of a 1-D Gaussian pass, in its standard deviations (mass outside 0.14 %).
@@ -330,7 +331,7 @@ def _half_taps(var: torch.Tensor, half: int) -> torch.Tensor:
     w = torch.exp((t2 * q).clamp_min_(-80))
     m = moments @ w.reshape(half + 1, -1)  # (2, N)
     got = (m[1] / m[0]).reshape(var.shape)
-    q = q / (v / got.clamp_min(1e-12)).clamp(1, 1.1)
+    q = q / (v / got.clamp_min(SMALL)).clamp(1, 1.1)
     w = torch.exp((t2 * q).clamp_min_(-80))
     w /= (moments[0] @ w.reshape(half + 1, -1)).reshape(var.shape)
     if half >= 1:
@@ -780,7 +781,7 @@ def _sh_plan(
     source's texel solid angles ``(6 S^2, 1)`` and, per output resolution, ``(res, which, fac)``
     with the output indices of its levels and their band factors ``(order^2, L, 1)``."""
     box = (2 / src_res) ** 2 / 12  # variance already in the source's texels
-    eff = [1 / max(1 / lam - box, 1e-12) for lam in lams]
+    eff = [1 / max(1 / lam - box, SMALL) for lam in lams]
     order = sh_order_for(max(eff))
     om = cubemap.texel_solid_angles(src_res, device=device, dtype=dtype).reshape(-1, 1)
     band = np.repeat(np.arange(order), 2 * np.arange(order) + 1)

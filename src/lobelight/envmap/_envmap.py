@@ -63,6 +63,7 @@ import torch
 
 from .._backend import as_tensor
 from .._checks import check_int
+from .._tol import SMALL
 from ..errors import InputError
 from ..geometry import cubemap
 from ._files import save
@@ -400,13 +401,12 @@ class _Source:
         a_theta = math.pi / (h - 1)
         a_phi = (2 * math.pi / w) * torch.sin((to_pole - radius).clamp_min(0))
         # components of t along the azimuth direction e_phi = (-d.z, 0, d.x)/sin(theta)
-        c_phi = ((t[:, 2] * -d[:, 0] + t[:, 0] * d[:, 2]).abs() / sin_t.clamp_min(1e-12)).clamp(
+        c_phi = ((t[:, 2] * -d[:, 0] + t[:, 0] * d[:, 2]).abs() / sin_t.clamp_min(SMALL)).clamp(
             max=1
         )
         c_theta = (1 - c_phi * c_phi).clamp_min(0).sqrt()
-        tiny = 1e-12
         return torch.minimum(
-            a_theta / c_theta.clamp_min(tiny), a_phi.clamp_min(tiny) / c_phi.clamp_min(tiny)
+            a_theta / c_theta.clamp_min(SMALL), a_phi.clamp_min(SMALL) / c_phi.clamp_min(SMALL)
         )
 
 

@@ -58,6 +58,7 @@ import numpy as np
 import torch
 
 from .._backend import as_tensor
+from .._tol import SHARPNESS_MIN
 from ..errors import InputError
 from ..geometry import cubemap
 from ..lobes import sg
@@ -149,7 +150,7 @@ class Prefiltered:
         lam = as_tensor(lam, device=self.device).to(torch.float64)
         lams = self.lambdas.to(lam.device)
         rho = float(lams[0] / lams[1])
-        kf = torch.log(lams[0] / lam.clamp_min(1e-12)) / math.log(rho)
+        kf = torch.log(lams[0] / lam.clamp_min(SHARPNESS_MIN)) / math.log(rho)
         kmax = len(self.levels) - 1
         k0 = kf.floor().clamp(0, kmax - 1).long()
         la, lb = lams[k0], lams[k0 + 1]
@@ -259,11 +260,16 @@ def _mean_cosine(lam: float) -> float:
     return 1 / math.tanh(lam) - 1 / lam
 
 
+#: A mean cosine within this of 1 is a delta (infinite sharpness): the vMF of sharpness ``lam``
+#: has ``1 - a ~ 1/lam``, so this is ``lam ~ 1e12``, past the bisection's upper end (1e9).
+_MEAN_COSINE_GAP_MIN = 1e-12
+
+
 def _inverse_langevin(a: float) -> float:
     """Sharpness whose vMF has mean cosine ``a`` in (0, 1)."""
     if a <= 0:
         return 0.0
-    if a >= 1 - 1e-12:
+    if a >= 1 - _MEAN_COSINE_GAP_MIN:
         return float("inf")
     lo, hi = 1e-9, 1e9
     for _ in range(200):  # bisection in log space: 200 halvings reach float64 resolution

@@ -40,6 +40,7 @@ import torch
 import trimesh
 from trimesh.ray.ray_pyembree import RayMeshIntersector
 
+from .._tol import DIVISOR_F64
 from ..errors import InputError
 
 __all__ = [
@@ -352,7 +353,7 @@ def _moller_trumbore(tri: torch.Tensor, o: torch.Tensor, d: torch.Tensor):
     det = (e1 * p).sum(-1)
     # a ray the engine says hits a triangle is not parallel to it, but float32 and float64
     # can disagree on a grazing one: a tiny determinant, not a division by zero
-    inv = 1 / torch.where(det.abs() < 1e-300, torch.full_like(det, 1e-300), det)
+    inv = 1 / torch.where(det.abs() < DIVISOR_F64, torch.full_like(det, DIVISOR_F64), det)
     s = o - v0
     b1 = (s * p).sum(-1) * inv
     b2 = (d * torch.linalg.cross(s, e1)).sum(-1) * inv

@@ -28,6 +28,7 @@ import torch
 
 from .._backend import as_float, dispatch
 from .._checks import check_directions
+from .._tol import SHARPNESS_MIN
 from ..errors import InputError
 
 __all__ = [
@@ -64,7 +65,7 @@ def _half_chord2(a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
 
 def _one_minus_exp_neg2_over(lam: torch.Tensor) -> torch.Tensor:
     """``(1 - exp(-2 lam)) / lam``, 2 at ``lam = 0``; stable and gradient-safe."""
-    small = lam < 1e-12
+    small = lam < SHARPNESS_MIN
     safe = torch.where(small, torch.ones_like(lam), lam)
     return torch.where(small, torch.full_like(lam, 2.0), -torch.expm1(-2 * safe) / safe)
 
