@@ -1,10 +1,10 @@
 """The OpenGL renderer (moderngl): headless through EGL, or into a window's context.
 
-Everything per frame stays on the GPU (the paper's bottleneck was repacking the three nearest
-views' data on the CPU every frame): the Gaussians of every (vertex, view) live in a float
+Everything per frame stays on the GPU (the paper repacks the three nearest views' data on the
+CPU every frame, its bottleneck): the Gaussians of every (vertex, view) live in a float
 texture, the 180 geodesic triangles' great-circle planes in a uniform block, and the vertex
 shader finds each vertex's view triangle itself. The per-frame values (camera, lighting rotation,
-the rotated lighting's 25 SH coefficients, the sun) live in one uniform block
+the rotated lighting's SH coefficients, the sun) live in one uniform block
 (``shaders/frame.glsl``), filled in Python and written in one buffer write when a value changes:
 a frame with the camera and lighting of the one before writes no uniform at all.
 

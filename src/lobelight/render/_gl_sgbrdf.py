@@ -20,7 +20,8 @@ each read with ``textureLod`` from a mip-mapped GL cube map at the level of Colb
 Křivánek's rule. The mip levels are built by the driver (``glGenerateMipmap``: plain 2 x 2
 means, not the solid-angle weighted ones of :func:`lobelight.sgbrdf.mip_chain`);
 :func:`gl_mip_chain` builds the same levels in torch, so ``shade_fis`` on it is this shader's
-reference. The fps comparison is then shader against shader (:func:`bench_gl`).
+reference. The frame-rate comparison is then shader against shader (the ``sgbrdf_gl``
+benchmark, :mod:`lobelight.bench.sgbrdf_gl`).
 
 Geometry: by default the unit sphere at the origin, ray cast per pixel on a full-screen quad
 with the rays of :func:`lobelight.sgbrdf.sphere_hits` (orthographic from +Z, or a
@@ -76,8 +77,9 @@ def gl_mip_chain(env: Any, /, *, base_res: int = FIS_BASE_RES) -> MipChain:
 
     GL's mipmap generation averages 2 x 2 texels with equal weights (a box filter in texture
     space), where :func:`lobelight.sgbrdf.mip_chain` weights them by solid angle; near cube
-    corners the two differ by a few per cent at coarse levels. :func:`shade_fis` on this chain
-    is what :class:`GLSGBRDFRenderer` with ``method="fis"`` computes.
+    corners the two differ by a few per cent at coarse levels.
+    :func:`~lobelight.sgbrdf.shade_fis` on this chain is what :class:`GLSGBRDFRenderer` with
+    ``method="fis"`` computes.
 
     Parameters
     ----------

@@ -3,7 +3,7 @@
 A sun 10^5 times brighter than the sky within 0.6 degrees samples the glossy transport at one
 direction, so a highlight shows the fitted Gaussian's *shape* there, not its integral: one
 Gaussian per view against a GGX lobe with its long tail, interpolated from three vertices, is
-where the glossy image's largest errors were (docs/results.md). With a sun taken out of the map
+where the glossy image's largest errors lie (docs/results.md). With a sun taken out of the map
 (:class:`~lobelight.render.Lighting` with ``sun=True``) and a material this module can evaluate,
 the Gaussians integrate the map *without* the sun, and the sun adds
 
@@ -22,7 +22,7 @@ variances, ``alpha'^2 = alpha^2 + sigma^2 / 4`` (Blinn-Phong through its Beckman
 light and takes the disc's size.
 
 Supported (``prt.glsl`` carries the same formulas; parameters constant or per vertex): the
-models with a :attr:`~lobelight.brdf.BRDF.sun_model`, today modified Phong and normalised
+models with a :attr:`~lobelight.brdf.BRDF.sun_model`, that is modified Phong and normalised
 Blinn-Phong (:class:`lobelight.brdf.Phong`, :class:`lobelight.brdf.BlinnPhong`) and the rough
 conductors built with one ``alpha`` (:class:`lobelight.brdf.GGX`,
 :class:`lobelight.brdf.Beckmann`, with or without conductor Fresnel); each widens itself by the
@@ -30,7 +30,7 @@ disc (:meth:`~lobelight.brdf.BRDF.sun_widened`). Other specular BRDFs keep the s
 Gaussians' lighting, as the paper does.
 
 The sun's *indirect* glossy light (the sun in a mirror seen in a mirror) has no BRDF to shade
-it per pixel: a model's indirect Gaussians (:attr:`lobelight.model.Model.indirect_lobes`) carry
+it per pixel: a model's indirect Gaussians (:attr:`lobelight.model.Model.indirect_gaussians`) carry
 it, and :func:`sun_through` adds what the sun sends through them, the Gaussian widened by the
 disc, ``1 / lam' = 1 / lam + sigma^2 / 2`` (the variances of two small-angle Gaussians add; a
 lobe's per-axis variance is ``1 / lam``, a disc's of RMS angle ``sigma`` is ``sigma^2 / 2``),

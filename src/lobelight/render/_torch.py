@@ -14,8 +14,9 @@ Stage for stage what ``shaders/prt.glsl`` does, so that shader output can be che
    on the point's own; each Gaussian is integrated against the lighting in one prefiltered
    lookup at ``R^T mu``; the diffuse colours blend linearly.
 
-Primary visibility comes from ray casting (Embree); the rasteriser's barycentrics at a pixel
-centre are those of the ray through it, so the two paths agree up to rounding.
+Primary visibility comes from ray casting (:class:`~lobelight.geometry.raycast.RayCaster`:
+Embree on the CPU, NVIDIA Warp on a GPU); the rasteriser's barycentrics at a pixel centre are
+those of the ray through it, so the two paths agree up to rounding.
 """
 
 from __future__ import annotations

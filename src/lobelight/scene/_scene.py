@@ -141,9 +141,9 @@ def _knot_scene(*, detail: int = 1, **_: Any) -> Scene:
     The tube has ``72 detail`` rings of ``36 detail`` vertices (2,881 vertices in all at
     ``detail=1``, 11,457 at 2). Per-vertex transport is interpolated across triangles, so the
     tessellation must follow the sharpest lobe across the tube, where the normal turns fastest:
-    with 12 vertices around it (30 degrees of normal per triangle) the glossy image scored
-    32.5 dB against the path tracer, with 36 (10 degrees) 35.0 dB; along the tube, whose centre
-    curve bends slowly, 72 rings score within 0.3 dB of 96 or 144 (docs/results.md).
+    36 vertices around it (10 degrees of normal per triangle) score clearly better against the
+    path tracer than 12 (30 degrees); along the tube, whose centre curve bends slowly, 72 rings
+    score about as well as 96 or 144 (the figures are in docs/results.md).
     """
     if detail < 1:
         raise InputError("detail", f"must be >= 1, got {detail}")

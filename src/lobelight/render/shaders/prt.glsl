@@ -6,7 +6,7 @@
 // varyings premultiplied by the live flag, divided by the interpolated flag.
 // Stages are selected by VERTEX_SHADER / FRAGMENT_SHADER; N_GAUSSIANS (Gaussians per view),
 // N_INDIRECT (how many of the last hold indirect glossy transport,
-// lobelight.model.Model.indirect_lobes), HAS_SUN (the lighting has a sun) and SUN_GLOSSY (its
+// lobelight.model.Model.indirect_gaussians), HAS_SUN (the lighting has a sun) and SUN_GLOSSY (its
 // glossy reflection is shaded per pixel) and DEPTH_ONLY (1: the depth pre-pass, which projects
 // the vertices and shades nothing) are defined by the loader, and the per-frame values (camera,
 // rotation, SH lighting, sun) come from frame.glsl's block. The torch path (render/_torch.py)
@@ -165,7 +165,8 @@ uniform float sun_spread;         // the sun disc's RMS angle (radians)
 const float PI = 3.14159265358979;
 
 #if SUN_GLOSSY
-// microfacet distribution at a half vector with cosine c to the normal (brdf.microfacet, _D)
+// microfacet distribution at a half vector with cosine c to the normal (brdf/microfacet.py's
+// _Microfacet._D)
 float mf_d(float c, float a) {
     float c2 = c * c;
     float s2 = max(1.0 - c2, 0.0);

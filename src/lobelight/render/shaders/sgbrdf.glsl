@@ -191,7 +191,7 @@ vec3 shade(vec3 n, vec3 t, vec3 b, vec3 o) {
     bary = max(bary, vec3(0.0));
     bary /= max(bary.x + bary.y + bary.z, TINY);
 #else
-    // linear in theta between the two nearest views, clamped (_elevation_weights)
+    // linear in theta between the two nearest views, clamped (sgbrdf/_fit.py's _elevation_weights)
     float th = clamp(atan(length(q.xy), q.z), view_theta[0], view_theta[N_VIEWS - 1]);
     int j1 = 0;
     for (int j = 0; j < N_VIEWS; ++j) j1 += view_theta[j] < th ? 1 : 0;  // searchsorted
