@@ -14,7 +14,7 @@ holding
                     (half-float files store the weight times the Gaussian's integral instead
                     of its peak: ``meta["weights"] == "integral"``); the last
                     ``meta["indirect_gaussians"]`` (0 when absent) of the N hold indirect
-                    glossy transport (:attr:`Model.indirect_gaussians`)
+                    glossy transport (:attr:`lobelight.model.Model.indirect_gaussians`)
 ``diffuse``         (V, n, 3) SH diffuse transfer
 ``bounce``          optional (V, n, 3): the interreflected part of ``diffuse``, lit by the sun
                     as well (the self-shadowed part sees the sun per pixel)
@@ -33,6 +33,7 @@ from __future__ import annotations
 import json
 import zipfile
 import zlib
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -41,6 +42,7 @@ import torch
 
 from .. import __version__
 from .._io import atomic_writer, check_input
+from .._tol import SHARPNESS_MIN
 from ..errors import InputError
 from ..geometry import sphere
 from ..lobes import sg
@@ -102,7 +104,8 @@ def write(
         # light the lobe carries, at most the albedo) fit half floats with full relative
         # precision, so half-float files store those
         w = w * sg.integral(g.lam.double()).to(w.dtype)[..., None]
-    rec = torch.cat([w, g.mu, g.lam.clamp_min(1e-12).rsqrt()[..., None]], -1)  # (V, J, N, 7)
+    sigma = g.lam.clamp_min(SHARPNESS_MIN).rsqrt()  # (V, J, N)
+    rec = torch.cat([w, g.mu, sigma[..., None]], -1)  # (V, J, N, 7)
     kept = rec[keep.to(rec.device)]  # (K, N, 7)
     dt = np.float16 if float16 else np.float32
     if float16 and float(rec[..., :3].abs().max()) > 65504:
@@ -191,6 +194,11 @@ def _check_sizes(archive: zipfile.ZipFile, file_bytes: int, name: str) -> None:
 def read(path) -> dict[str, Any]:
     """Read and check a model file: the :class:`lobelight.model.Model` fields it holds.
 
+    The checks run in stages, each on what the one before has vouched for: the container
+    (:func:`_open`), the metadata (:func:`_header`), the arrays (:func:`_check_arrays`), the
+    Gaussians and the light they carry (:func:`_gaussians`, :func:`_check_transfer`), and the
+    mesh, materials and bounce transfer built from them (:func:`_build`).
+
     Returns
     -------
     dict with ``mesh``, ``views (J, 3)``, ``gaussians`` (:class:`Gaussians`, ``(V, J, N)``),
@@ -205,6 +213,45 @@ def read(path) -> dict[str, Any]:
     """
     p = Path(path)
     name = str(p)
+    a, bounce_arr = _open(p, name)
+    h = _header(a["meta"], name)
+    _check_arrays(a, h, name)
+    g = _gaussians(a, h, name)
+    _check_transfer(a["diffuse"], bounce_arr, name)
+    return _build(p, a, bounce_arr, h, g, name)
+
+
+@dataclass(frozen=True)
+class _Header:
+    """What a model file's metadata says, checked: the metadata itself, its provenance, and
+    the counts of vertices ``v``, views ``j``, Gaussians per view ``n`` and indirect ones
+    ``ni``."""
+
+    meta: dict[str, Any]
+    provenance: dict[str, Any]
+    v: int
+    j: int
+    n: int
+    ni: int
+
+
+#: What reading a damaged archive raises, besides InputError: each becomes one InputError.
+_UNREADABLE = (
+    zipfile.BadZipFile,
+    zlib.error,
+    ValueError,
+    OSError,
+    EOFError,
+    KeyError,
+    NotImplementedError,  # an unknown zip compression method
+    RuntimeError,  # an encrypted zip member
+    MemoryError,
+)
+
+
+def _open(p: Path, name: str) -> tuple[dict[str, np.ndarray], np.ndarray | None]:
+    """The container: a regular zip archive of ``.npy`` arrays holding every array of
+    ``_ARRAYS``, of a plausible expanded size. Returns the arrays, and ``bounce`` or None."""
     check_input(p, limit=MAX_FILE_BYTES)  # a regular file (not a device or pipe)
     _need(_is_zip(p), name, _not_a_model(p))
     try:
@@ -219,24 +266,20 @@ def read(path) -> dict[str, Any]:
             bounce_arr = z["bounce"] if "bounce" in z.files else None
     except InputError:
         raise
-    except (
-        zipfile.BadZipFile,
-        zlib.error,
-        ValueError,
-        OSError,
-        EOFError,
-        KeyError,
-        NotImplementedError,  # an unknown zip compression method
-        RuntimeError,  # an encrypted zip member
-        MemoryError,
-    ) as exc:
+    except _UNREADABLE as exc:
         raise InputError(name, f"cannot read model file: {type(exc).__name__}: {exc}") from None
     for k, arr in a.items():
         # a member without the .npy header comes back as raw bytes
         _need(isinstance(arr, np.ndarray), name, f"{k} is not an array")
-    _need(a["meta"].dtype == np.uint8 and a["meta"].ndim == 1, name, "meta must be UTF-8 bytes")
+    return a, bounce_arr
+
+
+def _header(raw: np.ndarray, name: str) -> _Header:
+    """The metadata: UTF-8 JSON of this format and version, with counts in range (checked
+    before anything is allocated from them)."""
+    _need(raw.dtype == np.uint8 and raw.ndim == 1, name, "meta must be UTF-8 bytes")
     try:
-        meta = json.loads(bytes(a["meta"]).decode())
+        meta = json.loads(bytes(raw).decode())
     except (ValueError, UnicodeDecodeError) as exc:
         raise InputError(name, f"corrupt metadata: {exc}") from None
     except RecursionError:
@@ -271,6 +314,23 @@ def read(path) -> dict[str, Any]:
         j == sphere.N_VIEWS, name, f"n_views must be {sphere.N_VIEWS} (the geodesic views), got {j}"
     )
     _need(3 <= v <= 1 << 26, name, f"n_vertices must be 3..{1 << 26}, got {v}")
+    return _Header(meta, prov, v, j, n, ni)
+
+
+def _check_arrays(a: dict[str, np.ndarray], h: _Header, name: str) -> None:
+    """Each array against the header: shapes, dtypes, finite values, then the geometry, the
+    views, the SH order and the stored Gaussians' means and widths."""
+    _check_shapes(a, h, name)
+    for k in ("vertices", "normals", "views", "gaussians", "diffuse"):
+        _need(np.issubdtype(a[k].dtype, np.floating), name, f"{k} must be floating point")
+        _need(bool(np.isfinite(a[k]).all()), name, f"{k} has NaN or Inf values")
+    _check_geometry(a, h.v, name)
+    _check_sh_order(a["diffuse"], h.meta, name)
+    _check_records(a["gaussians"], name)
+
+
+def _check_shapes(a: dict[str, np.ndarray], h: _Header, name: str) -> None:
+    v, j, n = h.v, h.j, h.n
     shapes = {
         "vertices": (v, 3),
         "normals": (v, 3),
@@ -292,9 +352,11 @@ def read(path) -> dict[str, Any]:
         name,
         f"diffuse has shape {a['diffuse'].shape}",
     )
-    for k in ("vertices", "normals", "views", "gaussians", "diffuse"):
-        _need(np.issubdtype(a[k].dtype, np.floating), name, f"{k} must be floating point")
-        _need(bool(np.isfinite(a[k]).all()), name, f"{k} has NaN or Inf values")
+
+
+def _check_geometry(a: dict[str, np.ndarray], v: int, name: str) -> None:
+    """Faces, vertices, normals and views: indices in range, an extent, no zero vectors, and
+    the views the geodesic set."""
     f = a["faces"]
     _need(np.issubdtype(f.dtype, np.integer), name, "faces must be integers")
     _need(f.shape[0] > 0, name, "has no faces")
@@ -310,6 +372,9 @@ def read(path) -> dict[str, Any]:
         name,
         "views are not the 92 geodesic views in their order",
     )
+
+
+def _check_sh_order(diffuse: np.ndarray, meta: dict[str, Any], name: str) -> None:
     order = meta.get("sh_order", 5)
     _need(
         isinstance(order, int) and not isinstance(order, bool) and 1 <= order <= 10,
@@ -317,11 +382,14 @@ def read(path) -> dict[str, Any]:
         f"sh_order must be a whole number in 1..10, got {order!r}",
     )
     _need(
-        a["diffuse"].shape[1] == order**2,
+        diffuse.shape[1] == order**2,
         name,
-        f"diffuse has {a['diffuse'].shape[1]} SH coefficients, sh_order {meta.get('sh_order')!r}",
+        f"diffuse has {diffuse.shape[1]} SH coefficients, sh_order {meta.get('sh_order')!r}",
     )
-    g7 = a["gaussians"]
+
+
+def _check_records(g7: np.ndarray, name: str) -> None:
+    """The stored Gaussians (K, N, 7): means not zero, widths a float32 sharpness can hold."""
     if g7.size:
         _need(
             bool((np.linalg.norm(g7[..., 3:6].astype(np.float64), axis=-1) > 1e-6).all()),
@@ -331,7 +399,12 @@ def read(path) -> dict[str, Any]:
         sig = g7[..., 6].astype(np.float64)
         # sigma >= 1e-6: lam = sigma^-2 must be a finite float32
         _need(bool((sig >= 1e-6).all()), name, "sigma must be at least 1e-6")
-    rec = torch.zeros(v, j, n, 7)
+
+
+def _gaussians(a: dict[str, np.ndarray], h: _Header, name: str) -> Gaussians:
+    """The Gaussians (V, J, N) of every record, dropped ones with zero weight; checks their
+    weights and the light each carries."""
+    rec = torch.zeros(h.v, h.j, h.n, 7)
     rec[..., 3:6] = torch.tensor([0.0, 1.0, 0.0])  # dropped records: zero weight
     rec[..., 6] = 1.0
     rec[torch.from_numpy(a["keep"])] = torch.from_numpy(a["gaussians"].astype(np.float32))
@@ -341,26 +414,35 @@ def read(path) -> dict[str, Any]:
     mu = torch.nn.functional.normalize(rec[..., 3:6], dim=-1)
     lam = sigma.pow(-2)
     w = rec[..., :3].contiguous()
-    if meta.get("weights", "peak") == "integral":
+    if h.meta.get("weights", "peak") == "integral":
         w = w / sg.integral(lam.double()).to(w.dtype)[..., None]
-    g = Gaussians(w, mu, lam)
     carried = float((w.double() * sg.integral(lam.double())[..., None]).max()) if w.numel() else 0
     _need(
         carried <= MAX_LIGHT,
         name,
         f"a Gaussian carries {carried:.3g} of light, over {MAX_LIGHT:g}: not a fitted model",
     )
-    for k, arr in (("diffuse", a["diffuse"]), ("bounce", bounce_arr)):
+    return Gaussians(w, mu, lam)
+
+
+def _check_transfer(diffuse: np.ndarray, bounce: np.ndarray | None, name: str) -> None:
+    """No SH transfer coefficient over :data:`MAX_LIGHT`."""
+    for k, arr in (("diffuse", diffuse), ("bounce", bounce)):
         if arr is not None and arr.size and float(np.abs(arr).max()) > MAX_LIGHT:
             raise InputError(name, f"{k} transfer over {MAX_LIGHT:g}: not a fitted model")
+
+
+def _build(p: Path, a, bounce_arr, h: _Header, g: Gaussians, name: str) -> dict[str, Any]:
+    """The fields of the model: the mesh, the materials (checked against the vertex count) and
+    the bounce transfer (checked against ``diffuse``), with the rest as read."""
     mesh = Mesh(
         vertices=torch.from_numpy(a["vertices"].astype(np.float32)),
-        faces=torch.from_numpy(f.astype(np.int64)),
+        faces=torch.from_numpy(a["faces"].astype(np.int64)),
         normals=torch.from_numpy(a["normals"].astype(np.float32)),
-        name=str(prov.get("scene", p.stem)),
+        name=str(h.provenance.get("scene", p.stem)),
     )
     try:
-        mats = Materials.from_dict(meta["materials"], v)
+        mats = Materials.from_dict(h.meta["materials"], h.v)
     except (KeyError, TypeError) as exc:
         raise InputError(name, f"bad materials entry: {exc}") from None
     except InputError as exc:
@@ -380,7 +462,7 @@ def read(path) -> dict[str, Any]:
         "gaussians": g,
         "diffuse": torch.from_numpy(a["diffuse"].astype(np.float32)),
         "materials": mats,
-        "provenance": dict(prov),
+        "provenance": dict(h.provenance),
         "bounce": bounce,
-        "indirect_gaussians": ni,
+        "indirect_gaussians": h.ni,
     }
