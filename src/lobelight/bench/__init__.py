@@ -30,7 +30,7 @@ the SG-BRDF method (:mod:`lobelight.studies.compare_brdf`) times its GLSL rows w
 
 from ._machine import machine, sync
 from .brdf_fit import bench_brdf_fit
-from .cosine import bench_tables, bench_lobes
+from .cosine import bench_lobes, bench_tables
 from .fit import bench_fit
 from .prefilter import bench_prefilter
 from .rays import bench_rays
@@ -46,12 +46,12 @@ __all__ = [
     "bench_all",
     "bench_brdf_fit",
     "bench_fit",
-    "bench_tables",
     "bench_lobes",
     "bench_prefilter",
     "bench_rays",
     "bench_render",
     "bench_sgbrdf_gl",
+    "bench_tables",
     "bench_transport",
     "machine",
     "sync",

@@ -47,7 +47,7 @@ from ..cosine import (
 )
 from ._machine import machine, sync
 
-__all__ = ["bench_tables", "bench_lobes"]
+__all__ = ["bench_lobes", "bench_tables"]
 
 GOALS_FPS = {"unoccluded": 60.0, "occluded": 30.0}
 PAPER_FPS = {"unoccluded": 13.73, "occluded": [4.75, 15.9]}

@@ -167,7 +167,7 @@ def _time_gl(gl, cam, frames: int, min_seconds: float, display: bool, profile_fr
 
 
 def _breakdown(summary: dict, profiled: float, submit: list[float], display: bool) -> dict:
-    """A row's per-pass fields from a :meth:`PassTimer.summary` (ms), the profiled frames'
+    """A row's per-pass fields from the pass timer's summary (ms), the profiled frames'
     seconds per frame and the sorted submit times (s)."""
     out = {
         "target": "rgba16f, tone-mapped to rgba8" if display else "rgba32f",

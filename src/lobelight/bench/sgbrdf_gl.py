@@ -79,7 +79,8 @@ def bench_sgbrdf_gl(
     model : fitted material;  lighting : as :class:`GLSGBRDFRenderer` (a Lighting or an EnvMap
         serves both methods; a Prefiltered needs ``chain`` for FIS)
     brdf : FIS's material (default ``model.material``);  chain : FIS's base cube map (a
-        ``(6, R, R, 3)`` array or a :class:`MipChain`, see :class:`GLSGBRDFRenderer`)
+        ``(6, R, R, 3)`` array or a :class:`lobelight.sgbrdf.MipChain`, see
+        :class:`GLSGBRDFRenderer`)
 
     Returns
     -------

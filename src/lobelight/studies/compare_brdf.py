@@ -3,11 +3,11 @@
 A unit sphere (orthographic, seen from +Z, :func:`lobelight.sgbrdf.sphere_hits`) made of Ward
 (``ks = 1``, grey) at each roughness, lit by a real HDR map, shaded per sphere pixel by
 
-``ours``       the fitted SG mixture (:func:`fit`; 8 lobes, 16 for anisotropic materials:
-               ``LOBES``, ``ANISO_LOBES``) with the exact Gaussian-prefiltered
-               chain (:class:`lobelight.envmap.Prefiltered`)
+``ours``       the fitted SG mixture (:func:`lobelight.sgbrdf.fit`; 8 lobes, 16 for
+               anisotropic materials: ``LOBES``, ``ANISO_LOBES``) with the exact
+               Gaussian-prefiltered chain (:class:`lobelight.envmap.Prefiltered`)
 ``ours_mip``   the same mixture read from a box-filtered mip chain at the paper's eq. (10) level
-               (:class:`MipChain`, coverage ``a = 0.5``)
+               (:class:`lobelight.sgbrdf.MipChain`, coverage ``a = 0.5``)
 ``fis40``      filtered importance sampling with 40 Hammersley samples (:func:`shade_fis`)
 ``wang09``     the single warped lobe of Wang et al. 2009 (:func:`shade_wang09`)
 ``reference``  Monte Carlo with MIS of BRDF and environment sampling (:func:`shade_reference`)
@@ -79,8 +79,7 @@ REPEATS = 5
 #: The map used when none is given (a studio: a sharp-edged softbox and a round light).
 DEFAULT_ENVMAP = "studio_small_03_1k.hdr"
 #: Lobes per view of ``ours``: the paper's 8 for isotropic materials; 16 for anisotropic ones,
-#: where 8 isotropic lobes cannot follow a 20:1 streak (Ward (0.01, 0.2): mean fit error 0.65
-#: with 8, 0.45 with 16; docs/sgbrdf.md).
+#: where 8 isotropic lobes cannot follow a 20:1 streak (the fit errors of both: docs/sgbrdf.md).
 LOBES = 8
 ANISO_LOBES = 16
 #: Amplification of the difference images in the grid.
@@ -228,51 +227,19 @@ def compare_brdf(
     ``json`` (paths), ``backend``, ``gl`` (None, or the GL renderer string and timing rule),
     ``machine``.
     """
-    if not isinstance(size, int) or isinstance(size, bool) or size < 4:
-        raise InputError("size", f"must be an integer >= 4, got {size!r}")
-    if not isinstance(ref_spp, int) or isinstance(ref_spp, bool) or ref_spp < 16:
-        raise InputError("ref_spp", f"must be an integer >= 16, got {ref_spp!r}")
-    try:
-        dev = torch.device(device)
-    except (RuntimeError, TypeError):
-        raise InputError("device", f"not a torch device: {device!r}") from None
-    out = Path(out)
-    if out.exists() and not out.is_dir():
-        raise InputError(str(out), "must be a folder")
-    if backend not in BACKENDS:
-        raise InputError("backend", f"must be one of {', '.join(BACKENDS)}, got {backend!r}")
+    dev, out = _check_arguments(out, size=size, ref_spp=ref_spp, device=device, backend=backend)
     mats = _materials(alphas, aniso)
     gl_ctx = None
     if backend == "both":
         gl_ctx = create_context()  # fails early, with its reason, where there is no OpenGL
     out.mkdir(parents=True, exist_ok=True)
     env_map = _load_env(env, dev)
-
-    setup: dict[str, float] = {}
-    t0 = time.perf_counter()
-    iso = [is_isotropic(b) for _, b in mats]
-    models: list[Any] = [None] * len(mats)
-    for flag, lobes in ((True, LOBES), (False, ANISO_LOBES)):
-        idx = [i for i, f in enumerate(iso) if f == flag]
-        if idx:
-            got = fit_many([mats[i][1] for i in idx], n_lobes=lobes, device=dev)
-            for i, m in zip(idx, got, strict=True):
-                models[i] = m
-    setup["fit"] = time.perf_counter() - t0
-    res = _base_res(env_map)
-    t0 = time.perf_counter()
-    pf = prefilter(env_map, base_res=res)
-    setup["prefilter"] = time.perf_counter() - t0
-    t0 = time.perf_counter()
-    chain = mip_chain(env_map, base_res=res)
-    setup["mip_chain"] = time.perf_counter() - t0
-    t0 = time.perf_counter()
-    sampler = EnvSampler(env_map)
-    setup["env_sampler"] = time.perf_counter() - t0
+    setup, models, res, pf, chain, sampler = _prepare(mats, env_map, dev)
 
     hits = sphere_hits(size, device=dev)
     mask = hits["mask"]
     n, v, tg = (hits[k][mask] for k in ("normals", "views", "tangents"))  # (P, 3) each
+    names = METHODS + (GL_METHODS if gl_ctx is not None else ())
 
     table: list[dict] = []
     noise: list[dict] = []
@@ -296,58 +263,14 @@ def compare_brdf(
         got["reference"], secs["reference"] = ref, ref_seconds
         if gl_ctx is not None:
             _run_gl(gl_ctx, model, b, pf, chain, size, mask, got, secs)
-        k = _exposure(ref)
-        d_ref = display(ref, k)
-        # the reference's noise seen through the display curve (central difference)
-        d_noise = 0.5 * (display(ref + se, k) - display((ref - se).clamp_min(0), k))
-        mse_noise = float((d_noise**2).mean())
-        ref_norm = float(ref.double().norm())
-        noise.append(
-            {
-                "material": label,
-                "rel_stderr": float(se.double().norm()) / max(ref_norm, DIVISOR_F32),
-                "psnr_ceiling": psnr_from_mse(mse_noise) if mse_noise > 0 else None,
-                "exposure": k,
-            }
-        )
-        row_imgs = []
-        for name in METHODS + (GL_METHODS if gl_ctx is not None else ()):
-            x = got[name]
-            row = {"material": label, "method": name, "fps": 1 / secs[name], "seconds": secs[name]}
-            if name == "reference":
-                row.update(psnr=None, rel_l2=None, noise_share=None)
-            else:
-                mse = float(((display(x, k) - d_ref) ** 2).mean())
-                row["psnr"] = psnr_from_mse(mse)
-                row["rel_l2"] = relative_l2(x, ref)
-                row["noise_share"] = mse_noise / mse if mse > 0 else None
-            table.append(row)
-            if name in METHODS:
-                row_imgs.append(_tile(x, mask, k))
-        for name in METHODS[1:]:
-            row_imgs.append(_tile(got[name], mask, k, diff_to=ref))
+        rows, noise_row, row_imgs = _score_material(label, names, got, secs, se, mask)
+        table += rows
+        noise.append(noise_row)
         images.append(row_imgs)
-        rows = {r["method"]: r for r in table if r["material"] == label}
-        goals["psnr_ours_ge_fis"][label] = bool(rows["ours"]["psnr"] >= rows["fis40"]["psnr"])
-        goals["ours_faster_than_fis_per_material"][label] = bool(
-            rows["ours"]["fps"] > rows["fis40"]["fps"]
-        )
-        if gl_ctx is not None:
-            goals.setdefault("gl_psnr_ours_ge_fis", {})[label] = bool(
-                rows["ours_gl"]["psnr"] >= rows["fis40_gl"]["psnr"]
-            )
-            goals.setdefault("gl_ours_faster_than_fis_per_material", {})[label] = bool(
-                rows["ours_gl"]["fps"] > rows["fis40_gl"]["fps"]
-            )
-    goals["all_psnr_ours_ge_fis"] = all(goals["psnr_ours_ge_fis"].values())
-    # over all materials: total shading time of ours against FIS's (one frame of each material)
-    total = {m: sum(r["seconds"] for r in table if r["method"] == m) for m in ("ours", "fis40")}
-    goals["ours_faster_than_fis"] = bool(total["ours"] < total["fis40"])
+        _material_goals(goals, label, {r["method"]: r for r in rows}, gl=gl_ctx is not None)
+    _overall_goals(goals, table, gl=gl_ctx is not None)
     gl_info = None
     if gl_ctx is not None:
-        goals["gl_all_psnr_ours_ge_fis"] = all(goals["gl_psnr_ours_ge_fis"].values())
-        total = {m: sum(r["seconds"] for r in table if r["method"] == m) for m in GL_METHODS}
-        goals["gl_ours_faster_than_fis"] = bool(total["ours_gl"] < total["fis40_gl"])
         gl_info = {
             "renderer": str(gl_ctx.info.get("GL_RENDERER", "")),
             "timing": f"frames of {size}x{size} back to back, one ctx.finish(), "
@@ -394,6 +317,121 @@ def compare_brdf(
     }
     _write_json(result, out / "compare-brdf.json")
     return result
+
+
+def _check_arguments(
+    out: Any, *, size: Any, ref_spp: Any, device: Any, backend: Any
+) -> tuple[torch.device, Path]:
+    """``device`` as a torch device and ``out`` as a path, once the arguments are checked."""
+    if not isinstance(size, int) or isinstance(size, bool) or size < 4:
+        raise InputError("size", f"must be an integer >= 4, got {size!r}")
+    if not isinstance(ref_spp, int) or isinstance(ref_spp, bool) or ref_spp < 16:
+        raise InputError("ref_spp", f"must be an integer >= 16, got {ref_spp!r}")
+    try:
+        dev = torch.device(device)
+    except (RuntimeError, TypeError):
+        raise InputError("device", f"not a torch device: {device!r}") from None
+    out = Path(out)
+    if out.exists() and not out.is_dir():
+        raise InputError(str(out), "must be a folder")
+    if backend not in BACKENDS:
+        raise InputError("backend", f"must be one of {', '.join(BACKENDS)}, got {backend!r}")
+    return dev, out
+
+
+def _prepare(mats: list, env_map: Any, dev: torch.device) -> tuple:
+    """The one-time work before any shading, timed: the fits of ``mats`` (one batch per lobe
+    count), the prefiltered chain, the mip chain and the environment sampler. Returns
+    ``(setup seconds, models, chains' base resolution, prefiltered, mip chain, sampler)``."""
+    setup: dict[str, float] = {}
+    t0 = time.perf_counter()
+    iso = [is_isotropic(b) for _, b in mats]
+    models: list[Any] = [None] * len(mats)
+    for flag, lobes in ((True, LOBES), (False, ANISO_LOBES)):
+        idx = [i for i, f in enumerate(iso) if f == flag]
+        if idx:
+            got = fit_many([mats[i][1] for i in idx], n_lobes=lobes, device=dev)
+            for i, m in zip(idx, got, strict=True):
+                models[i] = m
+    setup["fit"] = time.perf_counter() - t0
+    res = _base_res(env_map)
+    t0 = time.perf_counter()
+    pf = prefilter(env_map, base_res=res)
+    setup["prefilter"] = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    chain = mip_chain(env_map, base_res=res)
+    setup["mip_chain"] = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    sampler = EnvSampler(env_map)
+    setup["env_sampler"] = time.perf_counter() - t0
+    return setup, models, res, pf, chain, sampler
+
+
+def _score_material(
+    label: str, names: tuple, got: dict, secs: dict, se: torch.Tensor, mask: torch.Tensor
+) -> tuple[list[dict], dict, list[np.ndarray]]:
+    """One material's table rows (``names`` in order), its reference-noise record and its row
+    of the image grid, from the sphere pixels ``got`` (``(P, 3)`` per method, the reference's
+    standard errors ``se``) and the seconds ``secs`` of each method."""
+    ref = got["reference"]
+    k = _exposure(ref)
+    d_ref = display(ref, k)
+    # the reference's noise seen through the display curve (central difference)
+    d_noise = 0.5 * (display(ref + se, k) - display((ref - se).clamp_min(0), k))
+    mse_noise = float((d_noise**2).mean())
+    ref_norm = float(ref.double().norm())
+    noise = {
+        "material": label,
+        "rel_stderr": float(se.double().norm()) / max(ref_norm, DIVISOR_F32),
+        "psnr_ceiling": psnr_from_mse(mse_noise) if mse_noise > 0 else None,
+        "exposure": k,
+    }
+    rows, row_imgs = [], []
+    for name in names:
+        x = got[name]
+        row = {"material": label, "method": name, "fps": 1 / secs[name], "seconds": secs[name]}
+        if name == "reference":
+            row.update(psnr=None, rel_l2=None, noise_share=None)
+        else:
+            mse = float(((display(x, k) - d_ref) ** 2).mean())
+            row["psnr"] = psnr_from_mse(mse)
+            row["rel_l2"] = relative_l2(x, ref)
+            row["noise_share"] = mse_noise / mse if mse > 0 else None
+        rows.append(row)
+        if name in METHODS:
+            row_imgs.append(_tile(x, mask, k))
+    for name in METHODS[1:]:
+        row_imgs.append(_tile(got[name], mask, k, diff_to=ref))
+    return rows, noise, row_imgs
+
+
+def _material_goals(goals: dict, label: str, rows: dict, *, gl: bool) -> None:
+    """One material's goals into ``goals``, from its rows by method: ours against FIS-40 in
+    PSNR and fps (and the GLSL rows' with ``gl``)."""
+    goals["psnr_ours_ge_fis"][label] = bool(rows["ours"]["psnr"] >= rows["fis40"]["psnr"])
+    goals["ours_faster_than_fis_per_material"][label] = bool(
+        rows["ours"]["fps"] > rows["fis40"]["fps"]
+    )
+    if gl:
+        goals.setdefault("gl_psnr_ours_ge_fis", {})[label] = bool(
+            rows["ours_gl"]["psnr"] >= rows["fis40_gl"]["psnr"]
+        )
+        goals.setdefault("gl_ours_faster_than_fis_per_material", {})[label] = bool(
+            rows["ours_gl"]["fps"] > rows["fis40_gl"]["fps"]
+        )
+
+
+def _overall_goals(goals: dict, table: list[dict], *, gl: bool) -> None:
+    """The goals over all materials into ``goals``: every material's PSNR goal, and the total
+    shading time of ours against FIS's (one frame of each material); the GLSL rows' with
+    ``gl``."""
+    goals["all_psnr_ours_ge_fis"] = all(goals["psnr_ours_ge_fis"].values())
+    total = {m: sum(r["seconds"] for r in table if r["method"] == m) for m in ("ours", "fis40")}
+    goals["ours_faster_than_fis"] = bool(total["ours"] < total["fis40"])
+    if gl:
+        goals["gl_all_psnr_ours_ge_fis"] = all(goals["gl_psnr_ours_ge_fis"].values())
+        total = {m: sum(r["seconds"] for r in table if r["method"] == m) for m in GL_METHODS}
+        goals["gl_ours_faster_than_fis"] = bool(total["ours_gl"] < total["fis40_gl"])
 
 
 def _run_gl(ctx, model, brdf, pf, chain, size: int, mask, got: dict, secs: dict) -> None:

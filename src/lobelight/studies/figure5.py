@@ -2,7 +2,8 @@
 
 For three transport functions ``T(w) = f_s(w, v) V(w) max(n.w, 0)`` of one vertex and one view
 (paper eq. 2), made by :meth:`lobelight.transport.Transport.direct` on a small real scene (a
-ground plane and a box, ray cast with Embree), this module measures the relative L2 error
+ground plane and a box, ray cast by :class:`lobelight.geometry.raycast.RayCaster`), this module
+measures the relative L2 error
 
     ``err = sqrt( int (T~ - T)^2 dw / int T^2 dw )``
 
@@ -69,6 +70,7 @@ import torch
 
 from .. import fit
 from .._io import atomic_path
+from .._tol import DIVISOR_F64
 from ..errors import InputError
 from ..fit import FitData, Gaussians, Weights
 from ..geometry import cubemap, sphere
@@ -128,16 +130,19 @@ _BOX = ((0.35, 0.0, -0.15), (1.2, 0.5, 0.9))
 # Fit settings. The multi-start fit runs on a 64^2-per-face quadrature (cells of 0.025 rad at
 # face centres: a lobe of sigma >= 0.05 rad is smooth on them), which is cheap for five starts;
 # the best start is then polished on the full-resolution texels, where the sharp lobes of (a)
-# and (c) are resolved (polishing on 128^2 cells instead left (a) at 0.13 % instead of 0.08 %
-# at K = 10). Blocks where the function is below _ACTIVE_LEVEL of its peak are 16^2-per-face
-# samples. The sharpness range runs from a hemisphere-wide lobe to past the narrowest feature a
-# 512^2 face resolves. Iterations: 40 + 25 against 25 + 15 gained ~0.002 in (b)'s error.
+# and (c) are resolved (a polish on coarser cells fits them worse). Blocks where the function
+# is below _ACTIVE_LEVEL of its peak are 16^2-per-face samples. The sharpness range runs from a
+# hemisphere-wide lobe to past the narrowest feature a 512^2 face resolves. The iteration
+# counts are where more iterations hardly lower the errors.
 _LM_ITERS = 40
 _POLISH_ITERS = 25
 _FIT_RES = 64
 _COARSE_RES = 16
 _LAM_RANGE = (0.05, 1e5)
 _ACTIVE_LEVEL = 1e-5
+#: Ridge of the non-negative weights' normal equations, relative to their mean diagonal: keeps
+#: coincident lobes solvable while far below the equations' own scale.
+_RIDGE = 1e-12
 
 
 # --------------------------------------------------------------------------------------------
@@ -181,7 +186,7 @@ def transport_functions(
 
     Each is the direct glossy transport ``f_s(w, v) V(w) max(n.w, 0)`` of one ground vertex
     for one view (:data:`FUNCTIONS`), from :meth:`lobelight.transport.Transport.direct` with
-    Embree visibility. The specular colour is grey, so the first channel is the function.
+    ray-cast visibility. The specular colour is grey, so the first channel is the function.
 
     Parameters
     ----------
@@ -421,12 +426,12 @@ class _FullGrid:
         b = gw @ self.f  # (N,)
         free = torch.ones(n, dtype=torch.bool, device=g.device)
         w = torch.zeros(n, dtype=g.dtype, device=g.device)
-        scale = a.diagonal().mean().clamp_min(1e-300)
+        scale = a.diagonal().mean().clamp_min(DIVISOR_F64)
         for _ in range(n):
             eye = torch.eye(n, dtype=g.dtype, device=g.device)
             # fixed lobes get an identity row and a zero right-hand side; a tiny ridge keeps
             # coincident lobes solvable
-            sys_a = torch.where(free[:, None] & free[None], a, eye * scale) + 1e-12 * scale * eye
+            sys_a = torch.where(free[:, None] & free[None], a, eye * scale) + _RIDGE * scale * eye
             w = torch.linalg.solve(sys_a, torch.where(free, b, torch.zeros_like(b)))
             if bool((w >= 0).all()):
                 break

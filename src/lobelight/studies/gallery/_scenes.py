@@ -115,9 +115,9 @@ def default_camera(azimuth: float = 0.0) -> Camera:
 
 #: Fitted Gaussians per view of each material's bakes. One Gaussian keeps a GGX metal's light
 #: (the fit's integral constraint) but not its tails, which lie on other parts of the map than
-#: its peak: on Spot's rough metal under the park map its direct light off the map without the
-#: sun is 3.4 % over the path tracer's with one and 1.3 % with two (docs/results.md); the
-#: plastic's and the diffuse's glossy light is too small a share for that to show.
+#: its peak: two follow them closer (the measurement on Spot's rough metal under the park map:
+#: docs/results.md); the plastic's and the diffuse's glossy light is too small a share for that
+#: to show.
 GAUSSIANS = {"sharp_metal": 2, "rough_metal": 2, "plastic": 1, "diffuse": 1}
 
 
