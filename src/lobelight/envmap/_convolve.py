@@ -1,8 +1,8 @@
 """Spherical convolution of cube maps with von Mises-Fisher kernels: the prefilter's engine.
 
-Three operators, each exact or controlled to well under the prefilter's 2 % budget:
+Four operators, each exact or controlled to well under the prefilter's 2 % budget:
 
-``anisotropic_increment``  (fine levels, ``R >= 64``)
+``anisotropic_increment``  (fine levels, ``R >= SEPARABLE_MIN_RES`` of :mod:`._prefilter`)
     A narrow vMF ``exp(lam (mu.w - 1))`` seen on a face's gnomonic plane is, to third order in
     the offset, a 2-D Gaussian whose covariance in texel units is ``C = sigma^2 rho^2
     [[1 + u^2, u v], [u v, 1 + v^2]]`` (``rho^2 = 1 + u^2 + v^2``, ``sigma^2 = (R/2)^2 / lam``:
@@ -16,6 +16,9 @@ Three operators, each exact or controlled to well under the prefilter's 2 % budg
     :func:`_halo_plan`), so the passes see real texels across edges and corners. Radiance is
     weighted by exact texel solid angles and the result divided by the same passes applied to
     the solid angles, so the measure is right and a constant map stays constant.
+``windowed_increment``  (fine levels below that, down to ``SH_MAX_RES``)
+    The exact kernel between each texel and a window of real texels around it, the face's and
+    its neighbours'.
 ``dense_increment``  (small maps; the tests' reference)
     The exact kernel between every pair of texels.
 ``sh_levels``  (the widest lobes)
@@ -36,7 +39,7 @@ Data layout
     matrix product over the texels (:class:`_Pass`), a windowed sum one per group of blocks, and
     the same code runs on the CPU and on a GPU. Weights, windows and gather indices depend only
     on the resolution and the sharpness, never on the map: they are built once per level shape
-    and kept in memory (``lobelight.envmap._prefilter.clear_memory_caches`` forgets them).
+    and kept in memory (:func:`lobelight.envmap.clear_memory_caches` forgets them).
 """
 
 from __future__ import annotations
@@ -450,9 +453,8 @@ def _anisotropic_plan(res: int, lam: float, device: torch.device, dtype: torch.d
     # on the gnomonic plane), which moves its mean by C grad log rho (0.06 texel at u = v = 0.27
     # for sigma = 2.5 texels, as a dense exact sum confirms). Weighting texels by rho, not by
     # their solid angle, reproduces that drift; by solid angle it would be -3x it, the wrong way.
-    # What this leaves out is the kernel's skew, a relative error of order sigma (in radians):
-    # 1.3 % of the peak for a single bright texel at lam = 2600, 5 % at lam = 160, which is why
-    # coarse resolutions take the exact windowed path instead.
+    # What this leaves out is the kernel's skew, a relative error of order sigma (in radians),
+    # which grows as lobes widen: that is why coarse resolutions take the exact windowed path.
     om = torch.sqrt(r2).to(dtype)  # (n, n)
 
     # output windows of the passes in tile coordinates: diagonal, then columns, then rows
@@ -620,11 +622,11 @@ def windowed_increment(level: torch.Tensor, lam_inc: float, *, block: int = 8) -
     Each face is padded with its neighbours' real texels (:func:`_unfold_plan`), so every output
     texel sees a window of the map's own texels around it. The sum uses the exact kernel
     ``exp(lam (mu.w - 1))`` with the true directions and exact solid angles of those texels, so
-    it equals the dense sum up to the kernel's weight beyond ``WINDOW_SIGMAS`` (measured 1e-4
-    relative). The face is cut into ``block x block`` texel blocks whose window is sized to their
-    smallest texels (texels shrink by up to 3x toward the corners); each block's sum is one
-    matrix product, ``(block^2, window texels) @ (window texels, tiles x channels + 1)``, for the
-    blocks of one window size at once, all tiles sharing the kernel (:func:`_windowed_plan`).
+    it equals the dense sum up to the kernel's weight beyond ``WINDOW_SIGMAS``. The face is cut
+    into ``block x block`` texel blocks whose window is sized to their smallest texels (texels
+    shrink by up to 3x toward the corners); each block's sum is one matrix product,
+    ``(block^2, window texels) @ (window texels, tiles x channels + 1)``, for the blocks of one
+    window size at once, all tiles sharing the kernel (:func:`_windowed_plan`).
 
     Parameters
     ----------

@@ -15,11 +15,10 @@ agrees. For a unit direction ``d``::
     and rows floor(y), floor(y) + 1, with floor clamped to W - 1 and H - 2.
 
 So row 0 is the zenith itself and row ``H - 1`` the nadir itself (not half a pixel away), and
-columns wrap around. This was checked against Mitsuba 3.9 ``scalar_rgb`` renders with a
-``radiancemeter`` (``tests/test_envmap.py::test_latlong_matches_mitsuba``): Mitsuba applies no
-scale and, in RGB variants, no colour conversion to an RGB image. A direction exactly at a pole
-has no azimuth; Mitsuba then reads whichever column its ``atan2`` of two rounding-level numbers
-gives, and so do we.
+columns wrap around. ``tests/test_envmap.py::test_latlong_matches_mitsuba`` checks this against
+Mitsuba 3.9 ``scalar_rgb`` renders with a ``radiancemeter``: Mitsuba applies no scale and, in RGB
+variants, no colour conversion to an RGB image. A direction exactly at a pole has no azimuth;
+Mitsuba then reads whichever column its ``atan2`` of two rounding-level numbers gives, and so do we.
 
 ``"cubemap"`` — a ``(6, R, R, 3)`` cube map in the layout of :mod:`lobelight.geometry.cubemap`
 (OpenGL faces and texel orientation), looked up with its bilinear, seamless
@@ -45,10 +44,11 @@ split as ``min(L, c) + spikes``, ``c`` the level exceeded by only the brightest 
   is spread over its footprint (its bilinear hat) by many low-discrepancy points and added to
   the target texels they land in, so it is kept to float rounding however small the sun and
   however coarse the target, where point sampling would lose O((sample spacing / pixel)^2) of
-  it (0.4 % of a 3-pixel sun at two samples per pixel). Locally a splatted texel is off by the
-  counting error of its points, < 1 % even where texels are 4-13 times smaller than pixels.
+  it. Locally a splatted texel is off by the counting error of its points (``_SPLAT_PER_CELL``
+  points across the smallest target cell).
 
-Measured on the real maps: lat-long -> cube map -> lat-long keeps the power to < 0.06 %.
+So a round trip lat-long -> cube map -> lat-long keeps the power of the spikes to float
+rounding and that of the bounded part to its sub-sampling error.
 """
 
 from __future__ import annotations
@@ -75,7 +75,7 @@ LAYOUTS = ("latlong", "cubemap")
 # Sub-samples per source pixel (along each axis) of the automatic supersampling of the bounded
 # part of the source. A point-sampled average of a piecewise-bilinear interpolant errs where its
 # kinks fall between samples, by O((spacing / pixel)^2) of the local power: negligible once the
-# spikes are splatted (< 0.06 % of the total on the real maps), and 4 would cost 4x the time.
+# spikes are splatted, and 4 would cost four times the sub-samples.
 _SAMPLES_PER_SOURCE_PIXEL = 2.0
 # Per-axis factors are rounded up to this ladder (fewer distinct groups to process) and capped:
 # the last entry bounds the work for a texel that covers a lat-long pole, where pixels vanish.

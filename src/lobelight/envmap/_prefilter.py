@@ -76,7 +76,7 @@ SHARPEN_MIN_RES = 4
 #: order 31 for the 32^2 levels, on a 64^2 copy of the map).
 SH_MAX_RES = 32
 #: Cascade increments at this resolution or finer use the separable anisotropic passes (their
-#: relative error scales with the lobe width in radians: about 0.5-1.5 % at 256, 2-3 % at 128);
+#: relative error scales with the lobe width in radians, so it falls as resolution rises);
 #: between the two, exact windowed sums.
 SEPARABLE_MIN_RES = 256
 
@@ -493,7 +493,7 @@ def _schedule(
         if res <= SH_MAX_RES:
             break
         # Re-seed the exact part of the cascade from the map itself, so the separable passes'
-        # residual error (about 1 % near bright texels) does not flow into it.
+        # residual error (largest near bright texels) does not flow into it.
         reseed = cur_res >= SEPARABLE_MIN_RES > res
         if reseed:
             cur_res, cur_mc = res, _mean_cosine(12 * (res / 2) ** 2)
@@ -553,7 +553,7 @@ def _build(
     if wide:
         src = source(min(base_res, 64))
         levels += _convolve.sh_levels(src, [lam for lam, _ in wide], [res for _, res in wide])
-    # Reconstruction prefilter for the bilinear lookup (replaces a bilinear-variance fudge).
+    # Reconstruction prefilter for the bilinear lookup.
     return _per_resolution(levels, sharpen=True)
 
 

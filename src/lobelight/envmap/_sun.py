@@ -33,11 +33,9 @@ from ._envmap import EnvMap, _LatlongCells
 __all__ = ["RADIUS_DEG", "Sun", "extract_sun"]
 
 #: The window the sun is looked for in, degrees from the bright pixels' centre around the
-#: map's peak. Wide enough for an
-#: extended source (a studio's softbox): at 3 degrees the studio map's sun held 38 % of the
-#: map's power and the rest of the softbox stayed in the order-5 SH, whose blurred shadows
-#: left a diffuse teapot's vertices 5.9 % (RMS) from quadrature; at 10 degrees the sun holds
-#: 71 % and the vertices are 3.8 % off (beyond 10 degrees nothing changes). A small sun (the
+#: map's peak. Wide enough for an extended source (a studio's softbox): a narrower window
+#: leaves the rest of the softbox in the order-5 SH, whose shadows are blurred, and takes a
+#: smaller share of the map's power into the sun, which gets sharp ones. A small sun (the
 #: park's, 0.4 degrees) is the same at any window: the disc is the pixels above ``threshold``
 #: of the peak.
 RADIUS_DEG = 10.0

@@ -6,7 +6,7 @@
   bilinear sampling
 - :mod:`lobelight.geometry.camera`   Mitsuba 3's perspective sensor (:class:`Camera`)
 - :mod:`lobelight.geometry.raycast`  closest-hit and any-hit ray queries on a triangle mesh
-  (:class:`RayCaster`)
+  (:class:`RayCaster`), through Embree on the CPU or NVIDIA Warp on the CPU or a GPU
 
 Conventions (directions, cube-map faces, the camera): ``docs/conventions.md``.
 """

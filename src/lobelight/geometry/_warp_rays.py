@@ -42,7 +42,7 @@ def _has_builtin(name: str) -> bool:
 
 
 if wp is not None:
-    # forward launches only: no adjoint code to generate, about half the compile time
+    # forward launches only: no adjoint code to generate and compile
     wp.set_module_options({"enable_backward": False})
 
     #: Any-hit traversal stops at the first triangle found (Warp >= 1.9 or so); older Warps

@@ -183,8 +183,8 @@ def face_plane_texels(
     The work is a few dozen elementwise operations per point, done in pieces of ``2^14`` points:
     small enough to stay in cache (the work is bound by memory traffic, not arithmetic) and to
     keep torch's elementwise operations on the calling thread (below its parallel grain size of
-    ``2^15`` elements), since on a busy machine waiting for a pool thread costs milliseconds per
-    operation.
+    ``2^15`` elements), since on a busy machine waiting for a pool thread can cost far more than
+    the operation itself.
     """
     n, u, v = torch.broadcast_tensors(n, u, v)
     shape = u.shape

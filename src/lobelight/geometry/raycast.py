@@ -75,8 +75,8 @@ _default = "auto"
 
 
 def _warp_engine():
-    """:mod:`._warp_rays`, imported on first use: it imports NVIDIA Warp, which takes a third of
-    a second that a run on Embree alone need not pay."""
+    """:mod:`._warp_rays`, imported on first use: it imports NVIDIA Warp, whose import time a
+    run on Embree alone need not pay."""
     from . import _warp_rays  # optional dependency (NVIDIA Warp): imported when first asked for
 
     return _warp_rays

@@ -100,7 +100,7 @@ class Lighting:
         self._builders = builders
         self.sun_split = bool(sun)
         # both chains are built on first use: a renderer that shades the sun's glossy part
-        # per pixel needs only the one without the sun (a chain at 256^2 takes seconds)
+        # per pixel needs only the one without the sun (a fine chain is costly to build)
         self._pf = prefiltered
         self._base_res = prefiltered.base_res if prefiltered is not None else base_res
         self.sun: Sun | None = None
