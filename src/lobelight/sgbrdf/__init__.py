@@ -41,7 +41,7 @@ Elsewhere: the Monte Carlo reference (MIS of BRDF and environment sampling) is
 :func:`lobelight.reference.sgbrdf.shade_reference`; the comparison of every method per material
 (PSNR, relative L2, fps, image grid, ``compare-brdf.json``) is
 :func:`lobelight.studies.compare_brdf.compare_brdf`; the fit's timing is
-:func:`lobelight.studies.bench_brdf_fit.bench_fit`.
+:func:`lobelight.bench.brdf_fit.bench_brdf_fit`.
 """
 
 from ._em import (

@@ -38,6 +38,8 @@ from typing import Any
 
 import torch
 
+from .._checks import check_int
+from .._tol import DIVISOR_F32, DIVISOR_F64
 from ..errors import InputError
 from ..geometry.sphere import frame
 from ..lobes.sg import mean_cosine
@@ -81,7 +83,7 @@ class VMFMixture:
     def log_pdf(self, dirs: torch.Tensor) -> torch.Tensor:
         """Log density of each mixture at ``dirs (..., S, 3)`` -> ``(..., S)``."""
         logp = vmf_log_pdf(dirs.unsqueeze(-2), self.mu.unsqueeze(-3), self.kappa.unsqueeze(-2))
-        return torch.logsumexp(logp + self.alpha.clamp_min(1e-30).log().unsqueeze(-2), -1)
+        return torch.logsumexp(logp + self.alpha.clamp_min(DIVISOR_F32).log().unsqueeze(-2), -1)
 
     def pdf(self, dirs: torch.Tensor) -> torch.Tensor:
         """Density of each mixture at ``dirs (..., S, 3)`` -> ``(..., S)``."""
@@ -158,17 +160,11 @@ def kappa_from_gap(gap: torch.Tensor, *, solver: str = "exact") -> torch.Tensor:
 # input checks
 
 
-def _check_int(value: Any, name: str, *, minimum: int) -> int:
-    if isinstance(value, bool) or not isinstance(value, int) or value < minimum:
-        raise InputError(name, f"must be an integer >= {minimum}, got {value!r}")
-    return value
-
-
 def _check_data(
     dirs: Any, weights: Any, n_lobes: Any
 ) -> tuple[torch.Tensor, torch.Tensor, tuple[int, ...], int]:
     """Validate and flatten: ``dirs (P, S, 3)``, ``weights (P, S)``, batch shape, ``N``."""
-    n = _check_int(n_lobes, "n_lobes", minimum=1)
+    n = check_int(n_lobes, "n_lobes", minimum=1)
     if not isinstance(dirs, torch.Tensor):
         try:
             dirs = torch.as_tensor(dirs)
@@ -250,17 +246,16 @@ def _estimate(
         res = res + (pm * mc0).unsqueeze(-1) * mu0  # E[x] of a vMF is mean_cosine * mu
     else:
         pm = torch.zeros_like(mass)
-    tiny = 1e-300
     norm = torch.linalg.vector_norm(res, dim=-1, keepdim=True)  # (P, N, 1)
-    mu = res / norm.clamp_min(tiny)
+    mu = res / norm.clamp_min(DIVISOR_F64)
     # 1 - r with r = |res| / mass; in float64 the cancellation costs ~1e-16 / gap relative.
     gap_data = mass - (res * mu).sum(-1)  # sum w r (1 - x.mu) incl. pseudo-data's expectation
     if prior is not None and prior_strength > 0:
         gap_data = gap_data + pm  # pseudo-data: E[1 - x.mu] = 1 - mc0 mu0.mu, mc0 part in res
     mass_all = mass + pm
-    gap = (gap_data / mass_all.clamp_min(tiny)).clamp(0.0, 1.0)
+    gap = (gap_data / mass_all.clamp_min(DIVISOR_F64)).clamp(0.0, 1.0)
     kappa = kappa_from_gap(gap, solver=solver).clamp(kappa_min, kappa_max)
-    alpha = mass_all / mass_all.sum(-1, keepdim=True).clamp_min(tiny)
+    alpha = mass_all / mass_all.sum(-1, keepdim=True).clamp_min(DIVISOR_F64)
     return mu, kappa, alpha, mass
 
 
@@ -413,7 +408,7 @@ def em_fit(
         ``kappa_solver`` or ``prior_strength`` when it is malformed
     """
     x, w, batch, n = _check_data(dirs, weights, n_lobes)
-    _check_int(max_iter, "max_iter", minimum=0)
+    max_iter = check_int(max_iter, "max_iter", minimum=0)
     if not (isinstance(tol, (int, float)) and tol >= 0):
         raise InputError("tol", f"must be a number >= 0, got {tol!r}")
     if kappa_solver not in ("exact", "approx"):
@@ -447,7 +442,7 @@ def em_fit(
         # E-step: log(alpha g) = log alpha + log C + kappa (mu.x - 1); the dot products in
         # float64 (in float32, mu.x - 1 carries 6e-8 absolute error: 6e-3 nats at kappa = 1e5,
         # enough to stall the convergence test), the rest in the data's dtype
-        const = alpha_a.clamp_min(1e-30).log() + log_vmf_normalization(kappa_a)  # (Pa, N)
+        const = alpha_a.clamp_min(DIVISOR_F32).log() + log_vmf_normalization(kappa_a)  # (Pa, N)
         dots = torch.bmm(mu_a.double(), xta)  # (Pa, N, S)
         logp = torch.addcmul(
             const.unsqueeze(-1), kappa_a.unsqueeze(-1), (dots - 1).to(x.dtype)
@@ -530,7 +525,7 @@ def _check_params(params: Any, name: str, batch: tuple[int, ...], n: int, like: 
     if bool((alpha < 0).any()):
         raise InputError(f"{name}.alpha", "must be non-negative")
     mu = torch.nn.functional.normalize(mu, dim=-1)
-    alpha = alpha / alpha.sum(-1, keepdim=True).clamp_min(1e-30)
+    alpha = alpha / alpha.sum(-1, keepdim=True).clamp_min(DIVISOR_F32)
     return mu.reshape(-1, n, 3), kappa.reshape(-1, n), alpha.reshape(-1, n)
 
 

@@ -23,6 +23,8 @@ from typing import Any
 import torch
 
 from .._backend import as_tensor
+from .._checks import check_int
+from .._tol import DIVISOR_F32
 from ..brdf import BRDF
 from ..errors import InputError
 from ._render import MipChain, normals_and_views
@@ -38,8 +40,7 @@ _CHUNK = 1 << 21
 def hammersley(n: int, /, *, dtype: torch.dtype = torch.float64, device: Any = None):
     """The ``n``-point Hammersley set in the unit square, ``(n, 2)``: ``(i / n, phi_2(i))``
     with ``phi_2`` the base-2 radical inverse (bit reversal of ``i``)."""
-    if not isinstance(n, int) or isinstance(n, bool) or n < 1:
-        raise InputError("samples", f"must be a positive integer, got {n!r}")
+    n = check_int(n, "samples")
     i = torch.arange(n, dtype=torch.int64, device=device)
     rev = torch.zeros(n, dtype=torch.float64, device=device)
     bits = max(1, (n - 1).bit_length())
@@ -93,7 +94,7 @@ def shade_fis(
         sl = slice(s, s + step)
         ts = None if t is None else t[sl].unsqueeze(1)
         wi, weight, pdf = b.sample(o[sl].unsqueeze(1), n[sl].unsqueeze(1), u, ts)  # (p, N, ...)
-        omega_s = 1.0 / (samples * pdf.double().clamp_min(1e-30))  # (p, N) the sample's share
+        omega_s = 1.0 / (samples * pdf.double().clamp_min(DIVISOR_F32))  # (p, N) the sample's share
         lod = (0.5 * torch.log2(omega_s / chain.texel_solid_angle(wi)) + lod_bias).clamp_min(0)
         light = chain.lookup_level(wi, lod)  # (p, N, 3)
         out[sl] = (weight * light).mean(1)

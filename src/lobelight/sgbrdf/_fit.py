@@ -50,9 +50,9 @@ Coherence across views (beyond the paper)
     tend to agree with each other better than continuations along different paths of the
     sweep). Either way a view's error on its samples is at most its independent fit's, so
     coherence costs no fit quality. Optionally (``prior_strength > 0``) a MAP prior
-    (:func:`em_fit`'s ``prior``) also pulls each lobe towards its transported parent; measured
-    on Ward 0.2 with strength 0.05 it moves the mean jump from 1.40 to 1.35 degrees but the
-    worst from 3.7 to 4.7 and the mean fit error from 0.018 to 0.019, so it is off by default.
+    (:func:`em_fit`'s ``prior``) also pulls each lobe towards its transported parent; it
+    lowers the mean jump between neighbouring views a little but raises the worst jump and the
+    fit error, so it is off by default.
     :func:`view_jump` measures the result.
 """
 
@@ -65,13 +65,14 @@ from typing import Any
 
 import torch
 
+from .._checks import check_directions, check_int
+from .._tol import DIVISOR_F32, DIVISOR_F64, REL_F64
 from ..brdf import BRDF
 from ..errors import InputError
 from ..geometry import sphere
 from ..lobes.sg import evaluate_mixture, integral
 from ._em import (
     KAPPA_MIN,
-    _check_int,
     em_fit,
     log_vmf_normalization,
     sample_mixture,
@@ -121,7 +122,7 @@ def elevation_views(
 ) -> torch.Tensor:
     """``(M, 3)`` views ``(sin theta_j, 0, cos theta_j)``, ``theta_j`` uniform in
     ``[0, theta_max]``, in the tangent frame (module docstring)."""
-    _check_int(n_views, "n_views", minimum=2)
+    n_views = check_int(n_views, "n_views", minimum=2)
     th = torch.linspace(0.0, math.radians(theta_max_deg), n_views, dtype=torch.float64)
     v = torch.stack([th.sin(), torch.zeros_like(th), th.cos()], -1)
     return v.to(dtype=dtype, device=device)
@@ -158,7 +159,7 @@ def _fold(views: torch.Tensor, z_min: float) -> torch.Tensor:
     r = torch.linalg.vector_norm(xy, dim=-1, keepdim=True)
     x_hat = torch.zeros_like(xy)
     x_hat[..., 0] = 1
-    dir_xy = torch.where(r > 1e-9, xy / r.clamp_min(1e-30), x_hat)
+    dir_xy = torch.where(r > 1e-9, xy / r.clamp_min(DIVISOR_F32), x_hat)
     folded = torch.cat([dir_xy * math.sqrt(1 - z_min * z_min), torch.full_like(r, z_min)], -1)
     return torch.where(views[..., 2:] < z_min, folded, views)
 
@@ -220,7 +221,7 @@ def brdf_samples(brdf: BRDF, views: torch.Tensor, /, *, samples: int = FIT_SAMPL
     the model rejects); the per-channel mean of ``values`` over ``S`` is the albedo estimate;
     pdf : (M, S) sampling density (0 for rejected samples)
     """
-    _check_int(samples, "samples", minimum=1)
+    samples = check_int(samples, "samples", minimum=1)
     n, t = _frame_tensors(views)
     u = _lattice(samples, dtype=views.dtype, device=views.device)  # (S, 2)
     return brdf.sample(views.unsqueeze(1), n, u.unsqueeze(0), t)  # (M, S, 3), (M, S, 3), (M, S)
@@ -306,8 +307,7 @@ class SGBRDF:
         mu : (..., N, 3) unit means, tangent frame;  kappa : (..., N);  weight : (..., N, 3)
         """
         o = torch.as_tensor(o, device=self.params.device)
-        if o.ndim < 1 or o.shape[-1] != 3:
-            raise InputError("o", f"must be a (..., 3) array of directions, got {tuple(o.shape)}")
+        check_directions(o, "o")
         o = o.to(self.params.dtype)
         shape = o.shape[:-1]
         q = o.reshape(-1, 3)  # (Q, 3)
@@ -458,7 +458,7 @@ def fit_many(
             raise InputError(
                 f"{nm}.{per_element[0]}", "must be a single value (fit one material at a time)"
             )
-    n = _check_int(n_lobes, "n_lobes", minimum=1)
+    n = check_int(n_lobes, "n_lobes", minimum=1)
     layouts = []
     for brdf in brdfs:
         lay = layout if layout is not None else ("elevation" if is_isotropic(brdf) else "geodesic")
@@ -572,8 +572,8 @@ def _sample_error(x, w, pdf, mu, kappa, alpha) -> torch.Tensor:
     logp = vmf_log_pdf(x.unsqueeze(-2), mu.double().unsqueeze(-3), kappa.double().unsqueeze(-2))
     mix = (alpha.double().unsqueeze(-2) * logp.exp()).sum(-1) * w.mean(-1, keepdim=True)
     f = w * q  # (..., S)
-    inv = torch.where(q > 0, 1 / q.clamp_min(1e-300), torch.zeros_like(q))
-    return torch.sqrt(((mix - f) ** 2 * inv).sum(-1) / (f * f * inv).sum(-1).clamp_min(1e-300))
+    inv = torch.where(q > 0, 1 / q.clamp_min(DIVISOR_F64), torch.zeros_like(q))
+    return torch.sqrt(((mix - f) ** 2 * inv).sum(-1) / (f * f * inv).sum(-1).clamp_min(DIVISOR_F64))
 
 
 def _sweep(dirs, w, pdf, fit_views, parent, depth, em_kw, prior_strength):
@@ -679,7 +679,7 @@ def match_components(
         swapped = cost.gather(2, perm.unsqueeze(1).expand(bsz, n, n))  # [i, i'] = cost[i, perm[i']]
         delta = swapped + swapped.transpose(1, 2) - cur.unsqueeze(-1) - cur.unsqueeze(-2)
         best = delta.reshape(bsz, -1).min(-1)
-        better = best.values < -1e-12 * cost.abs().amax((1, 2))  # (B,)
+        better = best.values < -REL_F64 * cost.abs().amax((1, 2))  # (B,)
         if not bool(better.any()):
             break
         i, k = best.indices // n, best.indices % n
@@ -732,7 +732,7 @@ def view_jump(
     p = params.double()
     kap = p[..., 6].clamp_min(KAPPA_MIN)
     mass = p[..., 0:3].mean(-1) * integral(kap)  # (M, N)
-    share = mass / mass.sum(-1, keepdim=True).clamp_min(1e-300)
+    share = mass / mass.sum(-1, keepdim=True).clamp_min(DIVISOR_F64)
     mu = torch.nn.functional.normalize(p[..., 3:6], dim=-1)
     i, j = edges[:, 0], edges[:, 1]
     mu_i, mu_j, k_j, s_j = mu[i], mu[j], kap[j], share[j]
@@ -748,7 +748,7 @@ def view_jump(
     ang = torch.atan2(cross, (mu_i * mu_j).sum(-1))  # (E, N)
     dlk = (kap[i].log() - k_j.log()).abs()
     wgt = 0.5 * (share[i] + s_j)  # (E, N)
-    wsum = wgt.sum(-1).clamp_min(1e-300)
+    wsum = wgt.sum(-1).clamp_min(DIVISOR_F64)
     ang_e = (wgt * ang).sum(-1) / wsum  # (E,)
     dlk_e = (wgt * dlk).sum(-1) / wsum
     da_e = 0.5 * (share[i] - s_j).abs().sum(-1)
@@ -793,7 +793,7 @@ def mixture_error(
     -------
     (Q,) relative errors (float64)
     """
-    _check_int(samples, "samples", minimum=2)
+    samples = check_int(samples, "samples", minimum=2)
     dev, dt = mu.device, torch.float64
     mu, kappa, weight, views = (t.to(dt) for t in (mu, kappa, weight, views))
     brdf = brdf.to(dev, dt)
@@ -806,7 +806,7 @@ def mixture_error(
     wi_b, _, pdf_b0 = brdf.sample(o, n, ub, t)  # (Q, h, 3)
     kap = kappa.clamp_min(KAPPA_MIN)
     mass = weight.mean(-1) * integral(kap)  # (Q, N)
-    alpha = mass / mass.sum(-1, keepdim=True).clamp_min(1e-300)
+    alpha = mass / mass.sum(-1, keepdim=True).clamp_min(DIVISOR_F64)
     wi_m = sample_mixture(mu, kap, alpha, um)  # (Q, h, 3)
     wi = torch.cat([wi_b, wi_m], 1)  # (Q, S, 3)
     valid = torch.cat([pdf_b0 > 0, torch.ones_like(pdf_b0, dtype=torch.bool)], 1)
@@ -818,10 +818,10 @@ def mixture_error(
     dens = 0.5 * (p_b + p_m)
     f = brdf.eval(wi, o, n, t).mean(-1) * wi[..., 2].clamp_min(0)  # (Q, S)
     m = evaluate_mixture(wi, mu.unsqueeze(1), kap.unsqueeze(1), weight.unsqueeze(1)).mean(-1)
-    inv = torch.where(valid, 1 / dens.clamp_min(1e-300), torch.zeros_like(dens))
+    inv = torch.where(valid, 1 / dens.clamp_min(DIVISOR_F64), torch.zeros_like(dens))
     num = ((m - f) ** 2 * inv).mean(-1)
     den = (f * f * inv).mean(-1)
-    return torch.sqrt(num / den.clamp_min(1e-300))
+    return torch.sqrt(num / den.clamp_min(DIVISOR_F64))
 
 
 def fit_error(model: SGBRDF, brdf: BRDF, /, *, samples: int = 16384, seed: int = 0):

@@ -29,6 +29,8 @@ from typing import Any
 import torch
 
 from .._backend import as_tensor
+from .._checks import check_directions
+from .._tol import DIVISOR_F32, SHARPNESS_MIN
 from ..errors import InputError
 from ..geometry import cubemap
 from ..geometry.sphere import frame
@@ -37,7 +39,7 @@ from ._fit import SGBRDF
 
 __all__ = ["COVERAGE", "MipChain", "mip_chain", "render_sphere", "shade", "sphere_hits"]
 
-#: Default coverage ``a`` of eq. (10): 0.5 was the most accurate of 0.3 ... 0.9 against
+#: Default coverage ``a`` of eq. (10): the most accurate of 0.3 ... 0.9 against
 #: quadrature on the built-in sky (tests/test_sgbrdf.py::test_lookups_against_quadrature).
 COVERAGE = 0.5
 
@@ -77,7 +79,7 @@ class MipChain:
         """Fractional mip level of eq. (10), clamped to the chain: ``(...)`` float64."""
         mu = as_tensor(mu, device=self.device)
         lam = as_tensor(lam, device=self.device).to(torch.float64)
-        omega_s = -2 * math.pi * math.log(1 - self.coverage) / lam.clamp_min(1e-12)
+        omega_s = -2 * math.pi * math.log(1 - self.coverage) / lam.clamp_min(SHARPNESS_MIN)
         lvl = 0.5 * torch.log2(omega_s / self.texel_solid_angle(mu))
         return lvl.clamp(0, len(self.levels) - 1)
 
@@ -129,9 +131,8 @@ def normals_and_views(normals: Any, views: Any, device) -> tuple[torch.Tensor, t
     checked and broadcast against each other."""
     n = as_tensor(normals, device=device).to(torch.float32)
     o = as_tensor(views, device=device).to(torch.float32)
-    for name, v in (("normals", n), ("views", o)):
-        if v.ndim < 1 or v.shape[-1] != 3:
-            raise InputError(name, f"must be a (..., 3) array of directions, got {tuple(v.shape)}")
+    check_directions(n, "normals")
+    check_directions(o, "views")
     n, o = torch.broadcast_tensors(n, o)
     return n, o
 
@@ -177,8 +178,7 @@ def _vec(x: Any, name: str, like: torch.Tensor | None = None) -> torch.Tensor:
         t = t.to(torch.float32)
     if like is not None:
         t = t.to(like.dtype)
-    if t.ndim < 1 or t.shape[-1] != 3:
-        raise InputError(name, f"must be a (..., 3) array of directions, got {tuple(t.shape)}")
+    check_directions(t, name)
     return t
 
 
@@ -217,7 +217,7 @@ def shade(
         t0 = _vec(tangents, "tangents", n).expand_as(n)
         t = t0 - (t0 * n).sum(-1, keepdim=True) * n
         norm = torch.linalg.vector_norm(t, dim=-1, keepdim=True)
-        t = torch.where(norm > 1e-6, t / norm.clamp_min(1e-30), frame(n)[0])
+        t = torch.where(norm > 1e-6, t / norm.clamp_min(DIVISOR_F32), frame(n)[0])
         b = torch.cross(n, t, dim=-1)
     o_local = torch.stack([(o * t).sum(-1), (o * b).sum(-1), (o * n).sum(-1)], -1)
     mdl = model.to(dev) if model.params.device != dev else model
@@ -273,7 +273,7 @@ def sphere_hits(
     n = torch.where(mask.unsqueeze(-1), n, torch.tensor([0.0, 0.0, 1.0], device=n.device))
     tan = torch.stack([n[..., 2], torch.zeros_like(n[..., 0]), -n[..., 0]], -1)
     tn = torch.linalg.vector_norm(tan, dim=-1, keepdim=True)
-    tan = torch.where(tn > 1e-6, tan / tn.clamp_min(1e-30), frame(n)[0])
+    tan = torch.where(tn > 1e-6, tan / tn.clamp_min(DIVISOR_F32), frame(n)[0])
     return {"mask": mask, "normals": n, "views": -rays, "tangents": tan, "rays": rays}
 
 

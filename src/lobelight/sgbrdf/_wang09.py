@@ -41,6 +41,7 @@ from typing import Any
 import torch
 
 from .._backend import as_tensor
+from .._checks import check_directions
 from ..brdf import Ward
 from ..errors import InputError
 
@@ -74,9 +75,8 @@ def wang09_lobe(
     b = _check_ward(brdf)
     n = as_tensor(normals).to(torch.float32)
     o = as_tensor(views, device=n.device).to(torch.float32)
-    for name, v in (("normals", n), ("views", o)):
-        if v.ndim < 1 or v.shape[-1] != 3:
-            raise InputError(name, f"must be a (..., 3) array of directions, got {tuple(v.shape)}")
+    check_directions(n, "normals")
+    check_directions(o, "views")
     n, o = torch.broadcast_tensors(n, o)
     p = b.params
     ax, ay = float(p["alpha_x"]), float(p["alpha_y"])
