@@ -10,8 +10,8 @@ Lobes (:mod:`._lobe`)
 
 Tables (:mod:`._tables`)
     :func:`get_tables` loads the tables from the disk cache (:func:`lobelight._cache.cache_dir`:
-    ``$LOBELIGHT_CACHE``, else the platform's user cache folder), building them once
-    (seconds) when missing or of another version;
+    ``$LOBELIGHT_CACHE``, else the platform's user cache folder), building them once when
+    missing or of another version;
     :class:`LobeTables` looks up the product lobe (``partial scale, exponent``) and the
     spherical-cap exponent, trilinearly, on any device. :func:`product` multiplies two lobes
     given by axes, exponents and scales (the paper's L2-best scale, or with
@@ -40,7 +40,7 @@ Direct lighting with soft shadows (method note ``docs/cosine-lobes.md``)
 Elsewhere: the independent Monte Carlo reference is :func:`lobelight.reference.cosine.direct_mc`;
 the score against it (and of the tables against adaptive quadrature) is
 :mod:`lobelight.studies.lobes_score`, the benchmarks (the paper's two timed configurations, the
-tables' build) :mod:`lobelight.studies.bench_lobes`, the animation to PNGs/GIF
+tables' build) :mod:`lobelight.bench.cosine`, the animation to PNGs/GIF
 :mod:`lobelight.studies.lobes_demo`, and the calibration of the weights (which writes
 ``weights.json``) the source tree's ``tools/calibrate_cosine_weights.py``.
 """

@@ -27,6 +27,7 @@ from __future__ import annotations
 
 import functools
 import json
+from collections.abc import Mapping
 from importlib import resources
 from types import MappingProxyType
 
@@ -42,7 +43,7 @@ WEIGHTS_FILE = "weights.json"
 
 
 @functools.cache
-def calibrated_weights() -> MappingProxyType:
+def calibrated_weights() -> Mapping[str, tuple[tuple[float, ...], ...]]:
     """The stored tables, read once: ``{"mode:max_depth": ((max_depth + 1) x 12 floats)}``.
 
     Read through :mod:`importlib.resources`, so an installed wheel finds its own copy. The

@@ -12,8 +12,8 @@ On the CPU a compiled kernel keeps the number of threads of the call that compil
 writes it into the generated OpenMP loops), so set ``torch.set_num_threads`` before the first
 fused call of a process.
 
-Fusion is off by default: compiling costs seconds to a minute per process the first time (the
-inductor's on-disk cache shortens later runs), which only pays off over many frames. Turn it on
+Fusion is off by default: compiling takes a while per process the first time (the inductor's
+on-disk cache shortens later runs), which only pays off over many frames. Turn it on
 around a loop of frames with :func:`fusion` or ``shade_points(..., fused=True)``. Where
 compiling fails (no C++ compiler, an unsupported device), a warning says so once and the eager
 code runs instead.

@@ -4,9 +4,9 @@ A light of centre ``p``, radius ``r`` and radiance ``Le`` is seen from ``x`` as 
 half-angle ``theta = asin(r / |p - x|)`` around ``h = (p - x) / |p - x|``. The paper's lobe is
 ``max(h . w, 0)^e_cap`` with scale 1 and ``e_cap`` the L2-best exponent (its eq. 31-34, the cap
 table). With scale 1 that lobe's integral ``2 pi / (e + 1)`` misses the cap's solid angle
-``Omega = 2 pi (1 - cos theta)`` by -6.9 % to +4.0 % (depending on ``theta``; measured in
-``tests/test_cosine_tables.py``), an error in every light's power. Here the exponent is the
-paper's and the scale makes the integrals equal: ``scale = Omega (e + 1) / (2 pi)``
+``Omega = 2 pi (1 - cos theta)`` by -6.9 % to +4.0 % (depending on ``theta``; :mod:`._tables`,
+tested in ``tests/test_cosine_tables.py``), an error in every light's power. Here the exponent
+is the paper's and the scale makes the integrals equal: ``scale = Omega (e + 1) / (2 pi)``
 (:func:`cap_lobe`), so an unoccluded light delivers exactly its power up to the shape of the
 lobe. The same lobe, with unit radiance, stands for occluder and shadow-leaf caps.
 """
@@ -18,6 +18,7 @@ from dataclasses import dataclass
 
 import torch
 
+from .._tol import DIVISOR_F32
 from ..errors import InputError
 from ._lobeset import Lobes
 from ._tables import LobeTables
@@ -99,8 +100,8 @@ def _geometry(points, centres, radii):
     """:func:`light_geometry` from (J, 3) centres and (J,) radii."""
     d = centres.unsqueeze(0) - points.unsqueeze(1)  # (P, J, 3)
     dist = torch.linalg.vector_norm(d, dim=-1)
-    axis = d / dist.clamp_min(1e-30).unsqueeze(-1)
-    theta = torch.asin((radii / dist.clamp_min(1e-30)).clamp(max=1.0))
+    axis = d / dist.clamp_min(DIVISOR_F32).unsqueeze(-1)
+    theta = torch.asin((radii / dist.clamp_min(DIVISOR_F32)).clamp(max=1.0))
     return axis, dist, theta
 
 

@@ -39,6 +39,7 @@ import torch
 
 from .._backend import as_float, dispatch
 from .._checks import check_directions
+from .._tol import DIVISOR_F32, DIVISOR_F64
 from ..errors import InputError
 from ..geometry.sphere import frame, normalize
 
@@ -171,7 +172,9 @@ def _arc_point(e1, e2, c, s):
     sb = torch.where(degenerate, torch.zeros_like(h), num / h)
     # both exponents zero: the bisector, by half-angle formulas
     hc = torch.sqrt(((1 + c) / 2).clamp_min(0))
-    hs = torch.where(c > 0, s / (2 * hc.clamp_min(1e-30)), torch.sqrt(((1 - c) / 2).clamp_min(0)))
+    hs = torch.where(
+        c > 0, s / (2 * hc.clamp_min(DIVISOR_F32)), torch.sqrt(((1 - c) / 2).clamp_min(0))
+    )
     return torch.where(zero, hc, cb), torch.where(zero, hs, sb)
 
 
@@ -284,7 +287,7 @@ def _half_lune(e_end, e_other, width, peak, curv, n):
     distance ``x`` is at least ``curv x^2 / 2`` and ``sqrt(2 * 40 / curv)`` is a safe width.
     """
     x, xm, w = _tanh_sinh(n, str(peak.device))
-    span = torch.sqrt(2 * _WINDOW_LOG_DROP / curv.clamp_min(1e-300))
+    span = torch.sqrt(2 * _WINDOW_LOG_DROP / curv.clamp_min(DIVISOR_F64))
     start = (peak - span).clamp_min(0)
     length = (peak - start).unsqueeze(-1)  # (m, 1)
     dist = length * xm  # (m, nodes) distance to the peak, exact near it

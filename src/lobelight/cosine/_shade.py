@@ -109,11 +109,12 @@ def shade_points(
     tables : lobe tables (default :func:`get_tables` on ``device``)
     chunk : points per batch (memory: ~ a few kB per point and shadow leaf); default 16,384
         with occluders, 65,536 without (a few hundred bytes per point)
-    threads : torch CPU threads while shading (None: as set). One thread is often faster on a
-        shared 2-core machine (see ``bench_lobes``).
-    fused : run the hot path compiled by ``torch.compile`` (:mod:`._fused`: several times
-        faster per frame once compiled; the first call compiles, seconds to a minute). None:
-        as the enclosing :func:`~._fused.fusion` block says (default off)
+    threads : torch CPU threads while shading (None: as set). One thread can be the faster
+        where other processes share the cores (:func:`lobelight.bench.cosine.bench_lobes`
+        times both).
+    fused : run the hot path compiled by ``torch.compile`` (:mod:`._fused`: faster per frame
+        once compiled; the first call compiles, which takes a while). None: as the enclosing
+        :func:`~._fused.fusion` block says (default off)
     device : where to compute (default: the device of ``points``)
 
     Returns

@@ -20,8 +20,8 @@ Product table (paper section 4.1)
     Stored per ``(e1, e2, alpha)``: ``q = p_r / peak`` (the partial scale divided by the exact
     peak value of ``c1 c2``; 1 for parallel axes), ``rho = log((e_r + 1)/(e1 + e2 + 1))`` (0 for
     parallel axes) and ``log(∫ c1 c2 / ∫ c_r)``, which lets a lookup return the lobe scaled to
-    the product's exact integral instead (``preserve_integral``; the L2 fit misses the integral
-    by 1.7 % on average, 73 % at worst, where one lobe fits the product badly). All three are
+    the product's exact integral instead (``preserve_integral``; the L2 fit misses the integral,
+    most where one lobe fits the product badly). All three are
     smooth where ``p_r`` itself spans hundreds of decades, so linear interpolation works; the
     peak and the axis are exact at lookup.
 
@@ -32,22 +32,21 @@ Product table (paper section 4.1)
     1e-3) + 2 asinh((alpha - pi) / 1e-2)`` with ``h = pi/55``: spacing ~pi/55 far from pi/2,
     graded down to 1.6e-4 rad at pi/2 and to 5e-3 rad at pi. Why: a sharp lobe (``e2 =
     1e4..1e5``, width ``1/sqrt(e2) ~ 0.003``) near the horizon of a broad one (``e1 < ~10``) is
-    cut by that horizon, so the fitted lobe changes within a few widths of ``alpha = pi/2``; on a
-    uniform grid of 64 angles the integral of the interpolated lobe was off by up to 49 % (mean
-    0.8 %) within 0.1 rad of pi/2, on this grid by 4e-4 on average, 4e-3 at the 99th percentile.
+    cut by that horizon, so the fitted lobe changes within a few widths of ``alpha = pi/2``,
+    faster than a uniform grid of angles can interpolate; the graded nodes follow it.
     Towards pi the lune between the lobes closes and ``e_r`` grows like ``1 / (pi - alpha)^2``.
     The table is symmetric in ``(e1, e2)`` and stores one triangle: 4753 pairs x 166 angles x 3
     float32 = 9.5 MB. Exponents above ``1e5`` look up ``(e1, e2) * 1e5 / max(e1, e2)``: in the
-    sharp limit ``q`` and ``rho`` depend on the ratio ``e1 : e2`` and the angle only (measured
-    within 2e-5 of direct fits up to 1e6).
+    sharp limit ``q`` and ``rho`` depend on the ratio ``e1 : e2`` and the angle only (tested
+    against direct fits up to 1e6).
 
-    Accuracy (``tests/test_cosine_tables.py``; products uniform in these table coordinates, unit
-    scales): lookup against direct fits, integral of the lobe, mean 1.9e-4; against the exact
-    product, the paper's measure ``|∫ c1 c2 - ∫ c_r|`` is 1.5e-3 on average (the same as the
-    direct fit: it is the L2 fit's own error) and 6.7e-5 with ``preserve_integral`` (the paper:
-    7.1e-4). The worst lookups (up to 8 %) are products of two near-hemispheres (both exponents
-    below 0.1), whose peak, the paper's axis, jumps with ``e1 / e2`` while ``c1 c2`` is nearly
-    flat.
+    Accuracy (``tests/test_cosine_tables.py`` bounds it; products uniform in these table
+    coordinates, unit scales): lookups follow the direct fits closely; against the exact
+    product, the paper's measure ``|∫ c1 c2 - ∫ c_r|`` is the L2 fit's own error (the same as
+    the direct fit's; the paper reports 7.1e-4 on average), and far smaller with
+    ``preserve_integral``. The worst lookups are products of two near-hemispheres (both
+    exponents below 0.1), whose peak, the paper's axis, jumps with ``e1 / e2`` while ``c1 c2``
+    is nearly flat.
 
 Spherical-cap table (paper section 5.2)
     The cap of angular radius ``theta`` is represented by the unit-scale lobe (eq. 34) whose
@@ -87,6 +86,7 @@ from .. import _cache
 from .._backend import as_float, dispatch
 from .._checks import check_directions
 from .._io import atomic_writer
+from .._tol import DIVISOR_F32
 from ..errors import InputError
 from ._fused import kernel
 from ._lobe import (
@@ -371,11 +371,18 @@ def _cap_equation(kappa: torch.Tensor, s: torch.Tensor) -> torch.Tensor:
     return 1 - big_c + big_c * (e + 1) * log_c - ((e + 1) / (2 * e + 1)) ** 2
 
 
+#: Floor of ``s = 1 - cos theta`` in :func:`_cap_kappa`: a cap narrower than about 1.4e-6 rad
+#: is solved as one that wide (``e = kappa / s`` stays finite; its lobe is a spike either way).
+_CAP_S_MIN = 1e-12
+#: Lower end of the bisection's bracket of ``kappa`` in :func:`_cap_kappa` (the upper end is 4).
+_CAP_KAPPA_LOW = 1e-30
+
+
 def _cap_kappa(theta: torch.Tensor) -> torch.Tensor:
     """``kappa = e (1 - cos theta)`` of the L2-best cap lobe, float64 (m,), by bisection in
     ``log kappa`` (the equation is monotone; 200 halvings of [1e-30, 4] reach float64)."""
-    s = (2 * torch.sin(theta.clamp(0, _HALF_PI) / 2) ** 2).clamp(1e-12, 1.0)
-    lo = torch.full_like(s, math.log(1e-30))
+    s = (2 * torch.sin(theta.clamp(0, _HALF_PI) / 2) ** 2).clamp(_CAP_S_MIN, 1.0)
+    lo = torch.full_like(s, math.log(_CAP_KAPPA_LOW))
     hi = torch.full_like(s, math.log(4.0))
     for _ in range(200):
         mid = (lo + hi) / 2
@@ -617,7 +624,7 @@ def _product_lookup(e1, e2, c, s, tab: torch.Tensor, g: _Grid, preserve_integral
     cb, sb, _, _, log_peak = _peak(e1, e2, c, s)
     # normalised table coordinates; above e_max keep the ratio e1 : e2 (sharp limit)
     top = torch.maximum(e1, e2)
-    k = torch.where(top > g.e_max, g.e_max / top.clamp_min(1e-30), 1.0)
+    k = torch.where(top > g.e_max, g.e_max / top.clamp_min(DIVISOR_F32), 1.0)
     f1 = ((torch.log10(e1 * k + g.e_offset) - g.u0) / g.du).clamp(0, n - 1)
     f2 = ((torch.log10(e2 * k + g.e_offset) - g.u0) / g.du).clamp(0, n - 1)
     f1, f2 = torch.minimum(f1, f2), torch.maximum(f1, f2)  # symmetric table: i <= j
@@ -674,8 +681,8 @@ def build_tables(
     chunk : entries fitted at once (default 4096 on a CPU, 131072 on a GPU)
     threads : torch CPU threads during the build (``None``: leave as set). One by default: the
         build is thousands of small tensor operations, for which a second thread gains little
-        on an idle machine and makes the build several times slower when other processes keep
-        the cores busy (docs/benchmarks.md).
+        on an idle machine and slows the build down when other processes keep the cores busy
+        (docs/benchmarks.md).
     progress : optional ``progress(stage, done, total)`` after each chunk of product fits
 
     Returns

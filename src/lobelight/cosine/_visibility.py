@@ -55,6 +55,7 @@ from typing import NamedTuple
 
 import torch
 
+from .._tol import DIVISOR_F32, DIVISOR_F64
 from ..errors import InputError
 from ..geometry.sphere import frame
 from . import _walk
@@ -257,10 +258,10 @@ def useful_depth(peak: torch.Tensor, span: torch.Tensor, threshold: float, depth
     gnomonic map from the plane at distance 1 to the sphere shortens every length), so
     ``∫ c_k <= pi rho^2 = 2 pi span^2 4^-d``. Where twice that bound is below the threshold
     every product of the level is culled, whatever the table's rounding (the factor 2 covers
-    its error: 3e-6 of an integral on average, 4e-4 at most), and so is every product below
-    it: those cells need not be built. The paper culls products after computing them and
-    finds the masks' construction then bounds the frame rate (its Figure 16: half the
-    products culled, +2 fps); this bound culls the construction too.
+    its error, a small fraction of an integral), and so is every product below it: those
+    cells need not be built. The paper culls products after computing them and finds the
+    masks' construction then bounds the frame rate (its Figure 16); this bound culls the
+    construction too.
 
     Parameters
     ----------
@@ -272,7 +273,7 @@ def useful_depth(peak: torch.Tensor, span: torch.Tensor, threshold: float, depth
     (P,) int64 in ``-1..depth`` (-1: not even the whole square can pass)
     """
     bound = (4 * math.pi) * peak.double() * span.double() ** 2 / float(threshold)  # at d = 0
-    d = torch.floor(torch.log2(bound.clamp_min(1e-300)) / 2)  # 4^d <= bound
+    d = torch.floor(torch.log2(bound.clamp_min(DIVISOR_F64)) / 2)  # 4^d <= bound
     return d.clamp(-1, int(depth)).long()
 
 
@@ -287,8 +288,8 @@ def _clip(points, a, light_dist, span, spheres, exclude):
     dn = torch.linalg.vector_norm(d, dim=-1)
     rad = spheres[:, 3].unsqueeze(0)
     along = (d * a.unsqueeze(1)).sum(-1)  # (P, N) distance along the light's axis
-    cos_g = along / dn.clamp_min(1e-30)  # angle between the light and the occluder's centre
-    phi = torch.asin((rad / dn.clamp_min(1e-30)).clamp(max=1.0))
+    cos_g = along / dn.clamp_min(DIVISOR_F32)  # angle between the light and the occluder's centre
+    phi = torch.asin((rad / dn.clamp_min(DIVISOR_F32)).clamp(max=1.0))
     reach = phi + torch.atan(span * math.sqrt(2)).unsqueeze(1)  # the square's corner angle
     keep = (dn > rad) & (along - rad < light_dist.unsqueeze(1))
     keep &= cos_g > torch.cos(reach.clamp(max=math.pi))

@@ -2,9 +2,9 @@
 
 :func:`~._visibility.shadow_leaves` builds the masks of all points level by level over flat
 lists of (cell, occluder) pairs, which suits a GPU. On a CPU that form is bound by memory
-traffic, not arithmetic: every level gathers each pair's cell and cone, scatters its results
-back to the cells and writes the next level's lists, ~12 ns per (cell, occluder) test on the
-2-core benchmark machine even fused by TorchInductor (docs/cosine-lobes.md). Walked depth-first
+traffic, not arithmetic, even fused by TorchInductor: every level gathers each pair's cell and
+cone, scatters its results back to the cells and writes the next level's lists
+(docs/cosine-lobes.md). Walked depth-first
 per point, a point's cones, its current cell and the occluders still in play stay in
 registers and L1 cache, and nothing but the leaves' cells is written.
 
@@ -22,7 +22,7 @@ shading sums over them, so the order does not matter. Their lobes are built afte
 Each point is walked once, keeping its first ``_ROOM`` leaves in a fixed slot of a scratch
 buffer (parallel writes never collide); a pass then moves them to their final rows. The few
 points with more leaves are walked a second time straight into theirs. numba compiles the walk
-on first use and caches it on disk (``cache=True``; seconds).
+on first use and caches it on disk (``cache=True``).
 """
 
 from __future__ import annotations
@@ -154,6 +154,73 @@ def _covered_children(x0, y0, dx, lists, row, npart, cones):
 
 
 @_njit()
+def _bounding_cap(x0, y0, dx):
+    """Cosine and sine of the bounding cap's radius of the cell ``(x0, y0, dx)``, and
+    ``1 / |(x0, y0, 1)|``.
+
+    The radius as :func:`~._visibility._cap_tan2` (the largest corner angle, ``tan^2 =
+    |m x c|^2 / (m . c)^2``), with one division: the corners (-,-) and (+,+) share
+    ``|m x c|^2 = t1``, and (+,-) and (-,+) share ``t2``; of each pair the one with the smaller
+    ``m . c`` (``d1, d2 > 0``) is the farther.
+    """
+    r2 = 1.0 + x0 * x0 + y0 * y0
+    xpy, xmy = x0 + y0, x0 - y0
+    t1 = dx * dx * (2.0 + xmy * xmy)
+    t2 = dx * dx * (2.0 + xpy * xpy)
+    d1 = r2 - dx * abs(xpy)
+    d2 = r2 - dx * abs(xmy)
+    if t1 * d2 * d2 >= t2 * d1 * d1:
+        cross2, dot = t1, d1
+    else:
+        cross2, dot = t2, d2
+    inv = 1.0 / math.sqrt(dot * dot + cross2)
+    return dot * inv, math.sqrt(cross2) * inv, 1.0 / math.sqrt(r2)
+
+
+@_njit()
+def _test_cell(x0, y0, dx, lists, level, nk, cones):
+    """Test the cell ``(x0, y0, dx)`` (tangent-plane centre and half-size) against the cones
+    ``lists[level, :nk]``: whether one of them covers it, and how many touch it (those are
+    written to ``lists[level + 1]``, the list of its children, and are meaningful only if it is
+    not covered). Returns ``(covered, npart)``."""
+    xa, xb, ya, yb = x0 - dx, x0 + dx, y0 - dx, y0 + dx  # the corners' coordinates
+    # squared lengths of the corner directions (x, y, 1), corners in the order (-,-),
+    # (+,-), (-,+), (+,+); the tests below compare squares, so no root per corner
+    n0 = 1.0 + xa * xa + ya * ya
+    n1 = 1.0 + xb * xb + ya * ya
+    n2 = 1.0 + xa * xa + yb * yb
+    n3 = 1.0 + xb * xb + yb * yb
+    cap = False  # the bounding cap, computed when a touch test first needs it
+    cos_rad = sin_rad = inv_m = 0.0
+    npart = 0
+    for q in range(nk):
+        o = lists[level, q]
+        ox, oy, oz = cones[o, 0], cones[o, 1], cones[o, 2]
+        cos_phi, sin_phi = cones[o, 3], cones[o, 4]
+        base = x0 * ox + y0 * oy + oz
+        ex, ey = dx * ox, dx * oy
+        # a corner c is in the cone iff c . o >= cos(phi) |c|, i.e. c . o >= 0 and
+        # (c . o)^2 >= cos^2(phi) |c|^2 (cos phi >= 0)
+        cp2 = cos_phi * cos_phi
+        c0, c1 = base - ex - ey, base + ex - ey
+        c2, c3 = base - ex + ey, base + ex + ey
+        if (
+            c0 >= 0.0 and c1 >= 0.0 and c2 >= 0.0 and c3 >= 0.0
+            and c0 * c0 >= cp2 * n0 and c1 * c1 >= cp2 * n1
+            and c2 * c2 >= cp2 * n2 and c3 * c3 >= cp2 * n3
+        ):  # fmt: skip
+            return True, npart
+        if not cap:
+            cos_rad, sin_rad, inv_m = _bounding_cap(x0, y0, dx)
+            cap = True
+        if base * inv_m > cos_phi * cos_rad - sin_phi * sin_rad:  # touched
+            # the next level's list (depth + 2 rows): used only if this cell is subdivided
+            lists[level + 1, npart] = o
+            npart += 1
+    return False, npart
+
+
+@_njit()
 def _walk_point(
     p, points, t, b, a, light_dist, span, spheres_t, exclude, last, depth, conservative, start,
     limit, leaf_u, leaf_v, leaf_level, ok, cones, lists, nlist, su, sv, sl, halves,
@@ -192,59 +259,7 @@ def _walk_point(
         u, v, level = su[sp], sv[sp], sl[sp]
         h = halves[level]
         x0, y0, dx = kk * u, kk * v, kk * h
-        xa, xb, ya, yb = x0 - dx, x0 + dx, y0 - dx, y0 + dx  # the corners' coordinates
-        # squared lengths of the corner directions (x, y, 1), corners in the order (-,-),
-        # (+,-), (-,+), (+,+); the tests below compare squares, so no root per corner
-        n0 = 1.0 + xa * xa + ya * ya
-        n1 = 1.0 + xb * xb + ya * ya
-        n2 = 1.0 + xa * xa + yb * yb
-        n3 = 1.0 + xb * xb + yb * yb
-        cap = False  # the bounding cap, computed when a touch test first needs it
-        cos_rad = sin_rad = inv_m = 0.0
-        covered = False
-        npart = 0
-        for q in range(nlist[level]):
-            o = lists[level, q]
-            ox, oy, oz = cones[o, 0], cones[o, 1], cones[o, 2]
-            cos_phi, sin_phi = cones[o, 3], cones[o, 4]
-            base = x0 * ox + y0 * oy + oz
-            ex, ey = dx * ox, dx * oy
-            # a corner c is in the cone iff c . o >= cos(phi) |c|, i.e. c . o >= 0 and
-            # (c . o)^2 >= cos^2(phi) |c|^2 (cos phi >= 0)
-            cp2 = cos_phi * cos_phi
-            c0, c1 = base - ex - ey, base + ex - ey
-            c2, c3 = base - ex + ey, base + ex + ey
-            if (
-                c0 >= 0.0 and c1 >= 0.0 and c2 >= 0.0 and c3 >= 0.0
-                and c0 * c0 >= cp2 * n0 and c1 * c1 >= cp2 * n1
-                and c2 * c2 >= cp2 * n2 and c3 * c3 >= cp2 * n3
-            ):  # fmt: skip
-                covered = True
-                break
-            if not cap:
-                # the bounding cap's radius, as _visibility._cap_tan2 (the largest corner
-                # angle, tan^2 = |m x c|^2 / (m . c)^2), with one division: the corners (-,-)
-                # and (+,+) share |m x c|^2 = t1, and (+,-) and (-,+) share t2; of each pair the
-                # one with the smaller m . c (d1, d2 > 0) is the farther. 11 % faster walk.
-                r2 = 1.0 + x0 * x0 + y0 * y0
-                xpy, xmy = x0 + y0, x0 - y0
-                t1 = dx * dx * (2.0 + xmy * xmy)
-                t2 = dx * dx * (2.0 + xpy * xpy)
-                d1 = r2 - dx * abs(xpy)
-                d2 = r2 - dx * abs(xmy)
-                if t1 * d2 * d2 >= t2 * d1 * d1:
-                    cross2, dot = t1, d1
-                else:
-                    cross2, dot = t2, d2
-                inv = 1.0 / math.sqrt(dot * dot + cross2)
-                cos_rad = dot * inv
-                sin_rad = math.sqrt(cross2) * inv
-                inv_m = 1.0 / math.sqrt(r2)
-                cap = True
-            if base * inv_m > cos_phi * cos_rad - sin_phi * sin_rad:  # touched
-                # the next level's list (depth + 2 rows): used only if this cell is subdivided
-                lists[level + 1, npart] = o
-                npart += 1
+        covered, npart = _test_cell(x0, y0, dx, lists, level, nlist[level], cones)
         leaf = covered or (npart > 0 and level == depth and conservative)
         if leaf:
             if count < limit:
@@ -279,7 +294,7 @@ def _walk_point(
 
 _BLOCK = 16  # points dealt to a lane at a time
 _LANES = 64  # parallel tasks; each allocates its scratch once
-_ROOM = 64  # leaves kept per point by the first walk (the benchmark's mean is 19)
+_ROOM = 64  # leaves kept per point by the first walk: a few times a typical point's count
 
 
 @_njit(parallel=True)
