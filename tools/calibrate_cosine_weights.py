@@ -42,6 +42,7 @@ from scipy.optimize import nnls
 
 from lobelight import brdf
 from lobelight._io import atomic_writer
+from lobelight._tol import SMALL
 from lobelight.cosine import (
     DIST_NODES,
     FLAT_ROTATION,
@@ -62,9 +63,6 @@ ROOT = Path(__file__).resolve().parents[1]
 WEIGHTS_PATH = ROOT / "src" / "lobelight" / "cosine" / "weights.json"
 
 _HEIGHT = 12.0
-#: Floor of a normalising magnitude (a light's peak radiance, the residuals' largest value)
-#: of a calibration scene without any light or shadow.
-_FLOOR = 1e-12
 
 _ABOUT = (
     "Eq. (39) visibility weights of the cosine lobes, calibrated by "
@@ -146,7 +144,7 @@ def _design(scene: dict, refs: list, model, up, wo, tables, *, depth: int, mode:
             A.index_put_((pt, dep, i1), lam * v, accumulate=True)
         # errors relative to the light's unoccluded radiance, so that every dist node
         # counts (a small light's radiance is 100x below a large one's)
-        norm = rad[:, 0].max().clamp_min(_FLOOR)
+        norm = rad[:, 0].max().clamp_min(SMALL)
         rows.append(A.reshape(pts.shape[0], -1) / norm)
         ys.append((rad[:, 0] - ref) / norm)  # what the shadow lobes must remove
     return torch.cat(rows).double().numpy(), torch.cat(ys).double().numpy()
@@ -156,7 +154,7 @@ def _solve(A: np.ndarray, y: np.ndarray, depth: int, *, smooth: float, prior: fl
     """Non-negative least squares of ``A w = y`` with the regularisers (module docstring):
     second differences along ``dist`` per depth, and a weak pull towards 1. Returns ``w``."""
     K = len(DIST_NODES)
-    scale = max(float(np.abs(y).max()), _FLOOR)
+    scale = max(float(np.abs(y).max()), SMALL)
     ncol = A.shape[1]
     reg = []
     for d in range(depth + 1):

@@ -1,12 +1,12 @@
 """Animated example: a moving light and a moving occluder, soft shadows by cosine lobes.
 
-The scene of :func:`~._scene.default_scene` (a plane and a torus approximated by 64 spheres):
-the light circles the torus while the torus turns and bobs, so the shadow's shape, size and
-softness change from frame to frame. Each frame is a G-buffer (plane analytically, the mesh by
-Embree) shaded by :func:`~._shade.shade_points`; frames are written as PNGs (linear radiance,
-one fixed exposure for the whole sequence, sRGB), plus an animated GIF and the paper's Figure 16
-false-colour image of the number of table products per pixel for the first frame. Every file
-is written under a temporary name and renamed (nothing half-written is left).
+The scene of :func:`lobelight.cosine.default_scene` (a plane and a torus approximated by 64
+spheres): the light circles the torus while the torus turns and bobs, so the shadow's shape,
+size and softness change from frame to frame. Each frame is a G-buffer (plane analytically, the
+mesh by Embree) shaded by :func:`lobelight.cosine.shade_points`; frames are written as PNGs
+(linear radiance, one fixed exposure for the whole sequence, sRGB), plus an animated GIF and the
+paper's Figure 16 false-colour image of the number of table products per pixel for the first
+frame. Every file is written under a temporary name and renamed (nothing half-written is left).
 """
 
 from __future__ import annotations
@@ -22,6 +22,7 @@ import torch
 from PIL import Image
 
 from .._io import atomic_path
+from .._tol import SMALL
 from ..cosine import (
     FLAT_ROTATION,
     SphereLight,
@@ -45,7 +46,7 @@ def _srgb(x: np.ndarray) -> np.ndarray:
 def false_colour(values: np.ndarray, vmax: float | None = None) -> np.ndarray:
     """``(H, W)`` counts to ``(H, W, 3)`` uint8: black (0) -> blue -> green -> yellow -> red."""
     vmax = float(values.max()) if vmax is None else float(vmax)
-    t = np.clip(values / max(vmax, 1e-12), 0, 1)
+    t = np.clip(values / max(vmax, SMALL), 0, 1)
     stops = np.array([[0, 0, 0], [0, 0, 1.0], [0, 0.8, 0.2], [1.0, 0.9, 0], [1.0, 0, 0]])
     pos = t * (len(stops) - 1)
     i = np.minimum(pos.astype(int), len(stops) - 2)
@@ -72,9 +73,10 @@ def lobes_demo(
 ) -> dict:
     """Render ``frames`` frames of ``size x size`` into the folder ``out``.
 
-    ``fused`` shades with the compiled kernels (:mod:`._fused`): worth its compile time (up to a
-    minute, once per process) for long sequences or large frames. ``progress(stage, done,
-    total)``, optional, follows the tables' build (the first run on a machine) and the frames.
+    ``fused`` shades with the compiled kernels (:func:`lobelight.cosine.shade_points`'
+    ``fused``): worth their compile time, once per process, for long sequences or large
+    frames. ``progress(stage, done, total)``, optional, follows the tables' build (the first
+    run on a machine) and the frames.
 
     Returns
     -------
@@ -121,7 +123,7 @@ def lobes_demo(
             threshold=threshold,
             device=device,
             fused=fused,
-            threads=1,  # on a shared 2-core machine a second thread contends (bench_lobes)
+            threads=1,  # a second thread contends where other processes share the cores
         )
         t2 = time.perf_counter()
         H, W = gb["shape"]

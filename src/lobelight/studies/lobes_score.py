@@ -1,13 +1,13 @@
 """The scored comparison of the cosine lobes: lobes against Monte Carlo, table against quadrature.
 
-1. **Image**: the paper's kind of scene (:func:`~._scene.default_scene`: a plane, a torus
+1. **Image**: the paper's kind of scene (:func:`lobelight.cosine.default_scene`: a plane, a torus
    approximated by 64 spheres, one spherical light, direct lighting only), every pixel of a
-   G-buffer shaded with lobes (:func:`~._shade.shade_points`) and with the independent Monte
-   Carlo reference (:func:`~._reference.direct_mc`, occluders = the same spheres, tested
-   analytically). The light's radiance is set so that the reference's largest pixel value is
-   the paper's 0.70. Reported: maximum and mean absolute difference over the covered pixels
-   and channels (paper: 0.0549 and 0.0039 with maximum radiance 0.70), and the Monte Carlo
-   standard error, the floor below which a difference cannot be measured.
+   G-buffer shaded with lobes (:func:`lobelight.cosine.shade_points`) and with the independent
+   Monte Carlo reference (:func:`lobelight.reference.cosine.direct_mc`, occluders = the same
+   spheres, tested analytically). The light's radiance is set so that the reference's largest
+   pixel value is the paper's 0.70. Reported: maximum and mean absolute difference over the
+   covered pixels and channels (paper: 0.0549 and 0.0039 with maximum radiance 0.70), and the
+   Monte Carlo standard error, the floor below which a difference cannot be measured.
 2. **Product table**: the absolute difference ``|∫ c1 c2 - ∫ c_r|`` between the exact
    integral of the product of two unit lobes, by scipy's adaptive quadrature (``dblquad`` on
    the sphere in a frame about the sharper lobe, restricted to where it is not negligible),
