@@ -1,8 +1,9 @@
-"""Cosine-lobe direct lighting (issue 7): lobes, lights, masks, sphere sets, shading vs Monte Carlo.
+"""Cosine-lobe direct lighting: lobes, lights, masks, sphere sets, shading vs Monte Carlo.
 
 References are independent of the code under test: closed forms (same-axis products, cap solid
 angles), scipy quadrature, dense sampling of the visibility square, and the Monte Carlo
-renderer of ``_reference.py`` (BRDF.eval, analytic ray-sphere tests, no lobes).
+renderer :func:`lobelight.reference.cosine.direct_mc` (BRDF.eval, analytic ray-sphere tests, no
+lobes).
 """
 
 from __future__ import annotations
@@ -252,8 +253,8 @@ def _two_lights_scene(P: int, radiance_a, radiance_b):
 def test_two_lights_shadow_as_the_sum_of_each(tables, fused):
     """Light is additive: with two lights and occluders, each light's products and shadow
     leaves are its own, so the radiance is the sum of the two one-light renders (threshold 0:
-    nothing culled; exact up to float rounding wherever neither sum was clamped at 0). Before
-    the ninth session the second light's masks were built from the first light's leaves."""
+    nothing culled; exact up to float rounding wherever neither sum was clamped at 0). Pins the
+    bug of a second light's masks built from the first light's leaves."""
     x, n, wo, spheres, lights, model = _two_lights_scene(200, (3.0, 3.0, 3.0), (6.0, 5.0, 4.0))
     kw = dict(spheres=spheres, threshold=0.0, tables=tables, fused=fused)
     both = C.shade_points(x, n, wo, model, lights, **kw)

@@ -11,8 +11,8 @@ References are independent of the code under test:
   Levenberg-Marquardt on ``(p, e)`` (the paper's method) for the product fit;
 * quasi-uniform (Fibonacci) sphere sums for L2 residuals.
 
-The default tables are built once per test session into the session's temporary cache (~10-20 s
-here) and shared with the other modules.
+The default tables are built once per test session into the session's temporary cache and
+shared with the other modules.
 """
 
 from __future__ import annotations
@@ -586,7 +586,7 @@ def test_default_tables_size_and_shapes(tables):
     p = tables.params
     assert p.n_exponent == 97 and p.n_angle == 166  # 16 per decade from 0 to 1e5; see module
     assert tables.shapes["product_stored"] == [97 * 98 // 2, 166, 3]
-    assert tables.nbytes < 10e6  # the issue's budget (the paper's three tables: < 10 MB)
+    assert tables.nbytes < 10e6  # the budget: the paper's three tables take < 10 MB
     assert tables.cap_table.shape == (1000,)
 
 

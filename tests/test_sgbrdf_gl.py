@@ -3,13 +3,13 @@
 The torch path (``lobelight.sgbrdf.shade`` / ``render_sphere`` with the exact Prefiltered
 chain for "ours", ``shade_fis`` for "fis") is the reference: both do the same float32
 arithmetic, so the images agree to rounding and to the texture units' filtering precision.
-The issue's bound for the existing renderer, 1e-3 relative per covered pixel, is used here
-too; measured on llvmpipe the worst pixel is ~2e-5 (ours) and ~1e-4 (FIS, a silhouette pixel
-under a perspective camera where the float32 ray-sphere hit of the shader and the float64 one of
-``sphere_hits`` differ most). GPU texture units blend with 8-bit sub-texel weights, an error of
+The bound of the existing renderer, 1e-3 relative per covered pixel, is used here too; on
+llvmpipe the worst pixels stay well inside it (for FIS a silhouette pixel under a perspective
+camera, where the float32 ray-sphere hit of the shader and the float64 one of ``sphere_hits``
+differ most). GPU texture units blend with 8-bit sub-texel weights, an error of
 at most 1/512 of the difference between neighbouring texels (a few per cent on the smooth test
 map), i.e. ~1e-4: still inside the bound. Small fits (few lobes and samples) and 64 x 64 images
-keep every test at about a second; a fit's quality is irrelevant to agreement between renderers.
+keep every test short; a fit's quality is irrelevant to agreement between renderers.
 """
 
 from __future__ import annotations
@@ -33,7 +33,7 @@ from lobelight.studies.compare_brdf import compare_brdf
 
 needs_gl = pytest.mark.skipif(not gl_available(), reason="no headless OpenGL context (EGL)")
 
-#: The issue's agreement bound between the GL and torch paths (module docstring).
+#: The agreement bound between the GL and torch paths (module docstring).
 REL_TOL = 1e-3
 CAM = Camera.look_at((0.5, 1.0, 3.0), (0.0, 0.0, 0.0), fov=45.0)
 W, H = 64, 48  # not square, so that a swapped axis would show
