@@ -245,6 +245,19 @@ def _background(lighting: Lighting) -> np.ndarray:
     return cube.detach().cpu().numpy().astype(np.float32)
 
 
+def _atlas_uniforms(pf: Prefiltered, atlas_shape, rows: np.ndarray, res: np.ndarray) -> dict:
+    """The uniforms ``prefiltered.glsl`` reads of an atlas of :func:`_atlas`'s layout
+    (``atlas_shape`` its ``(H, W, 4)``, ``rows`` and ``res`` per level)."""
+    return {
+        "atlas_size": (float(atlas_shape[1]), float(atlas_shape[0])),
+        "level_y": rows,
+        "level_res": res,
+        "n_levels": len(pf.levels),
+        "lam0": float(pf.lambdas[0]),
+        "log_rho": float(torch.log(pf.lambdas[0] / pf.lambdas[1])),
+    }
+
+
 def upload_prefiltered(ctx, pf: Prefiltered):
     """The prefiltered chain as one atlas texture, and the uniforms ``prefiltered.glsl`` reads
     (bind the texture to the unit of its ``atlas`` sampler)."""
@@ -254,21 +267,28 @@ def upload_prefiltered(ctx, pf: Prefiltered):
     tex = ctx.texture((atlas.shape[1], atlas.shape[0]), 4, atlas.tobytes(), dtype="f4")
     tex.filter = (moderngl.LINEAR, moderngl.LINEAR)
     tex.repeat_x = tex.repeat_y = False
-    uniforms = {
-        "atlas_size": (float(atlas.shape[1]), float(atlas.shape[0])),
-        "level_y": rows,
-        "level_res": res,
-        "n_levels": len(pf.levels),
-        "lam0": float(pf.lambdas[0]),
-        "log_rho": float(torch.log(pf.lambdas[0] / pf.lambdas[1])),
-    }
-    return tex, uniforms
+    return tex, _atlas_uniforms(pf, atlas.shape, rows, res)
+
+
+def _geodesic_tables() -> tuple[np.ndarray, np.ndarray, dict[str, int]]:
+    """What ``geodesic.glsl`` reads, as arrays: the 180 triangles' planes ``(540, 4)`` float32
+    (three great-circle normals per triangle, ``.w`` the view index of the opposite corner),
+    the candidate table as a ``(6 CAND_RES, CAND_RES CAND_TEXELS, 4)`` float32 image (the
+    triangles of each cube-map texel's directions, -1 padded), and the shader's defines."""
+    planes, faces = sphere.face_planes(torch.float32, torch.device("cpu"))
+    pl = torch.cat([planes.T.reshape(180, 3, 3), faces.reshape(180, 3, 1).float()], -1)
+    block = pl.reshape(540, 4).numpy().astype(np.float32)
+    cand = sphere.triangle_candidates(CAND_RES)  # (6, R, R, K)
+    texels = -(-cand.shape[-1] // 4)
+    cand = torch.nn.functional.pad(cand, (0, 4 * texels - cand.shape[-1]), value=-1)
+    img = cand.reshape(6 * CAND_RES, CAND_RES * texels, 4).float().numpy()
+    return block, img, {"CAND_RES": CAND_RES, "CAND_TEXELS": texels}
 
 
 def upload_geodesic(ctx):
-    """What ``geodesic.glsl`` reads: the 180 triangles' planes as a uniform block (bind it to
-    the ``Planes`` block), the candidate table as a texture (bind it to the unit of the
-    ``cand_tex`` sampler), and the defines the shader needs.
+    """What ``geodesic.glsl`` reads (:func:`_geodesic_tables`): the planes as a uniform block
+    (bind it to the ``Planes`` block), the candidate table as a texture (bind it to the unit of
+    the ``cand_tex`` sampler), and the defines the shader needs.
 
     Returns
     -------
@@ -276,16 +296,11 @@ def upload_geodesic(ctx):
     """
     import moderngl  # optional (the gl extra)
 
-    planes, faces = sphere.face_planes(torch.float32, torch.device("cpu"))
-    pl = torch.cat([planes.T.reshape(180, 3, 3), faces.reshape(180, 3, 1).float()], -1)
-    ubo = ctx.buffer(pl.reshape(540, 4).numpy().astype(np.float32).tobytes())
-    cand = sphere.triangle_candidates(CAND_RES)  # (6, R, R, K)
-    texels = -(-cand.shape[-1] // 4)
-    cand = torch.nn.functional.pad(cand, (0, 4 * texels - cand.shape[-1]), value=-1)
-    img = cand.reshape(6 * CAND_RES, CAND_RES * texels, 4).float().numpy()
+    block, img, defines = _geodesic_tables()
+    ubo = ctx.buffer(block.tobytes())
     tex = ctx.texture((img.shape[1], img.shape[0]), 4, img.tobytes(), dtype="f4")
     tex.filter = (moderngl.NEAREST, moderngl.NEAREST)
-    return ubo, tex, {"CAND_RES": CAND_RES, "CAND_TEXELS": texels}
+    return ubo, tex, defines
 
 
 def set_uniforms(prog, values: dict) -> None:

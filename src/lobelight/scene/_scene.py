@@ -314,6 +314,8 @@ def load(path_or_name, *, device=None, material=None) -> Scene:
 
 
 def _load(path_or_name) -> Scene:
+    """The scene ``path_or_name`` stands for, by kind: a built-in name, then a file by its
+    suffix (a mesh, or a scene description)."""
     s = str(path_or_name)
     if s.partition(":")[0] in BUILTIN_SCENES and not Path(s).exists():
         return builtin(s)
@@ -324,11 +326,22 @@ def _load(path_or_name) -> Scene:
         )
     suffix = p.suffix.lower()
     if suffix in MESH_SUFFIXES:
-        mesh = load_mesh(p)
-        mats = uniform(BARE_MESH_MATERIAL, mesh.n_vertices)
-        return Scene(mesh, mats, "builtin", default_camera(mesh), p.stem)
+        return _bare_mesh_scene(p)
     if suffix not in (".toml", ".json"):
         raise InputError(s, f"unknown scene format {suffix!r}: use .toml, .json or a mesh file")
+    return _described_scene(p, s)
+
+
+def _bare_mesh_scene(p: Path) -> Scene:
+    """A mesh file as a scene: :data:`BARE_MESH_MATERIAL`, the built-in environment and
+    :func:`default_camera`."""
+    mesh = load_mesh(p)
+    mats = uniform(BARE_MESH_MATERIAL, mesh.n_vertices)
+    return Scene(mesh, mats, "builtin", default_camera(mesh), p.stem)
+
+
+def _described_scene(p: Path, s: str) -> Scene:
+    """The scene of the TOML/JSON description ``p`` (named ``s`` in errors)."""
     d = _read_description(p)
     if "mesh" not in d:
         raise InputError(s, "scene file needs a 'mesh' entry")
