@@ -35,6 +35,7 @@ from __future__ import annotations
 
 import torch
 
+from .._tol import DIVISOR_F32
 from ..geometry import sphere
 from ..lobes import sg
 from ._data import FitData
@@ -93,7 +94,7 @@ def levenberg_marquardt(
     b, j, n = lam.shape
     dt = mu.dtype
     energy = data.energy()  # (B, J)
-    inv_e = 1 / energy.sum(1).clamp_min(1e-30)  # (B,)
+    inv_e = 1 / energy.sum(1).clamp_min(DIVISOR_F32)  # (B,)
     c = {
         "M": (weights.beta / j) ** 0.5,
         "V": (weights.gamma / j) ** 0.5,

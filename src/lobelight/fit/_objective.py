@@ -27,6 +27,7 @@ from dataclasses import dataclass
 
 import torch
 
+from .._tol import DIVISOR_F32, DIVISOR_F64, SHARPNESS_MIN
 from ..lobes import sg
 from ._data import FitData
 
@@ -128,11 +129,11 @@ def solve_gram(
     quadrature instead, ``sum_s W_s G_k``, would leave the L2 optimum of data a mixture
     represents exactly untouched by the quadrature's error, but where the samples do not
     resolve a lobe (a round Gaussian over a grazing view's sliver of samples) its rendered
-    light strays: measured on GGX 0.02, 5.7 % mean and +24 % at the 95th percentile.
+    light strays.
 
     Why the constraint: the transport's L2 optimum follows its peak, and a long-tailed lobe
     (GGX, Beckmann; visibility cuts) carries much of its light in tails one Gaussian does not:
-    the unconstrained fit keeps 60-75 % of a GGX metal's light (alpha 0.02-0.25), which a
+    the unconstrained fit keeps only part of a GGX metal's light (docs/method.md), which a
     renderer integrating each lobe shows as a darker object. The constrained fit trades peak
     height for width and keeps every function's integral, which is what a lobe contributes
     under smooth lighting.
@@ -159,7 +160,7 @@ def solve_gram(
     scale = a64.diagonal(dim1=-2, dim2=-1).mean(-1)[..., None, None]  # (B, J, 1, 1)
     # views below the horizon, and lobes that sit where no sample is (all G underflow), get
     # weight 0 from an identity system: solving the singular one would poison the gradients
-    bad = below[..., None, None] | (scale < 1e-30)
+    bad = below[..., None, None] | (scale < DIVISOR_F32)
     a64 = torch.where(bad, eye, a64 + ridge * scale * eye)
     rhs64 = torch.where(bad, torch.zeros_like(rhs), rhs).double()
     exact = sg.integral(lam.double())  # (B, J, N)
@@ -172,14 +173,14 @@ def solve_gram(
     sol = torch.linalg.solve(a64, torch.cat([rhs64, z[..., None]], -1))  # (B, J, N, 4)
     ab, az = sol[..., :3], sol[..., 3:]  # A^-1 b, A^-1 Z
     zaz = (z[..., None] * az).sum(-2)  # (B, J, 1), > 0 (A is positive definite)
-    nu = ((z[..., None] * ab).sum(-2) - lit) / zaz.clamp_min(1e-300)  # (B, J, 3)
+    nu = ((z[..., None] * ab).sum(-2) - lit) / zaz.clamp_min(DIVISOR_F64)  # (B, J, 3)
     w = (ab - az * nu[:, :, None]).clamp_min(0)
     carried = (z[..., None] * w).sum(-2)  # (B, J, 3)
     # every weight clamped (rare, N > 1): the light goes to the lobe the data favours most
     first = torch.nn.functional.one_hot(ab.argmax(-2), n).transpose(-1, -2).to(w.dtype)
     w = torch.where(carried[:, :, None] > 0, w, first / z[..., None])
     carried = (z[..., None] * w).sum(-2)
-    w = w * (lit / carried.clamp_min(1e-300))[:, :, None]
+    w = w * (lit / carried.clamp_min(DIVISOR_F64))[:, :, None]
     return torch.minimum(w, cap).to(rhs.dtype)
 
 
@@ -187,7 +188,7 @@ def data_term(data: FitData, w, mu, lam) -> torch.Tensor:
     """``D`` per vertex, (B,): the relative L2 error squared over all views."""
     r = mixture(data, w, mu, lam) - data.values  # (B, J, S, 3)
     err = (data.weights[..., None] * r * r).sum((1, 2, 3))
-    return err / data.energy().sum(1).clamp_min(1e-30)
+    return err / data.energy().sum(1).clamp_min(DIVISOR_F32)
 
 
 def _neighbour_mean(x: torch.Tensor, nbr: torch.Tensor) -> torch.Tensor:
@@ -211,7 +212,7 @@ def mean_term(mu: torch.Tensor, nbr: torch.Tensor) -> torch.Tensor:
 
 def sigma_term(lam: torch.Tensor, nbr: torch.Tensor) -> torch.Tensor:
     """``V`` per vertex, (B,): the same for ``sigma = 1 / sqrt(lam)``, relative."""
-    sigma = lam.clamp_min(1e-12).rsqrt()  # (B, J, N)
+    sigma = lam.clamp_min(SHARPNESS_MIN).rsqrt()  # (B, J, N)
     avg = _neighbour_mean(sigma, nbr)
     d = (avg - sigma) / avg
     return (d * d).sum(-1).mean(1)

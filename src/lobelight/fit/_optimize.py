@@ -25,6 +25,7 @@ import math
 
 import torch
 
+from .._tol import SHARPNESS_MIN, SMALL
 from ..errors import InputError
 from ..geometry import sphere
 from ..lobes import sg
@@ -65,7 +66,8 @@ def _moments(data: FitData, values: torch.Tensor, lam_range) -> tuple[torch.Tens
     mu0 = m_a.new_zeros(b * j, 3).index_copy_(0, act, m_a).reshape(b, j, 3)
     lam0 = l_a.new_zeros(b * j).index_copy_(0, act, l_a).reshape(b, j)
     has = (~empty).to(mu0.dtype)[..., None]
-    avg = torch.nn.functional.normalize((mu0 * has).sum(1, keepdim=True) + 1e-12, dim=-1)
+    # a vertex without data in any view sums to a zero vector: SMALL makes it a direction
+    avg = torch.nn.functional.normalize((mu0 * has).sum(1, keepdim=True) + SMALL, dim=-1)
     mu0 = torch.where(empty[..., None], avg.expand_as(mu0), mu0)
     lam_valid = torch.where(empty, torch.full_like(lam0, float("nan")), lam0)
     med = torch.nanmedian(lam_valid, dim=1, keepdim=True).values
@@ -165,7 +167,7 @@ def _swap_gain(
     """How much eq. (6) drops when view ``v`` alone reorders its Gaussians by ``perm`` (N,),
     every other view held: (B, J). ``D`` is invariant; ``M`` and ``V`` change in the view's own
     term and in its neighbours' terms, through their averages; ``S`` in the view's own term."""
-    mu, sigma = g.mu, g.lam.clamp_min(1e-12).rsqrt()  # (B, J, N, 3), (B, J, N)
+    mu, sigma = g.mu, g.lam.clamp_min(SHARPNESS_MIN).rsqrt()  # (B, J, N, 3), (B, J, N)
     j = mu.shape[1]
     nb = nbr_views.clamp_min(0)  # (J, 6)
     valid = (nbr_views >= 0).to(mu.dtype)

@@ -30,7 +30,9 @@ import itertools
 
 import torch
 
+from .._tol import SHARPNESS_MIN
 from ..lobes import sg
+from ..model import LIVE_FLOOR
 from ..scene import Mesh
 from ._objective import Weights, _pair_diffs, flipped_views, mean_term, sigma_term
 from ._optimize import Gaussians, _permuted, _swap_gain
@@ -47,21 +49,23 @@ __all__ = [
 
 # One flipped neighbour pair costs what M charges for one mean 1 rad out of line with its
 # neighbouring views at the default beta (0.01 x 1^2): a flip outweighs the small incoherence
-# of exchanging two nearby lobes, not the large one of exchanging distant ones. Measured with
-# N = 2: on sphere:2, 1e-3, 1e-2 and 1e-1 leave the same flips within 3 %; on sphere:1, 1e-3
-# moves nothing and 1e-2, 1e-1 and 1 give the same counts.
+# of exchanging two nearby lobes, not the large one of exchanging distant ones. The flip counts
+# of a bake with N = 2 change little for a weight ten times smaller or larger.
 FLIP_WEIGHT = 1e-2
 #: Lobes this many widths apart or more have an arrangement that a flip visibly breaks; closer
 #: ones (a sharp core on a broad skirt) are ordered by width, and the direction between them is
 #: noise (:func:`lobelight.fit.count_flips`).
 SEPARATED = 0.5
+#: The least drop of the objective for which a node moves: gains at round-off level are ties,
+#: and moving on them would let two orders of equal cost trade places sweep after sweep.
+MIN_GAIN = 1e-12
 
 
 def live_gaussians(g: Gaussians, live_fraction: float = 0.05) -> torch.Tensor:
     """Gaussians that carry light, (V, J, N) bool: at least ``live_fraction`` of the light of the
     view's brightest Gaussian (``w int G``, summed over channels)."""
     carried = g.w.sum(-1) * sg.integral(g.lam)  # (V, J, N)
-    return carried > live_fraction * carried.amax(-1, keepdim=True).clamp_min(1e-30)
+    return carried > live_fraction * carried.amax(-1, keepdim=True).clamp_min(LIVE_FLOOR)
 
 
 def neighbour_table(mesh: Mesh) -> tuple[torch.Tensor, torch.Tensor]:
@@ -81,7 +85,7 @@ def separated_pairs(g: Gaussians, min_separation: float) -> torch.Tensor:
     (``sigma`` of the wider) apart, (..., J, P) bool for Gaussians (..., J, N)."""
     n = g.mu.shape[-2]
     i, j = torch.triu_indices(n, n, offset=1, device=g.mu.device)
-    sigma = g.lam.clamp_min(1e-12).rsqrt()
+    sigma = g.lam.clamp_min(SHARPNESS_MIN).rsqrt()
     wide = torch.maximum(sigma[..., i], sigma[..., j])
     return _pair_diffs(g.mu).norm(dim=-1) >= min_separation * wide
 
@@ -201,7 +205,7 @@ def reorder_mesh(
         # across its views, so no single view of it gains by moving (it would break that
         # coherence), while reordering all its views at once mends its flips and costs nothing.
         # Vertices move where no neighbouring vertex gains more.
-        vwant = vgain > 1e-12
+        vwant = vgain > MIN_GAIN
         if bool(vwant.any()):
             vrank = torch.where(vwant, vgain, torch.full_like(vgain, -1.0))
             ids_v = torch.arange(v, device=dev)
@@ -209,7 +213,7 @@ def reorder_mesh(
             perm = torch.where(vmove[:, None], perms[vwhich], ident)[:, None].expand(v, j, n)
             w, mu, lam, live = (_permuted(x, perm) for x in (w, mu, lam, live))
             continue
-        want = gain > 1e-12
+        want = gain > MIN_GAIN
         rank = torch.where(want, gain, torch.full_like(gain, -1.0))
 
         # the neighbouring views of the same vertex, and the same view of neighbouring vertices

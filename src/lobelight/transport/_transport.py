@@ -13,8 +13,9 @@ indirect glossy
     bounce off the object (full material: Lambert + specular, sampled as a mixture) and are
     recorded at the direction in which they escape, until Russian roulette ends them. The
     recorded throughputs, binned on a cube map and divided by the bin's solid angle, estimate
-    the transport density; integrated against the lighting they give the radiance these paths
-    carry to the viewer.
+    the transport density (:meth:`Transport.indirect`); integrated against the lighting they
+    give the radiance these paths carry to the viewer. A bake keeps them as one Gaussian per
+    vertex and view instead (:meth:`Transport.indirect_lobes`).
 diffuse
     ``T_D`` as order-5 spherical-harmonic transfer vectors: ``(albedo / pi) int Y_lm(w) V_x(w)
     max(n.w, 0) dw`` (self-shadowed), and optionally diffuse interreflection
@@ -32,6 +33,7 @@ from dataclasses import dataclass
 
 import torch
 
+from .._tol import DIVISOR_F32
 from ..errors import InputError
 from ..geometry import cubemap, sphere
 from ..geometry.raycast import RayCaster
@@ -51,8 +53,8 @@ __all__ = [
 
 #: Order of the diffuse spherical-harmonic transfer (25 coefficients).
 DIFFUSE_ORDER = 5
-#: Bounces of diffuse interreflection a bake adds to the SH transfer (docs/method.md: in a
-#: hemispherical bowl of albedo 0.7 the fifth and later add under 0.5 % of the total).
+#: Bounces of diffuse interreflection a bake adds to the SH transfer: in a hemispherical bowl
+#: of albedo 0.7 the fifth and later add a negligible part of the total (docs/method.md).
 BOUNCES = 4
 #: Paths per vertex and view of a bake's indirect glossy (docs/method.md).
 INDIRECT_PATHS = 16
@@ -63,9 +65,9 @@ INDIRECT_LAM_RANGE = sg.LAM_RANGE
 #: Sharpness of the indirect Gaussian of a (vertex, view) whose paths escape as one (by the
 #: throughputs' effective count), which tells no width: a lobe holding half its light within
 #: 8.4 degrees of the path, narrower than the views' spacing, across which the renderers blend
-#: the lobes anyway. Spread over the sphere instead, such a lone path (most of a rough metal's:
-#: 87 % of Spot's at 16 paths) puts its light where the object blocks it, and on a sun there
-#: (docs/method.md has the measurement).
+#: the lobes anyway. Spread over the sphere instead, such a lone path (most of a rough metal's
+#: at 16 paths) puts its light where the object blocks it, and on a sun there (docs/method.md
+#: has the measurement).
 LONE_PATH_LAM = 64.0
 
 
@@ -116,7 +118,10 @@ class Transport:
     Parameters
     ----------
     scene : Scene
-    device : torch device of the results (ray casting itself runs on the CPU)
+    device : torch device of the transport's tensors. Rays run through
+        :class:`lobelight.geometry.raycast.RayCaster`'s process-default engine: Embree (on
+        the CPU, the rays moved there and back) or NVIDIA Warp (on the mesh's device; the
+        default on a CUDA device where Warp is installed)
     """
 
     def __init__(self, scene: Scene, *, device=None, shadows: bool = True):
@@ -620,14 +625,14 @@ def _escape_lobes(slot, d, thr, m: int, paths: int):
     norm = torch.linalg.vector_norm(mom, dim=-1)
     some = (big_l > 0) & (norm > 0)
     up = torch.tensor([0.0, 1.0, 0.0], device=dev)
-    mu = torch.where(some[:, None], mom / norm.clamp_min(1e-30)[:, None], up)
+    mu = torch.where(some[:, None], mom / norm.clamp_min(DIVISOR_F32)[:, None], up)
     # the weighted median of 1 - cos to the mean (half chords: precise for sharp lobes): the
     # paths sorted by slot, then by it; per slot the first at half the slot's weight
     half = 0.5 * ((d - mu[slot]) ** 2).sum(-1)  # (E,)
     order = torch.argsort(slot.double() * 4 + half.double())
     ss, hs = slot[order], half[order]
     before = torch.cumsum(big_l, 0) - big_l  # (m,) the weight of the earlier slots
-    frac = (lum[order].cumsum(0) - before[ss]) / big_l[ss].clamp_min(1e-30)
+    frac = (lum[order].cumsum(0) - before[ss]) / big_l[ss].clamp_min(DIVISOR_F32)
     e = ss.numel()
     at = torch.where(frac >= 0.5, torch.arange(e, device=dev), e)
     first = torch.full((m,), e, dtype=torch.int64, device=dev).scatter_reduce(0, ss, at, "amin")
@@ -635,8 +640,8 @@ def _escape_lobes(slot, d, thr, m: int, paths: int):
     hm[first < e] = hs[first[first < e]]
     # a vMF holds half its light within 1 - cos = ln 2 / lam (for lam >> 1); one path (by
     # the throughputs' effective count) tells no width: LONE_PATH_LAM
-    lam = (math.log(2) / hm.clamp_min(1e-30)).clamp(*INDIRECT_LAM_RANGE)
-    n_eff = big_l**2 / big_q.clamp_min(1e-30)
+    lam = (math.log(2) / hm.clamp_min(DIVISOR_F32)).clamp(*INDIRECT_LAM_RANGE)
+    n_eff = big_l**2 / big_q.clamp_min(DIVISOR_F32)
     lam = torch.where(some & (n_eff >= 2), lam, torch.full_like(lam, LONE_PATH_LAM))
     w = torch.where(some[:, None], s / sg.integral(lam)[:, None], torch.zeros_like(s))
     return w, mu, lam
