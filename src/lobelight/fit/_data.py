@@ -11,7 +11,8 @@ local
     lie inside), and the median offset, which sets the peak's scale. The rings are graded
     geometrically from the peak out to the cap's edge: a GGX lobe's peak is a tenth of the
     width its tails give the vMF, and rings equally spaced across the cap leave it between the
-    first two (they integrate a GGX 0.02-0.1 lobe to 84-90 %; graded rings to 99.7-100 %).
+    first two, where they integrate such a lobe short of its light (docs/method.md compares the
+    two).
     For the microfacet-type models the grid is laid over half vectors about their mean and
     mapped to light directions (:func:`half_vector_lobes`): towards grazing views such a lobe
     is a sliver in light directions, round in half vectors.
@@ -81,8 +82,9 @@ def half_vector_lobes(spec: brdf.BRDF | None) -> bool:
     A microfacet lobe is round in ``h`` (the distribution ``D(h)`` about the normal) but not in
     the light direction ``w = 2 (v.h) h - v``: towards grazing views the map squeezes it across
     the plane of incidence by ``2 v.h``, into a sliver a fiftieth as wide as it is long at
-    ``n.v = 0.02``, which rings around a light-direction axis miss or hit by chance (measured
-    on GGX 0.02: grazing views' integrals 0.4-4.9x the truth). The mirror-symmetric lobes
+    ``n.v = 0.02``, which rings around a light-direction axis miss or hit by chance (a sharp
+    GGX lobe's grazing views then integrate to several times too little or too much light). The
+    mirror-symmetric lobes
     (Phong, Lafortune) are round in ``w`` and squeezed in ``h``, so they keep the light
     directions.
     """
@@ -170,8 +172,8 @@ def graded_cap(
     Gauss-Legendre nearly exactly.
 
     Around each ring, ``n_phi`` equal steps in ``phi`` (midpoints). A ring the horizon cuts
-    needs nothing more: the transport's ``max(n.w, 0)`` takes it to 0 continuously there
-    (points on the arcs either side of the cut changed a Phong sphere's integrals by < 1e-4).
+    needs nothing more: the transport's ``max(n.w, 0)`` takes it to 0 continuously there, so
+    extra points on the arcs either side of the cut leave the integrals as they are.
 
     Parameters
     ----------

@@ -3,8 +3,10 @@
 The paper fits one vertex at a time, starting from a seed and moving to neighbours, so that the
 spatial term ``S`` always compares with vertices already fitted. Here the fill proceeds by
 breadth-first *wavefronts*: wavefront ``k`` holds the vertices at graph distance ``k`` from their
-component's seed. Their ``S`` terms only read earlier wavefronts, so a wavefront is one batch
-(split into chunks of bounded memory), fitted at once on any device.
+component's seed. Their ``S`` terms read the vertices fitted before them (earlier wavefronts, and
+earlier chunks of their own), so a wavefront is fitted in a few large batches, chunks of bounded
+memory (:mod:`._chunk`), each at once on any device. The bake's state is saved to a checkpoint
+between chunks (:mod:`._checkpoint`).
 
 Beyond the paper, a relaxation pass revisits every vertex once all are fitted, this time with
 ``S`` against all its neighbours (the paper's own proposal against "Gaussian flipping"), then

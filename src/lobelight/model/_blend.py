@@ -12,7 +12,9 @@ import torch
 
 __all__ = ["LIVE_FLOOR", "MIN_SAY", "blend_lobes", "horizon_scale"]
 
-#: Carried light below which a record is dead: it has no say in a blended lobe's shape.
+#: Carried light below which a record is dead: it has no say in a blended lobe's shape. Far
+#: below the light any fitted lobe carries, and above float32's smallest normal number, so a
+#: record of underflowed weights counts as dead.
 LIVE_FLOOR = 1e-30
 #: A blended lobe whose live records have less barycentric weight than this carries no light.
 MIN_SAY = 1e-6
@@ -29,23 +31,22 @@ def blend_lobes(e, mu, sigma, b, *, frame=None):
 
     Why not blend peak weights and widths independently, the paper's literal wording: where a
     slot is a sharp lobe in one record and a broad or dead one in the next, the sharp lobe's
-    peak weight (~1e4) is spread over the blended width and the light grows by the ratio of
-    the integrals. On the knot with two Gaussians per view that made images ~7x too bright
-    (and one Gaussian's 1 % worst blends carried 17x their light). Blending the carried light
-    conserves it exactly. Why not weight the shape by the light too: that pins a highlight to
-    the brighter record's mean instead of letting it travel across the triangle as the means
-    do, the point of the paper's nonlinear interpolation; measured on ``knot:2`` (N = 1) it
-    costs 2.4 dB against this rule. Dead records are left out because their means and widths
-    are never fitted to anything (the M and V fill may be poor). The shader does the same, per
-    vertex explicitly and per pixel with varyings premultiplied by the live flag.
+    peak weight (thousands) is spread over the blended width and the light grows by the ratio
+    of the integrals, which makes images several times too bright (docs/method.md). Blending
+    the carried light conserves it exactly. Why not weight the shape by the light too: that
+    pins a highlight to the brighter record's mean instead of letting it travel across the
+    triangle as the means do, the point of the paper's nonlinear interpolation, and renders
+    worse than this rule. Dead records are left out because their means and widths are never
+    fitted to anything (the M and V fill may be poor). The shader does the same, per vertex
+    explicitly and per pixel with varyings premultiplied by the live flag.
 
     ``frame = (base, target)`` blends the means as offsets from per-record directions ``base``
     and adds them to ``target`` before normalising. The renderer passes each triangle corner's
     mirror direction (its view reflected about its normal) and the point's own, computed from
     its interpolated normal and view: a mirror-like lobe then follows the reflection per pixel
-    as Phong shading does, instead of a blend of corner directions that differ by up to 60
-    degrees across the default knot's triangles (+1.2 dB glossy on the knot, relative L2 error
-    0.93 -> 0.34). At a corner (``b`` a unit vector) the corner's own mean comes back exactly.
+    as Phong shading does, instead of a blend of corner directions that differ by tens of
+    degrees across a coarse mesh's triangles (docs/method.md measures the gain). At a corner
+    (``b`` a unit vector) the corner's own mean comes back exactly.
 
     Parameters
     ----------

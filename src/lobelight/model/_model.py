@@ -32,7 +32,7 @@ class Model:
     materials : per-vertex materials;  provenance : scene, settings, timings, versions
     bounce : optional (V, n, 3) the interreflected part of ``diffuse``: a renderer that shades
         the map's sun per pixel lights it with the sun's SH too (the sun's light bounced off
-        the object; left out, the knot under the built-in sky rendered 5 % dark)
+        the object; left out, an object under a map with a sun renders too dark)
     indirect_gaussians : how many of the last Gaussians per view hold indirect glossy transport
         (light reflected off the object itself before it reaches the vertex's glossy lobe).
         A renderer that shades the sun's glossy light per pixel, with the other lobes seeing
