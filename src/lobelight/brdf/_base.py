@@ -25,6 +25,9 @@ from ..errors import InputError
 from ..geometry.sphere import frame
 
 _PI = math.pi
+#: A given tangent whose part orthogonal to the normal is shorter than this fraction of it is
+#: taken as parallel to the normal: the frame then uses frame(n)'s tangent.
+_PARALLEL_TANGENT = 1e-6
 _SCALAR, _COLOR = 0, 1  # number of trailing (event) dimensions of a parameter kind
 #: What a key of a scene file's material takes (:attr:`BRDF.scene_params`): one number, one
 #: number (grey) or an RGB triple, a list of lobe tables.
@@ -207,7 +210,9 @@ class _Frame:
             norm = torch.linalg.vector_norm(tp, dim=-1, keepdim=True)
             tp = tp / norm.clamp_min(torch.finfo(tp.dtype).tiny)
             tp = torch.where(
-                norm > 1e-6 * torch.linalg.vector_norm(t, dim=-1, keepdim=True), tp, frame(n)[0]
+                norm > _PARALLEL_TANGENT * torch.linalg.vector_norm(t, dim=-1, keepdim=True),
+                tp,
+                frame(n)[0],
             )
             tp, n = torch.broadcast_tensors(tp, n)
             self.t, self.b, self.n = tp, torch.cross(n, tp, dim=-1), n
@@ -274,7 +279,7 @@ class BRDF(abc.ABC):
     type_name: ClassVar[str] = ""
     #: Whether the lobe is a distribution of half vectors ``h = normalise(wi + wo)`` about the
     #: normal (microfacet-like): the PRT fit then lays its local grid over half vectors, where
-    #: such a lobe is round (``lobelight.fit._data.half_vector_lobes``). False for lobes that
+    #: such a lobe is round (:func:`lobelight.fit.half_vector_lobes`). False for lobes that
     #: are round in ``wi`` (mirror-symmetric lobes, Lambert).
     half_vector_lobe: ClassVar[bool] = False
     #: The keys a scene file's material gives this model as its specular lobe (the constructor's

@@ -53,6 +53,12 @@ def _fresnel_conductor(cos_i: torch.Tensor, eta: torch.Tensor, k: torch.Tensor) 
 
 
 _ALPHA_MIN = 1e-4  # Mitsuba's MicrofacetDistribution::configure() clamp
+#: ``D(m) cos(theta_m)`` at or below this is 0, as Mitsuba's ``MicrofacetDistribution::eval``
+#: sets it against numerical trouble in the later stages (``pdf``, the sampling weights).
+_D_CUTOFF = 1e-20
+#: Beckmann visible-normal sampling keeps its uniforms this far inside (0, 1), as Mitsuba's
+#: ``sample_visible_11`` does: ``log(u)`` and ``erfinv`` stay finite.
+_U_MARGIN = 1e-6
 
 
 class _Microfacet(BRDF):
@@ -122,7 +128,7 @@ class _Microfacet(BRDF):
             r = torch.exp(-((mx / au) ** 2 + (my / av) ** 2) / cos2) / (_PI * au * av * cos2 * cos2)
         else:
             r = 1 / (_PI * au * av * ((mx / au) ** 2 + (my / av) ** 2 + cos2) ** 2)
-        return torch.where(r * mz > 1e-20, r, torch.zeros_like(r))
+        return torch.where(r * mz > _D_CUTOFF, r, torch.zeros_like(r))
 
     def _G1(self, v: torch.Tensor, m: torch.Tensor, au: torch.Tensor, av: torch.Tensor):
         vx, vy, vz = v.unbind(-1)
@@ -168,8 +174,8 @@ class _Microfacet(BRDF):
             tan_i = torch.sqrt((1 - cos_i * cos_i).clamp_min(0)) / cos_i
             cot_i = 1 / tan_i
             maxval = torch.erf(cot_i)
-            u0 = u0.clamp(1e-6, 1 - 1e-6)
-            u1 = u1.clamp(1e-6, 1 - 1e-6)
+            u0 = u0.clamp(_U_MARGIN, 1 - _U_MARGIN)
+            u1 = u1.clamp(_U_MARGIN, 1 - _U_MARGIN)
             x = maxval - (maxval + 1) * torch.erf(torch.sqrt(-torch.log(u0)))
             inv_sqrt_pi = 1 / math.sqrt(_PI)
             u0 = u0 * (1 + maxval + inv_sqrt_pi * tan_i * torch.exp(-cot_i * cot_i))

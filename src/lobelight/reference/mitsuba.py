@@ -33,6 +33,10 @@ from ..scene import Scene
 
 __all__ = ["load_mitsuba", "scene_dict"]
 
+#: Rounding allowed when checking that Lambert plus specular reflectance stays within 1 per
+#: channel (values read from float32 materials).
+_SUM_SLACK = 1e-6
+
 
 def load_mitsuba(variant: str | None = "scalar_rgb"):
     """Import Mitsuba and set ``variant`` (None: keep the variant that is set, else
@@ -96,7 +100,7 @@ def _blend(diffuse: torch.Tensor, s: _brdf.BRDF) -> dict:
     micro = s.mitsuba_dict()
     d = diffuse.double().reshape(-1).expand(3)
     spec = torch.tensor(micro["specular_reflectance"]["value"], dtype=torch.float64)  # (3,)
-    if bool((d + spec > 1 + 1e-6).any()):
+    if bool((d + spec > 1 + _SUM_SLACK).any()):
         raise InputError(
             "materials",
             f"Lambert {d.tolist()} + specular {spec.tolist()} exceed 1 in a channel: no exact "

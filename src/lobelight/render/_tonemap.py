@@ -18,6 +18,11 @@ from ..errors import InputError
 __all__ = ["auto_exposure", "check_output_path", "save_image", "tonemap"]
 
 CURVES = ("srgb", "aces")
+#: Floor of a pixel's luminance in :func:`auto_exposure`'s log-average (Reinhard's delta):
+#: black pixels count as very dark instead of sending the average to zero.
+_LUMINANCE_FLOOR = 1e-6
+#: Floor of that average before the exposure's division: finite stops for any image.
+_AVERAGE_FLOOR = 1e-9
 
 
 def _np(img) -> np.ndarray:
@@ -36,8 +41,8 @@ def auto_exposure(img, mask=None, *, key: float = 0.18) -> float:
     lum = lum[np.isfinite(lum)]
     if lum.size == 0:
         return 0.0
-    avg = float(np.exp(np.mean(np.log(np.maximum(lum, 1e-6)))))
-    return math.log2(key / max(avg, 1e-9))
+    avg = float(np.exp(np.mean(np.log(np.maximum(lum, _LUMINANCE_FLOOR)))))
+    return math.log2(key / max(avg, _AVERAGE_FLOOR))
 
 
 def tonemap(img, *, exposure: float = 0.0, curve: str = "srgb") -> np.ndarray:
