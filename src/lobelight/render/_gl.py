@@ -100,6 +100,28 @@ def load_shader(name: str) -> str:
     return resources.files("lobelight.render").joinpath("shaders", f"{name}.glsl").read_text()
 
 
+def _stage_sources(
+    name: str,
+    defines: dict[str, int | str] | None = None,
+    include: tuple = (),
+    vertex_include: tuple = (),
+) -> tuple[str, str]:
+    """The vertex and fragment stage texts of shader file ``name`` (one file holding both
+    stages): the version line, the ``defines``, the stage's define, the text of the files that
+    ``vertex_include`` / ``include`` name (shared functions, e.g. ``"prefiltered"``,
+    ``"geodesic"``), then the file."""
+    head = "#version 330\n" + "".join(f"#define {k} {v}\n" for k, v in (defines or {}).items())
+    src = load_shader(name)
+
+    def lib(names):
+        return "".join(load_shader(i) + "\n" for i in names)
+
+    return (
+        head + "#define VERTEX_SHADER\n" + lib(vertex_include) + src,
+        head + "#define FRAGMENT_SHADER\n" + lib(include) + src,
+    )
+
+
 def _program(
     ctx,
     name: str,
@@ -107,19 +129,9 @@ def _program(
     include: tuple = (),
     vertex_include: tuple = (),
 ):
-    """A program from one shader file holding both stages; ``include`` and ``vertex_include``
-    name shader files whose text goes before the fragment and the vertex stage (shared
-    functions, e.g. ``"prefiltered"``, ``"geodesic"``)."""
-    head = "#version 330\n" + "".join(f"#define {k} {v}\n" for k, v in (defines or {}).items())
-    src = load_shader(name)
-
-    def lib(names):
-        return "".join(load_shader(i) + "\n" for i in names)
-
-    return ctx.program(
-        vertex_shader=head + "#define VERTEX_SHADER\n" + lib(vertex_include) + src,
-        fragment_shader=head + "#define FRAGMENT_SHADER\n" + lib(include) + src,
-    )
+    """A program of :func:`_stage_sources`' two stages."""
+    vertex, fragment = _stage_sources(name, defines, include, vertex_include)
+    return ctx.program(vertex_shader=vertex, fragment_shader=fragment)
 
 
 def create_context():
