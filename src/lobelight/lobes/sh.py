@@ -456,6 +456,10 @@ class Rotator:
     ----------
     coeffs : (order**2,) or (order**2, C) coefficients of the function, any device and dtype
         (kept in float64 on the CPU)
+
+    Attributes
+    ----------
+    order : int, the expansion's order
     """
 
     def __init__(self, coeffs: torch.Tensor):
