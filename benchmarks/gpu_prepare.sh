@@ -11,8 +11,8 @@
 # beside the other wheels (this script prints the total and fails over 60 MiB).
 set -euo pipefail
 cd "$(git rev-parse --show-toplevel)"
-# 1.0.2: the newest release whose CUDA library, slimmed, leaves room for the rest (30 MiB; later
-# releases' are over 120 MiB); lobelight's Warp engine keeps to the API it has.
+# 1.0.2: the newest release whose CUDA library, slimmed, leaves room for the rest within the
+# limit (later releases' do not); lobelight's Warp engine keeps to the API it has.
 WARP_VERSION=${WARP_VERSION:-1.0.2}
 PY=${PYTHON:-python3}
 exclude=$(git rev-parse --git-path info/exclude)
