@@ -31,4 +31,4 @@ timeout 570 python3 -m lobelight.cli bench all --device cuda --budget 420 -o "$O
   --json >"$OUT/gpu.stdout.json" 2>"$OUT/gpu.log"
 echo "bench all: exit $?"
 tail -n 20 "$OUT/gpu.log"
-python3 -m lobelight.bench.suite table "$OUT/gpu.json" | tee "$OUT/gpu.md"
+python3 -m lobelight.bench table "$OUT/gpu.json" | tee "$OUT/gpu.md"

@@ -19,8 +19,8 @@ machine description (:func:`machine`).
   :func:`bench_sgbrdf_gl` and :func:`time_frames` the SG-BRDF method against filtered importance
   sampling in GLSL (:mod:`~lobelight.bench.sgbrdf_gl`)
 - :func:`bench_all` every benchmark with a goal in one run, and :func:`table` the Markdown rows
-  made from its record (:mod:`~lobelight.bench.suite`; ``python -m lobelight.bench.suite table
-  RESULT.json``)
+  made from its record (:mod:`~lobelight.bench.suite`; ``python -m lobelight.bench table
+  RESULT.json`` prints them)
 - :func:`machine` where a benchmark ran; :func:`sync` waits for a device's queued work
 
 Benchmarks import the library's packages below them and no study; the studies' comparison of

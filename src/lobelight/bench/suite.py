@@ -183,12 +183,8 @@ def table(summary: dict) -> str:
 
 
 def main(argv: list[str] | None = None) -> None:
-    """``python -m lobelight.bench.suite table RESULT.json``: print the Markdown table."""
+    """``python -m lobelight.bench table RESULT.json``: print the Markdown table."""
     args = sys.argv[1:] if argv is None else argv
     if len(args) != 2 or args[0] != "table":
-        raise SystemExit("usage: python -m lobelight.bench.suite table RESULT.json")
+        raise SystemExit("usage: python -m lobelight.bench table RESULT.json")
     print(table(json.loads(Path(args[1]).read_text())), end="")
-
-
-if __name__ == "__main__":
-    main()
