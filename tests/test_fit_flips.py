@@ -154,13 +154,13 @@ def test_mesh_reordering_mends_swapped_views_and_a_vertex_swapped_as_a_whole():
 
 
 def test_relaxation_reduces_flips_on_a_sphere():
-    # Issue 4's "S plus relaxation reduce flips": sphere:1 (42 vertices), two Gaussians per
-    # view. The relaxation refits each vertex with S against all its neighbours, keeping the new
-    # lobes only where they add no flipped pair, then reorders the whole mesh. Measured (2-core
-    # CPU): flipped pairs 172 -> 145, among lobes at least half a width apart 59 -> 31, the fit
-    # error (D) 0.0072 -> 0.0070. The paper's refit alone (before this pass) went 172 -> 174 and
-    # 59 -> 125 (its fit error 0.0062), so the bounds below fail for it; they leave ~10 % for
-    # platform differences.
+    # The smoothness term S plus the relaxation reduce flips: sphere:1 (42 vertices), two
+    # Gaussians per view. The relaxation refits each vertex with S against all its neighbours,
+    # keeping the new lobes only where they add no flipped pair, then reorders the whole mesh.
+    # Measured (2-core CPU): flipped pairs 172 -> 145, among lobes at least half a width apart
+    # 59 -> 31, the fit error (D) 0.0072 -> 0.0070. The paper's refit alone (before this pass)
+    # went 172 -> 174 and 59 -> 125 (its fit error 0.0062), so the bounds below fail for it;
+    # they leave ~10 % for platform differences.
     mf = fit.fit_mesh(scene.load("sphere:1"), n=2, relax=True)
     assert mf.flips_after < 0.95 * mf.flips_before
     assert mf.separated_flips_after < 0.7 * mf.separated_flips_before
