@@ -3,7 +3,7 @@
 References: the transform's matrix built column by column (orthonormality), the closed-form Haar
 basis functions (layout), Parseval's identity (truncation error = dropped energy), and direct
 top-k selection with numpy. float64 checks sit at rounding level; float32 round trips at the
-1e-6 relative the issue asks for (log2 R levels of sums of four numbers: ~1e-7 measured).
+1e-6 relative the transform is held to (log2 R levels of sums of four numbers: ~1e-7 measured).
 """
 
 from __future__ import annotations

@@ -3,7 +3,7 @@
 Brute-force references are float64 scipy quadratures in the polar angle about one lobe's axis,
 with the azimuth done in closed form where a second lobe is off-axis
 (``∫ exp(a cos phi) dphi = 2 pi I0(a)``); none of them uses the SG product or integral formulas
-under test. The issue asks for 1e-4 relative over sharpness 0.1 to 1e4; the tolerances below are
+under test. The bound is 1e-4 relative over sharpness 0.1 to 1e4; the tolerances below are
 tighter where float64 allows it and say why.
 """
 
@@ -165,7 +165,7 @@ def test_inner_product_against_quadrature(lam1, lam2):
         # the product's own parameters integrate to the same value
         _, lam, scale = sg.product(mu1, lam1, mu2, lam2)
         assert abs((scale * sg.integral(lam)).item() / ref - 1) < 1e-10
-        # float32 with random orientation: the issue's 1e-4. Error sources: float32 means
+        # float32 with random orientation: the module's 1e-4. Error sources: float32 means
         # (rounding ~6e-8 in β, amplified by λh β ~ sqrt(8 λh) <= 300 in the exponent);
         # measured <= 1.7e-6 over this grid
         R = S.random_rotation(1, generator=torch.Generator().manual_seed(int(lam1 + lam2)))[0]
@@ -380,7 +380,7 @@ def test_fit_from_samples_fibonacci(lam):
     d, w = S.fibonacci(100000, dtype=F64)
     vals = 2.5 * sg.evaluate(d, mu, lam)
     m, l, a = sg.fit_from_samples(d, vals, w)
-    # the issue's bounds: μ within 1e-3 rad, λ within 1%; the amplitude within 1% too
+    # the fit's bounds: μ within 1e-3 rad, λ within 1%; the amplitude within 1% too
     assert _angle(m, mu).item() < 1e-3
     assert abs(l.item() / lam - 1) < 0.01
     assert abs(a.item() / 2.5 - 1) < 0.01

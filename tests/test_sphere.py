@@ -308,7 +308,7 @@ def test_local_grid_integrates_centred_sg(lam):
     mu = random_dirs(4)
     for dtype, tol in ((F64, 1e-12), (torch.float32, 1e-5)):
         # float64: Gauss-Legendre on exp(-lam s) over lam s in [0, ln 1e6] is converged to
-        # rounding with 16 nodes. float32: the 1e-5 bound; measured <= 6e-7 (rounding
+        # rounding with 16 nodes. float32: a 1e-5 bound; measured <= 6e-7 (rounding
         # of the float32 directions, to which the chord form of G is insensitive).
         dirs, w = S.local_grid(mu.to(dtype), lam)
         assert dirs.shape == (4, 512, 3) and w.shape == (4, 512) and dirs.dtype == dtype
