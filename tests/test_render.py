@@ -194,7 +194,7 @@ def test_evaluate_sums_the_interpolated_gaussians(model2):
 @needs_gl
 @pytest.mark.parametrize(("rotation", "dead"), [(None, False), (65.0, False), (None, True)])
 def test_shaders_match_the_torch_path(model2, lighting, rotation, dead):
-    # the criterion: <= 1e-3 relative on sampled pixels. Both paths do the same float32
+    # the bound: <= 1e-3 relative on sampled pixels. Both paths do the same float32
     # arithmetic in a different order; the rasteriser's barycentrics and the ray's differ by
     # rounding only, so the expected gap is ~1e-5. With dead slots the live-record rule of
     # blend_lobes (per pixel: premultiplied varyings) is exercised too

@@ -156,7 +156,7 @@ def test_radiance_is_never_negative(backend, sky):
     with render.Renderer(m, sky, 48, 48, backend=backend, samples=4) as ren:
         img, mask = ren.render(cam, background=False, return_mask=True)
         if backend == "gl":
-            raw, _ = ren._gl.read()  # the frame before the clamp
+            raw, _ = ren.gl.read()  # the frame before the clamp
         else:
             raw, _ = render._torch.render_torch(
                 m, sky, cam, 48, 48, rot=torch.eye(3), background=False, offsets=ren.offsets

@@ -67,7 +67,7 @@ def bench_render(
                 ren = Renderer(model, light, s, s, backend=backend, samples=samples)
                 ren.render(cam, 10.0)  # warm-up: shader compilation, uploads
                 if backend == "gl":
-                    draw = _time_gl(ren._gl, cam, frames, min_seconds, display, profile_frames)
+                    draw = _time_gl(ren.gl, cam, frames, min_seconds, display, profile_frames)
                 else:
                     t = time.perf_counter()
                     for i in range(frames):

@@ -114,6 +114,13 @@ class Renderer:
                 model, self.lighting, self.width, self.height, ctx=ctx, offsets=self.offsets
             )
 
+    @property
+    def gl(self) -> GLRenderer | None:
+        """The shader path's renderer (its ``draw``, ``read``, ``present``, GL context and
+        timer queries), for code that drives frames itself, as the benchmarks do; None on the
+        torch path. It changes when :meth:`set_environment` rebuilds it."""
+        return self._gl
+
     def set_environment(self, env) -> None:
         """Light the next frames by another environment: relighting without a new renderer.
 

@@ -119,11 +119,11 @@ class _Controls:
             self.aces = not self.aces
         elif key == glfw.KEY_A:
             self.samples = 1 if self.samples > 1 else ren.samples
-            ren._gl.set_offsets(sample_offsets(self.samples))
+            ren.gl.set_offsets(sample_offsets(self.samples))
         elif key == glfw.KEY_E and len(self.maps) > 1:
             self.map = (self.map + 1) % len(self.maps)
             ren.set_environment(self.maps[self.map])
-            ren._gl.set_offsets(sample_offsets(self.samples))  # a remade renderer's
+            ren.gl.set_offsets(sample_offsets(self.samples))  # a remade renderer's
 
     def camera(self, centre: list[float]) -> Camera:
         """The camera on its orbit about ``centre``."""
@@ -146,8 +146,8 @@ def _run(glfw, win, ctx, ren: Renderer, controls: _Controls, centre: list[float]
     frames, tick, shown = 0, time.perf_counter(), 0
     while not glfw.window_should_close(win):
         d, g = controls.parts
-        ren._gl.draw(controls.camera(centre), as_rotation(controls.light), diffuse=d, glossy=g)
-        ren._gl.present(
+        ren.gl.draw(controls.camera(centre), as_rotation(controls.light), diffuse=d, glossy=g)
+        ren.gl.present(
             ctx.screen, exposure=controls.exposure, curve="aces" if controls.aces else "srgb"
         )
         glfw.swap_buffers(win)
@@ -186,7 +186,7 @@ def view(
         fb_w, fb_h = glfw.get_framebuffer_size(win)
         ren = Renderer(model, maps[0], fb_w, fb_h, backend="gl", ctx=ctx, sun=sun, samples=samples)
         # the window shows 8-bit tone-mapped frames: half-float radiance loses nothing there
-        ren._gl.set_hdr_dtype("f2")
+        ren.gl.set_hdr_dtype("f2")
         verts = model.mesh.vertices
         centre = ((verts.amin(0) + verts.amax(0)) / 2).tolist()
         radius = float((verts - verts.mean(0)).norm(dim=-1).max())
