@@ -67,7 +67,7 @@ def test_every_dotted_name_resolves(path):
         (text.count("\n", 0, m.start()) + 1, m.group(0).rstrip(".")) for m in _DOTTED.finditer(text)
     ]
     bad = _dangling(path, text, names)
-    assert not bad, "names that no longer exist:\n" + "\n".join(bad)
+    assert not bad, "names that do not resolve:\n" + "\n".join(bad)
 
 
 @pytest.mark.parametrize("path", _sources(), ids=lambda p: _module_name(p))
@@ -85,4 +85,4 @@ def test_every_relative_reference_in_a_docstring_resolves(path):
             (text.count("\n", 0, m.start()) + 1, ".".join(base + ([rest] if rest else [])))
         )
     bad = _dangling(path, text, names)
-    assert not bad, "references that no longer exist:\n" + "\n".join(bad)
+    assert not bad, "references that do not resolve:\n" + "\n".join(bad)

@@ -66,6 +66,8 @@ def default_weights(mode: str, depth: int) -> torch.Tensor:
     key = f"{mode}:{int(depth)}"
     if key not in weights:
         raise InputError(
-            "depth", f"no calibrated weights for {key}; have {sorted(weights)} (calibrate_weights)"
+            "depth",
+            f"no calibrated weights for {key}; have {sorted(weights)} "
+            "(tools/calibrate_cosine_weights.py calibrates more)",
         )
     return torch.tensor(weights[key], dtype=torch.float32)

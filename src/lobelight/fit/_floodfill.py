@@ -248,6 +248,8 @@ def fit_mesh(
     if start.todo("fit"):
         _flood_fill(bake, chunks, start, ckpt, progress)
     t1 = time.perf_counter()
+    if start.todo("fit"):  # counted on the relaxation's clock, which compares against it
+        bake.flips_before = bake.flips_after = _flips(bake.mesh, bake.state.gaussians())
     if start.todo("relax"):
         if relax and n > 1:
             _relaxation(bake, chunks, start, ckpt, progress)
@@ -294,11 +296,8 @@ def _run_chunks(stage, work, bake, chunks, start, ckpt, progress, *, force_last:
 
 
 def _flood_fill(bake: Bake, chunks: list[Chunk], start, ckpt, progress) -> None:
-    """The flood fill ("fit"): every chunk fitted in wavefront order, then the flipped pairs
-    counted."""
+    """The flood fill ("fit"): every chunk fitted in wavefront order."""
     _run_chunks("fit", fit_chunk, bake, chunks, start, ckpt, progress, force_last=True)
-    bake.flips_before = _flips(bake.mesh, bake.state.gaussians())
-    bake.flips_after = bake.flips_before
 
 
 def _relaxation(bake: Bake, chunks: list[Chunk], start, ckpt, progress) -> None:
