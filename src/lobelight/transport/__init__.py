@@ -11,6 +11,7 @@
 - :data:`BOUNCES` and :data:`INDIRECT_PATHS` are a bake's defaults (docs/method.md).
 """
 
+from ._interreflection import diffuse_interreflection
 from ._transport import (
     BOUNCES,
     DIFFUSE_ORDER,
@@ -19,7 +20,6 @@ from ._transport import (
     LONE_PATH_LAM,
     Transport,
     TransportBatch,
-    diffuse_interreflection,
     sample,
 )
 
