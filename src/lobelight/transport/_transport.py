@@ -19,7 +19,8 @@ indirect glossy
 diffuse
     ``T_D`` as order-5 spherical-harmonic transfer vectors: ``(albedo / pi) int Y_lm(w) V_x(w)
     max(n.w, 0) dw`` (self-shadowed), and optionally diffuse interreflection
-    (:func:`~lobelight.transport.diffuse_interreflection`), iterating the transfer of the points rays hit.
+    (:func:`~lobelight.transport.diffuse_interreflection`), iterating the transfer of the
+    points rays hit.
 
 Views with ``n.v <= 0`` are below the horizon: their transport is 0 and they are flagged.
 Work runs over batches of vertices so that memory stays bounded for any mesh.
