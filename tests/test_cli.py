@@ -37,7 +37,11 @@ def test_bake_info_render_compare(tmp_path, capsys):
 
     code, info = run(capsys, "info", model)
     assert code == 0 and info["vertices"] == 42 and info["views"] == 92
-    assert info["n_gaussians"] == 1 and info["provenance"]["scene"] == "sphere1"
+    # the built-in sphere is a GGX alpha 0.1 metal-like lobe: --gaussians auto (the default)
+    # gives it two, and info says why
+    assert info["n_gaussians"] == 2 and info["provenance"]["scene"] == "sphere1"
+    assert info["n_gaussians_choice"]["asked"] == "auto"
+    assert "alpha 0.103" in info["n_gaussians_choice"]["reason"]
     assert info["provenance"]["environment"] == str(env.resolve())
     # what was baked of interreflection: the defaults
     assert (

@@ -13,6 +13,8 @@ from .. import __version__
 from ..data import envmap_names
 from ._gallery import add_arguments as add_gallery_arguments
 
+#: A bake's memory budget in GB, :data:`lobelight.fit.MEMORY_GB` restated likewise.
+_MEMORY_GB = 4.0
 #: A bake's interreflection defaults, :data:`lobelight.transport.BOUNCES` and
 #: :data:`lobelight.transport.INDIRECT_PATHS`, restated so that building the parser imports no
 #: torch (tests/test_cli.py holds them equal).
@@ -119,14 +121,47 @@ def _sun(sp, default: bool = True) -> None:
     )
 
 
-def _gaussians(sp) -> None:
+def _gaussians(sp, *, auto: bool = False) -> None:
+    if not auto:
+        sp.add_argument(
+            "--gaussians",
+            type=int,
+            default=1,
+            choices=[1, 2, 3],
+            help="Gaussians per view fitted to the direct glossy transport (indirect glossy "
+            "has one more of its own)",
+        )
+        return
     sp.add_argument(
         "--gaussians",
-        type=int,
-        default=1,
-        choices=[1, 2, 3],
+        type=_gaussian_count,
+        default="auto",
+        choices=["auto", 1, 2, 3],
         help="Gaussians per view fitted to the direct glossy transport (indirect glossy has "
-        "one more of its own)",
+        "one more of its own); auto: chosen from the material (two for GGX-like metals of "
+        "moderate roughness, one otherwise; the reason is in the model's provenance, "
+        "lobelight info)",
+    )
+
+
+def _gaussian_count(text: str) -> str | int:
+    """``--gaussians``: ``auto`` or a whole number (argparse checks it against the choices)."""
+    if text.strip().lower() == "auto":
+        return "auto"
+    try:
+        return int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"must be auto, 1, 2 or 3, got {text!r}") from None
+
+
+def _memory_gb(sp) -> None:
+    sp.add_argument(
+        "--memory-gb",
+        type=float,
+        default=_MEMORY_GB,
+        metavar="GB",
+        help="the bake's memory budget (resident, GB): every stage's batches are sized to it, "
+        "so a mesh of any size bakes within it",
     )
 
 
@@ -204,7 +239,8 @@ def _add_bake(sub) -> None:
         help="a bare mesh's material, e.g. 'ggx:alpha=0.05,specular=0.9,0.8,0.6' or "
         "'diffuse:color=0.7' (the keys of a scene file's [material]; docs/scene-format.md)",
     )
-    _gaussians(b)
+    _gaussians(b, auto=True)
+    _memory_gb(b)
     b.add_argument(
         "--bounces",
         type=int,
@@ -396,7 +432,15 @@ def _add_bench(sub) -> None:
         help="bench all: seconds after which benchmarks not yet started are skipped",
     )
     be.add_argument("--scene", default="knot:2", help="scene of transport/fit (knot:2: 11.5K)")
-    _gaussians(be)
+    be.add_argument(
+        "--fit-material",
+        default=None,
+        metavar="SPEC",
+        help="fit: a bare mesh's material (as bake's --material), e.g. 'ggx:alpha=0.04,"
+        "specular=0.9' for a metal",
+    )
+    _gaussians(be, auto=True)
+    _memory_gb(be)
     be.add_argument("--material", default="ward", help="brdf-fit material (ward, ward_aniso)")
     _base_res(be, 512)
     _backend(be)

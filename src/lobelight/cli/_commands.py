@@ -160,6 +160,8 @@ def run_bake(args) -> dict:
         raise InputError("--bounces", f"must be >= 0, got {args.bounces}")
     if not args.checkpoint_every >= 0:  # NaN too
         raise InputError("--checkpoint-every", f"must be >= 0 seconds, got {args.checkpoint_every}")
+    if not (math.isfinite(args.memory_gb) and args.memory_gb > 0):
+        raise InputError("--memory-gb", f"must be a positive number, got {args.memory_gb}")
     prog = _progress(args)
     sc = load_scene(args.scene, device=args.device, material=args.material)
     if args.env:  # the model's default lighting (render, view, compare), as a scene file's
@@ -178,6 +180,7 @@ def run_bake(args) -> dict:
     m = fit_model(
         sc,
         args.gaussians,
+        memory_gb=args.memory_gb,
         device=args.device,
         indirect_paths=args.indirect_paths,
         bounces=args.bounces,
@@ -196,7 +199,8 @@ def run_bake(args) -> dict:
         "environment": sc.environment,
         "material": sc.materials.model,
         "vertices": sc.mesh.n_vertices,
-        "n_gaussians": args.gaussians,
+        "n_gaussians": m.provenance["n_gaussians"],
+        "n_gaussians_choice": m.provenance["n_gaussians_choice"],
         "interreflection": _interreflection(m.provenance),
         "bytes": info["bytes"],
         "records_kept": info["records"],
@@ -206,6 +210,8 @@ def run_bake(args) -> dict:
         "flips_after": m.provenance["flips_after"],
         "separated_flips_before": m.provenance["separated_flips_before"],
         "separated_flips_after": m.provenance["separated_flips_after"],
+        "stage_seconds": m.provenance["seconds"],
+        "memory": m.provenance["memory"],
         "seconds": time.perf_counter() - t0,
     }
 
@@ -223,6 +229,8 @@ def run_info(args) -> dict:
         "faces": int(m.mesh.faces.shape[0]),
         "views": int(m.views.shape[0]),
         "n_gaussians": m.direct_gaussians,
+        # why the bake chose that many (older models' provenance does not say)
+        "n_gaussians_choice": m.provenance.get("n_gaussians_choice"),
         "indirect_gaussians": m.indirect_gaussians,
         "sh_coefficients": int(m.diffuse.shape[1]),
         "records_with_weight": int(live.sum()),
@@ -447,9 +455,13 @@ def run_bench(args) -> dict:
     if w == "transport":
         return bench.bench_transport(scene=args.scene, device=args.device)
     if w == "fit":
+        if not (math.isfinite(args.memory_gb) and args.memory_gb > 0):
+            raise InputError("--memory-gb", f"must be a positive number, got {args.memory_gb}")
         return bench.bench_fit(
             scene=args.scene,
+            material=args.fit_material,
             n_gaussians=args.gaussians,
+            memory_gb=args.memory_gb,
             device=args.device,
             progress=_progress(args),
         )

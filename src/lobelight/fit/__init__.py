@@ -5,21 +5,28 @@
   vertices over all views at once (:class:`Gaussians`, :class:`Weights`).
 - :func:`fit_mesh` fits a whole mesh by flood-fill wavefronts, with a relaxation pass against
   flipped Gaussians (:class:`MeshFit`), resumable from a checkpoint file.
-- :func:`fit_model` ``(scene, n_gaussians=1, *, device, ...) -> lobelight.model.Model`` does it all.
+- :func:`fit_model` ``(scene, n_gaussians="auto", *, device, memory_gb=4, ...) ->
+  lobelight.model.Model`` does it all, with :func:`choose_gaussians` choosing the Gaussians per
+  view from the material, and the batch sizes derived from the memory budget
+  (:data:`MEMORY_GB`).
 """
 
+from ._auto import choose_gaussians, lobe_shape
 from ._data import FitData, gather, half_vector_lobes, lobe_estimate
 from ._floodfill import MeshFit, count_flips, fit_mesh, wavefronts
+from ._memory import MEMORY_GB
 from ._model import fit_model
 from ._objective import Weights, flip_count
 from ._optimize import LAM_RANGE, Gaussians, fit_batch, initial_guess
 
 __all__ = [
     "LAM_RANGE",
+    "MEMORY_GB",
     "FitData",
     "Gaussians",
     "MeshFit",
     "Weights",
+    "choose_gaussians",
     "count_flips",
     "fit_batch",
     "fit_mesh",
@@ -29,5 +36,6 @@ __all__ = [
     "half_vector_lobes",
     "initial_guess",
     "lobe_estimate",
+    "lobe_shape",
     "wavefronts",
 ]

@@ -30,6 +30,7 @@ from ..scene import Mesh, Scene
 from ..transport import BOUNCES, INDIRECT_PATHS, Transport, diffuse_interreflection
 from ._checkpoint import Checkpoint, Position, settings_key
 from ._chunk import Bake, Chunk, fit_chunk, plan_chunks, refit_chunk
+from ._memory import MEMORY_GB, PeakMeter, plan_memory
 from ._objective import Weights, flip_count
 from ._optimize import Gaussians
 from ._relax import SEPARATED, live_gaussians, reorder_mesh, separated_pairs
@@ -99,6 +100,9 @@ class MeshFit:
         ``SEPARATED`` widths apart (:func:`count_flips`)
     seconds : wall time per stage: ``fit`` (including ``indirect_glossy``, the path tracing of
         indirect glossy inside it), ``relax``, ``interreflection``
+    peak_bytes : peak resident memory of the process per stage (``setup``: the transport and
+        the plan, then ``fit``, ``relax``, ``interreflection``)
+    batch : vertices fitted at once (chunks), from the memory budget
     """
 
     gaussians: Gaussians
@@ -112,6 +116,8 @@ class MeshFit:
     separated_flips_after: int = 0
     seconds: dict[str, float] = field(default_factory=dict)
     indirect_gaussians: int = 0
+    peak_bytes: dict[str, int] = field(default_factory=dict)
+    batch: int = 0
 
 
 def _edges(mesh: Mesh) -> torch.Tensor:
@@ -154,18 +160,6 @@ def count_flips(
     return total
 
 
-def default_batch(device, n: int) -> int:
-    """Vertices per chunk: 64 on the CPU (larger chunks gain nothing there); on a GPU as many
-    as fit in half its free memory (about 61.8K samples per vertex, each ~90 bytes plus ~100 per
-    Gaussian, with 1.5x for temporaries), 64 to 2048 in steps of 64."""
-    dev = torch.device(device)
-    if dev.type != "cuda":
-        return 64
-    free, _ = torch.cuda.mem_get_info(dev)
-    per_vertex = 1.5 * 92 * 672 * (90 + 100 * n)
-    return int(min(2048, max(64, (0.5 * free / per_vertex) // 64 * 64)))
-
-
 def fit_mesh(
     scene: Scene,
     *,
@@ -182,6 +176,7 @@ def fit_mesh(
     checkpoint: str | os.PathLike | None = None,
     checkpoint_every: float = 30.0,
     shadows: bool = True,
+    memory_gb: float = MEMORY_GB,
 ) -> MeshFit:
     """Fit N Gaussians per view to every vertex's direct glossy transport, one more to its
     indirect glossy transport, and its SH diffuse transfer with interreflection.
@@ -200,10 +195,11 @@ def fit_mesh(
     Parameters
     ----------
     scene : Scene;  n : Gaussians per view (1-3);  views : (J, 3), default the 92 geodesic views
-    batch : vertices fitted at once (default :func:`default_batch`: 64 on the CPU, as many as
-        half the free memory holds on a GPU); memory about ``batch x J x 700 x (90 + 100 n)``
-        bytes. With ``n = 1`` there is no spatial term, vertices do not depend on each other
-        and chunks run across wavefronts; with ``n >= 2`` a chunk stays inside one wavefront
+    batch : vertices fitted at once (default: from ``memory_gb``: 64 on the CPU, as many as
+        half the free memory holds on a GPU, fewer where the budget is smaller); memory about
+        ``batch x J x 1000 x (90 + 100 n)`` bytes. With ``n = 1`` there is no spatial term,
+        vertices do not depend on each other and chunks run across wavefronts; with ``n >= 2``
+        a chunk stays inside one wavefront
     indirect_paths : paths per vertex and view for indirect glossy (0: direct glossy only,
         no indirect Gaussian)
     bounces : bounces of diffuse interreflection added to the SH transfer once the glossy fit
@@ -218,54 +214,79 @@ def fit_mesh(
         the caller removes it once the finished model is written
     shadows : False fits transport without visibility (a baseline: prefiltered environment
         mapping)
+    memory_gb : the bake's memory budget, resident memory of the whole process in GB: the
+        batch sizes of every stage are derived from it before anything is allocated, so that
+        the peak does not grow with the mesh beyond its state (a few tens of KB per vertex);
+        an error where even one vertex per batch would not fit
 
     Returns
     -------
     MeshFit
     """
     weights = Weights() if weights is None else weights
-    tr = Transport(scene, device=device, shadows=shadows)
-    dev = tr.device
-    batch = default_batch(dev, n) if batch is None else int(batch)
-    indirect_paths, bounces = _counts(batch, indirect_paths, bounces)
-    views = sphere.geodesic_views(device=dev) if views is None else views.to(dev)
-    bake = Bake.start(tr, views, n=n, weights=weights, indirect_paths=indirect_paths, seed=seed)
+    meter = PeakMeter()
+    meter.stage("setup")
+    try:
+        tr = Transport(scene, device=device, shadows=shadows)
+        dev = tr.device
+        views = sphere.geodesic_views(device=dev) if views is None else views.to(dev)
+        if batch is not None and batch < 1:
+            raise InputError("batch", f"must be a positive number of vertices, got {batch}")
+        plan = plan_memory(
+            memory_gb, tr.mesh.n_vertices, views.shape[0], n, device=dev, batch=batch
+        )
+        indirect_paths, bounces = _counts(plan.batch, indirect_paths, bounces)
+        bake = Bake.start(tr, views, n=n, weights=weights, indirect_paths=indirect_paths, seed=seed)
+        chunks = plan_chunks(wavefronts(tr.mesh), n=n, batch=plan.batch, device=dev)
+        key = settings_key(
+            scene,
+            n,
+            views,
+            weights,
+            plan.batch,
+            (indirect_paths, "indirect-gaussian", bounces, shadows),
+            relax,
+            seed,
+        )
+        ckpt = Checkpoint(checkpoint, key, every=checkpoint_every)
+        start = ckpt.resume(bake.state.arrays())
+        bake.flips_before, bake.flips_after = start.flips_before, start.flips_after
+        seconds = _stages(bake, chunks, start, ckpt, progress, meter, relax=relax, bounces=bounces,
+                          memory=plan.interreflection)  # fmt: skip
+    finally:
+        peaks = meter.stop()
+    out = _result(bake, bounces, seconds)
+    out.peak_bytes, out.batch = peaks, plan.batch
+    return out
+
+
+def _stages(bake: Bake, chunks, start, ckpt, progress, meter, *, relax, bounces, memory):
+    """The bake's stages from ``start``: flood fill, relaxation, interreflection. Returns the
+    seconds of each."""
     t0 = time.perf_counter()
-    chunks = plan_chunks(wavefronts(tr.mesh), n=n, batch=batch, device=dev)
-    key = settings_key(
-        scene,
-        n,
-        views,
-        weights,
-        batch,
-        (indirect_paths, "indirect-gaussian", bounces, shadows),
-        relax,
-        seed,
-    )
-    ckpt = Checkpoint(checkpoint, key, every=checkpoint_every)
-    start = ckpt.resume(bake.state.arrays())
-    bake.flips_before, bake.flips_after = start.flips_before, start.flips_after
+    meter.stage("fit")
     if start.todo("fit"):
         _flood_fill(bake, chunks, start, ckpt, progress)
     t1 = time.perf_counter()
+    meter.stage("relax")
     if start.todo("fit"):  # counted on the relaxation's clock, which compares against it
         bake.flips_before = bake.flips_after = _flips(bake.mesh, bake.state.gaussians())
     if start.todo("relax"):
-        if relax and n > 1:
+        if relax and bake.n > 1:
             _relaxation(bake, chunks, start, ckpt, progress)
         ckpt.save(_at(bake, "interreflection", 0), bake.state.arrays(), force=True)
     t2 = time.perf_counter()
+    meter.stage("interreflection")
     if start.todo("interreflection") and bounces > 0:
-        _interreflection(bake, bounces, progress)
+        _interreflection(bake, bounces, progress, memory)
         ckpt.save(_at(bake, "done", 0), bake.state.arrays(), force=True)
     t3 = time.perf_counter()
-    seconds = {
+    return {
         "fit": t1 - t0,
         "indirect_glossy": bake.indirect_seconds,
         "relax": t2 - t1,
         "interreflection": t3 - t2,
     }
-    return _result(bake, bounces, seconds)
 
 
 def _counts(batch: int, indirect_paths, bounces) -> tuple[int, int]:
@@ -311,16 +332,21 @@ def _relaxation(bake: Bake, chunks: list[Chunk], start, ckpt, progress) -> None:
     bake.flips_after = _flips(bake.mesh, g)
 
 
-def _interreflection(bake: Bake, bounces: int, progress) -> None:
+def _interreflection(bake: Bake, bounces: int, progress, memory: int) -> None:
     """The diffuse interreflection ("interreflection"), in one step: it needs every vertex's
-    self-shadowed transfer and final Gaussians."""
+    self-shadowed transfer and final Gaussians; its batches hold at most ``memory`` bytes."""
     st = bake.state
     # the hit points' glossy light comes from their Gaussians (direct and indirect glossy):
     # without it a diffuse floor by a metal wall loses much of its light
     g = _with_indirect(st.gaussians(), st.ind_w, st.ind_mu, st.ind_lam)
     lobes = (bake.views, g.w, g.mu, g.lam) if bool(st.glossy.any()) else None
     total = diffuse_interreflection(
-        bake.transport, st.diffuse, bounces=bounces, glossy=lobes, progress=progress
+        bake.transport,
+        st.diffuse,
+        bounces=bounces,
+        glossy=lobes,
+        progress=progress,
+        memory=memory,
     )
     st.bounce.copy_(total - st.diffuse)
     st.diffuse.copy_(total)

@@ -14,7 +14,9 @@ from ..model import Model
 from ..progress import resolve
 from ..scene import Scene
 from ..transport import BOUNCES, INDIRECT_PATHS
+from ._auto import choose_gaussians
 from ._floodfill import fit_mesh
+from ._memory import MEMORY_GB
 from ._objective import Weights
 
 __all__ = ["fit_model"]
@@ -22,7 +24,7 @@ __all__ = ["fit_model"]
 
 def fit_model(
     scene: Scene,
-    n_gaussians: int = 1,
+    n_gaussians: int | str = "auto",
     *,
     device=None,
     views: torch.Tensor | None = None,
@@ -36,9 +38,19 @@ def fit_model(
     checkpoint: str | os.PathLike | None = None,
     checkpoint_every: float = 30.0,
     shadows: bool = True,
+    memory_gb: float = MEMORY_GB,
 ):
     """Fit the glossy transport of every vertex with ``n_gaussians`` Gaussians per view, and its
     SH diffuse transfer (:func:`fit_mesh`), and wrap the result as a model.
+
+    ``n_gaussians``: 1, 2 or 3, or ``"auto"`` (the default): chosen from the material's specular
+    lobe (:func:`lobelight.fit.choose_gaussians`: two for long-tailed lobes of moderate
+    roughness that carry most of the reflected light, GGX metals of alpha 0.08 to about 0.35,
+    one otherwise); the choice and its reason are in the provenance.
+
+    ``memory_gb``: the bake's budget of resident memory (GB, the whole process), from which
+    every stage's batch sizes are derived (:func:`fit_mesh`); the provenance records the budget,
+    the batch and each stage's peak.
 
     Interreflection is baked by default: ``indirect_paths`` paths per vertex and view of
     indirect glossy, and ``bounces`` bounces of diffuse interreflection in the SH transfer
@@ -58,8 +70,13 @@ def fit_model(
     lobelight.model.Model, with provenance holding the settings, the mean relative data error,
     flip counts and timings
     """
-    if n_gaussians not in (1, 2, 3):
-        raise ValueError(f"n_gaussians must be 1, 2 or 3, got {n_gaussians}")
+    asked = n_gaussians
+    if n_gaussians == "auto":
+        n_gaussians, reason = choose_gaussians(scene.materials)
+    elif isinstance(n_gaussians, bool) or n_gaussians not in (1, 2, 3):
+        raise ValueError(f"n_gaussians must be 1, 2, 3 or 'auto', got {n_gaussians!r}")
+    else:
+        reason = f"asked for {n_gaussians}"
     t0 = time.perf_counter()
     mf = fit_mesh(
         scene,
@@ -76,6 +93,7 @@ def fit_model(
         checkpoint=checkpoint,
         checkpoint_every=checkpoint_every,
         shadows=shadows,
+        memory_gb=memory_gb,
     )
     seconds = {**mf.seconds, "total": time.perf_counter() - t0}
     live = mf.gaussians.w.amax((-1, -2, -3)) > 0  # vertices with any glossy weight
@@ -86,6 +104,7 @@ def fit_model(
         "camera": scene.camera.to_dict(),
         "environment": scene.environment,
         "n_gaussians": n_gaussians,
+        "n_gaussians_choice": {"asked": asked, "reason": reason},
         "weights": {"alpha": w.alpha, "beta": w.beta, "gamma": w.gamma, "delta": w.delta},
         "indirect_paths": int(indirect_paths),
         "bounces": int(bounces),
@@ -98,6 +117,11 @@ def fit_model(
         "separated_flips_before": mf.separated_flips_before,
         "separated_flips_after": mf.separated_flips_after,
         "seconds": seconds,
+        "memory": {
+            "budget_gb": float(memory_gb),
+            "batch": mf.batch,
+            "peak_gb": {k: round(b / 2**30, 3) for k, b in mf.peak_bytes.items()},
+        },
         "device": str(mf.gaussians.w.device),
         "torch": torch.__version__,
         "python": platform.python_version(),
