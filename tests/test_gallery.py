@@ -9,10 +9,12 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import hashlib
 import json
 import math
 from collections import Counter
 from pathlib import Path
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
@@ -24,17 +26,25 @@ from lobelight.cli._gallery import add_arguments, gallery_main
 from lobelight.errors import InputError
 from lobelight.render import Lighting, Renderer, auto_exposure
 from lobelight.studies.gallery import (
+    GALLERY_DATA,
     MAPS,
     MATERIALS,
     SCENES,
     GalleryScene,
+    Reference,
     ReferenceSettings,
     _references,
+    _sweep,
     coverage_mask,
+    data_folder,
     display_exposure,
     energy_ratio,
+    equal_quality,
+    find_map,
+    find_mesh,
     geometry_sha256,
     load_reference,
+    mitsuba_sweep,
     prepare_mesh,
     reference_status,
     render_references,
@@ -42,6 +52,7 @@ from lobelight.studies.gallery import (
     scene_hash,
     score,
     select,
+    spp_levels,
     summarise,
     write_reference,
 )
@@ -140,19 +151,34 @@ def test_summary_takes_the_median_and_the_worst_scene():
 
 
 def test_scene_list_covers_the_meshes_maps_and_materials():
-    assert len(SCENES) >= 16
+    assert len(SCENES) >= 30
     assert len({s.name for s in SCENES}) == len(SCENES)
-    assert {s.mesh for s in SCENES} == {"bunny_hr.obj", "spot.obj", "teapot.obj", "suzanne.obj"}
-    assert set(MAPS) == {"park", "studio", "overcast", "grace"}
+    meshes = {"bunny_hr.obj", "spot.obj", "teapot.obj", "suzanne.obj", "scorpion.obj"}
+    assert {s.mesh for s in SCENES} == meshes
+    assert set(MAPS) == {"park", "studio", "overcast", "grace", "dawn", "interior"}
     assert {s.envmap for s in SCENES} == set(MAPS.values())
     assert {s.material for s in SCENES} == set(MATERIALS.values())
     assert "alpha=0.03" in MATERIALS["sharp_metal"] and "alpha=0.25" in MATERIALS["rough_metal"]
-    # every bake under two maps or more; every (material, map) pair seen; maps used evenly
+    # every bake under three maps or more, every material under three maps or more
     per_bake = Counter(s.bake for s in SCENES)
-    assert min(per_bake.values()) >= 2
-    pairs = {(s.material, s.envmap) for s in SCENES}
-    assert pairs == {(m, e) for m in MATERIALS.values() for e in MAPS.values()}
-    assert set(Counter(s.envmap for s in SCENES).values()) == {len(SCENES) // len(MAPS)}
+    assert min(per_bake.values()) >= 3
+    maps_per_material = {
+        m: {s.envmap for s in SCENES if s.material == m} for m in MATERIALS.values()
+    }
+    assert min(len(v) for v in maps_per_material.values()) >= 3
+    # the first four meshes' bakes see every (material, map) pair once: each map four times
+    first = [s for s in SCENES if s.mesh != "scorpion.obj"]
+    pairs = Counter((s.material, s.envmap) for s in first)
+    assert set(pairs) == {(m, e) for m in MATERIALS.values() for e in MAPS.values()}
+    assert set(pairs.values()) == {1}
+    # the new maps are each used several times
+    per_map = Counter(s.envmap for s in SCENES)
+    assert per_map[MAPS["dawn"]] >= 4 and per_map[MAPS["interior"]] >= 4
+    # the scorpion: a rough metal and another material, decimated by the gallery itself
+    scorpion = [s for s in SCENES if s.mesh == "scorpion.obj"]
+    assert MATERIALS["rough_metal"] in {s.material for s in scorpion}
+    assert len({s.material for s in scorpion}) >= 2
+    assert all(10000 <= s.max_vertices <= 15000 for s in scorpion)
     # a bake's scenes agree on what the bake depends on
     assert select() == list(SCENES)
     assert all(s.max_vertices for s in SCENES if s.mesh == "bunny_hr.obj")
@@ -163,9 +189,64 @@ def test_select_names_scenes_and_bakes_and_refuses_unknown_names():
     assert [s.name for s in select(["teapot-diffuse"])] == [
         "teapot-diffuse-park",
         "teapot-diffuse-studio",
+        "teapot-diffuse-dawn",
     ]
     with pytest.raises(InputError, match="no gallery scene or bake 'nope'"):
         select(["nope"])
+
+
+# --------------------------------------------------------------------------------------------
+# the repository's gallery data
+
+
+def _licence_rows() -> dict[str, list[str]]:
+    """``{file: cells}`` of the table in gallery-data/LICENSES.md."""
+    rows = {}
+    for line in (GALLERY_DATA / "LICENSES.md").read_text().splitlines():
+        cells = [c.strip() for c in line.strip().strip("|").split("|")]
+        if line.startswith("| `") and len(cells) == 6:
+            rows[cells[0].strip("`")] = cells
+    return rows
+
+
+def test_every_file_of_the_gallery_data_has_its_source_and_licence():
+    assert GALLERY_DATA is not None and GALLERY_DATA.is_dir()
+    rows = _licence_rows()
+    files = {
+        p.relative_to(GALLERY_DATA).as_posix()
+        for p in GALLERY_DATA.rglob("*")
+        if p.is_file() and p.name != "LICENSES.md"
+    }
+    assert files and files == set(rows)
+    for name, (_, source, author, licence, size, md5) in rows.items():
+        data = (GALLERY_DATA / name).read_bytes()
+        assert int(size.replace(",", "")) == len(data), name
+        assert hashlib.md5(data).hexdigest() == md5, name  # a byte-exact copy of its source
+        assert "@" in source and author and licence, name  # repository @ commit, who, terms
+    # the files the new scenes name are there, found without a data folder
+    for sc in SCENES:
+        if sc.mesh == "scorpion.obj" or sc.envmap in (MAPS["dawn"], MAPS["interior"]):
+            if sc.mesh == "scorpion.obj":
+                assert find_mesh(sc, None) == GALLERY_DATA / "meshes" / sc.mesh
+            if sc.envmap in (MAPS["dawn"], MAPS["interior"]):
+                assert find_map(sc, None) == GALLERY_DATA / "envmaps" / sc.envmap
+
+
+def test_a_file_is_read_from_the_data_folder_first_then_the_repository(tmp_path, monkeypatch):
+    monkeypatch.delenv("LOBELIGHT_DATA", raising=False)
+    dawn = next(s for s in SCENES if s.envmap == MAPS["dawn"])
+    assert find_map(dawn, data_folder(None)) == GALLERY_DATA / "envmaps" / dawn.envmap
+    (tmp_path / "envmaps").mkdir()
+    own = tmp_path / "envmaps" / dawn.envmap
+    own.write_bytes(b"not a map")
+    monkeypatch.setenv("LOBELIGHT_DATA", str(tmp_path))
+    assert find_map(dawn, data_folder(None)) == own
+    # neither place: one error naming the file and both places
+    gone = dataclasses.replace(dawn, envmap="nowhere.hdr")
+    with pytest.raises(InputError, match=r"nowhere\.hdr") as err:
+        find_map(gone, data_folder(None))
+    assert str(tmp_path / "envmaps") in str(err.value)
+    assert str(GALLERY_DATA / "envmaps") in str(err.value)
 
 
 # --------------------------------------------------------------------------------------------
@@ -228,10 +309,16 @@ def test_a_reference_does_not_depend_on_the_bakes_gaussians_per_view(data_dir):
 
 def test_bad_inputs_name_the_input(data_dir, monkeypatch):
     monkeypatch.delenv("LOBELIGHT_DATA", raising=False)
-    with pytest.raises(InputError, match="--data"):
+    # no data folder, and the repository does not hold the file: the error says how to give one
+    with pytest.raises(InputError, match=r"ball-diffuse-sky: mesh: 'ball\.obj' .*--data DIR"):
         run([BALL], refs=data_dir, out=data_dir / "out")
     with pytest.raises(InputError, match="--data: no such folder"):
         run([BALL], data=data_dir / "nope", refs=data_dir, out=data_dir / "out")
+    monkeypatch.setenv("LOBELIGHT_DATA", str(data_dir / "nope"))
+    with pytest.raises(InputError, match=r"\$LOBELIGHT_DATA: no such folder"):
+        run([BALL], refs=data_dir, out=data_dir / "out")
+    with pytest.raises(InputError, match="--sweep-max-spp"):
+        run([BALL], data=data_dir, refs=data_dir, out=data_dir / "out", sweep_max_spp=0)
     missing = GalleryScene("x-sky", "x", "missing.obj", "sky.hdr", "diffuse:color=0.5")
     with pytest.raises(InputError, match="x-sky: mesh"):
         prepare_mesh(missing, data_dir)
@@ -284,13 +371,44 @@ def test_manifest_checksum_finds_a_corrupt_reference_and_it_is_rendered_again(
     assert float(load_reference(refs, BALL, data_dir).image.mean()) == pytest.approx(0.5)
 
 
-def test_a_tiny_gallery_runs_end_to_end_and_resumes(data_dir, tmp_path):
+class FakeMitsuba:
+    """Mitsuba's stand-in for the sweep: a render is the constant 1 (the tiny gallery's
+    synthetic reference) plus Gaussian noise of standard deviation 0.5 / sqrt(spp), seeded by
+    ``seed``; the seeds used are kept."""
+
+    __version__ = "0-test"
+
+    def __init__(self):
+        self.seeds = []
+        self.size = (32, 40)
+
+    def load_dict(self, d):
+        return d
+
+    def render(self, scene, *, spp, seed):
+        self.seeds.append(seed)
+        rng = np.random.default_rng(seed)
+        return 1.0 + 0.5 / math.sqrt(spp) * rng.standard_normal((*self.size, 3))
+
+
+def test_a_tiny_gallery_runs_end_to_end_and_resumes(data_dir, tmp_path, monkeypatch):
     refs, out = tmp_path / "refs", tmp_path / "out"
     settings = ReferenceSettings(spp=4, pass_spp=2, width=40, height=32)
     _synthetic(refs, BALL, data_dir, settings, value=1.0)
     kw = dict(data=data_dir, refs=refs, out=out, samples=4, backend="torch", base_res=16)
-    first = run([BALL], progress=False, **kw)
+    monkeypatch.setattr(_references, "_mitsuba", lambda v: (FakeMitsuba(), "stub", ""))
+    monkeypatch.setattr(_sweep, "scene_dict", lambda *a, **k: {})
+    first = run([BALL], progress=False, sweep_max_spp=64, **kw)
     s = first["scenes"]["ball-diffuse-sky"]
+    # the sweep ran until it reached our score (or its last level), and the table shows it
+    rows = s["mitsuba_sweep"]["sweep"]
+    assert [r["spp"] for r in rows] == spp_levels(64)[: len(rows)]
+    eq = s["equal_quality"]
+    assert eq["bound"] in ("=", "<=", "~", ">=") and s["frame_seconds"] > 0
+    assert eq["speedup"] == pytest.approx(eq["seconds"] / s["frame_seconds"])
+    (row,) = first["table"]
+    assert row["scene"] == "ball-diffuse-sky" and row["speedup"] == eq["speedup"]
+    assert row["highpass_ratio"] == s["highpass_ratio"] > 0
     assert first["bakes"]["ball-diffuse"]["resumed"] is False
     assert s["vertices"] == 162 and s["object_pixels"] > 100 and s["mask_partial_in_ours"] == 0
     assert math.isfinite(s["psnr_display"]) and s["energy_ratio"] > 0
@@ -314,7 +432,7 @@ def test_a_tiny_gallery_runs_end_to_end_and_resumes(data_dir, tmp_path):
     }
     mask = coverage_mask(mesh, BALL.view(), 40, 32).numpy()
     write_reference(refs, BALL, ours, np.zeros_like(ours), mask, entry=entry)
-    second = run([BALL], progress=False, **kw)
+    second = run([BALL], progress=False, sweep=False, **kw)
     s2 = second["scenes"]["ball-diffuse-sky"]
     assert second["bakes"]["ball-diffuse"]["resumed"] is True
     assert s2["rel_l2"] == 0.0 and s2["energy_ratio"] == 1.0
@@ -335,7 +453,12 @@ def test_arguments_fit_a_parser_that_has_the_common_flags(data_dir):
     assert [s["name"] for s in gallery_main(args)["scenes"]] == [
         "teapot-diffuse-park",
         "teapot-diffuse-studio",
+        "teapot-diffuse-dawn",
     ]
+    run_args = p.parse_args(["run"])
+    assert run_args.sweep is True and run_args.sweep_max_spp == 256
+    run_args = p.parse_args(["run", "--no-sweep", "--sweep-max-spp", "64"])
+    assert run_args.sweep is False and run_args.sweep_max_spp == 64
     args = p.parse_args(["references", "--data", str(data_dir / "nope")])
     with pytest.raises(InputError, match="--data"):
         gallery_main(args)
@@ -368,3 +491,82 @@ def test_lambert_plus_ggx_exports_as_their_exact_sum():
     too_bright = parse_material("ggx:alpha=0.1,specular=0.5,diffuse=0.6")
     with pytest.raises(InputError, match="exceed 1"):
         _blend(too_bright.diffuse[0], too_bright.specular)
+
+
+# --------------------------------------------------------------------------------------------
+# equal quality: the Mitsuba sweep and its crossing
+
+
+def test_spp_levels_double_up_to_the_largest():
+    assert spp_levels(8) == [1, 2, 4, 8]
+    assert spp_levels(6) == [1, 2, 4, 6]
+    assert spp_levels(1) == [1]
+    with pytest.raises(InputError, match="--sweep-max-spp"):
+        spp_levels(0)
+
+
+def _law(spp, a, b, per_spp=0.05):
+    """A sweep row under the Monte Carlo law MSE = a / spp + b, seconds in proportion to spp."""
+    return {"spp": spp, "seconds": per_spp * spp, "psnr_display": -10 * math.log10(a / spp + b)}
+
+
+def test_equal_quality_interpolates_in_log_spp():
+    # with no reference noise (b = 0) PSNR is a line in log2 spp and seconds a line in
+    # log-log: the interpolation is exact
+    sweep = [_law(n, 0.03, 0.0) for n in spp_levels(256)]
+    target = -10 * math.log10(0.03 / 100)  # the score of 100 spp
+    eq = equal_quality(target, sweep, 0.2)
+    assert eq["bound"] == "="
+    assert eq["spp"] == pytest.approx(100, rel=1e-9)
+    assert eq["seconds"] == pytest.approx(5.0, rel=1e-9)
+    assert eq["speedup"] == pytest.approx(25.0, rel=1e-9)
+    # already reached at 1 spp: upper bounds
+    assert equal_quality(0.0, sweep, 0.2)["bound"] == "<="
+    # an identical image (infinite score) or no sweep: nothing to say
+    assert equal_quality(math.inf, sweep, 0.2)["spp"] is None
+    assert equal_quality(30.0, [], 0.2)["bound"] is None
+
+
+def test_equal_quality_extrapolates_with_the_reference_noise():
+    a, b = 0.03, 3e-5
+    sweep = [_law(n, a, b) for n in spp_levels(64)]
+    target = -10 * math.log10(a / 500 + b)  # the score of 500 spp, past the sweep
+    eq = equal_quality(target, sweep, 0.5, noise_mse=b)
+    assert eq["bound"] == "~"
+    assert eq["spp"] == pytest.approx(500, rel=1e-9)  # the law holds exactly here
+    assert eq["seconds"] == pytest.approx(25.0, rel=1e-9)
+    # without the reference's noise, or under its floor: the last render's figures, lower bounds
+    assert equal_quality(target, sweep, 0.5) == {
+        "spp": 64,
+        "seconds": pytest.approx(3.2),
+        "speedup": pytest.approx(6.4),
+        "bound": ">=",
+    }
+    floor = -10 * math.log10(b)
+    assert equal_quality(floor + 1, sweep, 0.5, noise_mse=b)["bound"] == ">="
+
+
+def test_mitsuba_sweep_stops_at_our_score_with_seeds_apart_from_the_reference(monkeypatch):
+    fake = FakeMitsuba()
+    fake.size = (16, 16)
+    monkeypatch.setattr(_references, "_mitsuba", lambda v: (fake, "stub", ""))
+    monkeypatch.setattr(_sweep, "scene_dict", lambda *a, **k: {})
+    image = torch.ones(16, 16, 3)
+    mask = torch.ones(16, 16, dtype=torch.bool)
+    settings = ReferenceSettings(spp=64, pass_spp=8, width=16, height=16, seed=3).to_dict()
+    ref = Reference(image, torch.zeros_like(image), mask, {"settings": settings, "variant": "x"})
+    scene = SimpleNamespace(environment="sky.hdr", camera=None)  # read by the stubbed export
+    out = mitsuba_sweep(scene, ref, mask, 0.0, 24.0, max_spp=1024)
+    rows = out["sweep"]
+    psnr = [r["psnr_display"] for r in rows]
+    # stops at the first level that reaches the target, not before
+    assert psnr[-1] >= 24.0 and all(p < 24.0 for p in psnr[:-1])
+    assert [r["spp"] for r in rows] == spp_levels(1024)[: len(rows)]
+    assert all(r["seconds"] >= 0 for r in rows)
+    # the reference's passes used seeds 3 * 8 .. 3 * 8 + 7; the sweep's (a warm-up, then one per
+    # level) are all others, and all different
+    assert not set(fake.seeds) & set(range(24, 32))
+    assert len(set(fake.seeds)) == len(fake.seeds) == len(rows) + 1
+    # with no target every level renders
+    fake.seeds.clear()
+    assert len(mitsuba_sweep(scene, ref, mask, 0.0, None, max_spp=8)["sweep"]) == 4

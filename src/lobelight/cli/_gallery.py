@@ -40,7 +40,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--data",
         default=None,
-        help=f"data folder with meshes/ and envmaps/ (default ${DATA_ENV})",
+        help=f"data folder with meshes/ and envmaps/ (default ${DATA_ENV}); files it lacks "
+        "are read from the repository's gallery-data/",
     )
     parser.add_argument(
         "--refs",
@@ -100,6 +101,18 @@ def _add_run_settings(g) -> None:
         action=argparse.BooleanOptionalAction,
         default=True,
         help="shade the map's sun per pixel with a shadow map",
+    )
+    g.add_argument(
+        "--sweep",
+        action=argparse.BooleanOptionalAction,
+        default=True,
+        help="time Mitsuba at equal quality: an spp sweep per scene, scored as ours",
+    )
+    g.add_argument(
+        "--sweep-max-spp",
+        type=int,
+        default=gallery.SWEEP_MAX_SPP,
+        help="the sweep's largest samples per pixel (1, 2, 4, ... up to it)",
     )
     g.add_argument(
         "--fit-option",
@@ -165,6 +178,8 @@ def gallery_main(args: argparse.Namespace) -> dict[str, Any]:
             sun=args.sun,
             device=device,
             fit_options=_fit_options(args.fit_option),
+            sweep=args.sweep,
+            sweep_max_spp=args.sweep_max_spp,
             progress=progress,
         )
     raise InputError("action", f"must be one of {ACTIONS}, got {args.action!r}")

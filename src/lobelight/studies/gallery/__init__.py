@@ -1,11 +1,14 @@
 """A scored gallery of real scenes against Mitsuba 3 references.
 
-The gallery is :data:`SCENES`: 8 (mesh, material) bakes — the Stanford bunny (decimated),
-Spot, the teapot and Suzanne (Loop-subdivided); sharp and rough gold-coloured GGX metals, a
-plain diffuse and a glossy plastic — each rendered under two of four maps (a park with an
-unclipped sun, a studio, an overcast square and the Grace Cathedral probe), 16 scenes in all.
-Meshes are centred and scaled to a bounding-box diagonal of 2 (:func:`prepare_mesh`) and read
-from a data folder (``--data DIR`` or ``$LOBELIGHT_DATA``; ``meshes/`` and ``envmaps/`` in it).
+The gallery is :data:`SCENES`: 10 (mesh, material) bakes — the Stanford bunny (decimated),
+Spot, the teapot, Suzanne (Loop-subdivided) and a scorpion (decimated; thin legs, claws and
+tail over deep gaps); sharp and rough gold-coloured GGX metals, a plain diffuse and a glossy
+plastic — each rendered under three of six maps (a park with an unclipped sun, a studio, an
+overcast square, the Grace Cathedral probe, a dawn sky with the sun on the horizon and a room
+lit by bright windows), 30 scenes in all. Meshes are centred and scaled to a bounding-box
+diagonal of 2 (:func:`prepare_mesh`). A scene's files are read from the data folder (``--data
+DIR`` or ``$LOBELIGHT_DATA``; ``meshes/`` and ``envmaps/`` in it), else from the repository's
+``gallery-data/`` (:data:`GALLERY_DATA`, with the sources and licences of its files).
 
 - :func:`render_references` renders each scene's reference with Mitsuba 3's ``path``
   integrator (:func:`lobelight.reference.mitsuba.scene_dict`: ``max_depth`` 8, 1024 spp, 512²,
@@ -16,11 +19,14 @@ from a data folder (``--data DIR`` or ``$LOBELIGHT_DATA``; ``meshes/`` and ``env
   loads the saved model), renders each scene with :class:`lobelight.render.Renderer` at its
   reference's size with ``samples`` points per pixel — a box filter over the pixel, as the
   reference's — and scores it on the reference's mask, less any pixel some of our samples
-  missed (:func:`score`; one mask for both images), writing
-  ``gallery.json`` and one strip ``reference | ours | error x 4`` per scene.
+  missed (:func:`score`; one mask for both images); it times our frame and, with Mitsuba,
+  the samples per pixel and seconds a path tracer needs for the same score
+  (:func:`mitsuba_sweep`, :func:`equal_quality`), writing ``gallery.json`` (with a ``table``,
+  one row per scene: :data:`TABLE`) and one strip ``reference | ours | error x 4`` per scene.
 - :func:`score`: displayed PSNR at the exposure that maps the reference's 99th-percentile
-  object luminance to 1 (object pixels, and the whole image), relative L2 of linear radiance
-  and the energy ratio of the object's luminance (:mod:`._score`).
+  object luminance to 1 (object pixels, and the whole image), relative L2 of linear radiance,
+  the energy ratio of the object's luminance and the ratio of its fine detail (high-pass
+  energy) to the reference's (:mod:`._score`).
 - The command is ``lobelight gallery {list,references,run}`` (:mod:`lobelight.cli`).
 
 Installing Mitsuba's LLVM variant and rendering the references: DEVELOPERS.md.
@@ -31,6 +37,8 @@ import importlib
 #: Where each public name lives: the submodules load on first use (PEP 562), so that the
 #: command line reads the reference settings' defaults for its parser without importing torch.
 _HOMES = {
+    "FRAME_REPEATS": "._run",
+    "GALLERY_DATA": "._scenes",
     "GalleryScene": "._scenes",
     "LEGEND": "._score",
     "GAUSSIANS": "._scenes",
@@ -40,15 +48,21 @@ _HOMES = {
     "Reference": "._references",
     "ReferenceSettings": "._settings",
     "SCENES": "._scenes",
+    "SWEEP_MAX_SPP": "._settings",
+    "TABLE": "._run",
     "VARIANTS": "._settings",
     "coverage_mask": "._references",
     "data_folder": "._scenes",
     "default_camera": "._scenes",
     "display_exposure": "._score",
     "energy_ratio": "._score",
+    "equal_quality": "._sweep",
+    "find_map": "._scenes",
+    "find_mesh": "._scenes",
     "geometry_sha256": "._scenes",
     "load_reference": "._references",
     "luminance": "._score",
+    "mitsuba_sweep": "._sweep",
     "prepare_mesh": "._scenes",
     "read_manifest": "._references",
     "reference_status": "._references",
@@ -57,6 +71,7 @@ _HOMES = {
     "scene_hash": "._scenes",
     "score": "._score",
     "select": "._scenes",
+    "spp_levels": "._sweep",
     "summarise": "._run",
     "to_scene": "._scenes",
     "write_reference": "._references",

@@ -20,12 +20,14 @@ from ...errors import InputError
 from ...fit import fit_model
 from ...progress import resolve
 from ...render import Lighting, Renderer, gl_available, save_image
-from ..score import noise_psnr_display
+from ..score import highpass_energy, noise_highpass_energy, noise_psnr_display
+from . import _references
 from ._references import load_reference, reference_status
 from ._scenes import (
     GalleryScene,
     data_folder,
     find_map,
+    find_mesh,
     geometry_sha256,
     prepare_mesh,
     select,
@@ -33,8 +35,10 @@ from ._scenes import (
     to_scene,
 )
 from ._score import LEGEND, score
+from ._settings import SWEEP_MAX_SPP
+from ._sweep import equal_quality, mitsuba_sweep, spp_levels
 
-__all__ = ["DIFF_SCALE", "FORMAT", "METRICS", "run", "summarise"]
+__all__ = ["DIFF_SCALE", "FORMAT", "FRAME_REPEATS", "METRICS", "TABLE", "run", "summarise"]
 
 FORMAT = "lobelight-gallery"
 VERSION = 1
@@ -46,7 +50,28 @@ METRICS = {
     "psnr_display_full": "max",
     "rel_l2": "min",
     "energy_ratio": "one",
+    "highpass_ratio": "min",
+    "speedup": "max",
 }
+#: Warm frames timed per scene (after the one that is scored); their median is the frame time.
+FRAME_REPEATS = 3
+#: The columns of the run's ``table`` (one row per scene) and where each comes from.
+TABLE = {
+    "scene": "the scene's name",
+    "psnr_display": "dB, displayed PSNR over the object's pixels",
+    "energy_ratio": "ours / reference, luminance over the object's pixels",
+    "highpass_ratio": "ours / reference, high-pass energy over the object's pixels",
+    "frame_s": "seconds of one of our frames (the scene's size and samples per pixel; not the "
+    "bake, not the renderer's set-up)",
+    "mitsuba_spp": "Mitsuba's samples per pixel at our psnr_display (the sweep's crossing)",
+    "mitsuba_s": "Mitsuba's seconds at that many samples per pixel",
+    "speedup": "mitsuba_s / frame_s",
+    "bound": "'=' interpolated; '~' extrapolated past the sweep's largest spp (MSE = a / spp + "
+    "the reference's noise); '>=' not reached and not extrapolated (lower bounds); '<=' its "
+    "first render already reached our score (upper bounds)",
+}
+#: fit_model's default Gaussians per view.
+_DEFAULT_GAUSSIANS = inspect.signature(fit_model).parameters["n_gaussians"].default
 #: fit_model's arguments that run sets itself.
 _OWN = ("scene", "n_gaussians", "device", "progress", "checkpoint")
 
@@ -103,33 +128,38 @@ def summarise(scores: dict[str, dict[str, Any]]) -> dict[str, Any]:
 
 def _bake(
     group: list[GalleryScene], data: Path, models: Path, *, n_gaussians, options, device, progress
-) -> tuple[Any, dict[str, Any]]:
-    """The model of one bake, and its record: loaded when a model of the same settings is
-    there, else fitted (resuming from its checkpoint) and saved."""
+) -> tuple[Any, Any, dict[str, Any]]:
+    """The model of one bake, its prepared mesh and its record: loaded when a model of the
+    same settings is there, else fitted (resuming from its checkpoint) and saved. A bake of
+    ``fit_model``'s default Gaussians per view records that default, so that a change to it
+    bakes again."""
     first = group[0]
     mesh = prepare_mesh(first, data)
     settings = {
         "bake": first.bake_definition(),
         "geometry_sha256": geometry_sha256(mesh),
-        "n_gaussians": first.gaussians if n_gaussians is None else n_gaussians,
+        "n_gaussians": first.gaussians if n_gaussians is None else n_gaussians,  # None: default
         "options": options,
     }
+    if settings["n_gaussians"] is None:
+        settings["fit_model_default"] = repr(_DEFAULT_GAUSSIANS)
     settings = json.loads(json.dumps(settings))
     path, meta = models / f"{first.bake}.npz", models / f"{first.bake}.json"
     try:
         record = json.loads(meta.read_text())
         if record.get("settings") == settings and sha256_file(path) == record.get("sha256"):
-            return model_io.load(path, device=device), {**record, "resumed": True}
+            return model_io.load(path, device=device), mesh, {**record, "resumed": True}
     except (OSError, ValueError, InputError):
         pass  # none, or not these settings, or damaged: bake
     ckpt = models / f"{first.bake}.checkpoint.npz"
     t = time.perf_counter()
+    count = {} if settings["n_gaussians"] is None else {"n_gaussians": settings["n_gaussians"]}
     m = fit_model(
         to_scene(first, data, mesh),
-        settings["n_gaussians"],
         device=device,
         progress=progress,
         checkpoint=ckpt,
+        **count,
         **options,
     )
     seconds = time.perf_counter() - t
@@ -145,7 +175,7 @@ def _bake(
     }
     _write_json(meta, record)
     ckpt.unlink(missing_ok=True)
-    return m, {**record, "resumed": False}
+    return m, mesh, {**record, "resumed": False}
 
 
 def run(
@@ -161,6 +191,8 @@ def run(
     sun: bool = True,
     device=None,
     fit_options: dict[str, Any] | None = None,
+    sweep: bool = True,
+    sweep_max_spp: int = SWEEP_MAX_SPP,
     progress=True,
 ) -> dict[str, Any]:
     """Bake, render and score gallery scenes against their references; write ``gallery.json``
@@ -196,12 +228,17 @@ def run(
     options = _check_options(fit_options)
     if n_gaussians not in (None, 1, 2, 3):
         raise InputError("--gaussians", f"must be 1, 2 or 3, got {n_gaussians}")
+    levels = spp_levels(sweep_max_spp) if sweep else []
     if backend == "auto":
         backend = "gl" if gl_available() else "torch"
     refs = Path(refs).expanduser()
-    for sc in chosen:  # before any bake: a missing reference is found in seconds, not hours
+    for sc in chosen:  # before any bake: a missing file or reference is found in seconds
+        find_mesh(sc, data)
+        find_map(sc, data)
         if reference_status(refs, sc, data)[0] != "ok":
             load_reference(refs, sc, data)  # raises, naming the scene and the command
+    if sweep and chosen:  # and a missing Mitsuba too
+        _references._mitsuba(None)
     out = Path(out).expanduser()
     if out.exists() and not out.is_dir():
         raise InputError("--output", f"is not a folder: {str(out)!r}")
@@ -221,11 +258,14 @@ def run(
             "base_res": base_res,
             "sun": sun,
             "device": str(device or "cpu"),
+            "sweep_spp": levels,
+            "frame_repeats": FRAME_REPEATS,
         },
         "legend": {
             **LEGEND,
             "strip": f"reference | ours | |ours - reference| x {DIFF_SCALE} "
             "over object pixels, at the display exposure",
+            "table": TABLE,
         },
         "scenes": {},
         "bakes": {},
@@ -233,11 +273,18 @@ def run(
     groups: dict[str, list[GalleryScene]] = {}
     for sc in chosen:
         groups.setdefault(sc.bake, []).append(sc)
+    render = {
+        "samples": samples,
+        "backend": backend,
+        "base_res": base_res,
+        "sun": sun,
+        "levels": levels,
+        "progress": progress,
+    }
     lightings: dict[str, Lighting] = {}
-    done = 0
     for bake, group in groups.items():
         note(f"bake {bake}")
-        m, record = _bake(
+        m, mesh, record = _bake(
             group,
             data,
             models,
@@ -255,32 +302,66 @@ def run(
                     "was rendered from another mesh than the bake's (a different mesh "
                     "library or data file); render the references again",
                 )
+            note(f"scene {sc.name}")
             result["scenes"][sc.name] = _scene(
-                sc,
-                m,
-                record,
-                ref,
-                data,
-                out,
-                lightings,
-                samples=samples,
-                backend=backend,
-                base_res=base_res,
-                sun=sun,
-                device=device,
+                sc, m, mesh, record, ref, data, out, lightings, **render
             )
-            done += 1
             if progress is not None:
-                progress("gallery", done, len(chosen))
+                progress("gallery", len(result["scenes"]), len(chosen))
             result["summary"] = summarise(result["scenes"])
+            result["table"] = [_row(n, e) for n, e in result["scenes"].items()]
             result["seconds"] = time.perf_counter() - t0
             _write_json(out / "gallery.json", result)
     return _plain(result)
 
 
+def _row(name: str, e: dict[str, Any]) -> dict[str, Any]:
+    """One scene's row of the run's ``table`` (:data:`TABLE`)."""
+    eq = e.get("equal_quality") or {}
+    return {
+        "scene": name,
+        "psnr_display": e.get("psnr_display"),
+        "energy_ratio": e.get("energy_ratio"),
+        "highpass_ratio": e.get("highpass_ratio"),
+        "frame_s": e.get("frame_seconds"),
+        "mitsuba_spp": eq.get("spp"),
+        "mitsuba_s": eq.get("seconds"),
+        "speedup": eq.get("speedup"),
+        "bound": eq.get("bound"),
+    }
+
+
+def _lighting(sc: GalleryScene, m, data, lightings, *, base_res, sun) -> Lighting:
+    """The scene's :class:`Lighting`, made once per map."""
+    key = str(find_map(sc, data))
+    if key not in lightings:
+        env = envmap.load(key)
+        lightings[key] = Lighting(
+            env, base_res=base_res, device=m.device, sun=sun, sh_order=m.sh_order
+        )
+    return lightings[key]
+
+
+def _render(m, lighting, view, w, h, *, samples, backend):
+    """``(image, coverage, seconds, frame_seconds)``: our render of ``view`` with its
+    coverage, the seconds of that first call (the renderer's set-up included) and the median
+    of :data:`FRAME_REPEATS` warm frames after it."""
+    t = time.perf_counter()
+    with Renderer(m, lighting, w, h, backend=backend, samples=samples) as ren:
+        img, cov = ren.render(view, return_mask="coverage")
+        seconds = time.perf_counter() - t
+        frames = []
+        for _ in range(FRAME_REPEATS):
+            t = time.perf_counter()
+            ren.render(view)
+            frames.append(time.perf_counter() - t)
+    return img.cpu(), cov.cpu(), seconds, statistics.median(frames)
+
+
 def _scene(
     sc: GalleryScene,
     m,
+    mesh,
     record,
     ref,
     data,
@@ -291,21 +372,17 @@ def _scene(
     backend,
     base_res,
     sun,
-    device,
+    levels,
+    progress,
 ) -> dict[str, Any]:
-    """Render one scene, score it and write its strip; its entry of ``gallery.json``."""
-    key = str(find_map(sc, data))
-    if key not in lightings:
-        env = envmap.load(key)
-        lightings[key] = Lighting(
-            env, base_res=base_res, device=m.device, sun=sun, sh_order=m.sh_order
-        )
+    """Render one scene, score it, time Mitsuba at equal quality (``levels``: the sweep's
+    samples per pixel, none for no sweep) and write its strip; its entry of
+    ``gallery.json``."""
+    lighting = _lighting(sc, m, data, lightings, base_res=base_res, sun=sun)
     h, w = ref.mask.shape
-    t = time.perf_counter()
-    with Renderer(m, lightings[key], w, h, backend=backend, samples=samples) as ren:
-        img, cov = ren.render(sc.view(), return_mask="coverage")
-    seconds = time.perf_counter() - t
-    img, cov = img.cpu(), cov.cpu()
+    img, cov, seconds, frame = _render(
+        m, lighting, sc.view(), w, h, samples=samples, backend=backend
+    )
     # the reference's fully covered pixels, less any of them where one of our samples missed
     # the object (the rasteriser's and the ray caster's silhouettes differ by rounding)
     partial = ref.mask & (cov < 1.0 - 0.5 / samples)
@@ -314,9 +391,25 @@ def _scene(
     s["reference_noise_psnr_display"] = noise_psnr_display(
         ref.image, ref.stderr, mask, s["exposure"]
     )
+    s["reference_noise_highpass"] = _noise_share(ref, mask, s["exposure"])
     diff = (img - ref.image).abs() * mask[..., None] * DIFF_SCALE
     strip = torch.cat([ref.image, img, diff], 1)  # (H, 3 W, 3)
     save_image(out / f"{sc.name}.png", strip, exposure=s["exposure"])
+    mitsuba, eq = None, None
+    if levels:
+        target = s["psnr_display"] if math.isfinite(s["psnr_display"]) else None
+        mitsuba = mitsuba_sweep(
+            to_scene(sc, data, mesh),
+            ref,
+            mask,
+            s["exposure"],
+            target,
+            max_spp=levels[-1],
+            progress=progress,
+        )
+        noise = s["reference_noise_psnr_display"]
+        noise_mse = 10 ** (-noise / 10) if math.isfinite(noise) else 0.0
+        eq = equal_quality(target, mitsuba["sweep"], frame, noise_mse=noise_mse)
     e = ref.entry
     return {
         **s,
@@ -328,9 +421,19 @@ def _scene(
         "fit_error": record.get("fit_error"),
         "bake_seconds": record.get("seconds"),
         "render_seconds": seconds,
+        "frame_seconds": frame,
+        "equal_quality": eq,
+        "mitsuba_sweep": mitsuba,
         "object_pixels": int(mask.sum()),
         # pixels of the reference's mask left out: some of our samples missed the object
         "mask_partial_in_ours": int(partial.sum()),
         "reference": {k: e.get(k) for k in ("settings", "variant", "mitsuba", "reference_noise")},
         "strip": f"{sc.name}.png",
     }
+
+
+def _noise_share(ref, mask, exposure: float) -> float | None:
+    """The share of the reference's high-pass energy that its own noise is expected to make
+    (:func:`lobelight.studies.score.noise_highpass_energy`); None where it has none."""
+    own = highpass_energy(ref.image, mask, exposure)
+    return noise_highpass_energy(ref.image, ref.stderr, mask, exposure) / own if own > 0 else None

@@ -19,6 +19,7 @@ from ...geometry.camera import Camera
 from ...scene import Mesh, Scene, load_mesh, mesh_from_arrays, parse_material
 
 __all__ = [
+    "GALLERY_DATA",
     "GAUSSIANS",
     "MAPS",
     "MATERIALS",
@@ -28,6 +29,7 @@ __all__ = [
     "data_folder",
     "default_camera",
     "find_map",
+    "find_mesh",
     "geometry_sha256",
     "prepare_mesh",
     "scene_hash",
@@ -35,6 +37,15 @@ __all__ = [
     "sha256_file",
     "to_scene",
 ]
+
+_REPO_DATA_NAME = "gallery-data"
+#: The repository's own gallery data (``meshes/``, ``envmaps/``, their sources and licences in
+#: its ``LICENSES.md``): the folder ``gallery-data`` at the root of the source tree this package
+#: runs from, None when it is not there (an installed package). A scene's files are looked for
+#: in the data folder first, then here.
+GALLERY_DATA: Path | None = Path(__file__).resolve().parents[4] / _REPO_DATA_NAME
+if not GALLERY_DATA.is_dir():
+    GALLERY_DATA = None
 
 #: Version of the mesh preparation (:func:`prepare_mesh`); part of every scene's hash, so a
 #: change to it marks the references rendered before it as stale.
@@ -55,6 +66,8 @@ MAPS = {
     "studio": "studio_small_03_1k.hdr",  # softbox and round light
     "overcast": "potsdamer_platz_1k.hdr",  # overcast city square, low frequency
     "grace": "probulator_lowres/grace.hdr",  # Grace Cathedral probe, 256 x 128
+    "dawn": "kiara_1_dawn_1k.hdr",  # clear dawn sky, the sun 4 degrees above the horizon
+    "interior": "st_fagans_interior_1k.hdr",  # a dim room lit by bright windows
 }
 
 
@@ -72,7 +85,8 @@ class GalleryScene:
     camera : the viewpoint (None: :func:`default_camera`)
     subdivisions : Loop subdivisions of the mesh before anything else
     max_vertices : decimate the mesh to about this many vertices (``fast-simplification``)
-    gaussians : the bake's fitted Gaussians per view (:data:`GAUSSIANS`)
+    gaussians : the bake's fitted Gaussians per view (:data:`GAUSSIANS`; None: fit_model's
+        default)
     description : what the scene shows and how its mesh is prepared
     """
 
@@ -84,7 +98,7 @@ class GalleryScene:
     camera: Camera | None = None
     subdivisions: int = 0
     max_vertices: int | None = None
-    gaussians: int = 1
+    gaussians: int | None = None
     description: str = ""
 
     def to_dict(self) -> dict:
@@ -117,7 +131,7 @@ def default_camera(azimuth: float = 0.0) -> Camera:
 #: (the fit's integral constraint) but not its tails, which lie on other parts of the map than
 #: its peak: two follow them closer (the measurement on Spot's rough metal under the park map:
 #: docs/results.md); the plastic's and the diffuse's glossy light is too small a share for that
-#: to show.
+#: to show. A material given None here is baked with ``fit_model``'s default.
 GAUSSIANS = {"sharp_metal": 2, "rough_metal": 2, "plastic": 1, "diffuse": 1}
 
 
@@ -152,18 +166,49 @@ _SPOT = {
     "description": "Spot the cow (Keenan Crane), 11,533 vertices, seen from the front",
 }
 _TEAPOT = {"description": "Newell's teapot (watertight version), 7,850 vertices"}
+_SCORPION = {
+    "max_vertices": 12000,
+    "camera": default_camera(30.0),  # claws, legs and the raised tail side by side
+    "description": "a scorpion (YahooJAPAN, remeshed by Oded Stein; gallery-data/LICENSES.md): "
+    "thin legs, claws and tail over deep gaps, decimated from 49,997 to about 12,000 vertices",
+}
 
-#: The gallery: 8 (mesh, material) bakes, each under 2 maps; every material is seen under
-#: every map once, every map four times.
+#: The gallery: 10 (mesh, material) bakes, each under 3 maps. The first 8 bakes see every
+#: (material, map) pair once, so each map four times; the scorpion's two add a rough metal and
+#: a plastic on a mesh with thin parts and deep concavities.
 SCENES: tuple[GalleryScene, ...] = (
-    *_bake("bunny-sharp-metal", "bunny_hr.obj", "sharp_metal", ("park", "grace"), **_BUNNY),
-    *_bake("bunny-plastic", "bunny_hr.obj", "plastic", ("studio", "overcast"), **_BUNNY),
-    *_bake("spot-rough-metal", "spot.obj", "rough_metal", ("park", "studio"), **_SPOT),
-    *_bake("spot-diffuse", "spot.obj", "diffuse", ("overcast", "grace"), **_SPOT),
-    *_bake("teapot-diffuse", "teapot.obj", "diffuse", ("park", "studio"), **_TEAPOT),
-    *_bake("teapot-sharp-metal", "teapot.obj", "sharp_metal", ("studio", "overcast"), **_TEAPOT),
-    *_bake("suzanne-rough-metal", "suzanne.obj", "rough_metal", ("overcast", "grace"), **_SUZANNE),
-    *_bake("suzanne-plastic", "suzanne.obj", "plastic", ("park", "grace"), **_SUZANNE),
+    *_bake(
+        "bunny-sharp-metal", "bunny_hr.obj", "sharp_metal", ("park", "grace", "interior"), **_BUNNY
+    ),
+    *_bake("bunny-plastic", "bunny_hr.obj", "plastic", ("studio", "overcast", "dawn"), **_BUNNY),
+    *_bake("spot-rough-metal", "spot.obj", "rough_metal", ("park", "studio", "dawn"), **_SPOT),
+    *_bake("spot-diffuse", "spot.obj", "diffuse", ("overcast", "grace", "interior"), **_SPOT),
+    *_bake("teapot-diffuse", "teapot.obj", "diffuse", ("park", "studio", "dawn"), **_TEAPOT),
+    *_bake(
+        "teapot-sharp-metal", "teapot.obj", "sharp_metal", ("studio", "overcast", "dawn"), **_TEAPOT
+    ),
+    *_bake(
+        "suzanne-rough-metal",
+        "suzanne.obj",
+        "rough_metal",
+        ("overcast", "grace", "interior"),
+        **_SUZANNE,
+    ),
+    *_bake("suzanne-plastic", "suzanne.obj", "plastic", ("park", "grace", "interior"), **_SUZANNE),
+    *_bake(
+        "scorpion-rough-metal",
+        "scorpion.obj",
+        "rough_metal",
+        ("dawn", "interior", "park"),
+        **_SCORPION,
+    ),
+    *_bake(
+        "scorpion-plastic",
+        "scorpion.obj",
+        "plastic",
+        ("interior", "studio", "overcast"),
+        **_SCORPION,
+    ),
 )
 
 
@@ -189,28 +234,49 @@ def select(names=None, scenes: tuple[GalleryScene, ...] = SCENES) -> list[Galler
     return out
 
 
-def data_folder(data=None) -> Path:
-    """The data folder: ``data``, else ``$LOBELIGHT_DATA``; InputError when neither names a
-    folder."""
+def data_folder(data=None) -> Path | None:
+    """The data folder: ``data``, else ``$LOBELIGHT_DATA``, else None (the scenes' files are
+    then looked for in :data:`GALLERY_DATA` only); InputError when ``data`` or the variable
+    names no folder."""
+    given = "--data"
     if data is None:
-        data = os.environ.get(DATA_ENV)
-        if not data:
-            raise InputError("--data", f"give the data folder (--data DIR) or set ${DATA_ENV}")
+        data = os.environ.get(DATA_ENV) or None
+        given = f"${DATA_ENV}"
+        if data is None:
+            return None
     p = Path(data).expanduser()
     if not p.is_dir():
-        raise InputError("--data", f"no such folder: {str(p)!r}")
+        raise InputError(given, f"no such folder: {str(p)!r}")
     return p
 
 
-def _find(data: Path, sub: str, name: str, what: str) -> Path:
-    for p in (data / sub / name, data / name):
+def _find(data: Path | None, sub: str, name: str, what: str) -> Path:
+    """The file ``name``: in the data folder (``data/sub/name``, else ``data/name``), else in
+    the repository's :data:`GALLERY_DATA` (``sub/name``)."""
+    places = [] if data is None else [data / sub / name, data / name]
+    places += [] if GALLERY_DATA is None else [GALLERY_DATA / sub / name]
+    for p in places:
         if p.is_file():
             return p
-    raise InputError(what, f"{name!r} is neither in {str(data / sub)!r} nor in {str(data)!r}")
+    if data is None:
+        where = f"a data folder (none given: --data DIR or ${DATA_ENV})"
+    else:
+        where = f"the data folder {str(data / sub)!r}"
+    if GALLERY_DATA is None:
+        repo = f"the repository's {_REPO_DATA_NAME}/{sub} (not found next to the package)"
+    else:
+        repo = f"the repository's {str(GALLERY_DATA / sub)!r}"
+    raise InputError(what, f"{name!r} is neither in {where} nor in {repo}")
 
 
-def find_map(scene: GalleryScene, data: Path) -> Path:
+def find_map(scene: GalleryScene, data: Path | None) -> Path:
+    """The scene's map file (:func:`_find`)."""
     return _find(data, "envmaps", scene.envmap, f"{scene.name}: envmap")
+
+
+def find_mesh(scene: GalleryScene, data: Path | None) -> Path:
+    """The scene's mesh file (:func:`_find`)."""
+    return _find(data, "meshes", scene.mesh, f"{scene.name}: mesh")
 
 
 def sha256_file(path) -> str:
@@ -221,11 +287,11 @@ def sha256_file(path) -> str:
     return h.hexdigest()
 
 
-def scene_hash(scene: GalleryScene, data: Path) -> str:
+def scene_hash(scene: GalleryScene, data: Path | None) -> str:
     """sha256 of the scene's definition, :data:`PREPARATION` and its mesh and map files'
     contents: it changes whenever anything that a reference shows changes (not the bake's
     Gaussians per view)."""
-    mesh = _find(data, "meshes", scene.mesh, f"{scene.name}: mesh")
+    mesh = find_mesh(scene, data)
     shown = {k: v for k, v in scene.to_dict().items() if k != "gaussians"}
     d = {
         "definition": shown | {"name": None, "description": None},
@@ -236,11 +302,11 @@ def scene_hash(scene: GalleryScene, data: Path) -> str:
     return hashlib.sha256(json.dumps(d, sort_keys=True).encode()).hexdigest()
 
 
-def prepare_mesh(scene: GalleryScene, data: Path) -> Mesh:
+def prepare_mesh(scene: GalleryScene, data: Path | None) -> Mesh:
     """The scene's mesh as the gallery uses it: loaded (welded, cleaned), Loop-subdivided
     ``subdivisions`` times, decimated to about ``max_vertices``, then centred on its bounding
     box and scaled to a bounding-box diagonal of 2."""
-    path = _find(data, "meshes", scene.mesh, f"{scene.name}: mesh")
+    path = find_mesh(scene, data)
     m = load_mesh(path)
     v = m.vertices.double().numpy()  # (V, 3)
     f = m.faces.numpy()  # (F, 3)
@@ -272,7 +338,7 @@ def geometry_sha256(mesh: Mesh) -> str:
     return h.hexdigest()
 
 
-def to_scene(scene: GalleryScene, data: Path, mesh: Mesh | None = None) -> Scene:
+def to_scene(scene: GalleryScene, data: Path | None, mesh: Mesh | None = None) -> Scene:
     """The :class:`lobelight.scene.Scene` of a gallery scene (``mesh``: its prepared mesh, when
     already at hand)."""
     mesh = prepare_mesh(scene, data) if mesh is None else mesh

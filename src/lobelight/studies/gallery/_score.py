@@ -13,6 +13,10 @@ the reference):
 ``rel_l2``              ``|img - ref| / |ref|`` on linear radiance over the mask
                         (:func:`lobelight.studies.score.relative_l2`)
 ``energy_ratio``        sum of ``img``'s luminance over the mask / the same of ``ref``
+``highpass_ratio``      fine detail: the energy of the displayed luminance less its Gaussian
+                        blur (sigma 1 pixel) over the mask's pixels whose filter window lies in
+                        the mask, ``img``'s / ``ref``'s
+                        (:func:`lobelight.studies.score.highpass_ratio`)
 """
 
 from __future__ import annotations
@@ -23,7 +27,7 @@ import numpy as np
 import torch
 
 from ...errors import InputError
-from ..score import LUMA, psnr_display, relative_l2
+from ..score import HIGHPASS_SIGMA, LUMA, highpass_ratio, psnr_display, relative_l2
 
 __all__ = [
     "LEGEND",
@@ -45,6 +49,21 @@ LEGEND = {
     "psnr_display_full": "dB, the same over the whole image (object and background)",
     "rel_l2": "|ours - reference| / |reference|, linear radiance over object pixels",
     "energy_ratio": "sum of ours / sum of the reference, luminance over object pixels",
+    "highpass_ratio": "ours / reference: energy of the displayed luminance less its Gaussian "
+    f"blur (sigma {HIGHPASS_SIGMA:g} pixel) over object pixels whose filter window is on the "
+    "object; above 1: more fine detail (blotches, noise) than the reference",
+    "reference_noise_highpass": "the share of the reference's high-pass energy its own Monte "
+    "Carlo noise is expected to make (from its standard errors): the reference's energy less "
+    "this share is its detail",
+    "frame_seconds": "seconds of one of our frames at the scene's size and samples per pixel "
+    "(median of warm frames; not the bake, not the renderer's set-up)",
+    "equal_quality": "Mitsuba at our psnr_display: samples per pixel and seconds (crossing of "
+    "its spp sweep, interpolated in log2 spp), speedup = its seconds / frame_seconds, bound "
+    "'=' (interpolated), '~' (extrapolated past the sweep with MSE = a / spp + the reference's "
+    "noise), '>=' (not reached: lower bounds) or '<=' (reached at the first level)",
+    "mitsuba_sweep": "Mitsuba renders of the scene at 1, 2, 4, ... spp, the reference's variant, "
+    "depth and size, seeds apart from the reference's: each render's seconds and psnr_display "
+    "against the reference over our mask",
     "reference_noise_psnr_display": "dB, the psnr_display the reference's own noise allows a "
     "perfect image (its standard error through the display's slope): scores near it are "
     "limited by the reference",
@@ -95,5 +114,6 @@ def score(img: torch.Tensor, ref: torch.Tensor, mask: torch.Tensor) -> dict[str,
         "psnr_display_full": psnr_display(img, ref, everything, e),
         "rel_l2": relative_l2(img, ref, mask),
         "energy_ratio": energy_ratio(img, ref, mask),
+        "highpass_ratio": highpass_ratio(img, ref, mask, e),
         "exposure": e,
     }

@@ -1,5 +1,5 @@
 """The gallery's settings that the command line needs before anything heavy is imported: the
-Mitsuba variants tried and how references are rendered."""
+Mitsuba variants tried, how references are rendered and the equal-quality sweep's extent."""
 
 from __future__ import annotations
 
@@ -7,10 +7,12 @@ from dataclasses import asdict, dataclass
 
 from ...errors import InputError
 
-__all__ = ["VARIANTS", "ReferenceSettings"]
+__all__ = ["SWEEP_MAX_SPP", "VARIANTS", "ReferenceSettings"]
 
 #: Mitsuba variants tried in turn when none is asked for.
 VARIANTS = ("llvm_ad_rgb", "scalar_rgb")
+#: The equal-quality sweep's largest samples per pixel by default.
+SWEEP_MAX_SPP = 256
 
 
 @dataclass(frozen=True)
