@@ -179,6 +179,8 @@ def test_scene_list_covers_the_meshes_maps_and_materials():
     assert MATERIALS["rough_metal"] in {s.material for s in scorpion}
     assert len({s.material for s in scorpion}) >= 2
     assert all(10000 <= s.max_vertices <= 15000 for s in scorpion)
+    # every bake takes fit_model's default Gaussians per view
+    assert all(s.gaussians is None for s in SCENES)
     # a bake's scenes agree on what the bake depends on
     assert select() == list(SCENES)
     assert all(s.max_vertices for s in SCENES if s.mesh == "bunny_hr.obj")
@@ -409,7 +411,11 @@ def test_a_tiny_gallery_runs_end_to_end_and_resumes(data_dir, tmp_path, monkeypa
     (row,) = first["table"]
     assert row["scene"] == "ball-diffuse-sky" and row["speedup"] == eq["speedup"]
     assert row["highpass_ratio"] == s["highpass_ratio"] > 0
-    assert first["bakes"]["ball-diffuse"]["resumed"] is False
+    bake = first["bakes"]["ball-diffuse"]
+    assert bake["resumed"] is False
+    # no per-bake override: fit_model's default, recorded, and what it chose
+    assert bake["settings"]["n_gaussians"] is None and bake["settings"]["fit_model_default"]
+    assert bake["gaussians"] in (1, 2, 3) and s["gaussians"] == bake["gaussians"]
     assert s["vertices"] == 162 and s["object_pixels"] > 100 and s["mask_partial_in_ours"] == 0
     assert math.isfinite(s["psnr_display"]) and s["energy_ratio"] > 0
     assert first["summary"]["worst"]["psnr_display"]["scene"] == "ball-diffuse-sky"
@@ -457,6 +463,9 @@ def test_arguments_fit_a_parser_that_has_the_common_flags(data_dir):
     ]
     run_args = p.parse_args(["run"])
     assert run_args.sweep is True and run_args.sweep_max_spp == 256
+    assert run_args.gaussians is None  # each bake's own, else fit_model's default
+    assert p.parse_args(["run", "--gaussians", "auto"]).gaussians == "auto"
+    assert p.parse_args(["run", "--gaussians", "2"]).gaussians == 2
     run_args = p.parse_args(["run", "--no-sweep", "--sweep-max-spp", "64"])
     assert run_args.sweep is False and run_args.sweep_max_spp == 64
     args = p.parse_args(["references", "--data", str(data_dir / "nope")])

@@ -79,10 +79,11 @@ def _add_run_settings(g) -> None:
     )
     g.add_argument(
         "--gaussians",
-        type=int,
+        type=_gaussians,
         default=None,
-        choices=[1, 2, 3],
-        help="Gaussians per view of every bake (default: each bake's own, 2 for the metals)",
+        choices=["auto", 1, 2, 3],
+        help="Gaussians per view of every bake (default: each bake's own, else fit_model's "
+        "default, auto: chosen from the material)",
     )
     g.add_argument(
         "--samples", type=int, default=16, help="our samples per pixel (box filter, 1..256)"
@@ -121,6 +122,16 @@ def _add_run_settings(g) -> None:
         metavar="KEY=VALUE",
         help="another fit_model argument (VALUE read as JSON, else a string); repeatable",
     )
+
+
+def _gaussians(text: str) -> str | int:
+    """``--gaussians``: ``auto`` or a whole number (argparse checks it against the choices)."""
+    if text.strip().lower() == "auto":
+        return "auto"
+    try:
+        return int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"must be auto, 1, 2 or 3, got {text!r}") from None
 
 
 def _fit_options(items: list[str]) -> dict[str, Any]:

@@ -171,6 +171,8 @@ def _bake(
         "seconds": seconds,
         "vertices": m.mesh.n_vertices,
         "fit_error": m.provenance.get("relative_l2_error_mean"),
+        "gaussians": m.provenance.get("n_gaussians"),
+        "gaussians_choice": m.provenance.get("n_gaussians_choice"),
         "fit_seconds": m.provenance.get("seconds"),
     }
     _write_json(meta, record)
@@ -184,7 +186,7 @@ def run(
     data=None,
     refs,
     out,
-    n_gaussians: int | None = None,
+    n_gaussians: int | str | None = None,
     samples: int = 16,
     backend: str = "auto",
     base_res: int = 256,
@@ -212,8 +214,9 @@ def run(
     ----------
     scenes : names (of scenes or bakes) or :class:`GalleryScene`; default all
     data : the data folder (default ``$LOBELIGHT_DATA``);  refs : the references folder
-    n_gaussians : Gaussians per view of every bake (None: each bake's own,
-        :attr:`GalleryScene.gaussians`);  fit_options : more keyword arguments of ``fit_model``
+    n_gaussians : Gaussians per view of every bake, 1, 2, 3 or ``"auto"`` (None: each bake's
+        own, :attr:`GalleryScene.gaussians`, else ``fit_model``'s default);  fit_options : more
+        keyword arguments of ``fit_model``
     backend : "gl", "torch" or "auto" (gl where a context opens)
     base_res : face resolution of the sharpest prefiltered level;  sun : shade the map's sun
         per pixel (:class:`lobelight.render.Lighting`)
@@ -226,8 +229,8 @@ def run(
     data = data_folder(data)
     chosen = select(scenes)
     options = _check_options(fit_options)
-    if n_gaussians not in (None, 1, 2, 3):
-        raise InputError("--gaussians", f"must be 1, 2 or 3, got {n_gaussians}")
+    if isinstance(n_gaussians, bool) or n_gaussians not in (None, "auto", 1, 2, 3):
+        raise InputError("--gaussians", f"must be 'auto', 1, 2 or 3, got {n_gaussians!r}")
     levels = spp_levels(sweep_max_spp) if sweep else []
     if backend == "auto":
         backend = "gl" if gl_available() else "torch"
@@ -419,6 +422,7 @@ def _scene(
         "material": sc.material,
         "vertices": m.mesh.n_vertices,
         "fit_error": record.get("fit_error"),
+        "gaussians": record.get("gaussians"),
         "bake_seconds": record.get("seconds"),
         "render_seconds": seconds,
         "frame_seconds": frame,

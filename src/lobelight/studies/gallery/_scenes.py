@@ -127,12 +127,10 @@ def default_camera(azimuth: float = 0.0) -> Camera:
     return Camera.look_at(origin, (0.0, 0.0, 0.0), fov=40.0, fov_axis="smaller")
 
 
-#: Fitted Gaussians per view of each material's bakes. One Gaussian keeps a GGX metal's light
-#: (the fit's integral constraint) but not its tails, which lie on other parts of the map than
-#: its peak: two follow them closer (the measurement on Spot's rough metal under the park map:
-#: docs/results.md); the plastic's and the diffuse's glossy light is too small a share for that
-#: to show. A material given None here is baked with ``fit_model``'s default.
-GAUSSIANS = {"sharp_metal": 2, "rough_metal": 2, "plastic": 1, "diffuse": 1}
+#: Gaussians per view of a material's bakes where they are not ``fit_model``'s default
+#: (``"auto"``: chosen from the material's lobe, :func:`lobelight.fit.choose_gaussians`), by
+#: the material's key in :data:`MATERIALS`; empty: every bake takes the default.
+GAUSSIANS: dict[str, int] = {}
 
 
 def _bake(bake, mesh, material, maps, **kw) -> tuple[GalleryScene, ...]:
@@ -144,7 +142,7 @@ def _bake(bake, mesh, material, maps, **kw) -> tuple[GalleryScene, ...]:
             mesh,
             MAPS[m],
             MATERIALS[material],
-            gaussians=GAUSSIANS[material],
+            gaussians=GAUSSIANS.get(material),
             **kw,
         )
         for m in maps
