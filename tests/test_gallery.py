@@ -26,7 +26,6 @@ from lobelight.cli._gallery import add_arguments, gallery_main
 from lobelight.errors import InputError
 from lobelight.render import Lighting, Renderer, auto_exposure
 from lobelight.studies.gallery import (
-    GALLERY_DATA,
     MAPS,
     MATERIALS,
     SCENES,
@@ -34,6 +33,7 @@ from lobelight.studies.gallery import (
     Reference,
     ReferenceSettings,
     _references,
+    _scenes,
     _sweep,
     coverage_mask,
     data_folder,
@@ -201,43 +201,61 @@ def test_select_names_scenes_and_bakes_and_refuses_unknown_names():
 # the repository's gallery data
 
 
+#: The repository's gallery data, found from this file: the tests may run against an installed
+#: copy of the package, which does not hold it (its ``GALLERY_DATA`` is then None).
+REPO_DATA = Path(__file__).resolve().parents[1] / "gallery-data"
+
+
+@pytest.fixture
+def repo_data(monkeypatch) -> Path:
+    """The repository's gallery data, as the gallery's own folder."""
+    monkeypatch.setattr(_scenes, "GALLERY_DATA", REPO_DATA)
+    return REPO_DATA
+
+
 def _licence_rows() -> dict[str, list[str]]:
     """``{file: cells}`` of the table in gallery-data/LICENSES.md."""
     rows = {}
-    for line in (GALLERY_DATA / "LICENSES.md").read_text().splitlines():
+    for line in (REPO_DATA / "LICENSES.md").read_text().splitlines():
         cells = [c.strip() for c in line.strip().strip("|").split("|")]
         if line.startswith("| `") and len(cells) == 6:
             rows[cells[0].strip("`")] = cells
     return rows
 
 
-def test_every_file_of_the_gallery_data_has_its_source_and_licence():
-    assert GALLERY_DATA is not None and GALLERY_DATA.is_dir()
+def test_every_file_of_the_gallery_data_has_its_source_and_licence(repo_data):
     rows = _licence_rows()
     files = {
-        p.relative_to(GALLERY_DATA).as_posix()
-        for p in GALLERY_DATA.rglob("*")
+        p.relative_to(repo_data).as_posix()
+        for p in repo_data.rglob("*")
         if p.is_file() and p.name != "LICENSES.md"
     }
     assert files and files == set(rows)
     for name, (_, source, author, licence, size, md5) in rows.items():
-        data = (GALLERY_DATA / name).read_bytes()
+        data = (repo_data / name).read_bytes()
         assert int(size.replace(",", "")) == len(data), name
         assert hashlib.md5(data).hexdigest() == md5, name  # a byte-exact copy of its source
         assert "@" in source and author and licence, name  # repository @ commit, who, terms
     # the files the new scenes name are there, found without a data folder
     for sc in SCENES:
-        if sc.mesh == "scorpion.obj" or sc.envmap in (MAPS["dawn"], MAPS["interior"]):
-            if sc.mesh == "scorpion.obj":
-                assert find_mesh(sc, None) == GALLERY_DATA / "meshes" / sc.mesh
-            if sc.envmap in (MAPS["dawn"], MAPS["interior"]):
-                assert find_map(sc, None) == GALLERY_DATA / "envmaps" / sc.envmap
+        if sc.mesh == "scorpion.obj":
+            assert find_mesh(sc, None) == repo_data / "meshes" / sc.mesh
+        if sc.envmap in (MAPS["dawn"], MAPS["interior"]):
+            assert find_map(sc, None) == repo_data / "envmaps" / sc.envmap
 
 
-def test_a_file_is_read_from_the_data_folder_first_then_the_repository(tmp_path, monkeypatch):
+def test_the_package_finds_the_gallery_data_of_the_source_tree_it_runs_from():
+    # an editable install (the developer's) finds it; an installed copy has none
+    here = Path(_scenes.__file__).resolve().parents[4] / "gallery-data"
+    assert _scenes.GALLERY_DATA == (here if here.is_dir() else None)
+
+
+def test_a_file_is_read_from_the_data_folder_first_then_the_repository(
+    tmp_path, monkeypatch, repo_data
+):
     monkeypatch.delenv("LOBELIGHT_DATA", raising=False)
     dawn = next(s for s in SCENES if s.envmap == MAPS["dawn"])
-    assert find_map(dawn, data_folder(None)) == GALLERY_DATA / "envmaps" / dawn.envmap
+    assert find_map(dawn, data_folder(None)) == repo_data / "envmaps" / dawn.envmap
     (tmp_path / "envmaps").mkdir()
     own = tmp_path / "envmaps" / dawn.envmap
     own.write_bytes(b"not a map")
@@ -248,7 +266,11 @@ def test_a_file_is_read_from_the_data_folder_first_then_the_repository(tmp_path,
     with pytest.raises(InputError, match=r"nowhere\.hdr") as err:
         find_map(gone, data_folder(None))
     assert str(tmp_path / "envmaps") in str(err.value)
-    assert str(GALLERY_DATA / "envmaps") in str(err.value)
+    assert str(repo_data / "envmaps") in str(err.value)
+    # no repository folder (an installed copy): the error says so
+    monkeypatch.setattr(_scenes, "GALLERY_DATA", None)
+    with pytest.raises(InputError, match="gallery-data/envmaps"):
+        find_map(gone, data_folder(None))
 
 
 # --------------------------------------------------------------------------------------------

@@ -124,6 +124,15 @@ def test_noise_energy_matches_monte_carlo():
     # = 1.4 % plus the cross term with the smooth image (zero mean, small); 6 % is > 4 sigma
     assert got == pytest.approx(expect, rel=0.06)
     assert expect > 0
+    # the channels' noise drawn independently: the lower estimate, by the same margin
+    lower = noise_highpass_energy(ref, stderr, mask, 0.0, correlated=False)
+    draws = []
+    for _ in range(20):
+        z = torch.randn(ref.shape, generator=g, dtype=torch.float64)  # (H, W, 3)
+        draws.append(highpass_energy(ref + stderr * z, mask, 0.0) - base)
+    assert sum(draws) / len(draws) == pytest.approx(lower, rel=0.06)
+    # grey noise of equal channels: sum(w)^2 = 1 against sum(w^2) = 0.562 of the Rec. 709 weights
+    assert lower / expect == pytest.approx(sum(w * w for w in (0.2126, 0.7152, 0.0722)), rel=1e-9)
 
 
 def test_clipped_pixels_carry_no_noise_and_no_detail():

@@ -207,13 +207,17 @@ def noise_highpass_energy(
     exposure: float,
     *,
     sigma: float = HIGHPASS_SIGMA,
+    correlated: bool = True,
 ) -> float:
     """The expected :func:`highpass_energy` that independent per-pixel noise of standard error
     ``stderr`` ``(H, W, 3)`` adds to ``ref``: with ``s`` the noise of the displayed luminance
     (each channel's through the display curve's slope at ``ref``, as
-    :func:`noise_psnr_display`; the channels taken as fully correlated, as one path's colours
-    are), ``E[h_p^2] = s_p^2 (1 - 2 g_0) + sum_q g_q^2 s_(p-q)^2`` summed over the window
-    mask, ``g`` the filter's 2-D weights and ``g_0`` its centre's."""
+    :func:`noise_psnr_display`), ``E[h_p^2] = s_p^2 (1 - 2 g_0) + sum_q g_q^2 s_(p-q)^2``
+    summed over the window mask, ``g`` the filter's 2-D weights and ``g_0`` its centre's.
+
+    ``correlated``: the channels' noise taken as fully correlated (``s`` the weighted sum of
+    the channels' standard errors: an upper estimate, as one path carries all three colours),
+    else as independent (the root of the weighted squares: a lower estimate)."""
     window = highpass_window_mask(mask, sigma)
     if not bool(window.any()):
         return 0.0
@@ -222,8 +226,12 @@ def noise_highpass_energy(
     slope = torch.where(x <= 0.0031308, 12.92, 1.055 / 2.4 * x.pow(1 / 2.4 - 1))
     slope = torch.where(x >= 1, torch.zeros_like(slope), slope)
     w = torch.tensor(LUMA, dtype=torch.float64, device=ref.device)
-    s = (slope * k * stderr.double()) @ w  # (H, W) displayed luminance noise
+    per_channel = slope * k * stderr.double() * w  # (H, W, 3)
+    if correlated:
+        var_px = per_channel.sum(-1) ** 2  # (H, W) displayed luminance noise variance
+    else:
+        var_px = (per_channel**2).sum(-1)
     g = _gaussian_1d(sigma)
     r = g.shape[0] // 2
-    var = s[r:-r, r:-r] ** 2 * (1 - 2 * float(g[r] ** 2)) + _separable(s**2, g**2)
+    var = var_px[r:-r, r:-r] * (1 - 2 * float(g[r] ** 2)) + _separable(var_px, g**2)
     return float(var[window[r:-r, r:-r]].sum())

@@ -436,8 +436,14 @@ def _scene(
     }
 
 
-def _noise_share(ref, mask, exposure: float) -> float | None:
-    """The share of the reference's high-pass energy that its own noise is expected to make
+def _noise_share(ref, mask, exposure: float) -> list[float] | None:
+    """``[low, high]``: the share of the reference's high-pass energy that its own noise is
+    expected to make, its colour channels' noise taken as independent and as fully correlated
     (:func:`lobelight.studies.score.noise_highpass_energy`); None where it has none."""
     own = highpass_energy(ref.image, mask, exposure)
-    return noise_highpass_energy(ref.image, ref.stderr, mask, exposure) / own if own > 0 else None
+    if not own > 0:
+        return None
+    return [
+        noise_highpass_energy(ref.image, ref.stderr, mask, exposure, correlated=c) / own
+        for c in (False, True)
+    ]

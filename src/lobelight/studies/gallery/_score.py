@@ -52,9 +52,9 @@ LEGEND = {
     "highpass_ratio": "ours / reference: energy of the displayed luminance less its Gaussian "
     f"blur (sigma {HIGHPASS_SIGMA:g} pixel) over object pixels whose filter window is on the "
     "object; above 1: more fine detail (blotches, noise) than the reference",
-    "reference_noise_highpass": "the share of the reference's high-pass energy its own Monte "
-    "Carlo noise is expected to make (from its standard errors): the reference's energy less "
-    "this share is its detail",
+    "reference_noise_highpass": "[low, high]: the share of the reference's high-pass energy its "
+    "own Monte Carlo noise is expected to make (from its standard errors; its colour channels' "
+    "noise independent, fully correlated): the reference's detail is the rest",
     "frame_seconds": "seconds of one of our frames at the scene's size and samples per pixel "
     "(median of warm frames; not the bake, not the renderer's set-up)",
     "equal_quality": "Mitsuba at our psnr_display: samples per pixel and seconds (crossing of "
