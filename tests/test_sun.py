@@ -137,9 +137,11 @@ def test_sun_on_a_convex_sphere_is_lambert_without_shadows(sun_light):
 
 @needs_gl
 def test_shadow_map_matches_shadow_rays_on_the_knot(sun_light):
-    # the shader's shadow map against the torch path's shadow rays: they can differ only where
-    # a pixel's footprint straddles a shadow edge (the map's 2x2 filtering, its texel size);
-    # measured 0.6 % of the object pixels on knot:2 at 192x144
+    # the shader's soft shadow map against the torch path's shadow rays over the sun's disc
+    # (render/_sun_shadow.py): they can differ only in the penumbrae, a pixel wide here (the
+    # shader filters the map over the rays' directions scaled by the blockers' mean height, the
+    # rays meet each blocker where it is; the map's texel size). Measured 2.1 % of the object
+    # pixels over 1e-3, 1.8 % over 1e-2 and 0.8 % over 0.1
     sc = scene.builtin("knot")
     m = dark_model(sc)
     light = sun_light
@@ -153,7 +155,8 @@ def test_shadow_map_matches_shadow_rays_on_the_knot(sun_light):
     (a, ma), (t, mt) = out["gl"], out["torch"]
     both = ma & mt
     rel = (a - t).abs().amax(-1) / t.amax(-1).clamp_min(1e-3)
-    assert float((rel[both] > 1e-3).float().mean()) < 0.02
+    assert float((rel[both] > 1e-3).float().mean()) < 0.03
+    assert float((rel[both] > 0.1).float().mean()) < 0.015
     assert float((a - t)[both].abs().mean()) < 0.01 * float(t[both].mean())
     # there are shadows to get right: points facing the sun that it does not reach
     mesh = m.mesh

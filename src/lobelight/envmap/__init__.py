@@ -5,8 +5,8 @@
 - :func:`load` / :func:`save` ``.hdr`` and ``.exr`` files (lat-long or cross cube maps), checked
   at the door: a bad file is one :class:`lobelight.errors.InputError` naming it.
 - :func:`builtin` a procedural sky with a small, very bright sun, so nothing needs a file.
-- :func:`extract_sun` a dominant small light split off a map (:class:`Sun`), for per-pixel
-  shadows of the diffuse part.
+- :func:`extract_sun` a compact bright source (a sun, a lamp, a window) split off a map
+  (:class:`Sun`), found by its concentration, for per-pixel shading with soft shadows.
 - :func:`prefilter` -> :class:`Prefiltered`, whose ``integrate(mu, lam)`` approximates
   ``int exp(lam (mu.w - 1)) L(w) dw`` with one interpolated lookup per lobe.
 - :class:`ChainBuilder` the same chain rebuilt from one map after another (a dynamic

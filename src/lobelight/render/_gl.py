@@ -20,6 +20,7 @@ linearly in level, which is less accurate).
 from __future__ import annotations
 
 import contextlib
+import math
 import time
 from functools import cache
 from importlib import resources
@@ -40,6 +41,7 @@ from ._sun_glossy import (
     sun_glossy_vertex_params,
     sun_widened,
 )
+from ._sun_shadow import BLOCKER_SAMPLES, SHADOW_SAMPLES, disc_radius, sun_frame
 
 __all__ = [
     "GLRenderer",
@@ -61,6 +63,8 @@ BACKGROUND_RES = 512
 #: Resolution of the sun's shadow map (texels across the mesh's bounding sphere).
 SHADOW_RES = 4096
 _GL_TEXTURE_CUBE_MAP_SEAMLESS = 0x884F
+#: Texture unit of the shadow map's depths read without comparison (the soft shadow's search).
+_SHADOW_DEPTH_UNIT = 9
 #: Colour target texel types: float32 (what ``read`` returns exactly) and half float (display).
 HDR_DTYPES = ("f4", "f2")
 #: Uniform-block bindings of the PRT programs: the geodesic planes, frame.glsl's two blocks.
@@ -561,6 +565,8 @@ class GLRenderer:
             "HAS_BOUNCE": int(self.has_bounce),
             "HAS_SUN": int(self.has_sun),
             "SUN_GLOSSY": int(self.sun_glossy),
+            "SHADOW_SAMPLES": SHADOW_SAMPLES,
+            "BLOCKER_SAMPLES": BLOCKER_SAMPLES,
             **geo_defines,
         }
         self.prog = _program(
@@ -618,6 +624,7 @@ class GLRenderer:
             ("atlas", 3),
             ("shadow_map", 6),
             ("bounce_tex", 8),
+            ("shadow_depth", _SHADOW_DEPTH_UNIT),
         )
         for name, unit in units:
             if p.get(name, None) is not None:  # compiled out without a sun or a bounce
@@ -678,6 +685,14 @@ class GLRenderer:
         self.shadow_tex.compare_func = "<="
         self.shadow_tex.filter = (moderngl.LINEAR, moderngl.LINEAR)  # 2x2 PCF
         self.shadow_tex.repeat_x = self.shadow_tex.repeat_y = False
+        # the same depths read without comparison, for the soft shadow's blocker search
+        self.shadow_sampler = ctx.sampler(
+            texture=self.shadow_tex,
+            filter=(moderngl.NEAREST, moderngl.NEAREST),
+            repeat_x=False,
+            repeat_y=False,
+        )
+        self.shadow_sampler.compare_func = ""
         self.shadow_fbo = ctx.framebuffer(depth_attachment=self.shadow_tex)
         self.shadow_vao = ctx.vertex_array(
             self.shadow_prog, [(self.vbo, "3f", "in_pos")], self.ibo, 4
@@ -692,6 +707,8 @@ class GLRenderer:
             blk.set("shadow_scale", scale)
             blk.set("shadow_offset", 1.5 * texel)
             blk.set("shadow_bias", 1.0 / self.shadow_res)
+            self._uniform(self.prog, "shadow_res", float(self.shadow_res))
+            self._uniform(self.prog, "sun_tan", math.tan(disc_radius(lighting.sun)))
 
     def _make_screen_passes(self) -> None:
         """The full-screen quad and the vertex arrays of the passes that cover the frame:
@@ -752,6 +769,7 @@ class GLRenderer:
         if self.has_sun:
             sun = lighting.sun
             self.frame_block.set("sun_e", [float(x) for x in sun.irradiance])
+            self._uniform(self.prog, "sun_tan", math.tan(disc_radius(sun)))
             if self.sun_glossy:
                 sb = sun_glossy_vertex_params(
                     sun_widened(self._specular, sun.spread), self._n_vertices
@@ -864,15 +882,10 @@ class GLRenderer:
             if self.has_bounce:
                 blk.set_sh("sh_sun", self.lighting.sun_sh_rotated(rot).numpy())
             if self.has_sun:
-                l = self.lighting.sun_direction(rot).detach().cpu().double().numpy()
-                l = l / np.linalg.norm(l)
-                a = np.array([1.0, 0.0, 0.0]) if abs(l[0]) < 0.9 else np.array([0.0, 1.0, 0.0])
-                u = np.cross(l, a)
-                u /= np.linalg.norm(u)
-                v = np.cross(l, u)
-                self._sun_frame = np.stack([u, v, l]).astype(np.float32)  # rows
+                frame = sun_frame(self.lighting.sun_direction(rot).detach().cpu().numpy())
+                self._sun_frame = frame.astype(np.float32)  # rows u, v, l
                 blk.set_columns("shadow_frame", self._sun_frame.T)
-                blk.set("sun_dir", l)
+                blk.set("sun_dir", frame[2])
             self._rot = r
         sun_on = self.has_sun and (diffuse or (glossy and self.sun_glossy))
         blk.set("diffuse_on", float(diffuse))
@@ -967,6 +980,7 @@ class GLRenderer:
             ctx.depth_func = "<=" if self.depth_prepass else "<"
             if self.has_sun:
                 self.shadow_tex.use(6)
+                self.shadow_sampler.use(_SHADOW_DEPTH_UNIT)
             self.gauss_tex.use(0)
             self.diff_tex.use(1)
             self.cand_tex.use(2)
@@ -974,6 +988,8 @@ class GLRenderer:
                 self.bounce_tex.use(8)
             self.atlas.use(3)
             self.vao.render(moderngl.TRIANGLES)
+            if self.has_sun:  # the unit's sampler would override other textures bound there
+                self.shadow_sampler.clear(_SHADOW_DEPTH_UNIT)
         if background:
             with self._section("background"):
                 # the quad lies at the far plane: it passes where the depth is still clear
@@ -1034,6 +1050,7 @@ class GLRenderer:
             self.depth_prog,
             self.shadow_vao,
             self.shadow_fbo,
+            self.shadow_sampler,
             self.shadow_tex,
             self.shadow_prog,
             self.nbo,

@@ -5,10 +5,12 @@ Nothing is re-prefiltered for it (the paper, section 5): a Gaussian with mean ``
 rotated lighting as the original seen by ``R^T mu``, the SH diffuse term rotates its 25
 coefficients, and the background looks up ``R^T d``.
 
-With ``sun=True`` a dominant small light is taken out of the map
-(:func:`lobelight.envmap.extract_sun`) for the diffuse part: the SH projection is of the map
-without it, and renderers add its diffuse light per pixel with a shadow test (shadow map in the
-shader, shadow ray in the torch path); the sun turns with the lighting, to ``R d``. Where the
+With ``sun=True`` a compact bright source (a sun, a lamp, a window: found by its concentration,
+:func:`lobelight.envmap.extract_sun`) is taken out of the map for the diffuse part: the SH
+projection is of the map without it, and renderers add its diffuse light per pixel times the
+visible fraction of its disc, a soft shadow of its angular size (:mod:`._sun_shadow`: shadow
+rays over the disc in the torch path, percentage-closer soft shadows in the shader); the sun
+turns with the lighting, to ``R d``. Where the
 model's specular BRDF can be evaluated per pixel (:mod:`._sun_glossy`), the glossy part too
 takes the sun per pixel and its Gaussians integrate the map without it
 (:attr:`Lighting.rest_prefiltered`); otherwise the glossy part keeps the whole map. The
@@ -58,9 +60,9 @@ class Lighting:
         ``lam = (base_res / 5)**2`` are resolved (655 at 128, 10486 at 512)
     sh_order : order of the diffuse SH projection (5 = 25 coefficients, the transfer's order)
     device : torch device
-    sun : take a dominant sun out of the diffuse lighting and shade it per pixel with shadows
-        (module docstring); a map without one (:func:`lobelight.envmap.extract_sun`) is used
-        whole, and ``self.sun`` is None
+    sun : take a compact bright source out of the diffuse lighting and shade it per pixel with
+        its soft shadow (module docstring); a map without one
+        (:func:`lobelight.envmap.extract_sun`) is used whole, and ``self.sun`` is None
     builders : None, or two :class:`lobelight.envmap.ChainBuilder` at ``base_res`` on
         ``device`` that build the chains (the whole map's, the map's without its sun) instead
         of :func:`lobelight.envmap.prefilter` and its disk cache: for lighting that changes

@@ -33,6 +33,7 @@ from ..lobes import sg
 from ..model import blend_lobes
 from ._lighting import Lighting
 from ._sun_glossy import sun_glossy, sun_glossy_supported, sun_through
+from ._sun_shadow import disc_radius, disc_visibility
 
 __all__ = ["VertexData", "pixel_stage", "render_torch", "sun_stage", "vertex_stage"]
 
@@ -160,9 +161,10 @@ def sun_stage(
     """The sun's light at surface points, ``(albedo / pi + f_s(l, v)) E max(n.l, 0) V``: (P, 3),
     its diffuse and (``glossy``, seen from ``eye``) glossy parts.
 
-    ``n`` is the interpolated vertex normal (as the shader's), ``V`` one shadow ray toward the
-    sun's centre from the point lifted off the triangle's plane (the shader uses a shadow map:
-    the two agree away from shadow edges).
+    ``n`` is the interpolated vertex normal (as the shader's), ``V`` the visible fraction of the
+    sun's disc: shadow rays over it from the point lifted off the triangle's plane
+    (:func:`lobelight.render._sun_shadow.disc_visibility`; the shader filters its shadow map
+    over the same directions).
     """
     dev = model.device
     mesh = model.mesh
@@ -181,9 +183,9 @@ def sun_stage(
         ng = torch.nn.functional.normalize(
             torch.linalg.cross(t[:, 1] - t[:, 0], t[:, 2] - t[:, 0]), dim=-1
         )
-        ray = l.expand_as(ng)
-        origin = caster.spawn(pos[lit], ng, ray, offset=_SHADOW_OFFSET)
-        vis = ~caster.occluded(origin, ray)  # on the device: Warp's rays stay there
+        # the visible fraction of the disc (on the device: Warp's rays stay there)
+        radius = disc_radius(lighting.sun)
+        vis = disc_visibility(caster, pos[lit], ng, l, radius, offset=_SHADOW_OFFSET)
         e = lighting.sun.irradiance.to(dev)
         if diffuse:
             out[lit] = albedo[lit] / math.pi * e * (cos[lit] * vis)[:, None]

@@ -149,6 +149,62 @@ in vec3 v_albedo;
 // the sun taken out of the diffuse lighting (render/_lighting.py), with its shadow map; its
 // direction, irradiance and the map's frame are frame.glsl's
 uniform sampler2DShadow shadow_map;
+uniform sampler2D shadow_depth;   // the same map's depths, read without comparison
+uniform float sun_tan;            // tan of the disc's angular radius (render/_sun_shadow.py)
+uniform float shadow_res;         // the map's texels across
+
+// point i of n of the Vogel spiral over the unit disc (render/_sun_shadow.py disc_points)
+vec2 disc_point(int i, int n) {
+    float a = float(i) * 2.399963229728653;
+    return sqrt((float(i) + 0.5) / float(n)) * vec2(cos(a), sin(a));
+}
+
+// the visible fraction of the sun's disc at p (world; n its shading normal) on a triangle of
+// normal ng (the shadow map's frame, on the viewer's side): percentage-closer soft shadows over
+// the directions of the torch path's rays (render/_sun_shadow.py)
+float sun_visibility(vec3 p, vec3 n, vec3 ng) {
+    // p in the map's [-1, 1]^3 frame
+    vec3 q = shadow_frame * (p - shadow_center) * shadow_scale;
+    // the blocker search spans the penumbra of the farthest possible blocker (the bounding
+    // sphere's side towards the sun, q.z = 1)
+    float search = sun_tan * (1.0 - q.z) * 0.5;
+    if (search * shadow_res < 1.0) {
+        // hardware 2x2 percentage-closer filtering of the depth comparison at the point lifted
+        // along its normal: a hard shadow
+        q = shadow_frame * (p + shadow_offset * n - shadow_center) * shadow_scale;
+        return texture(shadow_map, vec3(q.xy * 0.5 + 0.5, -q.z * 0.5 + 0.5 - shadow_bias));
+    }
+    vec2 uv = q.xy * 0.5 + 0.5;
+    float z = -q.z * 0.5 + 0.5 - shadow_bias;
+    // every tap compares against the triangle's plane there, depth z + dot(dz, offset), less
+    // the plane's rise over a texel (the hardware filter's 2x2 footprint)
+    vec2 dz = ng.xy / max(abs(ng.z), 0.1 * length(ng)) * sign(ng.z);
+    z -= (abs(dz.x) + abs(dz.y)) / shadow_res;
+    float height = 0.0;
+    int blockers = 0;
+    for (int i = 0; i < BLOCKER_SAMPLES; ++i) {
+        vec2 o = search * disc_point(i, BLOCKER_SAMPLES);
+        float zr = z + dot(dz, o);
+        float zb = texture(shadow_depth, uv + o).r;
+        if (zb < zr) {
+            height += zr - zb;
+            blockers += 1;
+        }
+    }
+    // directions below the triangle's plane are blocked by the surface itself, as the torch
+    // path's rays that leave into the solid
+    bool above = ng.z > sun_tan * length(ng.xy);
+    if (blockers == 0 && above) return 1.0;
+    // the penumbra's radius in map coordinates: tan(r) times the blockers' mean height
+    float w = blockers > 0 ? sun_tan * height / float(blockers) : 0.0;
+    float vis = 0.0;
+    for (int i = 0; i < SHADOW_SAMPLES; ++i) {
+        vec2 p = disc_point(i, SHADOW_SAMPLES);
+        if (ng.z + sun_tan * dot(ng.xy, p) <= 0.0) continue;
+        vis += texture(shadow_map, vec3(uv + w * p, z + w * dot(dz, p)));
+    }
+    return vis / float(SHADOW_SAMPLES);
+}
 #endif
 #if SUN_GLOSSY
 in vec4 v_sb0;
@@ -269,11 +325,13 @@ void main() {
 #endif
 #if HAS_SUN
     if (sun_on > 0.0 && (diffuse_on > 0.0 || sun_gl)) {
+        // the triangle's normal, on the viewer's side, in the map's frame (derivatives before
+        // the branch on the cosine, which is not uniform across a quad)
+        vec3 ng = cross(dFdx(v_pos), dFdy(v_pos));
+        ng = shadow_frame * (dot(ng, d) < 0.0 ? -ng : ng);
         float cosine = dot(n, sun_dir);
         if (cosine > 0.0) {
-            vec3 q = shadow_frame * (v_pos + shadow_offset * n - shadow_center) * shadow_scale;
-            // hardware 2x2 percentage-closer filtering of the depth comparison
-            float vis = texture(shadow_map, vec3(q.xy * 0.5 + 0.5, -q.z * 0.5 + 0.5 - shadow_bias));
+            float vis = sun_visibility(v_pos, n, ng);
             if (diffuse_on > 0.0) c += v_albedo * (0.3183098861837907 * cosine * vis) * sun_e;
 #if SUN_GLOSSY
             if (sun_gl) c += sun_brdf_cos(sun_dir, d, n) * vis * sun_e;
