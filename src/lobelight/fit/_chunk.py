@@ -204,7 +204,7 @@ def fit_chunk(bake: Bake, chunk: Chunk) -> None:
         _indirect(bake, chunk, vidx)
     # the relaxation samples the transport again rather than keeping it: all of it
     # (V x J x ~700 samples x 7 floats) would not fit in memory on a large mesh
-    data = gather(bake.transport, vidx, bake.views, lobe=lobe)
+    data = gather(bake.transport, vidx, bake.views, lobe=lobe).compact()
     # the chunk's own vertices are fitted together, now: none may read another's unfitted
     # state (zero means) as a processed neighbour, for S or as a start
     avail = st.done & st.glossy
@@ -229,7 +229,7 @@ def refit_chunk(bake: Bake, chunk: Chunk) -> None:
     vidx = vidx[st.glossy[vidx]]
     if vidx.numel() == 0:
         return
-    data = gather(bake.transport, vidx, bake.views, lobe=None)
+    data = gather(bake.transport, vidx, bake.views, lobe=None).compact()
     ids, mask = _processed_neighbours(bake.mesh, vidx, st.glossy)
     g, terms = _fit(bake, data, ids, mask, st.gaussians(vidx))
     # The refit keeps a vertex's new lobes only where they add no flipped pair against its

@@ -72,6 +72,26 @@ class FitData:
         """``int |T|^2`` per vertex and view, summed over channels, (B, J)."""
         return (self.weights[..., None] * self.values**2).sum((-1, -2))
 
+    def compact(self) -> FitData:
+        """The same quadrature without the samples of weight 0: each (vertex, view) keeps its
+        samples of positive weight first, in their order, and all keep as many as the fullest
+        one has (the rest, weight 0, pad). A sample of weight 0 adds nothing to any integral
+        of the fit (data term, weights' normal equations, moments, energy), so every result
+        is the same up to the order of summation, for less work: a broad lobe's cap covers most
+        of the global set, whose samples there have weight 0.
+        """
+        keep = self.weights > 0  # (B, J, S)
+        s_new = max(int(keep.sum(-1).amax()) if keep.numel() else 0, 1)
+        if s_new == keep.shape[-1]:
+            return self
+        order = torch.argsort((~keep).to(torch.int8), dim=-1, stable=True)[..., :s_new]
+        return FitData(
+            dirs=torch.gather(self.dirs, 2, order[..., None].expand(-1, -1, -1, 3)),
+            weights=torch.gather(self.weights, 2, order),
+            values=torch.gather(self.values, 2, order[..., None].expand(-1, -1, -1, 3)),
+            below=self.below,
+        )
+
 
 def half_vector_lobes(spec: brdf.BRDF | None) -> bool:
     """Whether ``spec``'s lobe is best resolved over half vectors ``h = normalise(w + v)``: the

@@ -44,19 +44,23 @@ from ._objective import Weights, _neighbour_mean, _pair_diffs, conserve_factor, 
 __all__ = ["levenberg_marquardt"]
 
 
-def _gauss(dirs64: torch.Tensor, mu: torch.Tensor, lam: torch.Tensor):
-    """``G_k(omega_s)`` and ``mu_k . omega_s - 1``, both (P, N, S) in ``mu``'s dtype, by one
-    batched matmul, for ``dirs64`` (P, S, 3), ``mu`` (P, N, 3), ``lam`` (P, N).
+def _gauss(dirs64_t: torch.Tensor, mu: torch.Tensor, lam: torch.Tensor):
+    """``G_k(omega_s)`` and its exponent ``lam_k (mu_k . omega_s - 1)``, both (P, N, S) in
+    ``mu``'s dtype, by one batched matmul, for ``dirs64_t`` (P, 3, S), ``mu`` (P, N, 3),
+    ``lam`` (P, N).
 
-    The dot products are taken in float64 (``dirs64`` is the float64 copy of the sample
-    directions): ``lam (mu.w - 1)`` for ``lam = 3e4`` needs ``1 - mu.w`` to better than float32's
-    6e-8, which the matmul form (unlike a half-chord) would otherwise lose. The exponent, once
-    formed, is exact enough in float32 (relative error 6e-8 of an argument down to -100 moves
-    G by < 1e-5 relative), and float32 ``exp`` is several times cheaper.
+    The exponent is formed in float64 (``dirs64_t`` is the float64 copy of the sample
+    directions, transposed) as ``(lam mu) . omega - lam``, one fused matmul: ``lam (mu.w - 1)``
+    for ``lam = 3e4`` needs ``1 - mu.w`` to better than float32's 6e-8, which the matmul form
+    (unlike a half-chord) would otherwise lose, and float64 keeps it (the product's rounding is
+    ``lam`` times 1e-16). The exponent, once formed, is exact enough in float32 (relative error
+    6e-8 of an argument down to -100 moves G by < 1e-5 relative), and float32 ``exp`` is
+    several times cheaper.
     """
-    cm1 = torch.bmm(mu.double(), dirs64.transpose(1, 2)) - 1
-    g = torch.exp((lam.double()[..., None] * cm1).to(mu.dtype))
-    return g, cm1.to(mu.dtype)
+    lam64 = lam.double()
+    ex = torch.baddbmm(-lam64[..., None], lam64[..., None] * mu.double(), dirs64_t)
+    ex = ex.to(mu.dtype)
+    return torch.exp(ex), ex
 
 
 def _reg_cost(mu, lam, mbar, sbar, c, nbr_mu, nbr_mask):
@@ -119,7 +123,7 @@ def levenberg_marquardt(
     act = (energy > 0).reshape(-1).nonzero().squeeze(1)  # (P,) flat (vertex, view) indices
     p_n = act.numel()
     dirs_a = data.dirs.reshape(bj, n_s, 3)[act]  # (P, S, 3)
-    dirs64 = dirs_a.double()
+    dirs64_t = dirs_a.double().transpose(1, 2)  # (P, 3, S)
     wts_a = data.weights.reshape(bj, n_s)[act]  # (P, S)
     vals_a = data.values.reshape(bj, n_s, 3)[act]  # (P, S, 3)
     w64 = wts_a.double()[:, None]  # (P, 1, S)
@@ -143,10 +147,10 @@ def levenberg_marquardt(
         return out.index_copy_(0, act, x).reshape(b, j, *x.shape[1:])
 
     def evaluate(mu_, lam_):
-        """G, mu.w - 1 (float32, (P, N, S)), the solved weights (P, N, 3), the vertex's whole
+        """G, its exponent (float32, (P, N, S)), the solved weights (P, N, 3), the vertex's whole
         objective and its data term, and each lobe's quadrature-mean direction (P, N, 3)."""
         lam_a = pack(lam_)
-        g_, cm1_ = _gauss(dirs64, pack(mu_), lam_a)
+        g_, ex_ = _gauss(dirs64_t, pack(mu_), lam_a)
         g64 = g_.double()
         gw = g64 * w64
         a_ = torch.bmm(gw, g64.transpose(1, 2))  # (P, N, N)
@@ -160,14 +164,14 @@ def levenberg_marquardt(
         mb = torch.nn.functional.normalize(_neighbour_mean(mu_, nbr_views), dim=-1)
         sb = _neighbour_mean(lam_.rsqrt(), nbr_views)
         cost = d_cost + _reg_cost(mu_, lam_, mb, sb, c, nbr_mu, mask)
-        return g_, cm1_, w_.to(dt), cost.sum(1), d_cost.sum(1)
+        return g_, ex_, w_.to(dt), cost.sum(1), d_cost.sum(1)
 
     sq_n = (wts_a * inv_e_a[:, None]).sqrt()[:, None]  # (P, 1, S) residual scale
     dflat = dirs_a.transpose(1, 2)  # (P, 3, S)
     vals_t = vals_a.transpose(1, 2)  # (P, 3, S)
     mask = None if nbr_mask is None else nbr_mask.to(dt)
     mu, lam = mu.clone(), lam.clone()
-    g, cm1, w, cost0, d0 = evaluate(mu, lam)
+    g, ex, w, cost0, d0 = evaluate(mu, lam)
     jac = torch.empty(p_n, n, 3, n_s, dtype=dt, device=mu.device)  # reused every iteration
     for _ in range(iters):
         mbar = torch.nn.functional.normalize(_neighbour_mean(mu, nbr_views), dim=-1)
@@ -176,8 +180,8 @@ def levenberg_marquardt(
         t, s, _ = sphere.frame(mu)  # (B, J, N, 3) each
         # tangent components of the sample directions, by matmul: (P, N, S) each
         lam_a, sigma_a = pack(lam), pack(sigma)  # (P, N)
-        tw = torch.bmm(pack(t), dflat)
-        sw = torch.bmm(pack(s), dflat)
+        ts = torch.bmm(torch.cat([pack(t), pack(s)], 1), dflat)  # (P, 2N, S)
+        tw, sw = ts[:, :n], ts[:, n:]
         # scaled Jacobian rows d (w_k G_k) / d (a, b, z)_k / w_k * sqrt(W_s / E), in place:
         # dG/da = G lam sigma (t.w), dG/db = G lam sigma (s.w), dG/dz = G lam (mu.w - 1), and
         # with the light conserved, w_k = e_k / Z(lam_k) with the carried light e_k held, so
@@ -186,7 +190,7 @@ def levenberg_marquardt(
         q = gs * (lam_a * sigma_a)[..., None]
         torch.mul(q, tw, out=jac[:, :, 0])
         torch.mul(q, sw, out=jac[:, :, 1])
-        zrow = cm1 * lam_a[..., None]
+        zrow = ex  # lam (mu.w - 1)
         if conserve:
             zrow = zrow + conserve_factor(lam_a)[..., None]
         torch.mul(gs, zrow, out=jac[:, :, 2])
@@ -238,13 +242,13 @@ def levenberg_marquardt(
             mu + sigma[..., None] * (step[..., :1] * t + step[..., 1:2] * s), dim=-1
         )
         lam1 = (lam * torch.exp(step[..., 2])).clamp(*lam_range)
-        g1, cm11, w1, cost1, d1 = evaluate(mu1, lam1)
+        g1, ex1, w1, cost1, d1 = evaluate(mu1, lam1)
         ok = (cost1 <= cost0)[:, None]  # (B, 1): whole vertices step or stay
         ok_a = ok[vertex_of]  # (P, 1)
         mu = torch.where(ok[..., None, None], mu1, mu)
         lam = torch.where(ok[..., None], lam1, lam)
         g = torch.where(ok_a[..., None], g1, g)
-        cm1 = torch.where(ok_a[..., None], cm11, cm1)
+        ex = torch.where(ok_a[..., None], ex1, ex)
         w = torch.where(ok_a[..., None], w1, w)
         cost0 = torch.where(ok[:, 0], cost1, cost0)
         d0 = torch.where(ok[:, 0], d1, d0)
