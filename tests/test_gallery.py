@@ -433,6 +433,9 @@ def test_a_tiny_gallery_runs_end_to_end_and_resumes(data_dir, tmp_path, monkeypa
     (row,) = first["table"]
     assert row["scene"] == "ball-diffuse-sky" and row["speedup"] == eq["speedup"]
     assert row["highpass_ratio"] == s["highpass_ratio"] > 0
+    # a reference with no noise (stderr 0): all its high-pass energy is detail
+    assert s["reference_noise_highpass"] == [0.0, 0.0]
+    assert s["highpass_ratio_detail"] == [s["highpass_ratio"]] * 2
     bake = first["bakes"]["ball-diffuse"]
     assert bake["resumed"] is False
     # no per-bake override: fit_model's default, recorded, and what it chose
@@ -575,6 +578,11 @@ def test_equal_quality_extrapolates_with_the_reference_noise():
     }
     floor = -10 * math.log10(b)
     assert equal_quality(floor + 1, sweep, 0.5, noise_mse=b)["bound"] == ">="
+    # past the reference's own samples per pixel: a lower bound at them, by the same law
+    capped = equal_quality(target, sweep, 0.5, noise_mse=b, cap_spp=256)
+    assert capped["bound"] == ">=" and capped["spp"] == 256
+    assert capped["seconds"] == pytest.approx(12.8, rel=1e-9)
+    assert equal_quality(target, sweep, 0.5, noise_mse=b, cap_spp=1024)["bound"] == "~"
 
 
 def test_mitsuba_sweep_stops_at_our_score_with_seeds_apart_from_the_reference(monkeypatch):

@@ -67,8 +67,9 @@ TABLE = {
     "mitsuba_s": "Mitsuba's seconds at that many samples per pixel",
     "speedup": "mitsuba_s / frame_s",
     "bound": "'=' interpolated; '~' extrapolated past the sweep's largest spp (MSE = a / spp + "
-    "the reference's noise); '>=' not reached and not extrapolated (lower bounds); '<=' its "
-    "first render already reached our score (upper bounds)",
+    "the reference's noise), up to the reference's spp; '>=' not reached (lower bounds: the "
+    "sweep's last render, or the reference's spp by that law); '<=' its first render already "
+    "reached our score (upper bounds)",
 }
 #: fit_model's default Gaussians per view.
 _DEFAULT_GAUSSIANS = inspect.signature(fit_model).parameters["n_gaussians"].default
@@ -394,7 +395,13 @@ def _scene(
     s["reference_noise_psnr_display"] = noise_psnr_display(
         ref.image, ref.stderr, mask, s["exposure"]
     )
-    s["reference_noise_highpass"] = _noise_share(ref, mask, s["exposure"])
+    share = _noise_share(ref, mask, s["exposure"])
+    s["reference_noise_highpass"] = share
+    s["highpass_ratio_detail"] = (
+        None
+        if share is None
+        else [s["highpass_ratio"] / (1 - f) if f < 1 else math.inf for f in share]
+    )
     diff = (img - ref.image).abs() * mask[..., None] * DIFF_SCALE
     strip = torch.cat([ref.image, img, diff], 1)  # (H, 3 W, 3)
     save_image(out / f"{sc.name}.png", strip, exposure=s["exposure"])
@@ -412,7 +419,8 @@ def _scene(
         )
         noise = s["reference_noise_psnr_display"]
         noise_mse = 10 ** (-noise / 10) if math.isfinite(noise) else 0.0
-        eq = equal_quality(target, mitsuba["sweep"], frame, noise_mse=noise_mse)
+        cap = (ref.entry.get("settings") or {}).get("spp")
+        eq = equal_quality(target, mitsuba["sweep"], frame, noise_mse=noise_mse, cap_spp=cap)
     e = ref.entry
     return {
         **s,

@@ -55,12 +55,16 @@ LEGEND = {
     "reference_noise_highpass": "[low, high]: the share of the reference's high-pass energy its "
     "own Monte Carlo noise is expected to make (from its standard errors; its colour channels' "
     "noise independent, fully correlated): the reference's detail is the rest",
+    "highpass_ratio_detail": "[low, high]: highpass_ratio against the reference's detail alone "
+    "(its energy less its noise's, at each end of reference_noise_highpass); wide where the "
+    "reference is mostly noise at the pixel scale",
     "frame_seconds": "seconds of one of our frames at the scene's size and samples per pixel "
     "(median of warm frames; not the bake, not the renderer's set-up)",
     "equal_quality": "Mitsuba at our psnr_display: samples per pixel and seconds (crossing of "
     "its spp sweep, interpolated in log2 spp), speedup = its seconds / frame_seconds, bound "
     "'=' (interpolated), '~' (extrapolated past the sweep with MSE = a / spp + the reference's "
-    "noise), '>=' (not reached: lower bounds) or '<=' (reached at the first level)",
+    "noise, up to the reference's spp), '>=' (not reached: lower bounds) or '<=' (reached at "
+    "the first level)",
     "mitsuba_sweep": "Mitsuba renders of the scene at 1, 2, 4, ... spp, the reference's variant, "
     "depth and size, seeds apart from the reference's: each render's seconds and psnr_display "
     "against the reference over our mask",

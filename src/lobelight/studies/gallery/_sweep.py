@@ -52,6 +52,7 @@ def equal_quality(
     frame_seconds: float,
     *,
     noise_mse: float | None = None,
+    cap_spp: float | None = None,
 ) -> dict[str, Any]:
     """Where a sweep (``[{"spp", "seconds", "psnr_display"}, ...]`` by rising ``spp``) first
     reaches ``target`` dB.
@@ -64,10 +65,12 @@ def equal_quality(
     - ``"~"``: no render reaches it, and ``noise_mse`` (the displayed MSE the reference's own
       noise adds to any image's, ``10^(-reference_noise_psnr_display / 10)``) is given:
       extrapolated past the last render with the Monte Carlo error's law ``MSE(N) = a / N +
-      noise_mse`` (``a`` from the last render) and its seconds in proportion to ``N``;
-    - ``">="``: no render reaches it and there is no extrapolation (no ``noise_mse``, or the
-      target lies at or under the reference's noise floor): the last render's figures, lower
-      bounds.
+      noise_mse`` (``a`` from the last render) and its seconds in proportion to ``N``, up to
+      ``cap_spp`` (the reference's own samples per pixel: past them a render would be better
+      than the reference it is scored against);
+    - ``">="``: no render reaches it and there is no extrapolation (no ``noise_mse``, the
+      target lies at or under the reference's noise floor, or past ``cap_spp``): the last
+      render's figures, or ``cap_spp``'s by the law, lower bounds.
 
     All None for no target (an identical image) or an empty sweep.
     """
@@ -77,7 +80,7 @@ def equal_quality(
     psnr = [r["psnr_display"] for r in sweep]
     hit = next((i for i, p in enumerate(psnr) if p >= target), None)
     if hit is None:
-        spp, seconds, bound = _extrapolate(target, sweep[-1], noise_mse)
+        spp, seconds, bound = _extrapolate(target, sweep[-1], noise_mse, cap_spp)
     elif hit == 0:
         spp, seconds, bound = sweep[0]["spp"], sweep[0]["seconds"], "<="
     else:
@@ -93,16 +96,20 @@ def equal_quality(
 
 
 def _extrapolate(
-    target: float, last: dict[str, float], noise_mse: float | None
+    target: float, last: dict[str, float], noise_mse: float | None, cap_spp: float | None
 ) -> tuple[float, float, str]:
     """``(spp, seconds, bound)`` past the sweep's ``last`` render (:func:`equal_quality`)."""
-    if noise_mse is not None and math.isfinite(noise_mse) and noise_mse >= 0:
-        want = 10 ** (-target / 10)
-        a = last["spp"] * (10 ** (-last["psnr_display"] / 10) - noise_mse)
-        if a > 0 and want > noise_mse:
-            spp = a / (want - noise_mse)
-            return spp, last["seconds"] * spp / last["spp"], "~"
-    return last["spp"], last["seconds"], ">="
+    if noise_mse is None or not math.isfinite(noise_mse) or noise_mse < 0:
+        return last["spp"], last["seconds"], ">="
+    cap = math.inf if cap_spp is None else max(float(cap_spp), float(last["spp"]))
+    want = 10 ** (-target / 10)
+    a = last["spp"] * (10 ** (-last["psnr_display"] / 10) - noise_mse)
+    spp = a / (want - noise_mse) if a > 0 and want > noise_mse else math.inf
+    if math.isinf(spp) or spp > cap:
+        if math.isinf(cap):
+            return last["spp"], last["seconds"], ">="
+        return cap, last["seconds"] * cap / last["spp"], ">="
+    return spp, last["seconds"] * spp / last["spp"], "~"
 
 
 def _mitsuba(variant: str | None):
