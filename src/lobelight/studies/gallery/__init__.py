@@ -4,11 +4,12 @@ The gallery is :data:`SCENES`: 10 (mesh, material) bakes — the Stanford bunny 
 Spot, the teapot, Suzanne (Loop-subdivided) and a scorpion (decimated; thin legs, claws and
 tail over deep gaps); sharp and rough gold-coloured GGX metals, a plain diffuse and a glossy
 plastic — each rendered under three of six maps (a park with an unclipped sun, a studio, an
-overcast square, the Grace Cathedral probe, a dawn sky with the sun on the horizon and a room
-lit by bright windows), 30 scenes in all. Meshes are centred and scaled to a bounding-box
-diagonal of 2 (:func:`prepare_mesh`). A scene's files are read from the data folder (``--data
-DIR`` or ``$LOBELIGHT_DATA``; ``meshes/`` and ``envmaps/`` in it), else from the repository's
-``gallery-data/`` (:data:`GALLERY_DATA`, with the sources and licences of its files).
+overcast square, the Grace Cathedral probe, a dawn sky with a soft sun on the horizon and a
+lobby lit by ceiling lights and a bright glazed stairwell), 30 scenes in all. Meshes are
+centred and scaled to a bounding-box diagonal of 2 (:func:`prepare_mesh`). A scene's files
+are read from the data folder (``--data DIR`` or ``$LOBELIGHT_DATA``; ``meshes/`` and
+``envmaps/`` in it), else from the repository's ``gallery-data/`` (:data:`GALLERY_DATA`, with
+the sources and licences of its files).
 
 - :func:`render_references` renders each scene's reference with Mitsuba 3's ``path``
   integrator (:func:`lobelight.reference.mitsuba.scene_dict`: ``max_depth`` 8, 1024 spp, 512²,

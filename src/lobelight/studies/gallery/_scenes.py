@@ -66,8 +66,8 @@ MAPS = {
     "studio": "studio_small_03_1k.hdr",  # softbox and round light
     "overcast": "potsdamer_platz_1k.hdr",  # overcast city square, low frequency
     "grace": "probulator_lowres/grace.hdr",  # Grace Cathedral probe, 256 x 128
-    "dawn": "kiara_1_dawn_1k.hdr",  # clear dawn sky, the sun 4 degrees above the horizon
-    "interior": "st_fagans_interior_1k.hdr",  # a dim room lit by bright windows
+    "dawn": "kiara_1_dawn_1k.hdr",  # dawn over a valley: a soft sun 4 degrees above the horizon
+    "interior": "st_fagans_interior_1k.hdr",  # a lobby: ceiling lights, a bright glazed stairwell
 }
 
 
