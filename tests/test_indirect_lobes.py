@@ -3,9 +3,11 @@
 The indirect Gaussian is the moment estimate of the paths that bounce off the object
 (``Transport.indirect_lobes``); a renderer that shades the sun's glossy light per pixel lets the
 sun light it (``render._sun_glossy.sun_through``), since the fitted lobes see the map without
-the sun. Checked here: the Gaussian keeps the paths' light and points where a mirror seen in a
-mirror sends it; the sun through a Gaussian against a quadrature of a disc; rendering with the
-sun per pixel against rendering with the sun left in the map; the model file keeps the count.
+the sun. Checked here: for one view the Gaussian keeps its paths' light and points where a
+mirror seen in a mirror sends it, and a lone path lies along itself; the sun through a
+Gaussian against a quadrature of a disc; rendering with the sun per pixel against rendering
+with the sun left in the map; the model file keeps the count. The paths shared across views,
+the sharpness cap and the smoothness they buy: tests/test_indirect_sharing.py.
 """
 
 from __future__ import annotations
@@ -38,25 +40,26 @@ def _mirror_corner(alpha: float):
     return sc, r
 
 
-def test_the_indirect_gaussian_keeps_the_paths_light():
-    # its integral is the paths' throughput sum over their count: the binned density's total
-    # for the same paths, to float rounding (the binned density itself is checked against the
-    # path tracer in tests/test_interreflection.py)
+def test_the_indirect_gaussian_keeps_the_paths_light_for_one_view():
+    # with one view its paths are shared with no other (the balance heuristic over one view's
+    # density is the path's own weight): the integral is the paths' throughput sum over their
+    # count, the binned density's total for the same paths, to float rounding (the binned
+    # density itself is checked against the path tracer in tests/test_interreflection.py)
     sc, r = _mirror_corner(0.3)
     tr = transport.Transport(sc)
     v = torch.tensor(
         [_nearest(sc.mesh, [0.25, 0.0, 0.25], r), _nearest(sc.mesh, [0.5, 0.5, 0.0], r)]
     )
-    views = sphere.geodesic_views()[::9]
     kw = dict(paths=256)
-    g = tr.indirect_lobes(v, views, generator=torch.Generator().manual_seed(5), **kw)
-    ind = tr.indirect(v, views, res=8, generator=torch.Generator().manual_seed(5), **kw)
-    binned = (ind * cubemap.texel_solid_angles(8).reshape(-1)[:, None]).sum(2)  # (B, J, 3)
-    carried = (g.w * sg.integral(g.lam)[..., None]).sum(2)
+    for view in sphere.geodesic_views()[::9]:
+        g = tr.indirect_lobes(v, view[None], generator=torch.Generator().manual_seed(5), **kw)
+        ind = tr.indirect(v, view[None], res=8, generator=torch.Generator().manual_seed(5), **kw)
+        binned = (ind * cubemap.texel_solid_angles(8).reshape(-1)[:, None]).sum(2)  # (B, 1, 3)
+        carried = (g.w * sg.integral(g.lam)[..., None]).sum(2)
+        torch.testing.assert_close(carried, binned, rtol=1e-4, atol=1e-7)
+        lo, hi = transport.INDIRECT_LAM_RANGE
+        assert bool(((g.lam >= lo) & (g.lam <= hi)).all())
     assert float(binned.amax()) > 0.05  # the walls reflect a real share
-    torch.testing.assert_close(carried, binned, rtol=1e-4, atol=1e-7)
-    lo, hi = transport.INDIRECT_LAM_RANGE
-    assert bool(((g.lam >= lo) & (g.lam <= hi)).all())
 
 
 def test_the_indirect_gaussian_points_where_a_mirror_in_a_mirror_escapes():
@@ -79,36 +82,49 @@ def test_the_indirect_gaussian_points_where_a_mirror_in_a_mirror_escapes():
     torch.testing.assert_close(e, torch.full((3,), 0.81), rtol=0.03, atol=0)
 
 
-def test_a_lone_path_gets_a_narrow_gaussian_along_it():
+@pytest.mark.parametrize("alpha", [0.05, 0.3])
+def test_a_lone_path_gets_a_gaussian_along_it_no_sharper_than_its_lobe(alpha):
     # a path that escapes alone tells no width; spread over the sphere it would put its light
     # where the object blocks it and on a sun there. Its Gaussian lies along the path with
-    # LONE_PATH_LAM, its light the path's: the same paths (same seed) through both calls
-    sc, r = _mirror_corner(0.3)
+    # LONE_PATH_LAM, or the lobe that gathered it where that is wider (GGX 0.3: sharpness ~5),
+    # its light the path's: the same paths (same seed) through both calls, one view per call
+    # (no sharing across views)
+    sc, r = _mirror_corner(alpha)
     tr = transport.Transport(sc)
     v = torch.tensor([_nearest(sc.mesh, p, r) for p in ([0.25, 0.0, 0.25], [0.6, 0.0, 0.1])])
-    views = sphere.geodesic_views()[::7]
-    j = views.shape[0]
-    slot, d, thr = tr.escapes(v, views, paths=2, generator=torch.Generator().manual_seed(3))
-    g = tr.indirect_lobes(v, views, paths=2, generator=torch.Generator().manual_seed(3))
-    count = torch.bincount(slot, minlength=2 * j)
-    lone = (count == 1).nonzero().squeeze(-1)
-    assert lone.numel() >= 3, lone.numel()
-    first = torch.full((2 * j,), -1, dtype=torch.int64).scatter_reduce(
-        0, slot, torch.arange(slot.numel()), "amax"
-    )
-    k = first[lone]
-    lam = g.lam.reshape(-1)[lone]
-    mu = g.mu.reshape(-1, 3)[lone]
-    e = (g.w * sg.integral(g.lam)[..., None]).reshape(-1, 3)[lone]
-    torch.testing.assert_close(lam, torch.full_like(lam, transport.LONE_PATH_LAM))
-    torch.testing.assert_close(mu, d[k], rtol=0, atol=1e-5)
-    torch.testing.assert_close(e, thr[k] / 2, rtol=1e-4, atol=1e-7)
-    # a sun 90 degrees off the path gets exp(-LONE_PATH_LAM) of the lobe's peak, not the
-    # ~e^-0.5 of the widest lobe
-    other = torch.randn(d[k].shape, generator=torch.Generator().manual_seed(4))
-    side = torch.nn.functional.normalize(torch.linalg.cross(d[k], other), dim=-1)
-    peak = sg.evaluate(d[k], mu, lam)
-    assert bool((sg.evaluate(side, mu, lam) < 1e-20 * peak).all())
+    n_lone = 0
+    for view in sphere.geodesic_views()[::7]:
+        slot, d, thr = tr.escapes(
+            v, view[None], paths=2, generator=torch.Generator().manual_seed(3)
+        )
+        g = tr.indirect_lobes(v, view[None], paths=2, generator=torch.Generator().manual_seed(3))
+        count = torch.bincount(slot, minlength=2)
+        lone = (count == 1).nonzero().squeeze(-1)
+        n_lone += lone.numel()
+        if lone.numel() == 0:
+            continue
+        k = torch.full((2,), -1, dtype=torch.int64).scatter_reduce(
+            0, slot, torch.arange(slot.numel()), "amax"
+        )[lone]
+        spec = sc.materials.specular.take(v[lone])
+        views = view[None].expand(lone.numel(), 3)
+        cap = transport.gathering_sharpness(spec, sc.mesh.normals[v[lone]], views)
+        want = torch.minimum(torch.full_like(cap, transport.LONE_PATH_LAM), cap)
+        lam = g.lam[lone, 0, 0]
+        # the cap from the table by elevation, against the lobe's own samples: 3 %
+        torch.testing.assert_close(lam, want, rtol=0.03, atol=0)
+        torch.testing.assert_close(g.mu[lone, 0, 0], d[k], rtol=0, atol=1e-5)
+        e = (g.w * sg.integral(g.lam)[..., None])[lone, 0, 0]
+        torch.testing.assert_close(e, thr[k] / 2, rtol=1e-4, atol=1e-7)
+        if alpha < 0.1:
+            # a sharp lobe keeps the narrow Gaussian: a sun 90 degrees off the path gets
+            # exp(-LONE_PATH_LAM) of the lobe's peak, not the ~e^-0.5 of the widest lobe
+            assert bool((lam == transport.LONE_PATH_LAM).all())
+            other = torch.randn(d[k].shape, generator=torch.Generator().manual_seed(4))
+            side = torch.nn.functional.normalize(torch.linalg.cross(d[k], other), dim=-1)
+            peak = sg.evaluate(d[k], g.mu[lone, 0, 0], lam)
+            assert bool((sg.evaluate(side, g.mu[lone, 0, 0], lam) < 1e-20 * peak).all())
+    assert n_lone >= 3, n_lone
 
 
 @pytest.mark.parametrize("lam", [5.0, 60.0, 600.0])
