@@ -13,12 +13,13 @@ renderers see the same points.
   orthographic shadow map. A ray towards direction ``i`` passes a blocker at height ``h`` above
   the point (along the sun) at ``h tan(r) (x_i, y_i)`` across the map: a blocker search over the
   disc that the farthest possible blocker (the mesh's bounding sphere) spans, with
-  ``BLOCKER_SAMPLES`` points, gives the mean height of the blockers; the depth comparison is
-  then filtered over the same spiral of ``SHADOW_SAMPLES`` points scaled to that height. Every
-  tap compares against the receiver's plane at the tap (the triangle's plane, from the
-  position's screen derivatives), so a tilted surface does not shadow itself. For blockers at
-  one height the shader tests the rays the torch path casts; where blockers lie at several
-  heights it uses their mean (the method's approximation).
+  ``BLOCKER_SAMPLES`` points, gives the mean height of the blockers; each of the spiral's
+  ``SHADOW_SAMPLES`` directions is then placed at that height, moved to the height of the
+  blocker found there (one step of the ray's own crossing), and its depth comparison taken
+  with the hardware's 2 x 2 filter. Every tap compares against the receiver's plane at the tap
+  (the triangle's plane, from the position's screen derivatives), so a tilted surface does not
+  shadow itself. For blockers at one height the shader tests the rays the torch path casts;
+  where they lie at several heights the one step approximates each ray's crossing.
 
 A disc narrower than a shadow-map texel at the farthest blocker keeps the single hardware-filtered
 comparison (and torch its single ray to the centre): a hard shadow.

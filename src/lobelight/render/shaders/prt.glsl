@@ -159,19 +159,19 @@ vec2 disc_point(int i, int n) {
     return sqrt((float(i) + 0.5) / float(n)) * vec2(cos(a), sin(a));
 }
 
-// the visible fraction of the sun's disc at p (world; n its shading normal) on a triangle of
+// the visible fraction of the sun's disc at pos (world; n its shading normal) on a triangle of
 // normal ng (the shadow map's frame, on the viewer's side): percentage-closer soft shadows over
 // the directions of the torch path's rays (render/_sun_shadow.py)
-float sun_visibility(vec3 p, vec3 n, vec3 ng) {
-    // p in the map's [-1, 1]^3 frame
-    vec3 q = shadow_frame * (p - shadow_center) * shadow_scale;
+float sun_visibility(vec3 pos, vec3 n, vec3 ng) {
+    // pos in the map's [-1, 1]^3 frame
+    vec3 q = shadow_frame * (pos - shadow_center) * shadow_scale;
     // the blocker search spans the penumbra of the farthest possible blocker (the bounding
     // sphere's side towards the sun, q.z = 1)
     float search = sun_tan * (1.0 - q.z) * 0.5;
     if (search * shadow_res < 1.0) {
         // hardware 2x2 percentage-closer filtering of the depth comparison at the point lifted
         // along its normal: a hard shadow
-        q = shadow_frame * (p + shadow_offset * n - shadow_center) * shadow_scale;
+        q = shadow_frame * (pos + shadow_offset * n - shadow_center) * shadow_scale;
         return texture(shadow_map, vec3(q.xy * 0.5 + 0.5, -q.z * 0.5 + 0.5 - shadow_bias));
     }
     vec2 uv = q.xy * 0.5 + 0.5;
@@ -201,7 +201,13 @@ float sun_visibility(vec3 p, vec3 n, vec3 ng) {
     for (int i = 0; i < SHADOW_SAMPLES; ++i) {
         vec2 p = disc_point(i, SHADOW_SAMPLES);
         if (ng.z + sun_tan * dot(ng.xy, p) <= 0.0) continue;
-        vis += texture(shadow_map, vec3(uv + w * p, z + w * dot(dz, p)));
+        // the ray towards direction i, placed by the blockers' mean height, is moved to the
+        // height of the blocker found there (a ray at height h crosses the map at tan(r) h p):
+        // blockers at several heights each get their own offset
+        float wi = w;
+        float h = z + w * dot(dz, p) - texture(shadow_depth, uv + w * p).r;
+        if (h > 0.0) wi = sun_tan * h;
+        vis += texture(shadow_map, vec3(uv + wi * p, z + wi * dot(dz, p)));
     }
     return vis / float(SHADOW_SAMPLES);
 }
