@@ -15,7 +15,9 @@ indirect glossy
     recorded throughputs, binned on a cube map and divided by the bin's solid angle, estimate
     the transport density (:meth:`Transport.indirect`); integrated against the lighting they
     give the radiance these paths carry to the viewer. A bake keeps them as one Gaussian per
-    vertex and view instead (:meth:`Transport.indirect_lobes`).
+    vertex and view instead (:meth:`Transport.indirect_lobes`), each vertex's paths shared
+    across its views and no sharper than the lobe that gathers them
+    (:func:`gathering_sharpness`).
 diffuse
     ``T_D`` as order-5 spherical-harmonic transfer vectors: ``(albedo / pi) int Y_lm(w) V_x(w)
     max(n.w, 0) dw`` (self-shadowed), and optionally diffuse interreflection
@@ -28,6 +30,7 @@ Work runs over batches of vertices so that memory stays bounded for any mesh.
 
 from __future__ import annotations
 
+import itertools
 import math
 from dataclasses import dataclass
 
@@ -75,10 +78,9 @@ LONE_PATH_LAM = 64.0
 #: apart and their lobes twice that in light directions. A sharper lobe's neighbours would
 #: add only their lobes' tails; it keeps its own paths.
 SHARED_LAM_MAX = 64.0
-#: Vertices whose escaped paths are shared across their views at once
-#: (:meth:`Transport.indirect_lobes`): bounds the (path, view) pairs held, about
-#: ``vertices x J x paths x (share escaped) x J / 2``.
-_SHARE_VERTICES = 16
+#: (path, view) pairs :meth:`Transport.indirect_lobes` weighs at once, the vertices grouped to
+#: stay near it: bounds its memory (a few (pairs, 3) float tensors) on any mesh and device.
+_SHARE_PAIRS = 1 << 21
 #: Samples per axis of the stratified grid that measures a lobe's sharpness
 #: (:func:`gathering_sharpness`): 16 keeps GGX's within 15 % of a quadrature's from roughness
 #: 0.02 to 0.5 (8 misses the lobe's centre at normal incidence by up to 60 %).
@@ -329,29 +331,30 @@ class Transport:
 
         The paths of :meth:`escapes` sample the indirect transport as a density over escape
         directions. A path's part after its first bounce does not depend on the view, so every
-        escaped path of a vertex serves each of its views (:func:`_shared_across_views`):
-        reweighted to view ``v`` by ``f(w, v) cos / sum_u pdf(w | u)`` (the balance heuristic
-        over the views' sampling densities ``u``, all above the horizon), which keeps each
-        view's estimate unbiased while a rough lobe, which overlaps its neighbours' lobes,
-        draws on several views' paths instead of its own few; a lobe sharper than
+        escaped path of a vertex serves each of its views: reweighted to view ``v`` by
+        ``f(w, v) cos / sum_u pdf(w | u)`` (the balance heuristic over the views' sampling
+        densities ``u``, all above the horizon, ``w`` the direction it left in), which keeps
+        each view's estimate unbiased while a rough lobe, which overlaps its neighbours'
+        lobes, draws on several views' paths instead of its own few. A lobe sharper than
         :data:`SHARED_LAM_MAX`, which its neighbours' paths reach only through their tails,
-        keeps its own paths. The paths' weights summed
-        over ``paths`` estimate the transport's integral (the Gaussian keeps it exactly), their
-        weighted mean direction its mean, and their weighted median angle from that mean its
-        width (a vMF holds half its light within ``1 - cos = ln 2 / lam``). The median, not the
-        second moment: a mirror's image in a curved mirror is compact with a few wide strays,
-        and the vMF of the paths' second moment puts its tail on bright sources the paths miss
-        (docs/method.md has the measurement). A lone path (by the weights' effective count)
-        tells no width: it gets :data:`LONE_PATH_LAM`.
+        keeps its own paths. The paths' weights summed over ``paths`` estimate the transport's
+        integral (the Gaussian keeps it exactly), their weighted mean direction its mean, and
+        their weighted median angle from that mean its width (a vMF holds half its light
+        within ``1 - cos = ln 2 / lam``). The median, not the second moment: a mirror's image
+        in a curved mirror is compact with a few wide strays, and the vMF of the paths' second
+        moment puts its tail on bright sources the paths miss (docs/method.md has the
+        measurement). A lone path (by the weights' effective count) tells no width: it gets
+        :data:`LONE_PATH_LAM`.
 
         The sharpness is then capped by that of the lobe that gathers the light
-        (:func:`gathering_sharpness`): the indirect radiance seen through the BRDF lobe is the
-        radiance arriving at the vertex convolved with that lobe, and what arrives off a
-        smooth surface of the object reaches the escape directions through a reflection, which
-        keeps the lobe's spread (a flat mirror) or widens it (a rough or convex one), so the
-        escaped light spreads at least as wide as the lobe. A narrower estimate is the
-        paths' noise: where the light is smooth, a few paths' sharp Gaussians put spots of
-        the lighting on a smooth surface.
+        (:func:`gathering_sharpness`), the light kept: the indirect radiance seen through the
+        BRDF lobe is the radiance arriving at the vertex convolved with that lobe, and the
+        light arriving off the object reaches the escape directions through a reflection that
+        keeps the lobe's spread (a flat mirror) or widens it (a rough or convex surface, a
+        diffuse one most). A concave mirror can focus it and the object's outline can cut it,
+        which a rough lobe's next reflection spreads again; an estimate sharper than the lobe
+        is otherwise its few paths' noise, which puts spots of the lighting on a smooth
+        surface.
 
         Parameters
         ----------
@@ -373,8 +376,7 @@ class Transport:
         if self.materials.specular is not None and b * j:
             bi, ji = (self.mesh.normals[vidx] @ views.T > 0).nonzero(as_tuple=True)  # (M,) each
             cap[bi, ji] = self._gathering(vidx[bi], views[ji])
-        for lo in range(0, b, _SHARE_VERTICES):
-            hi = min(b, lo + _SHARE_VERTICES)
+        for lo, hi in _groups(torch.bincount(tr.slot // j, minlength=b) * j, _SHARE_PAIRS):
             own = cap[lo:hi] > SHARED_LAM_MAX  # (G, J) lobes too sharp to share
             slot, d, thr = _shared_across_views(self, vidx, views, tr, lo, hi, own)
             gw, gmu, glam = _escape_lobes(slot, d, thr, (hi - lo) * j, paths)
@@ -691,6 +693,19 @@ def _shared_across_views(tr: Transport, vidx, views, e: _Escaped, lo: int, hi: i
     thr[mine, ji[mine]] = e.first_weight[pick][mine] * rest[mine]
     pe, pj = (thr.amax(-1) > 0).nonzero(as_tuple=True)  # (P,) each
     return bi[pe] * j + pj, dirs[pe], thr[pe, pj]
+
+
+def _groups(counts: torch.Tensor, budget: int) -> list[tuple[int, int]]:
+    """Consecutive ``(lo, hi)`` ranges of the items with ``counts`` (B,): the items whose
+    running total before them falls in one multiple of ``budget``, so that a range holds at
+    most ``budget`` plus its last item's count."""
+    b = counts.shape[0]
+    if b == 0:
+        return []
+    start = (torch.cumsum(counts, 0) - counts) // max(int(budget), 1)  # (B,) group of each
+    cuts = ((start[1:] != start[:-1]).nonzero().squeeze(-1) + 1).tolist()
+    edges = [0, *cuts, b]
+    return list(itertools.pairwise(edges))
 
 
 def _shared_isotropic(spec) -> bool:
