@@ -39,7 +39,14 @@ from .._tol import DIVISOR_F32
 from ..geometry import sphere
 from ..lobes import sg
 from ._data import FitData
-from ._objective import Weights, _neighbour_mean, _pair_diffs, conserve_factor, solve_gram
+from ._objective import (
+    Weights,
+    _averaging_matrix,
+    _neighbour_mean,
+    _pair_diffs,
+    conserve_factor,
+    solve_gram,
+)
 
 __all__ = ["levenberg_marquardt"]
 
@@ -63,13 +70,14 @@ def _gauss(dirs64_t: torch.Tensor, mu: torch.Tensor, lam: torch.Tensor):
     return torch.exp(ex), ex
 
 
-def _reg_cost(mu, lam, mbar, sbar, c, nbr_mu, nbr_mask):
-    """Per-view cost of ``M``, ``V`` and ``S`` (B, J), the neighbours' averages held fixed."""
+def _reg_cost(mu, lam, mbar, sbar, c, nbr_ds, nbr_mask):
+    """Per-view cost of ``M``, ``V`` and ``S`` (B, J), the neighbours' averages held fixed;
+    ``nbr_ds`` (B, Q, J, P, 3) the processed neighbours' pair differences (or None)."""
     cost = c["M"] ** 2 * ((mbar - mu) ** 2).sum((-1, -2))
     sigma = lam.rsqrt()
     cost = cost + c["V"] ** 2 * (((sbar - sigma) / sbar) ** 2).sum(-1)
-    if nbr_mu is not None and mu.shape[-2] > 1:
-        dot = (_pair_diffs(mu)[:, None] * _pair_diffs(nbr_mu)).sum(-1)  # (B, Q, J, P)
+    if nbr_ds is not None and mu.shape[-2] > 1:
+        dot = (_pair_diffs(mu)[:, None] * nbr_ds).sum(-1)  # (B, Q, J, P)
         pen = (-dot).clamp_min(0) ** 3 * nbr_mask[:, :, None, None]
         cost = cost + c["S"] ** 2 * pen.sum((1, 3))
     return cost
@@ -108,11 +116,13 @@ def levenberg_marquardt(
     valid = (nbr_views >= 0).to(dt)  # (J, 6)
     inv_r = 1 / valid.sum(1)  # (J,) 1 / number of neighbours of each view
 
+    # sum over u in nbr(v) of x_u / R_u is (A^T x)_v for A the neighbour-averaging matrix
+    # (views' neighbourhoods are symmetric)
+    back = _averaging_matrix(nbr_views, dt).T.contiguous()  # (J, J)
+
     def to_neighbours(x: torch.Tensor) -> torch.Tensor:
-        """sum over u in nbr(v) of x_u / R_u (views' neighbourhoods are symmetric), (B, J, ...)."""
-        xr = x * inv_r.reshape(1, -1, *([1] * (x.ndim - 2)))
-        g = xr[:, nbr_views.clamp_min(0)]  # (B, J, 6, ...)
-        return (g * valid.reshape(1, *valid.shape, *([1] * (x.ndim - 2)))).sum(2)
+        """sum over u in nbr(v) of x_u / R_u, (B, J, ...)."""
+        return torch.matmul(back, x.reshape(b, j, -1)).reshape(x.shape)
 
     # Only views whose samples carry light have a data term: below the horizon, or fully
     # occluded, the transport is 0, the solved weights are 0 and so are the data residuals and
@@ -163,13 +173,15 @@ def levenberg_marquardt(
         d_cost = unpack(d_a)  # (B, J)
         mb = torch.nn.functional.normalize(_neighbour_mean(mu_, nbr_views), dim=-1)
         sb = _neighbour_mean(lam_.rsqrt(), nbr_views)
-        cost = d_cost + _reg_cost(mu_, lam_, mb, sb, c, nbr_mu, mask)
+        cost = d_cost + _reg_cost(mu_, lam_, mb, sb, c, nbr_ds, mask)
         return g_, ex_, w_.to(dt), cost.sum(1), d_cost.sum(1)
 
     sq_n = (wts_a * inv_e_a[:, None]).sqrt()[:, None]  # (P, 1, S) residual scale
     dflat = dirs_a.transpose(1, 2)  # (P, 3, S)
     vals_t = vals_a.transpose(1, 2)  # (P, 3, S)
     mask = None if nbr_mask is None else nbr_mask.to(dt)
+    # the neighbours' pair differences are fixed through the iteration: formed once
+    nbr_ds = None if nbr_mu is None or n < 2 else _pair_diffs(nbr_mu)  # (B, Q, J, P, 3)
     mu, lam = mu.clone(), lam.clone()
     g, ex, w, cost0, d0 = evaluate(mu, lam)
     jac = torch.empty(p_n, n, 3, n_s, dtype=dt, device=mu.device)  # reused every iteration
@@ -229,7 +241,7 @@ def levenberg_marquardt(
         h = h + torch.diag_embed(diag_add)
         grad = grad + grad_add
         if nbr_mu is not None and n > 1:
-            h, grad = _add_spatial(h, grad, mu, sigma, t, s, nbr_mu, mask, c["S"])
+            h, grad = _add_spatial(h, grad, mu, sigma, t, s, nbr_ds, mask, c["S"])
         hd = h.diagonal(dim1=-2, dim2=-1)
         # a parameter nothing sees (a Gaussian whose weight is 0 with M, V and S switched off)
         # has no curvature and no gradient; a floor relative to the system's largest curvature
@@ -258,11 +270,11 @@ def levenberg_marquardt(
     return mu, lam
 
 
-def _add_spatial(h, grad, mu, sigma, t, s, nbr_mu, mask, c_s):
-    """Gauss-Newton terms of ``S`` residuals ``c (max(-dot, 0))^(3/2)`` per pair and neighbour."""
+def _add_spatial(h, grad, mu, sigma, t, s, ds, mask, c_s):
+    """Gauss-Newton terms of ``S`` residuals ``c (max(-dot, 0))^(3/2)`` per pair and neighbour;
+    ``ds`` (B, Q, J, P, 3) the neighbours' pair differences."""
     n = mu.shape[-2]
     i1, i2 = torch.triu_indices(n, n, offset=1, device=mu.device)
-    ds = _pair_diffs(nbr_mu)  # (B, Q, J, P, 3)
     dx = _pair_diffs(mu)[:, None]  # (B, 1, J, P, 3)
     neg = (-(dx * ds).sum(-1)).clamp_min(0) * mask[:, :, None, None]  # (B, Q, J, P)
     res = c_s * neg**1.5
