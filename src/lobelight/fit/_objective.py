@@ -57,6 +57,24 @@ class Weights:
     delta: float = 0.05
 
 
+def gaussians_at(dirs: torch.Tensor, mu: torch.Tensor, lam: torch.Tensor) -> torch.Tensor:
+    """``G_k(omega_s)`` of N Gaussians per (vertex, view) at its samples, (B, J, N, S) in
+    ``dirs``' dtype, for ``dirs`` (B, J, S, 3), ``mu`` (B, J, N, 3), ``lam`` (B, J, N).
+
+    The exponent ``lam (mu.w - 1)`` is formed as ``(lam mu).w - lam`` in one float64 batched
+    matmul (its rounding is ``lam`` times 1e-16, where float32 would lose a sharp lobe's
+    ``1 - mu.w``), then exponentiated in float32; the same values as
+    :func:`lobelight.lobes.sg.evaluate` up to rounding, without its per-call checks and its
+    (B, J, N, S, 3) differences.
+    """
+    b, j, s, _ = dirs.shape
+    n = mu.shape[2]
+    lam64 = lam.double().reshape(b * j, n, 1)
+    a = lam64 * mu.double().reshape(b * j, n, 3)
+    ex = torch.baddbmm(-lam64, a, dirs.double().reshape(b * j, s, 3).transpose(1, 2))
+    return torch.exp(ex.to(dirs.dtype)).reshape(b, j, n, s)
+
+
 def mixture(data: FitData, w: torch.Tensor, mu: torch.Tensor, lam: torch.Tensor) -> torch.Tensor:
     """The mixture at the sample directions, (B, J, S, 3).
 
@@ -64,7 +82,7 @@ def mixture(data: FitData, w: torch.Tensor, mu: torch.Tensor, lam: torch.Tensor)
     ----------
     w : (B, J, N, 3);  mu : (B, J, N, 3);  lam : (B, J, N)
     """
-    g = sg.evaluate(data.dirs[:, :, None], mu[:, :, :, None], lam[..., None])  # (B, J, N, S)
+    g = gaussians_at(data.dirs, mu, lam)  # (B, J, N, S)
     return torch.einsum("bjns,bjnc->bjsc", g, w)
 
 
@@ -84,7 +102,7 @@ def solve_weights(
     channel (:func:`solve_gram`); views below the horizon get 0.
     """
     if g is None:  # (B, J, N, S); callers that have it pass it
-        g = sg.evaluate(data.dirs[:, :, None], mu[:, :, :, None], lam[..., None])
+        g = gaussians_at(data.dirs, mu, lam)
     gw = g * data.weights[:, :, None]
     a = torch.einsum("bjks,bjls->bjkl", gw, g)  # (B, J, N, N)
     rhs = torch.einsum("bjks,bjsc->bjkc", gw, data.values)  # (B, J, N, 3)

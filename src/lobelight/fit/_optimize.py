@@ -37,6 +37,7 @@ from ._objective import (
     _neighbour_mean,
     _pair_diffs,
     data_term,
+    gaussians_at,
     mean_term,
     sigma_term,
     solve_weights,
@@ -113,7 +114,7 @@ def initial_guess(
         # residual, where one lobe held to all the light would smear over the sharp and the
         # broad part alike
         w = solve_weights(data, mus, lams, conserve=False)
-        g = sg.evaluate(data.dirs[:, :, None], mus[:, :, :, None], lams[..., None])
+        g = gaussians_at(data.dirs, mus, lams)
         resid = (data.values - torch.einsum("bjns,bjnc->bjsc", g, w)).clamp_min(0)
         # moments of the squared residual: weighted by energy, not mass, so a small sharp peak
         # left over is found rather than the broad misfit around it; a Gaussian squared is
