@@ -139,9 +139,9 @@ def test_sun_on_a_convex_sphere_is_lambert_without_shadows(sun_light):
 def test_shadow_map_matches_shadow_rays_on_the_knot(sun_light):
     # the shader's soft shadow map against the torch path's shadow rays over the sun's disc
     # (render/_sun_shadow.py): they can differ only in the penumbrae, a pixel wide here (the
-    # shader filters the map over the rays' directions scaled by the blockers' mean height, the
-    # rays meet each blocker where it is; the map's texel size). Measured 2.1 % of the object
-    # pixels over 1e-3, 1.8 % over 1e-2 and 0.8 % over 0.1
+    # shader places its taps by the blockers' heights in the map, the rays meet each blocker
+    # where it is; the map's texel size). Measured 2.0 % of the object pixels over 1e-3, 1.6 %
+    # over 1e-2 and 0.7 % over 0.1
     sc = scene.builtin("knot")
     m = dark_model(sc)
     light = sun_light

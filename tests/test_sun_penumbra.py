@@ -117,7 +117,7 @@ def _check(v, v_mc):
     # bounds: the spiral's 32 directions step the visible fraction by 1/32 = 0.031 as the edge
     # sweeps the disc, and its steps need not straddle the true curve evenly; the Monte Carlo's
     # standard error is <= 0.5 / sqrt(4096) = 0.008; the extracted disc's radius is within
-    # 0.5 % of the true one. Measured: max 0.056 (torch) and 0.058 (shader), mean 0.017 (both)
+    # 0.5 % of the true one. Measured: max 0.056 (torch) and 0.054 (shader), mean 0.017 (both)
     assert float(err.max()) < 0.075
     assert float(err.mean()) < 0.025
     # a point sun's shadow (one ray to the centre: 0 or 1) is off by 0.24 on average
