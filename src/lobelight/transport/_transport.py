@@ -676,23 +676,20 @@ def _shared_across_views(tr: Transport, vidx, views, e: _Escaped, lo: int, hi: i
         return slot, dirs, rest
     bi, ji = slot // j - lo, slot % j  # (E,) vertex in the group, own view
     n = tr.mesh.normals[vidx[lo:hi]]  # (G, 3)
-    up = (n @ views.T > 0)[bi]  # (E, J) the views that drew paths
-    spec = tr.materials.specular.take(vidx[lo:hi][bi]).map_params(
-        lambda t, kind: t if t.ndim <= kind else t.unsqueeze(1)
-    )  # per-path parameters (E, 1, ...)
-    m = slot.numel()
-    wi = first[:, None].expand(m, j, 3)  # (E, J, 3)
-    nn = n[bi][:, None].expand(m, j, 3)
-    vv = views[None].expand(m, j, 3)
-    f = spec.eval(wi, vv, nn) * (wi * nn).sum(-1, keepdim=True).clamp_min(0)  # (E, J, 3)
-    q = (spec.pdf(wi, vv, nn) * up).sum(-1)  # (E,) the views' summed densities
-    shared = up & ~own[bi]  # (E, J)
-    thr = f * (shared / q.clamp_min(torch.finfo(q.dtype).tiny)[:, None])[..., None]
-    thr = thr * rest[:, None]
-    mine = own[bi, ji]  # (E,) paths kept by their own view alone
-    thr[mine, ji[mine]] = e.first_weight[pick][mine] * rest[mine]
-    pe, pj = (thr.amax(-1) > 0).nonzero(as_tuple=True)  # (P,) each
-    return bi[pe] * j + pj, dirs[pe], thr[pe, pj]
+    # the (path, view) pairs of the views above the horizon, which drew paths: (P,) each
+    pe, pj = (n @ views.T > 0)[bi].nonzero(as_tuple=True)
+    spec = tr.materials.specular.take(vidx[lo:hi][bi[pe]])  # per-pair parameters (P, ...)
+    wi, nn, vv = first[pe], n[bi[pe]], views[pj]  # (P, 3) each
+    f = spec.eval(wi, vv, nn) * (wi * nn).sum(-1, keepdim=True).clamp_min(0)  # (P, 3)
+    q = torch.zeros_like(slot, dtype=f.dtype).index_add_(0, pe, spec.pdf(wi, vv, nn))  # (E,)
+    thr = f * (rest[pe] / q.clamp_min(torch.finfo(q.dtype).tiny)[pe, None])  # (P, 3)
+    shared = ~own[bi[pe], pj]  # (P,) the pairs of views that share
+    mine = own[bi, ji].nonzero().squeeze(-1)  # (K,) paths kept by their own view alone
+    k = torch.cat([pe[shared], mine])
+    thr = torch.cat([thr[shared], e.first_weight[pick][mine] * rest[mine]])
+    slot = bi[k] * j + torch.cat([pj[shared], ji[mine]])
+    ok = thr.amax(-1) > 0
+    return slot[ok], dirs[k[ok]], thr[ok]
 
 
 def _groups(counts: torch.Tensor, budget: int) -> list[tuple[int, int]]:
