@@ -233,3 +233,18 @@ def test_compact_data_gives_the_same_fit_as_the_whole_sample_set():
     b, tb = fit.fit_batch(small, 1, NBR, iters=5)
     torch.testing.assert_close(tb["D"], ta["D"], rtol=1e-3, atol=1e-7)
     torch.testing.assert_close(b.mu, a.mu, rtol=0, atol=1e-3)
+
+
+def test_gaussians_at_the_samples_match_the_half_chord_evaluation():
+    # the fit's fused float64 exponent against lobelight.lobes.sg.evaluate's half-chord form,
+    # both exact to float32 rounding of G: relative 2e-5 where the exponent reaches -100
+    # (float32's 6e-8 of the argument, times 100, plus the half-chord's own rounding), for
+    # lobes from 0.5 to the fit's 3e4, samples near the mean and far from it
+    g = torch.Generator().manual_seed(3)
+    mu = torch.nn.functional.normalize(torch.randn(2, 4, 2, 3, generator=g), dim=-1)
+    lam = torch.tensor([0.5, 30.0, 3e3, 3e4]).reshape(1, 4, 1).expand(2, 4, 2).contiguous()
+    near = mu[:, :, :1] + torch.randn(2, 4, 50, 3, generator=g) * lam[..., :1, None] ** -0.5
+    dirs = torch.nn.functional.normalize(torch.cat([near, torch.randn(2, 4, 50, 3)], 2), dim=-1)
+    got = fit._objective.gaussians_at(dirs, mu, lam)  # (B, J, N, S)
+    ref = sg.evaluate(dirs[:, :, None], mu[:, :, :, None], lam[..., None])
+    torch.testing.assert_close(got, ref, rtol=2e-5, atol=1e-30)

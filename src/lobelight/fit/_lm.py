@@ -46,6 +46,7 @@ from ._objective import (
     _pair_diffs,
     conserve_factor,
     solve_gram,
+    unit64,
 )
 
 __all__ = ["levenberg_marquardt"]
@@ -57,7 +58,8 @@ def _gauss(dirs64_t: torch.Tensor, mu: torch.Tensor, lam: torch.Tensor):
     ``lam`` (P, N).
 
     The exponent is formed in float64 (``dirs64_t`` is the float64 copy of the sample
-    directions, transposed) as ``(lam mu) . omega - lam``, one fused matmul: ``lam (mu.w - 1)``
+    directions, renormalised and transposed; ``mu`` is renormalised likewise) as
+    ``(lam mu) . omega - lam``, one fused matmul: ``lam (mu.w - 1)``
     for ``lam = 3e4`` needs ``1 - mu.w`` to better than float32's 6e-8, which the matmul form
     (unlike a half-chord) would otherwise lose, and float64 keeps it (the product's rounding is
     ``lam`` times 1e-16). The exponent, once formed, is exact enough in float32 (relative error
@@ -65,7 +67,7 @@ def _gauss(dirs64_t: torch.Tensor, mu: torch.Tensor, lam: torch.Tensor):
     several times cheaper.
     """
     lam64 = lam.double()
-    ex = torch.baddbmm(-lam64[..., None], lam64[..., None] * mu.double(), dirs64_t)
+    ex = torch.baddbmm(-lam64[..., None], lam64[..., None] * unit64(mu), dirs64_t)
     ex = ex.to(mu.dtype)
     return torch.exp(ex), ex
 
@@ -133,7 +135,7 @@ def levenberg_marquardt(
     act = (energy > 0).reshape(-1).nonzero().squeeze(1)  # (P,) flat (vertex, view) indices
     p_n = act.numel()
     dirs_a = data.dirs.reshape(bj, n_s, 3)[act]  # (P, S, 3)
-    dirs64_t = dirs_a.double().transpose(1, 2)  # (P, 3, S)
+    dirs64_t = unit64(dirs_a).transpose(1, 2)  # (P, 3, S)
     wts_a = data.weights.reshape(bj, n_s)[act]  # (P, S)
     vals_a = data.values.reshape(bj, n_s, 3)[act]  # (P, S, 3)
     w64 = wts_a.double()[:, None]  # (P, 1, S)

@@ -57,12 +57,18 @@ class Weights:
     delta: float = 0.05
 
 
+def unit64(x: torch.Tensor) -> torch.Tensor:
+    """``x`` (..., 3) as float64 unit vectors (float32 directions are unit to 6e-8 only)."""
+    return torch.nn.functional.normalize(x.double(), dim=-1)
+
+
 def gaussians_at(dirs: torch.Tensor, mu: torch.Tensor, lam: torch.Tensor) -> torch.Tensor:
     """``G_k(omega_s)`` of N Gaussians per (vertex, view) at its samples, (B, J, N, S) in
     ``dirs``' dtype, for ``dirs`` (B, J, S, 3), ``mu`` (B, J, N, 3), ``lam`` (B, J, N).
 
     The exponent ``lam (mu.w - 1)`` is formed as ``(lam mu).w - lam`` in one float64 batched
-    matmul (its rounding is ``lam`` times 1e-16, where float32 would lose a sharp lobe's
+    matmul of the directions renormalised in float64 (its rounding is ``lam`` times 1e-16,
+    where float32, or float32 vectors' norms off 1 by 6e-8, would lose a sharp lobe's
     ``1 - mu.w``), then exponentiated in float32; the same values as
     :func:`lobelight.lobes.sg.evaluate` up to rounding, without its per-call checks and its
     (B, J, N, S, 3) differences.
@@ -70,8 +76,8 @@ def gaussians_at(dirs: torch.Tensor, mu: torch.Tensor, lam: torch.Tensor) -> tor
     b, j, s, _ = dirs.shape
     n = mu.shape[2]
     lam64 = lam.double().reshape(b * j, n, 1)
-    a = lam64 * mu.double().reshape(b * j, n, 3)
-    ex = torch.baddbmm(-lam64, a, dirs.double().reshape(b * j, s, 3).transpose(1, 2))
+    a = lam64 * unit64(mu).reshape(b * j, n, 3)
+    ex = torch.baddbmm(-lam64, a, unit64(dirs).reshape(b * j, s, 3).transpose(1, 2))
     return torch.exp(ex.to(dirs.dtype)).reshape(b, j, n, s)
 
 
