@@ -80,7 +80,7 @@ LONE_PATH_LAM = 64.0
 SHARED_LAM_MAX = 64.0
 #: (path, view) pairs :meth:`Transport.indirect_lobes` weighs at once, the vertices grouped to
 #: stay near it: bounds its memory (a few (pairs, 3) float tensors) on any mesh and device.
-_SHARE_PAIRS = 1 << 21
+_SHARE_PAIRS = 1 << 19
 #: Samples per axis of the stratified grid that measures a lobe's sharpness
 #: (:func:`gathering_sharpness`): 16 keeps GGX's within 15 % of a quadrature's from roughness
 #: 0.02 to 0.5 (8 misses the lobe's centre at normal incidence by up to 60 %).
