@@ -8,6 +8,8 @@
 - :func:`load`, :func:`save` the model file (:mod:`lobelight.model._format`: the layout, the
   checks on read, the atomic write; ``docs/model-format.md``)
 - :func:`blend_lobes`, :func:`horizon_scale` the view blend (:mod:`lobelight.model._blend`)
+- :func:`visibility_tiles` each vertex's visibility of the environment by direction, on an
+  octahedral tile (:meth:`Model.visibility`): where a sharp reflection is occluded, per pixel
 
 The model knows nothing of how it was fitted (:mod:`lobelight.fit` builds it).
 """
@@ -15,6 +17,7 @@ The model knows nothing of how it was fitted (:mod:`lobelight.fit` builds it).
 from ._blend import LIVE_FLOOR, MIN_SAY, blend_lobes, horizon_scale
 from ._format import FORMAT, MAX_LIGHT, VERSION
 from ._model import Model, load, save
+from ._visibility import VISIBILITY_RES, visibility_tiles
 
 __all__ = [
     "FORMAT",
@@ -22,9 +25,11 @@ __all__ = [
     "MAX_LIGHT",
     "MIN_SAY",
     "VERSION",
+    "VISIBILITY_RES",
     "Model",
     "blend_lobes",
     "horizon_scale",
     "load",
     "save",
+    "visibility_tiles",
 ]

@@ -16,6 +16,7 @@ from ..lobes.sg import Gaussians
 from ..scene import Materials, Mesh
 from ._blend import blend_lobes, horizon_scale
 from ._format import read, write
+from ._visibility import visibility_tiles
 
 __all__ = ["Model", "load", "save"]
 
@@ -48,6 +49,7 @@ class Model:
     provenance: dict[str, Any] = field(default_factory=dict)
     bounce: torch.Tensor | None = None
     indirect_gaussians: int = 0
+    _visibility: torch.Tensor | None = field(default=None, init=False, repr=False)
 
     def __post_init__(self):
         n = int(self.gaussians.lam.shape[-1])
@@ -130,6 +132,14 @@ class Model:
         gk = torch.exp(g.lam[..., None, :] * (cos - 1))  # (..., D, N)
         return gk @ g.w  # (..., D, 3)
 
+    def visibility(self) -> torch.Tensor:
+        """Each vertex's visibility of the environment on an octahedral tile, ``(V, R, R)``
+        uint8 (:func:`lobelight.model.visibility_tiles`), computed from the mesh on first use
+        and kept."""
+        if self._visibility is None:
+            self._visibility = visibility_tiles(self.mesh)
+        return self._visibility
+
     def to(self, device) -> Model:
         """The model with every tensor on ``device`` (in place; returns it)."""
         g = self.gaussians
@@ -140,6 +150,8 @@ class Model:
         self.materials = self.materials.to(device)
         if self.bounce is not None:
             self.bounce = self.bounce.to(device)
+        if self._visibility is not None:
+            self._visibility = self._visibility.to(device)
         return self
 
     def save(self, path, *, float16: bool = False, drop: bool = True) -> dict[str, Any]:

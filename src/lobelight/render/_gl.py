@@ -34,7 +34,15 @@ from ..errors import InputError
 from ..geometry import sphere
 from ..geometry.camera import Camera
 from ..lobes import sg
+from ..model import VISIBILITY_RES
 from ._lighting import Lighting
+from ._reflection import (
+    ALBEDO_STEPS,
+    INDIRECT_SCALE_MAX,
+    MIXTURE,
+    OCCLUDED_FLOOR,
+    sharp_reflection_for,
+)
 from ._sun_glossy import (
     sun_glossy_supported,
     sun_glossy_uniforms,
@@ -65,6 +73,10 @@ SHADOW_RES = 4096
 _GL_TEXTURE_CUBE_MAP_SEAMLESS = 0x884F
 #: Texture unit of the shadow map's depths read without comparison (the soft shadow's search).
 _SHADOW_DEPTH_UNIT = 9
+#: Texture units of the per-pixel reflection's visibility tiles, faces and positions.
+_VIS_UNIT = 10
+#: Width in texels of the visibility atlas and of the face and position textures.
+_VIS_TEX_WIDTH = 4096
 #: Colour target texel types: float32 (what ``read`` returns exactly) and half float (display).
 HDR_DTYPES = ("f4", "f2")
 #: Uniform-block bindings of the PRT programs: the geodesic planes, frame.glsl's two blocks.
@@ -544,6 +556,8 @@ class GLRenderer:
         self._specular, self._n_vertices = spec, model.mesh.n_vertices
         self.has_sun = lighting.sun is not None
         self.sun_glossy = self.has_sun and sun_glossy_supported(spec)
+        # a sharp lobe's direct light per pixel (render/_reflection.py)
+        self.sharp = sharp_reflection_for(spec)
         # the interreflected part of the transfer, lit by the sun as well (Model.bounce)
         self.has_bounce = model.bounce is not None and self.has_sun
         self.lighting = lighting
@@ -565,6 +579,12 @@ class GLRenderer:
             "HAS_BOUNCE": int(self.has_bounce),
             "HAS_SUN": int(self.has_sun),
             "SUN_GLOSSY": int(self.sun_glossy),
+            "SHARP": int(self.sharp is not None),
+            "VIS_RES": VISIBILITY_RES,
+            "MIXTURE": MIXTURE,
+            "ALBEDO_STEPS": ALBEDO_STEPS,
+            "OCCLUDED_FLOOR": f"{OCCLUDED_FLOOR:.6e}",
+            "INDIRECT_SCALE_MAX": f"{INDIRECT_SCALE_MAX:.6e}",
             "SHADOW_SAMPLES": SHADOW_SAMPLES,
             "BLOCKER_SAMPLES": BLOCKER_SAMPLES,
             **geo_defines,
@@ -573,7 +593,9 @@ class GLRenderer:
             ctx,
             "prt",
             {**prt_defines, "DEPTH_ONLY": 0},
-            include=("frame", "prefiltered"),
+            include=("frame", "prefiltered", "reflection")
+            if self.sharp
+            else ("frame", "prefiltered"),
             vertex_include=("frame", "geodesic"),
         )
         # the depth pre-pass: the object's depth alone, from the same projection code
@@ -594,7 +616,51 @@ class GLRenderer:
         self.gauss_tex = self._data_texture(gauss)
         self.diff_tex = self._data_texture(diffuse)
         self.bounce_tex = self._data_texture(bounce)
+        if self.sharp is not None:
+            self._upload_sharp(model)
         return width
+
+    def _upload_sharp(self, model) -> None:
+        """The per-pixel reflection's inputs (reflection.glsl): the vertices' visibility tiles,
+        the triangles' corners and the vertices' positions as textures, and the material's
+        lobe mixture and albedo table as uniforms."""
+        import moderngl  # optional (the gl extra)
+
+        tiles = model.visibility().cpu().numpy()  # (V, R, R) uint8
+        v, r = tiles.shape[0], tiles.shape[1]
+        per_row = max(1, min(v, _VIS_TEX_WIDTH // r))
+        rows = -(-v // per_row)
+        atlas = np.zeros((rows * per_row, r, r), np.uint8)
+        atlas[:v] = tiles
+        atlas = (
+            atlas.reshape(rows, per_row, r, r).transpose(0, 2, 1, 3).reshape(rows * r, per_row * r)
+        )
+        self.vis_tex = self.ctx.texture(
+            (atlas.shape[1], atlas.shape[0]), 1, atlas.tobytes(), dtype="f1"
+        )
+        self.vis_tex.filter = (moderngl.NEAREST, moderngl.NEAREST)
+        faces = model.mesh.faces.cpu().numpy().astype(np.int32)
+        verts = model.mesh.vertices.detach().cpu().numpy().astype(np.float32)
+        width = _VIS_TEX_WIDTH
+        fimg = np.zeros((-(-faces.shape[0] // width) * width, 3), np.int32)
+        fimg[: faces.shape[0]] = faces
+        pimg = np.zeros((-(-verts.shape[0] // width) * width, 3), np.float32)
+        pimg[: verts.shape[0]] = verts
+        self.face_tex = self.ctx.texture(
+            (width, fimg.shape[0] // width), 3, fimg.tobytes(), dtype="i4"
+        )
+        self.pos_tex = self.ctx.texture(
+            (width, pimg.shape[0] // width), 3, pimg.tobytes(), dtype="f4"
+        )
+        for t in (self.face_tex, self.pos_tex):
+            t.filter = (moderngl.NEAREST, moderngl.NEAREST)
+        p, sh = self.prog, self.sharp
+        p["vis_per_row"].value = per_row
+        p["face_width"].value = width
+        p["sharp_weight"].value = tuple(float(x) for x in sh.weights)
+        p["sharp_lam"].value = tuple(float(x) for x in sh.lam)
+        p["sharp_warp"].value = float(sh.warp)
+        p["sharp_albedo"].value = [tuple(float(c) for c in row) for row in sh.albedo]
 
     def _upload_lighting(self, lighting: Lighting, pf: Prefiltered) -> None:
         """The chain's atlas and the background's cube map."""
@@ -625,6 +691,9 @@ class GLRenderer:
             ("shadow_map", 6),
             ("bounce_tex", 8),
             ("shadow_depth", _SHADOW_DEPTH_UNIT),
+            ("vis_tex", _VIS_UNIT),
+            ("face_tex", _VIS_UNIT + 1),
+            ("pos_tex", _VIS_UNIT + 2),
         )
         for name, unit in units:
             if p.get(name, None) is not None:  # compiled out without a sun or a bounce
@@ -987,6 +1056,10 @@ class GLRenderer:
             if self.has_bounce:
                 self.bounce_tex.use(8)
             self.atlas.use(3)
+            if self.sharp is not None:
+                self.vis_tex.use(_VIS_UNIT)
+                self.face_tex.use(_VIS_UNIT + 1)
+                self.pos_tex.use(_VIS_UNIT + 2)
             self.vao.render(moderngl.TRIANGLES)
             if self.has_sun:  # the unit's sampler would override other textures bound there
                 self.shadow_sampler.clear(_SHADOW_DEPTH_UNIT)
@@ -1075,6 +1148,7 @@ class GLRenderer:
             self.bg_prog,
             self.tm_prog,
             self.acc_prog,
+            *((self.vis_tex, self.face_tex, self.pos_tex) if self.sharp is not None else ()),
         ):
             o.release()
         self.frame_block.release()

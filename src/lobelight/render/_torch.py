@@ -32,6 +32,7 @@ from ..geometry.raycast import RayCaster
 from ..lobes import sg
 from ..model import blend_lobes
 from ._lighting import Lighting
+from ._reflection import indirect_scale, sharp_reflection_for, visible_fraction
 from ._sun_glossy import sun_glossy, sun_glossy_supported, sun_through
 from ._sun_shadow import disc_radius, disc_visibility
 
@@ -112,6 +113,7 @@ def pixel_stage(
     # the sun's glossy reflection per pixel where the BRDF allows (the Gaussians then see the
     # map without the sun)
     sun_gl = glossy and lighting.sun is not None and sun_glossy_supported(model.materials.specular)
+    sharp = sharp_reflection_for(model.materials.specular) if glossy else None
     for s in range(0, tri.shape[0], PIXEL_BATCH):
         t = tri[s : s + PIXEL_BATCH].to(dev)
         b = bary[s : s + PIXEL_BATCH].to(dev, torch.float32)  # (p, 3)
@@ -120,22 +122,7 @@ def pixel_stage(
         if diffuse:
             acc += (vd.diffuse[c] * b[..., None]).sum(1)
         if glossy:
-            # means blend as offsets from the corners' mirror directions, re-based on the
-            # point's own (from its interpolated normal and its view direction)
-            pos = (model.mesh.vertices.to(dev)[c] * b[..., None]).sum(1)
-            nrm = (model.mesh.normals.to(dev)[c] * b[..., None]).sum(1)
-            frame = (vd.mirror[c], mirror_direction(nrm, vd.eye - pos))
-            e, mu, sigma = blend_lobes(vd.e[c], vd.mu[c], vd.sigma[c], b, frame=frame)
-            # the carried light times the lighting averaged under the lobe: the integral
-            # without forming the (up to 1e5) peak weight
-            acc += (e * lighting.lookup(mu, sigma.pow(-2), rot, rest=sun_gl).to(dev)).sum(1)
-            ni = model.indirect_gaussians
-            if sun_gl and ni:
-                # the sun's light reflected off the object into the indirect lobes
-                sd = lighting.sun_direction(rot).to(dev, torch.float32)
-                k = slice(model.n_gaussians - ni, None)
-                lam_k = sigma[:, k].pow(-2)
-                acc += sun_through(e[:, k], mu[:, k], lam_k, sd, lighting.sun).sum(1)
+            acc += _glossy(model, lighting, vd, c, b, rot, sun_gl=sun_gl, sharp=sharp)
         out[s : s + PIXEL_BATCH] = acc
     if (diffuse or sun_gl) and lighting.sun is not None:
         if caster is None:
@@ -144,6 +131,43 @@ def pixel_stage(
             model, lighting, tri, bary, rot, caster, diffuse=diffuse, glossy=sun_gl, eye=vd.eye
         )
     return out
+
+
+def _glossy(model, lighting, vd: VertexData, c, b, rot, *, sun_gl: bool, sharp) -> torch.Tensor:
+    """The Gaussians' glossy light at points of corners ``c (p, 3)`` and barycentrics
+    ``b (p, 3)``: (p, 3). With ``sharp`` (:func:`._reflection.sharp_reflection`) the direct
+    part is the material's own lobe at the point's reflected direction (:mod:`._reflection`)."""
+    dev = model.device
+    # means blend as offsets from the corners' mirror directions, re-based on the point's own
+    # (from its interpolated normal and its view direction)
+    pos = (model.mesh.vertices.to(dev)[c] * b[..., None]).sum(1)
+    nrm = torch.nn.functional.normalize(
+        (model.mesh.normals.to(dev)[c] * b[..., None]).sum(1), dim=-1
+    )
+    view = torch.nn.functional.normalize(vd.eye - pos, dim=-1)
+    r = mirror_direction(nrm, view)
+    e, mu, sigma = blend_lobes(vd.e[c], vd.mu[c], vd.sigma[c], b, frame=(vd.mirror[c], r))
+    ni = model.indirect_gaussians
+    k = slice(model.n_gaussians - ni, None)
+    acc = torch.zeros(c.shape[0], 3, device=dev)
+    if sharp is not None:
+        nv = (nrm * view).sum(-1).clamp_min(0)
+        vis = visible_fraction(model.visibility().to(dev), c, b, r)
+        albedo = sharp.directional_albedo(nv)
+        acc += sharp.shade(lighting, r, nv, vis, rot, rest=sun_gl).to(dev)
+        # the indirect Gaussians fill what the pixel's lobe does not see
+        direct = e[:, : model.direct_gaussians].sum(1)
+        e = e[:, k] * indirect_scale(direct, albedo, vis)[:, None, None]
+        mu, sigma = mu[:, k], sigma[:, k]
+    # the carried light times the lighting averaged under the lobe: the integral without
+    # forming the (up to 1e5) peak weight
+    acc += (e * lighting.lookup(mu, sigma.pow(-2), rot, rest=sun_gl).to(dev)).sum(1)
+    if sun_gl and ni:
+        # the sun's light reflected off the object into the indirect lobes
+        sd = lighting.sun_direction(rot).to(dev, torch.float32)
+        j = slice(e.shape[1] - ni, None)
+        acc += sun_through(e[:, j], mu[:, j], sigma[:, j].pow(-2), sd, lighting.sun).sum(1)
+    return acc
 
 
 def sun_stage(

@@ -349,13 +349,33 @@ void main() {
         // the pixel's own mirror direction, from its interpolated normal and view direction:
         // the blended offsets are re-based on it (lobelight.model.blend_lobes, frame=)
         vec3 mirror = 2.0 * dot(n, d) * n - d;
-        for (int k = 0; k < N_GAUSSIANS; ++k) {
+        int first = 0;          // the first Gaussian shaded from the model
+        float indirect = 1.0;   // the indirect Gaussians' factor
+#if defined(SHARP) && SHARP
+        // the direct light by the material's own lobe at the pixel's reflected direction,
+        // with the visibility read there (reflection.glsl, render/_reflection.py); the
+        // indirect Gaussians fill the pixel's occluded fraction
+        float nv = max(dot(n, d), 0.0);
+        float vis = visible_fraction(v_pos, mirror);
+        vec3 albedo = directional_albedo(nv);
+        c += albedo * sharp_lighting(rot_t * mirror, nv) * vis;
+        first = N_GAUSSIANS - N_INDIRECT;
+        vec3 direct = vec3(0.0);
+        for (int k = 0; k < N_GAUSSIANS - N_INDIRECT; ++k) {
+            if (v_lobe[2 * k].w >= MIN_SAY) direct += v_lobe[2 * k].rgb;
+        }
+        float v_fit = clamp((direct.r + direct.g + direct.b) /
+                            max(albedo.r + albedo.g + albedo.b, 1e-30), 0.0, 1.0);
+        indirect = clamp((1.0 - vis) / max(1.0 - v_fit, OCCLUDED_FLOOR), 0.0, INDIRECT_SCALE_MAX);
+#endif
+        for (int k = first; k < N_GAUSSIANS; ++k) {
             vec4 el = v_lobe[2 * k];
             vec4 ms = v_lobe[2 * k + 1];
             float say = el.w;  // the live corners' barycentric weight
             if (say < MIN_SAY) continue;
             float sigma = ms.w / say;
             vec3 mu = normalize(mirror + ms.xyz / say);
+            el.rgb *= indirect;
             c += el.rgb * prefiltered_lookup(rot_t * mu, 1.0 / (sigma * sigma));
 #if SUN_GLOSSY
             // the sun's light reflected off the object into the indirect lobes
