@@ -11,9 +11,10 @@ import torch
 import trimesh
 
 from lobelight import brdf, envmap, render, scene
+from lobelight.errors import InputError
 from lobelight.geometry import octahedral, sphere
 from lobelight.lobes.sg import Gaussians
-from lobelight.model import Model, visibility_tiles
+from lobelight.model import Model, load, visibility_tiles
 from lobelight.render import _reflection
 
 SHARP = {"diffuse": [0.0, 0.0, 0.0], "model": "ggx", "alpha": 0.03, "specular": [0.9, 0.8, 0.6]}
@@ -183,3 +184,19 @@ def test_concave_shape_occludes_its_reflection_per_pixel(tmp_path):
     # measured 0.022 against 0.081 for the control; what is left is the tiles' 6-degree
     # texels blended over the triangle's corners, and the lobe's Gaussian mixture
     assert err < 0.04 and err_blind > 2.5 * err, (err, err_blind)
+
+
+def test_visibility_tiles_travel_in_the_model_file(tmp_path):
+    sc0 = scene.builtin("sphere", subdivisions=1)
+    sc = scene.Scene(sc0.mesh, scene.uniform(SHARP, sc0.mesh.n_vertices), name="s")
+    m = _bare_model(sc)
+    tiles = m.visibility()
+    m.save(tmp_path / "m.npz")
+    back = load(tmp_path / "m.npz")
+    assert back._visibility is not None and torch.equal(back._visibility, tiles)
+    # a malformed array is refused, naming the file
+    arrays = dict(np.load(tmp_path / "m.npz"))
+    arrays["visibility"] = arrays["visibility"][:, :, :5]
+    np.savez(tmp_path / "bad.npz", **arrays)
+    with pytest.raises(InputError, match="visibility must be"):
+        load(tmp_path / "bad.npz")

@@ -18,6 +18,8 @@ holding
 ``diffuse``         (V, n, 3) SH diffuse transfer
 ``bounce``          optional (V, n, 3): the interreflected part of ``diffuse``, lit by the sun
                     as well (the self-shadowed part sees the sun per pixel)
+``visibility``      optional (V, R, R) uint8: each vertex's octahedral visibility tile
+                    (:func:`lobelight.model.visibility_tiles`; computed from the mesh when absent)
 
 Beyond the paper's 92 x 7 x V x N floats: ``float16`` halves it, and records are dropped
 where they cannot matter. A view's Gaussians enter rendering only through the spherical
@@ -54,6 +56,7 @@ __all__ = ["FORMAT", "MAX_LIGHT", "VERSION", "read", "write"]
 FORMAT = "lobelight-model"
 VERSION = 1
 _ARRAYS = ("meta", "vertices", "faces", "normals", "views", "keep", "gaussians", "diffuse")
+_OPTIONAL = ("bounce", "visibility")
 
 
 #: The most light a Gaussian, or a transfer coefficient, of a fitted model carries: they are
@@ -86,6 +89,7 @@ def write(
     provenance: dict[str, Any] | None,
     bounce: torch.Tensor | None = None,
     indirect_gaussians: int = 0,
+    visibility: torch.Tensor | None = None,
 ) -> dict[str, Any]:
     """Write a model file atomically (module docstring); returns sizes (bytes, records kept).
 
@@ -135,6 +139,8 @@ def write(
     }
     if bounce is not None:
         arrays["bounce"] = bounce.detach().cpu().numpy().astype(dt)
+    if visibility is not None:
+        arrays["visibility"] = visibility.cpu().numpy().astype(np.uint8)
     with atomic_writer(p) as f:
         np.savez_compressed(f, **arrays)
     return {
@@ -202,8 +208,8 @@ def read(path) -> dict[str, Any]:
     Returns
     -------
     dict with ``mesh``, ``views (J, 3)``, ``gaussians`` (:class:`Gaussians`, ``(V, J, N)``),
-    ``diffuse (V, n, 3)``, ``materials``, ``provenance``, ``bounce`` (or None) and
-    ``indirect_gaussians``, all on the CPU
+    ``diffuse (V, n, 3)``, ``materials``, ``provenance``, ``bounce`` (or None),
+    ``indirect_gaussians`` and ``visibility`` (or None), all on the CPU
 
     Raises
     ------
@@ -213,12 +219,25 @@ def read(path) -> dict[str, Any]:
     """
     p = Path(path)
     name = str(p)
-    a, bounce_arr = _open(p, name)
+    a, extra = _open(p, name)
+    bounce_arr = extra.get("bounce")
     h = _header(a["meta"], name)
     _check_arrays(a, h, name)
     g = _gaussians(a, h, name)
     _check_transfer(a["diffuse"], bounce_arr, name)
-    return _build(p, a, bounce_arr, h, g, name)
+    out = _build(p, a, bounce_arr, h, g, name)
+    out["visibility"] = _visibility(extra.get("visibility"), h.v, name)
+    return out
+
+
+def _visibility(arr: np.ndarray | None, v: int, name: str) -> torch.Tensor | None:
+    """The optional visibility tiles, checked: ``(V, R, R)`` uint8 with ``R >= 2``."""
+    if arr is None:
+        return None
+    ok = arr.dtype == np.uint8 and arr.ndim == 3 and arr.shape[0] == v
+    _need(ok and arr.shape[1] == arr.shape[2] >= 2, name,
+          f"visibility must be ({v}, R, R) uint8 tiles, got {arr.dtype} {arr.shape}")  # fmt: skip
+    return torch.from_numpy(arr.copy())
 
 
 @dataclass(frozen=True)
@@ -249,9 +268,10 @@ _UNREADABLE = (
 )
 
 
-def _open(p: Path, name: str) -> tuple[dict[str, np.ndarray], np.ndarray | None]:
+def _open(p: Path, name: str) -> tuple[dict[str, np.ndarray], dict[str, np.ndarray]]:
     """The container: a regular zip archive of ``.npy`` arrays holding every array of
-    ``_ARRAYS``, of a plausible expanded size. Returns the arrays, and ``bounce`` or None."""
+    ``_ARRAYS``, of a plausible expanded size. Returns the arrays, and those of ``_OPTIONAL``
+    it holds."""
     check_input(p, limit=MAX_FILE_BYTES)  # a regular file (not a device or pipe)
     _need(_is_zip(p), name, _not_a_model(p))
     try:
@@ -263,15 +283,15 @@ def _open(p: Path, name: str) -> tuple[dict[str, np.ndarray], np.ndarray | None]
             _need(not missing, name, f"not a lobelight model file (missing {missing})")
             _check_sizes(z.zip, p.stat().st_size, name)  # before anything is decompressed
             a = {k: z[k] for k in _ARRAYS}
-            bounce_arr = z["bounce"] if "bounce" in z.files else None
+            extra = {k: z[k] for k in _OPTIONAL if k in z.files}
     except InputError:
         raise
     except _UNREADABLE as exc:
         raise InputError(name, f"cannot read model file: {type(exc).__name__}: {exc}") from None
-    for k, arr in a.items():
+    for k, arr in (*a.items(), *extra.items()):
         # a member without the .npy header comes back as raw bytes
         _need(isinstance(arr, np.ndarray), name, f"{k} is not an array")
-    return a, bounce_arr
+    return a, extra
 
 
 def _header(raw: np.ndarray, name: str) -> _Header:

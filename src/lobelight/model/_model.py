@@ -168,6 +168,7 @@ class Model:
             provenance=self.provenance,
             bounce=self.bounce,
             indirect_gaussians=self.indirect_gaussians,
+            visibility=self._visibility,
         )
 
 
@@ -214,5 +215,8 @@ def load(path, *, device=None) -> Model:
         naming the file: missing, not a model file, unknown version, missing or malformed
         arrays, non-finite values, inconsistent shapes.
     """
-    model = Model(**read(path))
+    fields = read(path)
+    visibility = fields.pop("visibility")
+    model = Model(**fields)
+    model._visibility = visibility
     return model.to(device) if device is not None else model
