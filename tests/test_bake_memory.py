@@ -20,7 +20,6 @@ import sys
 from pathlib import Path
 
 import pytest
-import torch
 
 from lobelight import fit
 from lobelight.errors import InputError
@@ -96,7 +95,6 @@ def test_interreflection_peak_does_not_grow_with_the_vertex_count():
 _CHILD_BAKE = r"""
 import json, sys, torch
 from lobelight import fit, scene
-from lobelight.geometry import sphere
 
 def hwm():
     for line in open("/proc/self/status"):
@@ -104,10 +102,9 @@ def hwm():
             return int(line.split()[1]) * 1024
 
 sc = scene.load(sys.argv[1], material="ggx:alpha=0.04,specular=0.9")
-views = sphere.geodesic_views()[::8]  # 12 views: a short bake, the same stages
 open("/proc/self/clear_refs", "w").write("5")
 base = hwm()
-m = fit.fit_model(sc, 1, views=views, indirect_paths=2, bounces=1, progress=None)
+m = fit.fit_model(sc, 1, indirect_paths=2, bounces=1, progress=None)
 print(json.dumps({"vertices": sc.mesh.n_vertices, "above": hwm() - base,
                   "memory": m.provenance["memory"]}))
 """
@@ -115,10 +112,10 @@ print(json.dumps({"vertices": sc.mesh.n_vertices, "above": hwm() - base,
 
 @pytest.mark.slow
 def test_bake_peak_does_not_grow_with_the_vertex_count():
-    small = _child(_CHILD_BAKE, "sphere:3")
-    large = _child(_CHILD_BAKE, "sphere:4")
+    small = _child(_CHILD_BAKE, "sphere:2")
+    large = _child(_CHILD_BAKE, "sphere:3")
     assert small["memory"]["batch"] == large["memory"]["batch"] == 64
-    # per vertex the bake keeps its state (BakeState at 12 views: ~1 KB) and the
+    # per vertex the bake keeps its state (lobelight.fit._memory.state_bytes: 5 KB) and the
     # interreflection's (bounded as above); everything else is batched
     grown = large["above"] - small["above"]
     allowed = (large["vertices"] - small["vertices"]) * _STATE_PER_VERTEX + _NOISE
@@ -152,14 +149,21 @@ def test_a_smaller_budget_gives_smaller_batches_and_an_impossible_one_an_error()
         _memory.plan_memory(float("nan"), 10, 92, 1, device="cpu")
 
 
+_CHILD_METER = r"""
+import json, torch
+from lobelight.fit import _memory
+meter = _memory.PeakMeter(period=0.005)
+meter.stage("small")
+meter.stage("large")
+x = torch.ones(64 * 2**20 // 4)  # 64 MB, touched
+x += 1
+print(json.dumps(meter.stop()))
+"""
+
+
 def test_the_peak_meter_sees_a_stage_allocation():
-    meter = _memory.PeakMeter(period=0.005)
-    meter.stage("small")
-    meter.stage("large")
-    x = torch.ones(64 * 2**20 // 4)  # 64 MB, touched
-    x += 1
-    peaks = meter.stop()
-    del x
-    if _memory.resident_bytes() is None:
-        pytest.skip("no /proc resident figure")
+    # in a fresh process: a process that has freed memory may serve the 64 MB from pages it
+    # still holds (the command line keeps its freed heap, lobelight.cli.tune)
+    peaks = _child(_CHILD_METER)
+    # 64 MB touched, less slack for pages the stage's start already counted
     assert peaks["large"] - peaks["small"] >= 48 * 2**20, peaks
