@@ -41,7 +41,6 @@ from ..lobes import sg
 from ._data import FitData
 from ._objective import (
     Weights,
-    _averaging_matrix,
     _neighbour_mean,
     _pair_diffs,
     conserve_factor,
@@ -118,13 +117,11 @@ def levenberg_marquardt(
     valid = (nbr_views >= 0).to(dt)  # (J, 6)
     inv_r = 1 / valid.sum(1)  # (J,) 1 / number of neighbours of each view
 
-    # sum over u in nbr(v) of x_u / R_u is (A^T x)_v for A the neighbour-averaging matrix
-    # (views' neighbourhoods are symmetric)
-    back = _averaging_matrix(nbr_views, dt).T.contiguous()  # (J, J)
-
     def to_neighbours(x: torch.Tensor) -> torch.Tensor:
-        """sum over u in nbr(v) of x_u / R_u, (B, J, ...)."""
-        return torch.matmul(back, x.reshape(b, j, -1)).reshape(x.shape)
+        """sum over u in nbr(v) of x_u / R_u (views' neighbourhoods are symmetric), (B, J, ...)."""
+        xr = x * inv_r.reshape(1, -1, *([1] * (x.ndim - 2)))
+        g = xr[:, nbr_views.clamp_min(0)]  # (B, J, 6, ...)
+        return (g * valid.reshape(1, *valid.shape, *([1] * (x.ndim - 2)))).sum(2)
 
     # Only views whose samples carry light have a data term: below the horizon, or fully
     # occluded, the transport is 0, the solved weights are 0 and so are the data residuals and

@@ -172,7 +172,7 @@ class PeakMeter:
     memory at its start and end.
     """
 
-    def __init__(self, period: float = 0.02):
+    def __init__(self, period: float = 0.05):
         self.period = period
         self._peaks: dict[str, int] = {}
         self._current: str | None = None

@@ -216,26 +216,11 @@ def data_term(data: FitData, w, mu, lam) -> torch.Tensor:
 
 
 def _neighbour_mean(x: torch.Tensor, nbr: torch.Tensor) -> torch.Tensor:
-    """Average of ``x`` (B, J, ...) over each view's neighbours ``nbr`` (J, 6) (-1 padded).
-
-    One matmul over the view axis with the (J, J) averaging matrix (at most 6 entries a row):
-    the same sums as gathering the neighbours, in one pass."""
-    b, j = x.shape[:2]
-    avg = _averaging_matrix(nbr, x.dtype)  # (J, J)
-    return torch.matmul(avg, x.reshape(b, j, -1)).reshape(x.shape)
-
-
-def _averaging_matrix(nbr: torch.Tensor, dtype: torch.dtype) -> torch.Tensor:
-    """``A`` (J, J) with ``A[v, u] = 1 / R_v`` for the ``R_v`` neighbours ``u`` of view ``v``
-    (``nbr`` (J, 6), -1 padded), so that ``A @ x`` averages ``x`` over each view's
-    neighbours."""
-    j = nbr.shape[0]
-    valid = nbr >= 0  # (J, 6)
-    count = valid.sum(1, keepdim=True).clamp_min(1).to(dtype)  # (J, 1)
-    rows = torch.arange(j, device=nbr.device)[:, None].expand_as(nbr)
-    out = torch.zeros(j, j, dtype=dtype, device=nbr.device)
-    vals = (valid.to(dtype) / count).expand_as(nbr)
-    return out.index_put_((rows[valid], nbr[valid]), vals[valid], accumulate=True)
+    """Average of ``x`` (B, J, ...) over each view's neighbours ``nbr`` (J, 6) (-1 padded)."""
+    valid = (nbr >= 0).to(x.dtype)  # (J, 6)
+    g = x[:, nbr.clamp_min(0)]  # (B, J, 6, ...)
+    shape = (1, *valid.shape, *([1] * (x.ndim - 2)))
+    return (g * valid.reshape(shape)).sum(2) / valid.sum(1).reshape(1, -1, *([1] * (x.ndim - 2)))
 
 
 def mean_term(mu: torch.Tensor, nbr: torch.Tensor) -> torch.Tensor:
