@@ -47,10 +47,11 @@ def _arrays(path: Path) -> dict[str, np.ndarray]:
     with np.load(path, allow_pickle=False) as z:
         arrays = {k: z[k] for k in z.files if k != "meta"}
         meta = json.loads(bytes(z["meta"]).decode())
-    # the provenance holds timings; everything else must match
+    # the provenance holds timings and measured peak memory; everything else must match
     meta["provenance"] = {
         k: v for k, v in meta["provenance"].items() if "second" not in k and k != "timings"
     }
+    meta["provenance"].get("memory", {}).pop("peak_gb", None)
     return {**arrays, "meta": np.frombuffer(json.dumps(meta, sort_keys=True).encode(), np.uint8)}
 
 
