@@ -161,6 +161,8 @@ def test_relaxation_reduces_flips_on_a_sphere():
     # 59 -> 31, the fit error (D) 0.0072 -> 0.0070. The paper's refit alone (before this pass)
     # went 172 -> 174 and 59 -> 125 (its fit error 0.0062), so the bounds below fail for it;
     # they leave ~10 % for platform differences.
+    # The separated count is a handful of pairs that the fit's rounding moves (0 to 3 before the
+    # pass, 0 after, at the same fit error): it may not grow, and must fall where there are any.
     mf = fit.fit_mesh(scene.load("sphere:1"), n=2, relax=True)
     assert mf.flips_after < 0.95 * mf.flips_before
-    assert mf.separated_flips_after < 0.7 * mf.separated_flips_before
+    assert mf.separated_flips_after <= 0.7 * mf.separated_flips_before
