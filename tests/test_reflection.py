@@ -15,7 +15,6 @@ from lobelight.errors import InputError
 from lobelight.geometry import octahedral, sphere
 from lobelight.lobes.sg import Gaussians
 from lobelight.model import Model, load, visibility_tiles
-from lobelight.render import _reflection
 
 SHARP = {"diffuse": [0.0, 0.0, 0.0], "model": "ggx", "alpha": 0.03, "specular": [0.9, 0.8, 0.6]}
 
@@ -47,7 +46,7 @@ def test_albedo_table_and_mixture_against_quadrature():
     # the table by stratified importance sampling against a midpoint quadrature of f cos over
     # the hemisphere (independent of the sampler); the mixture's light sums to one
     spec = brdf.GGX(alpha=0.05, specular=torch.tensor([0.9, 0.8, 0.6]))
-    sr = _reflection.sharp_reflection(spec)
+    sr = brdf.sharp_lobe(spec)
     assert sr is not None
     assert abs(float(sr.weights.sum()) - 1) < 1e-6 and bool((sr.weights >= 0).all())
     # polar coordinates about each view's mirror direction, rings dense near it: the lobe,
@@ -77,11 +76,11 @@ def test_albedo_table_and_mixture_against_quadrature():
 
 
 def test_only_sharp_constant_lobes_are_shaded_per_pixel():
-    assert _reflection.sharp_reflection(brdf.GGX(alpha=0.03, specular=0.9)) is not None
-    assert _reflection.sharp_reflection(brdf.GGX(alpha=0.25, specular=0.9)) is None
+    assert brdf.sharp_lobe(brdf.GGX(alpha=0.03, specular=0.9)) is not None
+    assert brdf.sharp_lobe(brdf.GGX(alpha=0.25, specular=0.9)) is None
     per_vertex = brdf.GGX(alpha=torch.full((10,), 0.03), specular=0.9)
-    assert _reflection.sharp_reflection(per_vertex) is None
-    assert _reflection.sharp_reflection(None) is None
+    assert brdf.sharp_lobe(per_vertex) is None
+    assert brdf.sharp_lobe(None) is None
 
 
 def _step_sky(height: int = 256) -> envmap.EnvMap:
@@ -190,10 +189,9 @@ def test_visibility_tiles_travel_in_the_model_file(tmp_path):
     sc0 = scene.builtin("sphere", subdivisions=1)
     sc = scene.Scene(sc0.mesh, scene.uniform(SHARP, sc0.mesh.n_vertices), name="s")
     m = _bare_model(sc)
-    tiles = m.visibility()
-    m.save(tmp_path / "m.npz")
+    m.save(tmp_path / "m.npz")  # a sharp material's model carries its tiles
     back = load(tmp_path / "m.npz")
-    assert back._visibility is not None and torch.equal(back._visibility, tiles)
+    assert back._visibility is not None and torch.equal(back._visibility, m.visibility())
     # a malformed array is refused, naming the file
     arrays = dict(np.load(tmp_path / "m.npz"))
     arrays["visibility"] = arrays["visibility"][:, :, :5]

@@ -138,6 +138,7 @@ Registry
 from __future__ import annotations
 
 from ._base import BRDF, REGISTRY, CosineLobe, Sum, from_dict, register
+from ._sharp import ALBEDO_SAMPLES, ALBEDO_STEPS, MIXTURE, SHARP_LAM, SharpLobe, sharp_lobe
 from .lafortune import Lafortune
 from .lambert import Lambert
 from .microfacet import GGX, Beckmann
@@ -145,19 +146,25 @@ from .phong import BlinnPhong, Phong
 from .ward import Ward
 
 __all__ = [
+    "ALBEDO_SAMPLES",
+    "ALBEDO_STEPS",
     "BRDF",
     "GGX",
+    "MIXTURE",
     "REGISTRY",
+    "SHARP_LAM",
     "Beckmann",
     "BlinnPhong",
     "CosineLobe",
     "Lafortune",
     "Lambert",
     "Phong",
+    "SharpLobe",
     "Sum",
     "Ward",
     "from_dict",
     "register",
+    "sharp_lobe",
 ]
 
 # The registry: one line per model, in the order error messages list them.

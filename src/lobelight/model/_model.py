@@ -9,6 +9,7 @@ from typing import Any
 
 import torch
 
+from ..brdf import sharp_lobe
 from ..errors import InputError
 from ..geometry import sphere
 from ..lobes import sg
@@ -155,7 +156,11 @@ class Model:
         return self
 
     def save(self, path, *, float16: bool = False, drop: bool = True) -> dict[str, Any]:
-        """Write the model to ``path`` (see :func:`save`); returns sizes."""
+        """Write the model to ``path`` (see :func:`save`); returns sizes. A material whose lobe
+        the renderers shade per pixel (:func:`lobelight.brdf.sharp_lobe`) has its visibility
+        tiles (:meth:`visibility`) written too, so that no renderer computes them again."""
+        if self._visibility is None and sharp_lobe(self.materials.specular) is not None:
+            self.visibility()
         return write(
             path,
             self.mesh,

@@ -29,6 +29,7 @@ import numpy as np
 import torch
 
 from .. import model as model_module
+from ..brdf import ALBEDO_STEPS, MIXTURE, sharp_lobe
 from ..envmap import Prefiltered
 from ..errors import InputError
 from ..geometry import sphere
@@ -36,13 +37,7 @@ from ..geometry.camera import Camera
 from ..lobes import sg
 from ..model import VISIBILITY_RES
 from ._lighting import Lighting
-from ._reflection import (
-    ALBEDO_STEPS,
-    INDIRECT_SCALE_MAX,
-    MIXTURE,
-    OCCLUDED_FLOOR,
-    sharp_reflection_for,
-)
+from ._reflection import INDIRECT_SCALE_MAX, OCCLUDED_FLOOR
 from ._sun_glossy import (
     sun_glossy_supported,
     sun_glossy_uniforms,
@@ -557,7 +552,7 @@ class GLRenderer:
         self.has_sun = lighting.sun is not None
         self.sun_glossy = self.has_sun and sun_glossy_supported(spec)
         # a sharp lobe's direct light per pixel (render/_reflection.py)
-        self.sharp = sharp_reflection_for(spec)
+        self.sharp = sharp_lobe(spec)
         # the interreflected part of the transfer, lit by the sun as well (Model.bounce)
         self.has_bounce = model.bounce is not None and self.has_sun
         self.lighting = lighting

@@ -26,13 +26,14 @@ from dataclasses import dataclass
 
 import torch
 
+from ..brdf import sharp_lobe
 from ..errors import InputError
 from ..geometry.camera import Camera
 from ..geometry.raycast import RayCaster
 from ..lobes import sg
 from ..model import blend_lobes
 from ._lighting import Lighting
-from ._reflection import indirect_scale, sharp_reflection_for, visible_fraction
+from ._reflection import indirect_scale, shade, visible_fraction
 from ._sun_glossy import sun_glossy, sun_glossy_supported, sun_through
 from ._sun_shadow import disc_radius, disc_visibility
 
@@ -113,7 +114,7 @@ def pixel_stage(
     # the sun's glossy reflection per pixel where the BRDF allows (the Gaussians then see the
     # map without the sun)
     sun_gl = glossy and lighting.sun is not None and sun_glossy_supported(model.materials.specular)
-    sharp = sharp_reflection_for(model.materials.specular) if glossy else None
+    sharp = sharp_lobe(model.materials.specular) if glossy else None
     for s in range(0, tri.shape[0], PIXEL_BATCH):
         t = tri[s : s + PIXEL_BATCH].to(dev)
         b = bary[s : s + PIXEL_BATCH].to(dev, torch.float32)  # (p, 3)
@@ -135,7 +136,7 @@ def pixel_stage(
 
 def _glossy(model, lighting, vd: VertexData, c, b, rot, *, sun_gl: bool, sharp) -> torch.Tensor:
     """The Gaussians' glossy light at points of corners ``c (p, 3)`` and barycentrics
-    ``b (p, 3)``: (p, 3). With ``sharp`` (:func:`._reflection.sharp_reflection`) the direct
+    ``b (p, 3)``: (p, 3). With ``sharp`` (:func:`lobelight.brdf.sharp_lobe`) the direct
     part is the material's own lobe at the point's reflected direction (:mod:`._reflection`)."""
     dev = model.device
     # means blend as offsets from the corners' mirror directions, re-based on the point's own
@@ -154,7 +155,7 @@ def _glossy(model, lighting, vd: VertexData, c, b, rot, *, sun_gl: bool, sharp) 
         nv = (nrm * view).sum(-1).clamp_min(0)
         vis = visible_fraction(model.visibility().to(dev), c, b, r)
         albedo = sharp.directional_albedo(nv)
-        acc += sharp.shade(lighting, r, nv, vis, rot, rest=sun_gl).to(dev)
+        acc += shade(sharp, lighting, r, nv, vis, rot, rest=sun_gl).to(dev)
         # the indirect Gaussians fill what the pixel's lobe does not see
         direct = e[:, : model.direct_gaussians].sum(1)
         e = e[:, k] * indirect_scale(direct, albedo, vis)[:, None, None]

@@ -1,0 +1,161 @@
+"""A sharp specular lobe's shape and light, for shading it per pixel: a mixture of Gaussians
+fitted to the lobe's profile, and its directional albedo.
+
+:func:`sharp_lobe` measures a BRDF once: the lobe's profile ``f_s(w, n) cos`` at normal
+incidence against four Gaussians of sharpness ``lam0 * 4, lam0, lam0 / 4, lam0 / 16``
+(``lam0`` from the lobe's half-maximum angle), their shares of light by non-negative least
+squares, and ``E(n.v) = int f_s cos`` (Fresnel included) at 64 cosines by stratified importance
+sampling. The renderers shade such a lobe per pixel (``lobelight.render``; docs/method.md,
+"Sharp reflections per pixel").
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from dataclasses import dataclass
+
+import torch
+
+from .._tol import DIVISOR_F32
+
+__all__ = ["ALBEDO_SAMPLES", "ALBEDO_STEPS", "MIXTURE", "SHARP_LAM", "SharpLobe", "sharp_lobe"]
+
+#: Gaussians in the lobe's shape mixture, sharpness ``lam0 * 4, lam0, lam0 / 4, lam0 / 16``:
+#: a GGX lobe's tail holds a third of its light beyond where one Gaussian of its width reaches.
+MIXTURE = 4
+#: The sharpest lobe kept in fitted Gaussians: lobes whose half-maximum sharpness ``lam0`` is
+#: at least this (a GGX or Beckmann alpha up to about 0.065) are shaded per pixel. Measured
+#: better per pixel at alpha 0.03 (docs/results.md); wider lobes keep the fitted Gaussians,
+#: which match the references there.
+SHARP_LAM = 200.0
+#: Entries of the directional-albedo table over ``n.v`` in ``(0, 1]``.
+ALBEDO_STEPS = 64
+#: Importance samples per table entry (a stratified grid: the table's error is far below a
+#: percent for the lobes shaded here).
+ALBEDO_SAMPLES = 64
+
+
+@dataclass(frozen=True)
+class SharpLobe:
+    """A material's sharp lobe (module docstring).
+
+    Attributes
+    ----------
+    weights : (M,) the shape mixture's share of light per Gaussian (sum 1)
+    lam : (M,) their sharpness at normal incidence
+    warp : whether the sharpness divides by ``n.v`` (microfacet and Blinn-Phong lobes)
+    albedo : (T, 3) directional albedo at ``n.v = (k + 0.5) / T``
+    """
+
+    weights: torch.Tensor
+    lam: torch.Tensor
+    warp: bool
+    albedo: torch.Tensor
+
+    def directional_albedo(self, nv: torch.Tensor) -> torch.Tensor:
+        """``E(n.v)``: (..., 3), linear in the table (clamped at its ends)."""
+        t = self.albedo.shape[0]
+        x = (nv.clamp(0, 1) * t - 0.5).clamp(0, t - 1)
+        i0 = x.floor().long().clamp(max=t - 2)
+        f = (x - i0)[..., None]
+        a = self.albedo.to(nv.device)
+        return a[i0] * (1 - f) + a[i0 + 1] * f
+
+    def sharpness(self, nv: torch.Tensor) -> torch.Tensor:
+        """(..., M) the mixture's sharpness at ``n.v`` (floored at 0.02: a grazing view's lobe
+        does not become a point)."""
+        lam = self.lam.to(nv.device)
+        if not self.warp:
+            return lam.expand(*nv.shape, -1)
+        return lam / nv.clamp_min(0.02)[..., None]
+
+
+def sharp_lobe(spec) -> SharpLobe | None:
+    """The lobe of a specular BRDF (module docstring), or None where it is not one the
+    renderers shade per pixel: no BRDF, no shader formula (:attr:`BRDF.sun_model`),
+    parameters varying over the mesh, or a lobe wider than :data:`SHARP_LAM`. Kept per
+    material (by its parameters) for later calls."""
+    if spec is None:
+        return None
+    key = json.dumps(spec.to_dict(), sort_keys=True)
+    if key not in _CACHE:
+        _CACHE[key] = _measure(spec)
+    return _CACHE[key]
+
+
+def _measure(spec) -> SharpLobe | None:
+    """:func:`sharp_lobe`'s measurement."""
+    if spec.sun_model is None or spec.per_element_params:
+        return None
+    spec = spec.to("cpu", torch.float64)
+    lam0 = _half_max_sharpness(spec)
+    if lam0 < SHARP_LAM:
+        return None
+    lam = torch.tensor([lam0 * 4.0 ** (1 - i) for i in range(MIXTURE)], dtype=torch.float64)
+    weights = _shape_mixture(spec, lam)
+    return SharpLobe(
+        weights=weights.float(),
+        lam=lam.float(),
+        warp=spec.sun_model != 2,  # modified Phong's lobe keeps its width about R
+        albedo=_albedo_table(spec).float(),
+    )
+
+
+#: :func:`sharp_lobe`'s results by material (a frame must not integrate the tables again;
+#: materials are few).
+_CACHE: dict[str, SharpLobe | None] = {}
+
+
+def _profile(spec, theta: torch.Tensor) -> torch.Tensor:
+    """``f_s(w, n) cos`` (luminance-like mean over RGB) at normal incidence for ``w`` at angles
+    ``theta`` from the normal (the mirror direction): (T,)."""
+    z = torch.zeros_like(theta)
+    w = torch.stack([torch.sin(theta), z, torch.cos(theta)], -1)
+    n = torch.tensor([0.0, 0.0, 1.0], dtype=theta.dtype).expand_as(w)
+    return spec.eval(w, n, n).mean(-1) * torch.cos(theta)
+
+
+def _half_max_sharpness(spec) -> float:
+    """The sharpness of the Gaussian with the lobe's half-maximum angle at normal incidence,
+    ``ln 2 / (1 - cos theta_half)``."""
+    theta = torch.linspace(0, math.pi / 2, 20001, dtype=torch.float64)
+    f = _profile(spec, theta)
+    half = int((f >= 0.5 * f[0]).nonzero().max())
+    th = float(theta[max(half, 1)])
+    return math.log(2) / (1 - math.cos(th))
+
+
+def _shape_mixture(spec, lam: torch.Tensor) -> torch.Tensor:
+    """Non-negative shares of light ``a_i`` (sum 1) of Gaussians of sharpness ``lam`` whose sum
+    best matches the lobe's profile at normal incidence, weighted by solid angle."""
+    theta = torch.linspace(0, math.pi / 2, 8001, dtype=torch.float64)
+    f = _profile(spec, theta)
+    sw = torch.sin(theta).sqrt()[:, None]
+    basis = torch.exp(lam[None] * (torch.cos(theta)[:, None] - 1))  # (T, M)
+    active = torch.ones(lam.shape[0], dtype=torch.bool)
+    c = torch.zeros(lam.shape[0], dtype=torch.float64)
+    for _ in range(lam.shape[0]):  # least squares, dropping negative terms (at most M rounds)
+        sol = torch.linalg.lstsq(basis[:, active] * sw, (f[:, None] * sw)).solution[:, 0]
+        c = torch.zeros_like(c)
+        c[active] = sol
+        if bool((sol >= 0).all()):
+            break
+        active &= c > 0
+    light = c.clamp_min(0) * 2 * math.pi * (1 - torch.exp(-2 * lam)) / lam
+    return light / light.sum().clamp_min(DIVISOR_F32)
+
+
+def _albedo_table(spec) -> torch.Tensor:
+    """``E(n.v) = int f_s cos`` at :data:`ALBEDO_STEPS` cosines by stratified importance
+    sampling of the BRDF: (T, 3)."""
+    t, s = ALBEDO_STEPS, ALBEDO_SAMPLES
+    nv = (torch.arange(t, dtype=torch.float64) + 0.5) / t
+    wo = torch.stack([(1 - nv**2).sqrt(), torch.zeros_like(nv), nv], -1)  # (T, 3)
+    g = (torch.arange(s, dtype=torch.float64) + 0.5) / s
+    u1, u2 = torch.meshgrid(g, g, indexing="ij")
+    u = torch.stack([u1, u2, torch.full_like(u1, 0.5)], -1).reshape(-1, 3)  # (S^2, 3)
+    n = torch.tensor([0.0, 0.0, 1.0], dtype=torch.float64)
+    wo_b = wo[:, None].expand(-1, u.shape[0], 3)
+    _, weight, _ = spec.sample(wo_b, n.expand_as(wo_b), u[None].expand(t, -1, 3))
+    return weight.mean(1)  # (T, 3)
