@@ -12,6 +12,7 @@ import argparse
 from .. import __version__
 from ..data import envmap_names
 from ._gallery import add_arguments as add_gallery_arguments
+from ._gallery import gaussian_count
 
 #: A bake's memory budget in GB, :data:`lobelight.fit.MEMORY_GB` restated likewise.
 _MEMORY_GB = 4.0
@@ -134,7 +135,7 @@ def _gaussians(sp, *, auto: bool = False) -> None:
         return
     sp.add_argument(
         "--gaussians",
-        type=_gaussian_count,
+        type=gaussian_count,
         default="auto",
         choices=["auto", 1, 2, 3],
         help="Gaussians per view fitted to the direct glossy transport (indirect glossy has "
@@ -142,16 +143,6 @@ def _gaussians(sp, *, auto: bool = False) -> None:
         "moderate roughness, one otherwise; the reason is in the model's provenance, "
         "lobelight info)",
     )
-
-
-def _gaussian_count(text: str) -> str | int:
-    """``--gaussians``: ``auto`` or a whole number (argparse checks it against the choices)."""
-    if text.strip().lower() == "auto":
-        return "auto"
-    try:
-        return int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"must be auto, 1, 2 or 3, got {text!r}") from None
 
 
 def _memory_gb(sp) -> None:

@@ -79,7 +79,7 @@ def _add_run_settings(g) -> None:
     )
     g.add_argument(
         "--gaussians",
-        type=_gaussians,
+        type=gaussian_count,
         default=None,
         choices=["auto", 1, 2, 3],
         help="Gaussians per view of every bake (default: each bake's own, else fit_model's "
@@ -124,7 +124,7 @@ def _add_run_settings(g) -> None:
     )
 
 
-def _gaussians(text: str) -> str | int:
+def gaussian_count(text: str) -> str | int:
     """``--gaussians``: ``auto`` or a whole number (argparse checks it against the choices)."""
     if text.strip().lower() == "auto":
         return "auto"
