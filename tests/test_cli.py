@@ -42,6 +42,8 @@ def test_bake_info_render_compare(tmp_path, capsys):
     assert info["n_gaussians"] == 2 and info["provenance"]["scene"] == "sphere1"
     assert info["n_gaussians_choice"]["asked"] == "auto"
     assert "alpha 0.103" in info["n_gaussians_choice"]["reason"]
+    # GGX alpha 0.1 is wider than a lobe shaded per pixel: the fitted Gaussians shade it
+    assert info["reflection"] == "fitted Gaussians"
     assert info["provenance"]["environment"] == str(env.resolve())
     # what was baked of interreflection: the defaults
     assert (

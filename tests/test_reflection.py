@@ -191,7 +191,7 @@ def test_visibility_tiles_travel_in_the_model_file(tmp_path):
     m = _bare_model(sc)
     m.save(tmp_path / "m.npz")  # a sharp material's model carries its tiles
     back = load(tmp_path / "m.npz")
-    assert back._visibility is not None and torch.equal(back._visibility, m.visibility())
+    assert back.visibility_held is not None and torch.equal(back.visibility_held, m.visibility())
     # a malformed array is refused, naming the file
     arrays = dict(np.load(tmp_path / "m.npz"))
     arrays["visibility"] = arrays["visibility"][:, :, :5]

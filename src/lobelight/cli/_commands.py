@@ -19,6 +19,7 @@ import torch
 
 from .. import bench
 from ..bench import bench_all, bench_brdf_fit, bench_lobes, bench_rays, bench_tables
+from ..brdf import sharp_lobe
 from ..data import resolve_envmap
 from ..envmap import builtin
 from ..envmap import load as load_env
@@ -235,9 +236,21 @@ def run_info(args) -> dict:
         "sh_coefficients": int(m.diffuse.shape[1]),
         "records_with_weight": int(live.sum()),
         "material": m.materials.model,
+        "reflection": _reflection(m),
         "interreflection": _interreflection(m.provenance),
         "provenance": m.provenance,
     }
+
+
+def _reflection(m) -> str:
+    """How the renderers shade the model's direct glossy light: per pixel for a sharp lobe
+    (``lobelight.brdf.sharp_lobe``), with or without its visibility tiles in the file."""
+    if sharp_lobe(m.materials.specular) is None:
+        return "fitted Gaussians"
+    tiles = m.visibility_held
+    if tiles is None:
+        return "per pixel (visibility tiles computed from the mesh on first render)"
+    return f"per pixel (visibility tiles {tiles.shape[1]}x{tiles.shape[2]} stored)"
 
 
 def _interreflection(provenance: dict) -> dict:

@@ -133,6 +133,12 @@ class Model:
         gk = torch.exp(g.lam[..., None, :] * (cos - 1))  # (..., D, N)
         return gk @ g.w  # (..., D, 3)
 
+    @property
+    def visibility_held(self) -> torch.Tensor | None:
+        """The visibility tiles if the model holds them (read from its file, or computed by
+        :meth:`visibility`), else None; computes nothing."""
+        return self._visibility
+
     def visibility(self) -> torch.Tensor:
         """Each vertex's visibility of the environment on an octahedral tile, ``(V, R, R)``
         uint8 (:func:`lobelight.model.visibility_tiles`), computed from the mesh on first use
