@@ -38,16 +38,22 @@ _STATE_PER_VERTEX = 33_000
 # heap's arenas come in 64 MB pieces).
 _NOISE = 96 * 2**20
 
-_CHILD_INTERREFLECTION = r"""
-import json, sys, torch
-from lobelight import scene, transport
-from lobelight.geometry import sphere
-
+# the child processes' peak resident memory, from the kernel's high-water mark
+_HWM = r"""
 def hwm():
     for line in open("/proc/self/status"):
         if line.startswith("VmHWM:"):
             return int(line.split()[1]) * 1024
+"""
 
+_CHILD_INTERREFLECTION = (
+    r"""
+import json, sys, torch
+from lobelight import scene, transport
+from lobelight.geometry import sphere
+"""
+    + _HWM
+    + r"""
 sc = scene.load(sys.argv[1], material="ggx:alpha=0.04,specular=0.9")
 tr = transport.Transport(sc)
 v, views = sc.mesh.n_vertices, sphere.geodesic_views()
@@ -63,6 +69,7 @@ transport.diffuse_interreflection(
 )
 print(json.dumps({"vertices": v, "above": hwm() - base}))
 """
+)
 
 
 def _child(code: str, *args: str) -> dict:
@@ -92,15 +99,13 @@ def test_interreflection_peak_does_not_grow_with_the_vertex_count():
     assert small["above"] <= 2 * budget + small["vertices"] * _STATE_PER_VERTEX + _NOISE, small
 
 
-_CHILD_BAKE = r"""
+_CHILD_BAKE = (
+    r"""
 import json, sys, torch
 from lobelight import fit, scene
-
-def hwm():
-    for line in open("/proc/self/status"):
-        if line.startswith("VmHWM:"):
-            return int(line.split()[1]) * 1024
-
+"""
+    + _HWM
+    + r"""
 sc = scene.load(sys.argv[1], material="ggx:alpha=0.04,specular=0.9")
 open("/proc/self/clear_refs", "w").write("5")
 base = hwm()
@@ -108,6 +113,7 @@ m = fit.fit_model(sc, 1, indirect_paths=2, bounces=1, progress=None)
 print(json.dumps({"vertices": sc.mesh.n_vertices, "above": hwm() - base,
                   "memory": m.provenance["memory"]}))
 """
+)
 
 
 @pytest.mark.slow

@@ -66,10 +66,10 @@ def bilinear(tiles: torch.Tensor, index: torch.Tensor, dirs: torch.Tensor) -> to
     x0 = x.floor().long().clamp(max=r - 2)
     y0 = y.floor().long().clamp(max=r - 2)
     fx, fy = x - x0, y - y0
-    t = tiles.float()
 
     def at(dy: int, dx: int) -> torch.Tensor:
-        return t[index, y0 + dy, x0 + dx]
+        # gather, then convert: the tiles stay in their own (e.g. uint8) storage
+        return tiles[index, y0 + dy, x0 + dx].float()
 
     top = at(0, 0) * (1 - fx) + at(0, 1) * fx
     bottom = at(1, 0) * (1 - fx) + at(1, 1) * fx
