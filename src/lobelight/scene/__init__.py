@@ -4,6 +4,11 @@
   :func:`builtin` the scenes that need no files (``"knot"``, ``"sphere"``).
 - :class:`Mesh` welded, cleaned triangles with area-weighted vertex normals and CSR adjacency;
   :func:`load_mesh` / :func:`mesh_from_arrays` check their input and name the problem.
+- :func:`load_gltf` a glTF 2.0 asset (``.gltf``/``.glb``) as a :class:`GltfAsset`: the welded
+  mesh with its UVs, vertex colours and per-vertex material index, and :class:`GltfMaterial`
+  records (metallic-roughness factors, :class:`Texture` s with their :class:`Sampler`);
+  :func:`vertex_factors` its base colour, metallic and roughness per vertex,
+  :func:`sample_texture` a texture at UVs, :func:`read_gltf` the file unwelded.
 - :class:`Materials` Lambert albedo plus one specular model of :mod:`lobelight.brdf` with
   per-vertex parameters; :func:`uniform` and :func:`gradient` build them from plain specs,
   :func:`parse_material` from a one-line spec (``"ggx:alpha=0.1,diffuse=0.5"``).
@@ -11,6 +16,15 @@
 The scene-file format is described in docs/scene-format.md.
 """
 
+from ._gltf import (
+    GLTF_SUFFIXES,
+    GltfGeometry,
+    GltfMaterial,
+    Sampler,
+    Texture,
+    read_gltf,
+    sample_texture,
+)
 from ._materials import (
     LOBE_PARAMS,
     MODEL_PARAMS,
@@ -21,7 +35,18 @@ from ._materials import (
     parse_material,
     uniform,
 )
-from ._mesh import MESH_SUFFIXES, Mesh, load_mesh, mesh_from_arrays, triangle_areas
+from ._mesh import (
+    MESH_SUFFIXES,
+    GltfAsset,
+    Mesh,
+    VertexFactors,
+    load_gltf,
+    load_mesh,
+    mesh_from_arrays,
+    triangle_areas,
+    vertex_factors,
+    weld_arrays,
+)
 from ._scene import (
     BARE_MESH_MATERIAL,
     BUILTIN_SCENES,
@@ -37,6 +62,7 @@ from ._scene import (
 __all__ = [
     "BARE_MESH_MATERIAL",
     "BUILTIN_SCENES",
+    "GLTF_SUFFIXES",
     "GRADIENT_KEYS",
     "LOBE_PARAMS",
     "MESH_SUFFIXES",
@@ -44,17 +70,28 @@ __all__ = [
     "SCENE_FILE_MATERIAL",
     "SCENE_KEYS",
     "SPECULAR_MODELS",
+    "GltfAsset",
+    "GltfGeometry",
+    "GltfMaterial",
     "Materials",
     "Mesh",
+    "Sampler",
     "Scene",
+    "Texture",
+    "VertexFactors",
     "builtin",
     "default_camera",
     "gradient",
     "load",
+    "load_gltf",
     "load_mesh",
     "material_table",
     "mesh_from_arrays",
     "parse_material",
+    "read_gltf",
+    "sample_texture",
     "triangle_areas",
     "uniform",
+    "vertex_factors",
+    "weld_arrays",
 ]

@@ -1,4 +1,6 @@
-"""Triangle meshes: loading through trimesh, checking, cleaning, normals and adjacency."""
+"""Triangle meshes: loading (trimesh; glTF through :mod:`._gltf`), checking, welding, normals
+and adjacency; glTF assets welded with their UVs, vertex colours and materials, and their
+per-vertex material parameters."""
 
 from __future__ import annotations
 
@@ -11,9 +13,21 @@ import torch
 import trimesh
 
 from .._io import check_input
+from .._tol import DIVISOR_F64
 from ..errors import InputError
+from ._gltf import GLTF_SUFFIXES, GltfMaterial, read_gltf, sample_texture
 
-__all__ = ["MAX_MESH_BYTES", "Mesh", "load_mesh", "mesh_from_arrays"]
+__all__ = [
+    "MAX_MESH_BYTES",
+    "GltfAsset",
+    "Mesh",
+    "VertexFactors",
+    "load_gltf",
+    "load_mesh",
+    "mesh_from_arrays",
+    "vertex_factors",
+    "weld_arrays",
+]
 
 #: Largest mesh file we read: beyond this a dense per-vertex transport is not what anyone wants,
 #: and trimesh would hold several copies of it in memory while parsing.
@@ -36,7 +50,8 @@ class Mesh:
     ----------
     vertices : (V, 3) float32 positions (world frame, +Y up)
     faces : (F, 3) int64 vertex indices, counter-clockwise seen from outside
-    normals : (V, 3) float32 unit vertex normals, area-weighted average of face normals
+    normals : (V, 3) float32 unit vertex normals: the file's own where it has them, else the
+        area-weighted average of the faces' normals
     name : where the mesh came from (file name or built-in name)
     """
 
@@ -119,29 +134,26 @@ def _area_weighted_normals(v: np.ndarray, f: np.ndarray) -> np.ndarray:
     return n / np.maximum(length, _NORMAL_LENGTH_FLOOR)
 
 
-def mesh_from_arrays(
-    vertices, faces, *, name: str = "mesh", weld: bool = True, device=None
-) -> Mesh:
-    """Check, clean and weld raw arrays into a :class:`Mesh`.
+def _quantized(a: np.ndarray, step: float) -> np.ndarray:
+    """``a`` (N, k) on a grid of ``step`` as int64 keys (NaN rows get one key of their own;
+    values beyond +-1e15 steps are clipped, never cast out of int64's range)."""
+    q = np.clip(np.nan_to_num(a / step, nan=2e15), -1e15, 2e15)
+    return np.round(q).astype(np.int64)
 
-    Cleaning: vertices closer than ``1e-6`` of the bounding-box diagonal are merged (so a mesh
-    stored with split vertices, e.g. per-face UV seams in an OBJ, gets one smooth normal per
-    position), then faces that became degenerate (repeated index or zero area) and duplicate
-    faces are dropped, and unreferenced vertices removed. Non-manifold edges are kept: the
-    transport only needs triangles and normals, and ray casting treats every face the same.
 
-    Parameters
-    ----------
-    vertices : (V, 3) float array;  faces : (F, 3) integer array
+def _weld_keys(v, diag, normals, attrs, keyed) -> np.ndarray:
+    """(N, k) int64 keys: vertices with equal keys are merged. Positions on a grid of 1e-6 of
+    the bounding-box diagonal; normals (when given) and the ``keyed`` attributes on grids of
+    1e-4 and 1e-6: values written twice by an exporter are equal, different ones differ by
+    far more."""
+    cols = [_quantized(v - v.min(0), 1e-6 * diag)]
+    if normals is not None:
+        cols.append(_quantized(normals, 1e-4))
+    cols.extend(_quantized(attrs[k].reshape(len(v), -1).astype(np.float64), 1e-6) for k in keyed)
+    return np.concatenate(cols, axis=1)
 
-    Raises
-    ------
-    InputError
-        naming ``name`` when there are no faces, NaN/Inf positions or coordinates beyond
-        :data:`MAX_COORDINATE`, out-of-range indices, or nothing with area is left.
-    """
-    v = np.asarray(vertices, dtype=np.float64)
-    f = np.asarray(faces)
+
+def _check_arrays(v: np.ndarray, f: np.ndarray, name: str) -> None:
     if v.ndim != 2 or v.shape[1] != 3:
         raise InputError(name, f"vertices must be an (V, 3) array, got shape {v.shape}")
     if f.ndim != 2 or f.shape[1] != 3 or f.shape[0] == 0:
@@ -154,15 +166,53 @@ def mesh_from_arrays(
         raise InputError(name, f"vertex coordinates beyond +-{MAX_COORDINATE:g}")
     if f.min() < 0 or f.max() >= len(v):
         raise InputError(name, f"face index out of range [0, {len(v)})")
+
+
+def weld_arrays(
+    vertices, faces, *, normals=None, attributes=None, keyed=(), name="mesh", weld=True
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, dict[str, np.ndarray]]:
+    """Check, weld and clean raw arrays (the work of :func:`mesh_from_arrays`), carrying
+    per-vertex attributes along.
+
+    Weld policy: vertices merge where their positions agree (to 1e-6 of the bounding-box
+    diagonal), their ``normals`` agree when normals are given (so a hard edge stored as split
+    vertices with different normals stays hard), and every attribute named in ``keyed``
+    agrees (a UV seam, a material boundary). Then faces that became degenerate (repeated
+    index or zero area) and duplicate faces are dropped, and unreferenced vertices removed.
+
+    Parameters
+    ----------
+    vertices : (N, 3) float;  faces : (F, 3) integer
+    normals : (N, 3) float or None: the file's vertex normals; a NaN or zero row means none
+        for that vertex (it gets the area-weighted normal of its faces)
+    attributes : name -> (N, ...) arrays that follow the vertices (the first of a merged
+        group is kept)
+    keyed : names in ``attributes`` that must agree for vertices to merge
+
+    Returns
+    -------
+    (V, 3) float64 positions, (F', 3) int64 faces, (V, 3) float64 unit normals, attributes
+    """
+    v = np.asarray(vertices, dtype=np.float64)
+    f = np.asarray(faces)
+    _check_arrays(v, f, name)
+    attrs = {k: np.asarray(a) for k, a in (attributes or {}).items()}
+    nrm = None
+    if normals is not None:
+        nrm = np.asarray(normals, dtype=np.float64).reshape(v.shape)
+        length = np.linalg.norm(np.nan_to_num(nrm, nan=0.0), axis=1, keepdims=True)
+        ok = np.isfinite(nrm).all(1, keepdims=True) & (length > 0)
+        nrm = np.where(ok, nrm / np.where(ok, length, 1.0), np.nan)
     f = f.astype(np.int64)
     diag = float(np.linalg.norm(v.max(0) - v.min(0)))
     if not diag > 1 / MAX_COORDINATE:  # also: an extent that float32 vertices would lose
         raise InputError(name, "all vertices coincide: the mesh has no extent")
     if weld:
-        # merge on a grid of 1e-6 diag: positions that round to the same cell become one vertex
-        key = np.round((v - v.min(0)) / (1e-6 * diag)).astype(np.int64)
+        key = _weld_keys(v, diag, nrm, attrs, keyed)  # (N, k)
         _, first, inv = np.unique(key, axis=0, return_index=True, return_inverse=True)
         v, f = v[first], inv.reshape(-1)[f]
+        nrm = None if nrm is None else nrm[first]
+        attrs = {k: a[first] for k, a in attrs.items()}
     # degenerate faces: repeated vertex, or area below (1e-9 diag)^2 ~ rounding noise
     area2 = np.linalg.norm(np.cross(v[f[:, 1]] - v[f[:, 0]], v[f[:, 2]] - v[f[:, 0]]), axis=1)
     keep = (f[:, 0] != f[:, 1]) & (f[:, 1] != f[:, 2]) & (f[:, 0] != f[:, 2])
@@ -178,6 +228,37 @@ def mesh_from_arrays(
     remap = np.cumsum(used) - 1
     v, f = v[used], remap[f]
     n = _area_weighted_normals(v, f)
+    if nrm is not None:
+        nrm = nrm[used]
+        n = np.where(np.isfinite(nrm).all(1, keepdims=True), nrm, n)
+    return v, f, n, {k: a[used] for k, a in attrs.items()}
+
+
+def mesh_from_arrays(
+    vertices, faces, *, normals=None, name: str = "mesh", weld: bool = True, device=None
+) -> Mesh:
+    """Check, clean and weld raw arrays into a :class:`Mesh`.
+
+    Cleaning (:func:`weld_arrays`): vertices whose positions agree to ``1e-6`` of the
+    bounding-box diagonal are merged - and, when ``normals`` are given, only where their
+    normals agree too, so that hard edges stay hard; without normals, a mesh stored with split
+    vertices (per-face UV seams in an OBJ) gets one smooth area-weighted normal per position.
+    Then faces that became degenerate (repeated index or zero area) and duplicate faces are
+    dropped, and unreferenced vertices removed. Non-manifold edges are kept: the transport
+    only needs triangles and normals, and ray casting treats every face the same.
+
+    Parameters
+    ----------
+    vertices : (V, 3) float array;  faces : (F, 3) integer array
+    normals : (V, 3) float array or None: the vertices' own normals (NaN or zero rows: none)
+
+    Raises
+    ------
+    InputError
+        naming ``name`` when there are no faces, NaN/Inf positions or coordinates beyond
+        :data:`MAX_COORDINATE`, out-of-range indices, or nothing with area is left.
+    """
+    v, f, n, _ = weld_arrays(vertices, faces, normals=normals, name=name, weld=weld)
     return Mesh(
         vertices=torch.as_tensor(v, dtype=torch.float32, device=device),
         faces=torch.as_tensor(f, dtype=torch.int64, device=device),
@@ -186,12 +267,56 @@ def mesh_from_arrays(
     )
 
 
+def _trimesh_arrays(p: Path) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
+    """A mesh file's triangles through trimesh, every geometry of its scene in world
+    coordinates: (N, 3) vertices, (F, 3) faces, and (N, 3) normals where the file has vertex
+    normals for every geometry (else None). trimesh keeps the normals a file holds in the
+    geometry's cache and computes them on access otherwise: the cache tells them apart."""
+    try:
+        loaded = trimesh.load_scene(str(p), process=False, skip_materials=True)
+        parts = []
+        for node in loaded.graph.nodes_geometry:
+            transform, geom_name = loaded.graph[node]
+            g = loaded.geometry[geom_name]
+            if not isinstance(g, trimesh.Trimesh) or len(g.faces) == 0:
+                continue
+            has_normals = "vertex_normals" in g._cache  # read from the file, not computed
+            parts.append((transform, g, g.vertex_normals if has_normals else None))
+    except Exception as exc:  # trimesh raises many types for corrupt files
+        raise InputError(str(p), f"cannot read mesh: {type(exc).__name__}: {exc}") from None
+    if not parts:
+        raise InputError(str(p), "file holds no triangles")
+    vs, fs, ns, offset = [], [], [], 0
+    for t, g, n in parts:
+        t = np.asarray(t, dtype=np.float64)
+        v = np.asarray(g.vertices, dtype=np.float64)
+        vs.append(v @ t[:3, :3].T + t[:3, 3])
+        f = np.asarray(g.faces, dtype=np.int64)
+        fs.append((f[:, ::-1] if np.linalg.det(t[:3, :3]) < 0 else f) + offset)
+        ns.append(None if n is None else np.asarray(n, dtype=np.float64) @ _inverse(t[:3, :3]))
+        offset += len(v)
+    normals = None if any(n is None for n in ns) else np.concatenate(ns)
+    return np.concatenate(vs), np.concatenate(fs), normals
+
+
+def _inverse(m: np.ndarray) -> np.ndarray:
+    try:
+        return np.linalg.inv(m)
+    except np.linalg.LinAlgError:
+        return np.full_like(m, np.nan)  # a singular transform: its normals count as none
+
+
 def load_mesh(path, *, device=None) -> Mesh:
-    """Load a mesh file (OBJ, PLY, STL, glTF/GLB, OFF) with trimesh and clean it.
+    """Load a mesh file (OBJ, PLY, STL, OFF through trimesh; glTF/GLB through
+    :func:`lobelight.scene.read_gltf`) and clean it.
 
     Scenes with several geometries (glTF, multi-object OBJ) are flattened into one mesh in world
-    coordinates. Materials in the file are ignored: lobelight's materials come from the scene
-    description.
+    coordinates. Welding (:func:`mesh_from_arrays`): where the file has vertex normals (OBJ
+    ``vn``, PLY ``nx ny nz``, glTF NORMAL), vertices merge only where position and normal
+    agree, so hard edges stay hard; where it has none (STL's are per face), by position, with
+    area-weighted normals. UV seams are welded: this result carries no UVs
+    (:func:`lobelight.scene.load_gltf` keeps them). Materials in the file are ignored:
+    lobelight's materials come from the scene description.
 
     Raises
     ------
@@ -205,20 +330,165 @@ def load_mesh(path, *, device=None) -> Mesh:
     suffix = p.suffix.lower()
     if suffix not in MESH_SUFFIXES:
         raise InputError(str(p), f"unknown mesh format {suffix!r} (use one of {MESH_SUFFIXES})")
+    if suffix in GLTF_SUFFIXES:
+        geom, _ = read_gltf(p, textures=False, warn=False)
+        v, f, n = geom.positions, geom.faces, geom.normals
+    else:
+        v, f, n = _trimesh_arrays(p)
+        if suffix == ".ply":
+            _check_ply_counts(p, len(v), len(f))
     try:
-        loaded = trimesh.load(str(p), force="mesh", process=False, skip_materials=True)
-    except Exception as exc:  # trimesh raises many types for corrupt files
-        raise InputError(str(p), f"cannot read mesh: {type(exc).__name__}: {exc}") from None
-    v = getattr(loaded, "vertices", None)
-    f = getattr(loaded, "faces", None)
-    if v is None or f is None or len(f) == 0:
-        raise InputError(str(p), "file holds no triangles")
-    if suffix == ".ply":
-        _check_ply_counts(p, len(v), len(f))
-    try:
-        return mesh_from_arrays(np.asarray(v), np.asarray(f), name=p.name, device=device)
+        return mesh_from_arrays(v, f, normals=n, name=p.name, device=device)
     except InputError as exc:  # name the whole path, as every other error here does
         raise InputError(str(p), exc.problem) from None
+
+
+@dataclass(frozen=True, eq=False)
+class GltfAsset:
+    """A glTF asset welded for lobelight: geometry, per-vertex attributes and materials.
+
+    Welding: vertices merge where position, normal, UV, vertex colour and material all agree
+    (:func:`weld_arrays`), so hard edges, UV seams and material boundaries keep split vertices
+    and every vertex has one material.
+
+    Attributes
+    ----------
+    mesh : the :class:`Mesh` (the file's normals where it has them)
+    uvs : (V, 2) float32 TEXCOORD_0 (zeros where a primitive has none)
+    colors : (V, 4) float32 linear COLOR_0 RGBA (ones where a primitive has none)
+    material : (V,) int64 index into ``materials``
+    materials : :class:`~lobelight.scene.GltfMaterial` records; the last is the
+        specification's default material (for primitives without one)
+    """
+
+    mesh: Mesh
+    uvs: torch.Tensor
+    colors: torch.Tensor
+    material: torch.Tensor
+    materials: tuple[GltfMaterial, ...]
+
+    @property
+    def face_material(self) -> torch.Tensor:
+        """``(F,)`` int64 material of each face (its vertices all have the same)."""
+        return self.material[self.mesh.faces[:, 0]]
+
+
+def load_gltf(path, *, device=None) -> GltfAsset:
+    """Load a glTF 2.0 asset (``.gltf`` with its buffers and images, or ``.glb``): the default
+    scene's triangles in world space with their materials and textures
+    (:func:`lobelight.scene.read_gltf`), welded (:class:`GltfAsset`).
+
+    What the file asks for and lobelight does not use (emissive light, alpha modes, occlusion,
+    extensions) is named in one ``UserWarning``.
+
+    Raises
+    ------
+    InputError
+        naming the file and the part (``meshes[0].primitives[1]: POSITION accessor 3 ...``).
+    """
+    p = Path(path)
+    geom, materials = read_gltf(p, device=device)
+    attrs = {"uvs": geom.uvs, "colors": geom.colors, "material": geom.material}
+    try:
+        v, f, n, attrs = weld_arrays(
+            geom.positions, geom.faces, normals=geom.normals, attributes=attrs,
+            keyed=("uvs", "colors", "material"), name=p.name,
+        )  # fmt: skip
+    except InputError as exc:
+        raise InputError(str(p), exc.problem) from None
+    mesh = Mesh(
+        vertices=torch.as_tensor(v, dtype=torch.float32, device=device),
+        faces=torch.as_tensor(f, dtype=torch.int64, device=device),
+        normals=torch.as_tensor(n, dtype=torch.float32, device=device),
+        name=p.name,
+    )
+    return GltfAsset(
+        mesh=mesh,
+        uvs=torch.as_tensor(attrs["uvs"], dtype=torch.float32, device=device),
+        colors=torch.as_tensor(attrs["colors"], dtype=torch.float32, device=device),
+        material=torch.as_tensor(attrs["material"], dtype=torch.int64, device=device),
+        materials=tuple(materials),
+    )
+
+
+@dataclass(frozen=True, eq=False)
+class VertexFactors:
+    """Per-vertex metallic-roughness parameters of a :class:`GltfAsset`.
+
+    base_color : (V, 3) linear RGB (``baseColorFactor`` x texture x COLOR_0)
+    metallic, roughness : (V,) (factor x the metallic-roughness texture's B, G)
+    """
+
+    base_color: torch.Tensor
+    metallic: torch.Tensor
+    roughness: torch.Tensor
+
+
+def _factors_at(mat: GltfMaterial, uv: torch.Tensor, color: torch.Tensor) -> torch.Tensor:
+    """(..., 5) base colour RGB, metallic, roughness of ``mat`` at ``uv`` (..., 2) with vertex
+    colour ``color`` (..., 4)."""
+    base = torch.tensor(mat.base_color[:3], dtype=uv.dtype, device=uv.device) * color[..., :3]
+    metal = torch.full_like(uv[..., 0], mat.metallic)
+    rough = torch.full_like(uv[..., 0], mat.roughness)
+    if mat.base_color_texture is not None:
+        base = base * sample_texture(mat.base_color_texture, uv)[..., :3]
+    if mat.metallic_roughness_texture is not None:
+        mr = sample_texture(mat.metallic_roughness_texture, uv)
+        metal, rough = metal * mr[..., 2], rough * mr[..., 1]
+    return torch.cat([base, metal[..., None], rough[..., None]], dim=-1)
+
+
+def _subtriangle_centroids(n: int) -> torch.Tensor:
+    """(n^2, 3) barycentric centroids of the n^2 equal triangles a triangle splits into."""
+    i, j = torch.meshgrid(torch.arange(n), torch.arange(n), indexing="ij")
+    up = (i + j < n).flatten()
+    i, j = i.flatten().double(), j.flatten().double()
+    a = torch.stack([(i + 1 / 3) / n, (j + 1 / 3) / n], -1)[up]  # upright triangles
+    b = torch.stack([(i + 2 / 3) / n, (j + 2 / 3) / n], -1)[(i + j < n - 1)]  # inverted ones
+    ab = torch.cat([a, b])  # (n^2, 2) weights of corners 1 and 2
+    return torch.cat([1 - ab.sum(-1, keepdim=True), ab], -1)
+
+
+def vertex_factors(
+    asset: GltfAsset, *, average: str = "vertex", quadrature: int = 4, batch: int = 1 << 16
+) -> VertexFactors:
+    """The asset's metallic-roughness parameters per vertex, from its materials' factors,
+    textures (:func:`lobelight.scene.sample_texture`) and vertex colours.
+
+    ``average="vertex"``: the textures read at the vertex's UV. ``"one_ring"``: the textures
+    averaged over the vertex's one-ring with its hat function as weight (the linear
+    interpolation weight of the vertex across its faces), by a midpoint rule on each face split
+    into ``quadrature``^2 equal triangles: what a per-vertex value that is interpolated across
+    faces should hold for the texture's average over the surface to be kept.
+    """
+    if average not in ("vertex", "one_ring"):
+        raise InputError("average", f"must be 'vertex' or 'one_ring', got {average!r}")
+    dev = asset.uvs.device
+    out = torch.empty(asset.mesh.n_vertices, 5, dtype=torch.float32, device=dev)
+    if average == "vertex":
+        for m, mat in enumerate(asset.materials):
+            sel = torch.nonzero(asset.material == m).squeeze(1)
+            if len(sel):
+                out[sel] = _factors_at(mat, asset.uvs[sel], asset.colors[sel])
+        return VertexFactors(out[:, :3], out[:, 3], out[:, 4])
+    bary = _subtriangle_centroids(quadrature).to(device=dev, dtype=torch.float32)  # (K, 3)
+    num = torch.zeros(asset.mesh.n_vertices, 5, dtype=torch.float64, device=dev)
+    den = torch.zeros(asset.mesh.n_vertices, dtype=torch.float64, device=dev)
+    faces, area = asset.mesh.faces, triangle_areas(asset.mesh)
+    fmat = asset.face_material
+    for m, mat in enumerate(asset.materials):
+        sel = torch.nonzero(fmat == m).squeeze(1)
+        for start in range(0, len(sel), batch):
+            fb = faces[sel[start : start + batch]]  # (B, 3)
+            uv = torch.einsum("kc,bcd->bkd", bary, asset.uvs[fb])  # (B, K, 2)
+            col = torch.einsum("kc,bcd->bkd", bary, asset.colors[fb])  # (B, K, 4)
+            val = _factors_at(mat, uv, col)  # (B, K, 5)
+            w = area[sel[start : start + batch], None, None] * bary[None]  # (B, K, 3) hat x dA
+            contrib = torch.einsum("bkc,bkd->bcd", w, val).double()  # (B, 3, 5)
+            num.index_add_(0, fb.reshape(-1), contrib.reshape(-1, 5))
+            den.index_add_(0, fb.reshape(-1), w.sum(1).reshape(-1).double())
+    out = (num / den.clamp_min(DIVISOR_F64)[:, None]).float()
+    return VertexFactors(out[:, :3], out[:, 3], out[:, 4])
 
 
 def _check_ply_counts(p: Path, n_vertices: int, n_triangles: int) -> None:
