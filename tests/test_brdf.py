@@ -83,7 +83,15 @@ def make_models() -> dict[str, B.BRDF]:
         "beckmann_aniso": B.Beckmann(alpha_u=0.4, alpha_v=0.15),
         "sum": B.Sum(B.Lambert(0.5), B.GGX(0.2, specular=0.5)),
         "sum3": B.Sum(B.Lambert(0.2), B.Ward(0.3, 0.1, 0.3), B.Phong(0.4, 5.0)),
+        "ggx_schlick": B.GGXSchlick(0.3, [1.0, 0.5, 0.04]),
+        # a glTF material whose Lambert + specular stays below albedo 1 up to grazing views
+        "gltf": B.Sum(*_gltf([0.4, 0.3, 0.2], 0.3, 0.45)),
     }
+
+
+def _gltf(base_color, metallic, roughness):
+    diffuse, spec = B.metallic_roughness(base_color, metallic, roughness)
+    return B.Lambert(diffuse), spec
 
 
 MODELS = make_models()
@@ -697,6 +705,14 @@ BAD = [
     (lambda: B.Beckmann(0.1, eta=-1.0), "eta"),
     (lambda: B.GGX(0.1, k=[1.0, 2.0]), "k"),
     (lambda: B.GGX(0.1, specular=2.0), "specular"),
+    (lambda: B.GGXSchlick(-0.1), "alpha"),
+    (lambda: B.GGXSchlick(0.1, f0=1.5), "f0"),
+    (lambda: B.GGXSchlick(0.1, f0=[0.5, 0.5]), "f0"),
+    (lambda: B.metallic_roughness(0.5, 1.2, 0.5), "metallic"),
+    (lambda: B.metallic_roughness([0.5, 0.5], 0.2, 0.5), "base_color"),
+    (lambda: B.metallic_roughness(0.5, 0.2, float("nan")), "roughness"),
+    (lambda: B.metallic_roughness(torch.rand(4, 3), torch.rand(5), 0.5), "metallic"),
+    (lambda: B.from_dict({"type": "ggx_schlick", "alpha": 0.1, "eta": 1.5}), "eta"),
     (lambda: B.Lafortune([]), "lobes"),
     (lambda: B.Lafortune([{**_PHONG_LIKE, "exponent": -1.0, "rho": 1.0}]), "lobes[0].exponent"),
     (lambda: B.Lafortune([{**_PHONG_LIKE, "rho": 1.0}, {**_PHONG_LIKE}]), "lobes[1].rho"),

@@ -143,6 +143,10 @@ def examples() -> dict[str, list[BRDF]]:
             brdf.GGX(alpha_u=0.15, alpha_v=0.5, **_CU),
         ],
         "beckmann": [brdf.Beckmann(0.3, **_CU), brdf.Beckmann(alpha_u=0.4, alpha_v=0.15)],
+        "ggx_schlick": [
+            brdf.GGXSchlick(0.2, [0.9, 0.6, 0.3]),
+            brdf.metallic_roughness(rand(V, 3), rand(V), rand(V))[1],
+        ],
         "sum": [
             brdf.Sum(brdf.Lambert(0.5), brdf.GGX(0.2, specular=0.5)),
             brdf.Sum(brdf.Lambert(0.2), brdf.Phong(0.4, 5.0), brdf.Lafortune(_LOBES)),
@@ -180,6 +184,8 @@ def check_capabilities(model: BRDF) -> None:
     assert isinstance(cls.half_vector_lobe, bool)
     assert isinstance(model.fresnel, bool)
     assert model.fresnel == ("eta" in model.params)
+    assert isinstance(model.schlick, bool)
+    assert model.schlick == ("f0" in model.params)
 
     # scene files: the keys are the constructor's arguments
     if cls.scene_params is not None:
@@ -266,6 +272,7 @@ _ISOTROPIC = [
     (brdf.GGX(alpha_u=0.2, alpha_v=0.2), True),
     (brdf.GGX(alpha_u=0.1, alpha_v=0.3), False),
     (brdf.Beckmann(alpha_u=0.4, alpha_v=0.15), False),
+    (brdf.GGXSchlick(0.2, [0.9, 0.5, 0.1]), True),
     (brdf.Sum(brdf.Lambert(0.5), brdf.GGX(0.2)), True),
     (brdf.Sum(brdf.Lambert(0.5), brdf.Ward(0.5, 0.1, 0.35)), False),
 ]
@@ -296,7 +303,7 @@ def test_single_alpha_is_how_a_conductor_was_built():
 
 
 def test_half_vector_lobes():
-    half = {"ggx", "beckmann", "blinn_phong", "ward"}
+    half = {"ggx", "beckmann", "blinn_phong", "ward", "ggx_schlick"}
     for name, models in examples().items():
         for model in models:
             assert model.half_vector_lobe is (name in half), name
@@ -328,6 +335,16 @@ def test_sun_models_are_the_shader_s():
     assert brdf.GGX(0.1).sun_param == "alpha" and brdf.Phong(0.5, 1.0).sun_param == "exponent"
     assert brdf.BlinnPhong(0.5, 1.0).sun_param == "exponent"
     assert brdf.GGX(0.1, **_CU).fresnel and not brdf.GGX(0.1).fresnel
+    schlick = brdf.GGXSchlick(0.1, 0.5)
+    assert schlick.sun_model == ids["GGX"] and schlick.sun_param == "alpha"
+    assert schlick.schlick and not schlick.fresnel and not brdf.GGX(0.1, **_CU).schlick
+    # the shader reads Schlick's F0 in the conductor's eta slot, with a unit specular factor
+    assert sun_glossy_uniforms(schlick)["sun_fresnel"] == 2.0
+    assert sun_glossy_uniforms(brdf.GGX(0.1, **_CU))["sun_fresnel"] == 1.0
+    f0 = torch.rand(V, 3)
+    sb = sun_glossy_vertex_params(brdf.GGXSchlick(torch.rand(V), f0), V)
+    assert (sb[:, 1:4] == 1).all() and (sb[:, 7:] == 0).all()
+    torch.testing.assert_close(torch.from_numpy(sb[:, 4:7]), f0)
 
 
 def test_sun_widened_adds_the_disc_s_variance():
@@ -354,6 +371,12 @@ def test_mitsuba_dicts():
     assert (d["alpha_u"], d["alpha_v"]) == (pytest.approx(0.1), pytest.approx(0.3))
     assert d["eta"]["value"] == pytest.approx(_CU["eta"]) and "material" not in d
     assert d["specular_reflectance"]["value"] == pytest.approx([0.9, 0.8, 0.7])
+    assert brdf.GGXSchlick(0.09, [0.9, 0.5, 0.2]).mitsuba_dict() == {
+        "type": "principled",
+        "base_color": {"type": "rgb", "value": pytest.approx([0.9, 0.5, 0.2])},
+        "metallic": 1.0,
+        "roughness": pytest.approx(0.3),
+    }
     for model in (brdf.Phong(0.5, 10.0), brdf.Ward(0.5, 0.1), brdf.Lambert(0.5)):
         with pytest.raises(InputError, match="no Mitsuba counterpart") as err:
             model.mitsuba_dict()
@@ -375,7 +398,15 @@ def test_cosine_lobe_flags():
 def test_specular_models_are_the_registry_s():
     registered = [name for name, cls in brdf.REGISTRY.items() if cls.scene_params is not None]
     assert list(scene.SPECULAR_MODELS) == registered
-    assert set(registered) == {"phong", "blinn_phong", "ward", "lafortune", "ggx", "beckmann"}
+    assert set(registered) == {
+        "phong",
+        "blinn_phong",
+        "ward",
+        "lafortune",
+        "ggx",
+        "beckmann",
+        "ggx_schlick",
+    }
     for name in registered:
         assert scene.MODEL_PARAMS[name] is brdf.REGISTRY[name].scene_params
     assert "lambert" not in scene.SPECULAR_MODELS and "sum" not in scene.MODEL_PARAMS
@@ -451,6 +482,8 @@ def test_register_checks_the_class():
 
 def test_public_names_are_importable():
     names = ["BRDF", "GGX", "Beckmann", "BlinnPhong", "Lafortune", "Lambert", "Phong", "Sum"]
+    names += ["GGXSchlick", "metallic_roughness", "DIELECTRIC_F0"]
     for name in [*names, "Ward", "from_dict", "register", "REGISTRY", "CosineLobe"]:
         assert name in brdf.__all__ and getattr(brdf, name) is not None
     assert brdf.GGX.__module__ == "lobelight.brdf.microfacet"
+    assert brdf.GGXSchlick.__module__ == "lobelight.brdf.gltf"

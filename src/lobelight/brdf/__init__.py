@@ -66,6 +66,15 @@ Models
     ``pdf = D(h) G1(wo, h) / (4 z_o)``, ``weight = specular F G1(wi, h)``. Because Beckmann's
     ``G1`` is approximated, its pdf integrates to within 0.35% of the sampled density's mass
     (the factor ``G1_exact(wo) / G1_approx(wo)``), exactly as in Mitsuba.
+``GGXSchlick(alpha, f0)``
+    The specular lobe of the glTF 2.0 metallic-roughness material (:mod:`lobelight.brdf.gltf`):
+    the isotropic GGX lobe above (``alpha`` clamped below at 1e-3) with Schlick's Fresnel term
+    ``F = F0 + (1 - F0) pos(1 - wo.h)^5`` for an RGB ``f0``, sampled as GGX. It is Mitsuba 3's
+    ``principled`` with ``metallic = 1``, ``base_color = f0``, ``roughness = sqrt(alpha)``.
+    :func:`metallic_roughness` turns glTF factors (base colour, metallic, roughness) into the
+    material's Lambert albedo ``base_color (1 - metallic)`` and this lobe with
+    ``alpha = roughness^2``, ``f0 = mix(0.04, base_color, metallic)``; the Lambert term has no
+    ``(1 - F)`` factor.
 ``Sum(*brdfs)``
     The sum of components, e.g. ``Sum(Lambert(0.5), GGX(0.2))``, a diffuse + specular material.
     Sampled by choosing component ``j`` with probability ``w_j / sum(w)`` per element, where
@@ -115,17 +124,19 @@ Capabilities
         the keys a scene file's material gives the model as its specular lobe and what each
         takes (``"number"``, ``"colour"`` or ``"lobes"``); None for Lambert and Sum, which are
         no scene's specular lobe. The scene file names the model by its ``type_name``.
-    ``sun_model``, ``sun_param``, ``sun_widened(spread)``, ``fresnel``
+    ``sun_model``, ``sun_param``, ``sun_widened(spread)``, ``fresnel``, ``schlick``
         the sun shader's formula (``prt.glsl``'s ``sun_model``: 0 GGX, 1 Beckmann, 2 modified
         Phong, 3 Blinn-Phong; a rough conductor only with one ``alpha``) or None; the parameter
         the shader reads first (``"alpha"`` or ``"exponent"``); a copy of the model widened by
-        a sun disc of RMS angle ``spread`` radians; whether it has a conductor Fresnel term.
+        a sun disc of RMS angle ``spread`` radians; whether it has a conductor Fresnel term;
+        whether its Fresnel term is Schlick's from ``f0``.
     ``cosine_lobe_flags``, ``cosine_lobes(wo, n, t=None)``
         ``f_r (n.wi)`` as a sum of cosine lobes (:class:`CosineLobe`: axis, exponent, scale,
         and whether the lobe already includes the cosine factor), for Lambert, Phong,
         Lafortune and sums of them; None for the others.
     ``mitsuba_dict()``
-        the Mitsuba 3 BSDF that is the model (``roughconductor`` for GGX and Beckmann); an
+        the Mitsuba 3 BSDF that is the model (``roughconductor`` for GGX and Beckmann,
+        ``principled`` for GGXSchlick); an
         :class:`~lobelight.errors.InputError` for the others, which have no exact counterpart.
 
 Registry
@@ -139,6 +150,7 @@ from __future__ import annotations
 
 from ._base import BRDF, REGISTRY, CosineLobe, Sum, from_dict, register
 from ._sharp import ALBEDO_SAMPLES, ALBEDO_STEPS, MIXTURE, SHARP_LAM, SharpLobe, sharp_lobe
+from .gltf import DIELECTRIC_F0, GGXSchlick, metallic_roughness
 from .lafortune import Lafortune
 from .lambert import Lambert
 from .microfacet import GGX, Beckmann
@@ -149,6 +161,7 @@ __all__ = [
     "ALBEDO_SAMPLES",
     "ALBEDO_STEPS",
     "BRDF",
+    "DIELECTRIC_F0",
     "GGX",
     "MIXTURE",
     "REGISTRY",
@@ -156,6 +169,7 @@ __all__ = [
     "Beckmann",
     "BlinnPhong",
     "CosineLobe",
+    "GGXSchlick",
     "Lafortune",
     "Lambert",
     "Phong",
@@ -163,6 +177,7 @@ __all__ = [
     "Sum",
     "Ward",
     "from_dict",
+    "metallic_roughness",
     "register",
     "sharp_lobe",
 ]
@@ -175,4 +190,5 @@ register(Ward)
 register(Lafortune)
 register(GGX)
 register(Beckmann)
+register(GGXSchlick)
 register(Sum)

@@ -294,6 +294,9 @@ class BRDF(abc.ABC):
     #: Whether the model has a conductor Fresnel term (parameters ``eta`` and ``k``): the sun
     #: shader's ``sun_fresnel``.
     fresnel: bool = False
+    #: Whether the model's Fresnel term is Schlick's, ``F0 + (1 - F0) (1 - wo.h)^5`` from its
+    #: colour parameter ``f0``: the sun shader's ``sun_fresnel`` 2.
+    schlick: ClassVar[bool] = False
 
     def __init__(self) -> None:
         self._p: dict[str, torch.Tensor] = {}

@@ -25,7 +25,8 @@ Supported (``prt.glsl`` carries the same formulas; parameters constant or per ve
 models with a :attr:`~lobelight.brdf.BRDF.sun_model`, that is modified Phong and normalised
 Blinn-Phong (:class:`lobelight.brdf.Phong`, :class:`lobelight.brdf.BlinnPhong`) and the rough
 conductors built with one ``alpha`` (:class:`lobelight.brdf.GGX`,
-:class:`lobelight.brdf.Beckmann`, with or without conductor Fresnel); each widens itself by the
+:class:`lobelight.brdf.Beckmann`, with or without conductor Fresnel) and the glTF lobe
+(:class:`lobelight.brdf.GGXSchlick`, GGX with Schlick's Fresnel); each widens itself by the
 disc (:meth:`~lobelight.brdf.BRDF.sun_widened`). Other specular BRDFs keep the sun in the
 Gaussians' lighting, as the paper does.
 
@@ -71,25 +72,28 @@ def sun_widened(spec, spread: float):
 
 def sun_glossy_uniforms(spec) -> dict[str, float | int]:
     """The shader's per-material switches: ``sun_model`` (0 GGX, 1 Beckmann, 2 Phong,
-    3 Blinn-Phong) and ``sun_fresnel`` (1 conductor Fresnel, 0 none)."""
-    return {"sun_model": spec.sun_model, "sun_fresnel": float(spec.fresnel)}
+    3 Blinn-Phong) and ``sun_fresnel`` (1 conductor Fresnel, 2 Schlick's
+    (:attr:`lobelight.brdf.BRDF.schlick`), 0 none)."""
+    fresnel = 2.0 if spec.schlick else float(spec.fresnel)
+    return {"sun_model": spec.sun_model, "sun_fresnel": fresnel}
 
 
 def sun_glossy_vertex_params(spec, n_vertices: int) -> np.ndarray:
     """Per-vertex BRDF parameters for the shader, ``(V, 10)`` float32: the model's
     :attr:`~lobelight.brdf.BRDF.sun_param` (alpha, or the exponent of the Phong models),
-    specular RGB, eta RGB, k RGB (0 where the model has none)."""
+    specular RGB (1 where the model has none), eta RGB (``f0`` for Schlick's Fresnel term),
+    k RGB (0 where the model has none)."""
     v = n_vertices
 
     def per_vertex(name: str, width: int) -> torch.Tensor:
         if name not in spec.params:
-            return torch.zeros(v, width)
+            return torch.full((v, width), 1.0 if name == "specular" else 0.0)
         t = spec.params[name].detach().cpu().float()
         if t.ndim == 0:  # one value (a grey colour too)
             return t.expand(v, width)
         return t.reshape(-1, width).expand(v, width)  # (3,) constant, (V,) / (V, 3) per vertex
 
-    parts = ((spec.sun_param, 1), ("specular", 3), ("eta", 3), ("k", 3))
+    parts = ((spec.sun_param, 1), ("specular", 3), ("f0" if spec.schlick else "eta", 3), ("k", 3))
     cols = [per_vertex(name, w) for name, w in parts]
     return torch.cat(cols, 1).numpy().astype(np.float32)
 

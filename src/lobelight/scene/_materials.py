@@ -2,7 +2,8 @@
 
 A material here is ``f = diffuse / pi + f_spec`` where ``f_spec`` is one of the specular models of
 :mod:`lobelight.brdf` (:data:`SPECULAR_MODELS`, the registered models with
-:attr:`~lobelight.brdf.BRDF.scene_params`: phong, blinn_phong, ward, lafortune, ggx, beckmann)
+:attr:`~lobelight.brdf.BRDF.scene_params`: phong, blinn_phong, ward, lafortune, ggx, beckmann,
+ggx_schlick)
 whose colour and shape parameters may differ per vertex. One specular *model* per scene keeps
 the transport and the fit vectorised (every vertex evaluates the same formula); the parameters
 carry the spatial variation, e.g. the paper's bird that goes from diffuse yellow to highly
@@ -17,6 +18,11 @@ the other keys of each model. A gradient blends two specs along a direction: col
 positive shape parameters (exponents, roughness) geometrically, which is how their perceived
 sharpness changes. :func:`parse_material` reads the same spec from a one-line string (a bare
 mesh's ``--material``), e.g. ``"ggx:alpha=0.1,specular=0.04,diffuse=0.5,0.5,0.5"``.
+
+A glTF 2.0 metallic-roughness material (base colour, metallic, roughness, per vertex) is the
+Lambert albedo ``base_color (1 - metallic)`` plus the ``ggx_schlick`` lobe with
+``alpha = roughness^2`` and ``f0 = mix(0.04, base_color, metallic)``
+(:func:`lobelight.brdf.metallic_roughness`); :func:`gltf_materials` builds it.
 """
 
 from __future__ import annotations
@@ -37,6 +43,7 @@ __all__ = [
     "MODEL_PARAMS",
     "SPECULAR_MODELS",
     "Materials",
+    "gltf_materials",
     "gradient",
     "material_table",
     "parse_material",
@@ -283,6 +290,48 @@ def uniform(spec: Mapping[str, Any], n_vertices: int, *, name: str = "material")
     diffuse, model, params = _split_spec(spec, name)
     spec_brdf = None if model == "none" else _make(model, params, name)
     return Materials(diffuse.expand(n_vertices, 3).contiguous(), spec_brdf)
+
+
+def gltf_materials(
+    base_color: Any, metallic: Any, roughness: Any, n_vertices: int | None = None
+) -> Materials:
+    """The materials of glTF 2.0 metallic-roughness factors (module docstring): Lambert
+    ``base_color (1 - metallic)`` plus :class:`lobelight.brdf.GGXSchlick` with
+    ``alpha = roughness^2`` and ``f0 = mix(0.04, base_color, metallic)``.
+
+    Parameters
+    ----------
+    base_color : (3,) or (V, 3) linear RGB in [0, 1] (the factor times the decoded texture
+        and vertex colour at each vertex)
+    metallic, roughness : () or (V,) in [0, 1]
+    n_vertices : the vertex count ``V``; needed only when every factor is one value
+
+    Raises
+    ------
+    InputError
+        naming the factor that is out of range, not finite or of another vertex count
+    """
+    diffuse, spec = _brdf.metallic_roughness(base_color, metallic, roughness)
+    counts: dict[str, int] = {}
+    for name, value, kind in (
+        ("base_color", base_color, 1),
+        ("metallic", metallic, 0),
+        ("roughness", roughness, 0),
+    ):
+        shape = tuple(torch.as_tensor(value).shape)
+        batch = shape[: max(len(shape) - kind, 0)]
+        if len(batch) > 1:
+            what = "(V, 3)" if kind else "(V,)"
+            raise InputError(name, f"must be one value or {what}, got shape {shape}")
+        if batch:
+            counts[name] = batch[0]
+    v = n_vertices if n_vertices is not None else next(iter(counts.values()), None)
+    if v is None:
+        raise InputError("n_vertices", "is needed when every factor is one value")
+    for name, count in counts.items():
+        if count != v:
+            raise InputError(name, f"has {count} vertices, expected {v}")
+    return Materials(diffuse.expand(v, 3).contiguous(), spec)
 
 
 def gradient(

@@ -129,13 +129,43 @@ void main() {
     v_k = in_k;
 #endif
 
+#if VERTEX_TABLE
+    // one point per vertex, at its texel of the vertex table (reflection.glsl)
+    vec2 texel = vec2(v % TABLE_WIDTH, v / TABLE_WIDTH) + 0.5;
+    gl_Position = vec4(texel / vec2(TABLE_WIDTH, TABLE_ROWS) * 2.0 - 1.0, 0.0, 1.0);
+    gl_PointSize = 1.0;
+#else
     gl_Position = project(in_pos);
+#endif
 }
 #endif
 
 #elif defined FRAGMENT_SHADER && DEPTH_ONLY
 
 void main() {}
+
+#elif defined FRAGMENT_SHADER && VERTEX_TABLE
+
+// the vertex stage's results for the current view, one texel per vertex, for the sharp
+// reflection's hit points (reflection.glsl object_light): its diffuse colour, the light its
+// direct Gaussians carry, and its indirect Gaussians as the shading pass's varyings hold them
+in vec4 v_lobe[2 * N_GAUSSIANS];
+in vec3 v_diffuse;
+layout(location = 0) out vec4 table0;
+layout(location = 1) out vec4 table1;
+#if N_INDIRECT > 0
+layout(location = 2) out vec4 table_lobe[2 * N_INDIRECT];
+#endif
+
+void main() {
+    vec3 direct = vec3(0.0);
+    for (int k = 0; k < N_GAUSSIANS - N_INDIRECT; ++k) direct += v_lobe[2 * k].rgb;
+    table0 = vec4(v_diffuse, 0.0);
+    table1 = vec4(direct, 0.0);
+#if N_INDIRECT > 0
+    for (int k = 0; k < 2 * N_INDIRECT; ++k) table_lobe[k] = v_lobe[2 * (N_GAUSSIANS - N_INDIRECT) + k];
+#endif
+}
 
 #elif defined FRAGMENT_SHADER
 
@@ -220,7 +250,7 @@ in vec3 v_k;
 // the sun's glossy reflection per pixel (render/_sun_glossy.py): then the Gaussians' lighting is
 // the map without the sun; the BRDFs are lobelight.brdf's
 uniform int sun_model;            // 0 GGX, 1 Beckmann, 2 modified Phong, 3 Blinn-Phong
-uniform float sun_fresnel;        // 1 conductor Fresnel, 0 none (F = 1)
+uniform float sun_fresnel;        // 1 conductor Fresnel, 2 Schlick's (F0 in v_eta), 0 none
 uniform float sun_spread;         // the sun disc's RMS angle (radians)
 #endif
 
@@ -301,7 +331,12 @@ vec3 sun_brdf_cos(vec3 l, vec3 v, vec3 n) {
     float ch = dot(n, h), oh = dot(v, h);
     float val = mf_d(ch, a) * mf_g1(zo, oh, a) * mf_g1(zi, dot(l, h), a) / (4.0 * zo);
     vec3 f = v_sb0.yzw;
-    if (sun_fresnel > 0.0) f *= fresnel_conductor(oh, v_eta, v_k);
+    if (sun_fresnel > 1.5) {  // Schlick's, F0 + (1 - F0) (1 - v.h)^5 (brdf/gltf.py)
+        float m = clamp(1.0 - oh, 0.0, 1.0);
+        f *= v_eta + (1.0 - v_eta) * (m * m * m * m * m);
+    } else if (sun_fresnel > 0.0) {
+        f *= fresnel_conductor(oh, v_eta, v_k);
+    }
     return f * val;
 }
 
@@ -356,10 +391,20 @@ void main() {
         // with the visibility read there (reflection.glsl, render/_reflection.py); the
         // indirect Gaussians fill the pixel's occluded fraction
         float nv = max(dot(n, d), 0.0);
-        float vis = visible_fraction(v_pos, mirror);
+        ivec3 cc;
+        vec3 cb;
+        corners(v_pos, cc, cb);
+        float vis = visible_fraction(cc, cb, mirror);
         vec3 albedo = directional_albedo(nv);
         c += albedo * sharp_lighting(rot_t * mirror, nv) * vis;
         first = N_GAUSSIANS - N_INDIRECT;
+        // the object seen in the lobe, shaded where it is seen; the indirect Gaussians light
+        // only pixels whose corners' hit tiles find none
+        vec4 seen = object_light(v_pos, mirror, cc, cb);
+        if (seen.a > 0.0) {
+            c += albedo * (1.0 - vis) * seen.rgb;
+            first = N_GAUSSIANS;
+        }
         vec3 direct = vec3(0.0);
         for (int k = 0; k < N_GAUSSIANS - N_INDIRECT; ++k) {
             if (v_lobe[2 * k].w >= MIN_SAY) direct += v_lobe[2 * k].rgb;
