@@ -311,7 +311,9 @@ def test_unsupported_features_named_in_one_warning(tmp_path):
         "pbrMetallicRoughness": {"baseColorTexture": {
             "index": tex, "extensions": {"KHR_texture_transform": {"scale": [2, 2]}}}},
     }]  # fmt: skip
-    g.doc["extensionsUsed"] = ["KHR_materials_clearcoat", "KHR_texture_transform"]
+    g.doc["extensionsUsed"] = [
+        "KHR_materials_clearcoat", "KHR_texture_transform", "KHR_lights_punctual"
+    ]  # fmt: skip
     g.mesh(g.primitive(v, f, uvs=uv, material=0))
     g.write(tmp_path / "w.glb")
     with warnings.catch_warnings(record=True) as caught:
@@ -320,8 +322,9 @@ def test_unsupported_features_named_in_one_warning(tmp_path):
     lines = [str(w.message) for w in caught]
     assert len(lines) == 1 and "\n" not in lines[0], lines
     for name in ("emissive", "alphaMode BLEND", "occlusionTexture", "KHR_materials_clearcoat",
-                 "KHR_texture_transform", str(tmp_path / "w.glb")):  # fmt: skip
+                 "KHR_lights_punctual", str(tmp_path / "w.glb")):  # fmt: skip
         assert name in lines[0]
+    assert "KHR_texture_transform" not in lines[0]  # read, not ignored
     assert "emissive" in a.materials[0].unsupported
     # a plain file warns about nothing
     g = Gltf()
@@ -330,6 +333,28 @@ def test_unsupported_features_named_in_one_warning(tmp_path):
     with warnings.catch_warnings():
         warnings.simplefilter("error")
         scene.load_gltf(tmp_path / "plain.glb")
+
+
+def test_texture_transform(tmp_path):
+    """KHR_texture_transform: UVs go through offset * rotation * scale before the read; the
+    rotation turns (1, 0) towards (0, -1) in UV space (V down), the sense of the sample model
+    TextureTransformTest and of the viewers."""
+    g = Gltf()
+    v, f, uv = _quad()
+    tex, _ = g.image(_checker())
+    r = 0.3
+    ext = {"offset": [0.25, 0.5], "rotation": r, "scale": [0.5, 2.0]}
+    info = {"index": tex, "extensions": {"KHR_texture_transform": ext}}
+    g.doc["materials"] = [{"pbrMetallicRoughness": {"baseColorTexture": info}}]
+    g.mesh(g.primitive(v, f, uvs=uv, material=0))
+    g.write(tmp_path / "t.glb")
+    t = scene.load_gltf(tmp_path / "t.glb").materials[0].base_color_texture
+    plain = scene.Texture(t.image, t.sampler, "plain")
+    q = torch.rand(50, 2, generator=torch.Generator().manual_seed(0), dtype=torch.float64)
+    su, sv = 0.5 * q[:, 0], 2.0 * q[:, 1]
+    c, s = math.cos(r), math.sin(r)
+    moved = torch.stack([c * su + s * sv + 0.25, -s * su + c * sv + 0.5], -1)
+    assert torch.allclose(scene.sample_texture(t, q), scene.sample_texture(plain, moved), atol=1e-6)
 
 
 # --------------------------------------------------------------------------------------------

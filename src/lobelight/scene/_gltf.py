@@ -21,11 +21,12 @@ scene with its node transforms (a mirroring transform's winding is flipped); POS
 TEXCOORD_0, COLOR_0 (any component type the specification allows, normalized integers
 included); materials' ``baseColorFactor``/``baseColorTexture`` (sRGB decoded to linear),
 ``metallicFactor``, ``roughnessFactor``, ``metallicRoughnessTexture`` (B = metal, G = rough),
-``normalTexture`` (read, linear) and ``doubleSided``. Named in one warning, not used: emissive
-light, alpha modes other than OPAQUE, occlusion textures, textures on a second UV set, every
-extension (``KHR_materials_*``, ``KHR_texture_transform``, ...). Refused: points and lines,
-sparse accessors, morph targets are ignored (the rest pose is read), and extensions the file
-declares required.
+``normalTexture`` (read, linear), ``doubleSided``, and ``KHR_texture_transform`` on textures.
+Named in one warning, not used: emissive light, alpha modes other than OPAQUE, occlusion
+textures, textures on a second UV set, morph targets (the rest pose is read), and every other
+extension the file uses (``KHR_materials_*``, ``KHR_lights_punctual``, ...). Refused with an
+error: points and lines, sparse accessors, and extensions the file declares required
+(``KHR_draco_mesh_compression``: the geometry is not in the accessors).
 """
 
 from __future__ import annotations
@@ -34,6 +35,7 @@ import base64
 import binascii
 import io
 import json
+import math
 import struct
 import urllib.parse
 import warnings
@@ -86,8 +88,8 @@ _MIN = {9728: "nearest", 9729: "linear", 9984: "nearest", 9985: "linear", 9986: 
 _TRIANGLES, _STRIP, _FAN = 4, 5, 6
 _MODE_NAMES = {0: "POINTS", 1: "LINES", 2: "LINE_LOOP", 3: "LINE_STRIP"}
 _GLB_MAGIC, _GLB_JSON, _GLB_BIN = b"glTF", 0x4E4F534A, 0x004E4942
-# extensions a file may declare required that change nothing we read
-_HARMLESS_REQUIRED = {"KHR_mesh_quantization"}
+# extensions read here (quantized attributes need nothing more than the accessors' types)
+_READ_EXTENSIONS = {"KHR_mesh_quantization", "KHR_texture_transform"}
 
 
 @dataclass(frozen=True)
@@ -108,12 +110,15 @@ class Sampler:
 @dataclass(frozen=True, eq=False)
 class Texture:
     """A decoded texture: ``image`` (H, W, C) float32 in [0, 1], linear (colour textures are
-    sRGB-decoded), row 0 at V = 0; ``source`` names the image (``images[2] 'wood.png'``)."""
+    sRGB-decoded), row 0 at V = 0; ``source`` names the image (``images[2] 'wood.png'``);
+    ``tex_coord`` the UV set it reads; ``uv_transform`` the (2, 3) row-major affine map
+    applied to UVs before reading (``KHR_texture_transform``), None for none."""
 
     image: torch.Tensor
     sampler: Sampler
     source: str
     tex_coord: int = 0
+    uv_transform: tuple[tuple[float, float, float], tuple[float, float, float]] | None = None
 
 
 @dataclass(frozen=True, eq=False)
@@ -576,6 +581,26 @@ def _decode_image(data: bytes, where: str) -> np.ndarray:
     return rgba.astype(np.float32)
 
 
+def _uv_transform(ext, coord: int, where: str):
+    """``KHR_texture_transform`` as a (2, 3) affine map of UVs (or None), and the UV set it
+    names. The map is offset * rotation * scale, the rotation turning UVs counter-clockwise
+    as seen with V pointing down (the sense the sample models and viewers agree on)."""
+    if ext is None:
+        return None, coord
+    where = f"{where}: KHR_texture_transform"
+    if not isinstance(ext, dict):
+        raise InputError(where, f"must be an object, got {ext!r:.40}")
+    off = _floats(ext.get("offset", [0.0, 0.0]), 2, f"{where}.offset")
+    rot = _float(ext.get("rotation", 0.0), f"{where}.rotation")
+    scale = _floats(ext.get("scale", [1.0, 1.0]), 2, f"{where}.scale")
+    if "texCoord" in ext:
+        coord = _int(ext["texCoord"], f"{where}.texCoord", 0, 64)
+    c, s = math.cos(rot), math.sin(rot)
+    m = np.array([[c, s], [-s, c]]) * scale[None, :]  # rotation after scale
+    rows = np.concatenate([m, off[:, None]], axis=1)  # (2, 3)
+    return tuple(tuple(float(x) for x in r) for r in rows), coord
+
+
 class _Textures:
     """Textures of one document, each image decoded once."""
 
@@ -608,9 +633,12 @@ class _Textures:
         tex = textures[t]
         here = f"{self.doc.name}: textures[{t}]"
         coord = _int(getattr(info, "texCoord", 0) or 0, f"{where}: texCoord", 0, 64)
+        ext = getattr(info, "extensions", None) or {}
+        transform, coord = _uv_transform(ext.get("KHR_texture_transform"), coord, where)
         if coord:
             notes.append(f"{where.rsplit(': ', 1)[-1]} on TEXCOORD_{coord}")
-        notes.extend(_extension_names(info) + _extension_names(tex))
+        notes.extend(e for e in _extension_names(info) + _extension_names(tex)
+                     if e not in _READ_EXTENSIONS)  # fmt: skip
         if getattr(tex, "source", None) is None:
             raise InputError(here, "has no image source (an image extension only?)")
         rgba, label = self.image(tex.source, here)
@@ -618,7 +646,8 @@ class _Textures:
         if srgb:
             px = np.concatenate([_srgb_to_linear(px[..., :3]), px[..., 3:]], -1)
         image = torch.as_tensor(np.ascontiguousarray(px), dtype=torch.float32, device=self.device)
-        return Texture(image, self._sampler(getattr(tex, "sampler", None), here), label, coord)
+        sampler = self._sampler(getattr(tex, "sampler", None), here)
+        return Texture(image, sampler, label, coord, transform)
 
     def _sampler(self, i, where: str) -> Sampler:
         if i is None:
@@ -752,14 +781,15 @@ def read_gltf(
     doc = _Document(p)
     name = doc.name
     required = [str(e) for e in _list(doc.gltf.extensionsRequired, f"{name}: extensionsRequired")]
-    missing = [e for e in required if e not in _HARMLESS_REQUIRED]
+    missing = [e for e in required if e not in _READ_EXTENSIONS]
     if missing:
         raise InputError(name, f"requires extensions lobelight does not read: {missing}")
     materials = _materials(doc, device, decode=textures)
     geometry, notes = _geometry(doc, len(materials) - 1)
-    if warn:
-        notes += [e for e in _extension_names(doc.gltf)]
-        _warn_unsupported(name, notes if textures else [], materials if textures else [])
+    if warn and textures:
+        used = _list(doc.gltf.extensionsUsed, f"{name}: extensionsUsed")
+        notes += [str(e) for e in used if str(e) not in _READ_EXTENSIONS]
+        _warn_unsupported(name, notes + _extension_names(doc.gltf), materials)
     return geometry, materials
 
 
@@ -782,10 +812,14 @@ def sample_texture(
 ) -> torch.Tensor:
     """The texture at ``uv`` (..., 2): (..., C), bilinear between texel centres (or nearest
     texel, as the sampler's ``mag_filter`` says unless ``filter`` is given), indices beyond the
-    edge wrapped by the sampler's wrap modes. UV (0, 0) is the image's top-left corner."""
+    edge wrapped by the sampler's wrap modes; the texture's ``uv_transform`` is applied
+    first. UV (0, 0) is the image's top-left corner."""
     img = texture.image  # (H, W, C)
     h, w = img.shape[:2]
     uv = uv.to(img)
+    if texture.uv_transform is not None:
+        a = torch.tensor(texture.uv_transform, dtype=uv.dtype, device=uv.device)  # (2, 3)
+        uv = uv @ a[:, :2].T + a[:, 2]
     x = uv[..., 0] * w - 0.5  # texel centres at integer + 0.5
     y = uv[..., 1] * h - 0.5
     s = texture.sampler
