@@ -29,6 +29,7 @@ import os
 import resource
 import signal
 import time
+import warnings
 from pathlib import Path
 
 import cv2
@@ -46,6 +47,7 @@ from lobelight.cli import _commands
 from lobelight.errors import InputError
 from lobelight.fit import Gaussians, MeshFit, _checkpoint
 from lobelight.geometry import sphere
+from test_gltf import Gltf, _checker, two_material_quads
 
 # one load may take this long before it counts as a hang (loads here take milliseconds)
 LOAD_SECONDS = 10.0
@@ -500,6 +502,87 @@ def test_fuzz_mesh_bytes(tmp_path, kind, ops):
     m = load_or_input_error(scene.load_mesh, p)
     if m is not None:
         _check_mesh(m)
+
+
+# --------------------------------------------------------------------------------------------
+# glTF assets
+
+
+@pytest.fixture(scope="module")
+def gltf_files(tmp_path_factory):
+    """A two-material textured glTF (tests/test_gltf.py's builder) as .glb bytes and as a
+    .gltf document with an external .bin and .png beside it."""
+    d = tmp_path_factory.mktemp("gltf")
+    g = Gltf()
+    two_material_quads(g)
+    _, png = g.image(_checker(), uri="albedo.png")
+    g.doc["materials"][1]["normalTexture"] = {"index": len(g.doc["textures"]) - 1}
+    (d / "albedo.png").write_bytes(png)
+    g.write(d / "a.glb", "glb")
+    g.write(d / "a.gltf", "external")
+    assert scene.load_gltf(d / "a.glb").mesh.n_vertices == 8
+    return _Files(dir=d, glb=(d / "a.glb").read_bytes(), doc=json.loads((d / "a.gltf").read_text()))
+
+
+def _check_asset(a) -> None:
+    _check_mesh(a.mesh)
+    v = a.mesh.n_vertices
+    assert a.uvs.shape == (v, 2) and a.colors.shape == (v, 4) and a.material.shape == (v,)
+    assert _finite(a.uvs) and _finite(a.colors)
+    assert int(a.material.min()) >= 0 and int(a.material.max()) < len(a.materials)
+    for m in a.materials:
+        for t in (m.base_color_texture, m.metallic_roughness_texture, m.normal_texture):
+            assert t is None or (_finite(t.image) and t.image.ndim == 3)
+    f = scene.vertex_factors(a)
+    assert _finite(f.base_color) and _finite(f.metallic) and _finite(f.roughness)
+
+
+def _load_asset(path: Path):
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", UserWarning)  # features named and not used
+        a = load_or_input_error(scene.load_gltf, path)
+    if a is not None:
+        _check_asset(a)
+
+
+@fuzz(200)
+@given(ops=byte_ops)
+def test_fuzz_glb_bytes(gltf_files, ops):
+    p = gltf_files["dir"] / "m.glb"  # beside albedo.png, which it names
+    p.write_bytes(mutate_bytes(gltf_files["glb"], ops))
+    _load_asset(p)
+
+
+# values a glTF writer might get wrong: indices, counts, offsets, enums, URIs
+_GLTF_VALUES = st.one_of(
+    json_values,
+    st.sampled_from(
+        [0, 1, 2, 3, 4, 5, 6, 7, -1, 99, 2**31, 2**40, 2**64, 5120, 5121, 5123, 5125, 5126, 9728,
+         33071, 33648, "VEC2", "VEC3", "SCALAR", "MAT4", "missing.bin", "albedo.png", "a.bin",
+         "data:application/octet-stream;base64,AAAA", "data:,x", "http://x/y.bin", [],
+         [0, 0, 0], [1, 0, 0, 0], [-1, 1, 1], [0.0] * 16, [1e308] * 3, {"KHR_x": {}},
+         {"KHR_texture_transform": {"scale": [1e308, 0]}}, "BLEND", True, 0.5]
+    ),
+)  # fmt: skip
+
+
+@fuzz(200)
+@given(
+    ops=st.lists(
+        st.tuples(
+            st.sampled_from(["delete", "replace", "replace", "replace", "add", "wrap"]),
+            st.integers(0, 999),
+            _GLTF_VALUES,
+        ),
+        min_size=1,
+        max_size=3,
+    )
+)
+def test_fuzz_gltf_structured(gltf_files, ops):
+    doc = mutate_json(gltf_files["doc"], ops)
+    p = gltf_files["dir"] / "m.gltf"  # beside a.bin and albedo.png, which it may name
+    p.write_text(json.dumps(doc))
+    _load_asset(p)
 
 
 # --------------------------------------------------------------------------------------------

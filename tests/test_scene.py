@@ -73,6 +73,55 @@ def test_weld_merges_split_vertices_and_drops_degenerate_faces():
     assert bool((torch.sign(m.normals) == torch.sign(m.vertices)).all())
 
 
+def _flat_box():
+    """A unit box stored as 36 split corners with each face's flat normal."""
+    tm = trimesh.creation.box()
+    v = tm.vertices[tm.faces].reshape(-1, 3)  # (36, 3)
+    return v, np.arange(36).reshape(-1, 3), np.repeat(tm.face_normals, 3, 0)
+
+
+def test_weld_keeps_hard_edges_where_normals_differ():
+    """Weld policy: split vertices merge only where position and normal agree. A box with
+    flat normals keeps 4 vertices per face (24), each with its face's normal; the same corners
+    given one shared normal each (the corner's diagonal) weld to 8 and keep that normal."""
+    v, f, n = _flat_box()
+    m = scene.mesh_from_arrays(v, f, normals=n)
+    assert m.n_vertices == 24
+    corner_normal = m.normals[m.faces.reshape(-1)].reshape(-1, 3, 3)  # (F, 3, 3)
+    assert torch.allclose(corner_normal, m.face_normals[:, None].expand(-1, 3, -1), atol=1e-6)
+    diag = v / np.linalg.norm(v, axis=1, keepdims=True)
+    m = scene.mesh_from_arrays(v, f, normals=diag)
+    assert m.n_vertices == 8
+    assert torch.allclose(m.normals, m.vertices / m.vertices.norm(dim=1, keepdim=True), atol=1e-6)
+    # a vertex without a normal (NaN row) gets the area-weighted normal of its faces
+    half = diag.copy()
+    half[:18] = np.nan
+    m = scene.mesh_from_arrays(v, f, normals=half)
+    assert bool(torch.isfinite(m.normals).all())
+    assert torch.allclose(m.normals.norm(dim=1), torch.ones(m.n_vertices), atol=1e-6)
+
+
+@pytest.mark.parametrize("ext", ["ply", "obj"])
+def test_load_mesh_keeps_the_files_split_normals(tmp_path, ext):
+    """Regression: every mesh was welded by position, so a box stored with flat normals got
+    averaged corner normals (and banding on its faces). Files with vertex normals keep their
+    hard edges; a box's STL (facet normals only) welds to 8 corners."""
+    v, f, n = _flat_box()
+    tm = trimesh.Trimesh(v, f, vertex_normals=n, process=False)
+    p = tmp_path / f"box.{ext}"
+    if ext == "obj":
+        p.write_text(trimesh.exchange.obj.export_obj(tm, include_normals=True))
+    else:
+        p.write_bytes(trimesh.exchange.ply.export_ply(tm, vertex_normal=True))
+    m = scene.load_mesh(p)
+    assert m.n_vertices == 24 and m.n_faces == 12
+    corner_normal = m.normals[m.faces.reshape(-1)].reshape(-1, 3, 3)
+    assert torch.allclose(corner_normal, m.face_normals[:, None].expand(-1, 3, -1), atol=1e-6)
+    stl = tmp_path / "box.stl"
+    tm.export(stl)
+    assert scene.load_mesh(stl).n_vertices == 8
+
+
 @pytest.mark.parametrize("ext", ["ply", "stl", "glb", "obj", "off"])
 def test_load_formats(tmp_path, ext):
     tm = trimesh.creation.icosphere(2)

@@ -9,8 +9,9 @@ hypothesis stops a test at its first and reports it).
 
     python tools/fuzz.py --inputs 100000 --jobs 2 -o fuzz-summary.json
 
-Targets: model files, meshes, scene files, environment maps, cosine-lobe tables, bake
-checkpoints, command-line arguments (every command, its checks run and its work stood in for).
+Targets: model files, meshes, glTF assets (``.glb`` bytes, ``.gltf`` documents), scene files,
+environment maps, cosine-lobe tables, bake checkpoints, command-line arguments (every command,
+its checks run and its work stood in for).
 """
 
 from __future__ import annotations
@@ -32,6 +33,7 @@ ROOT = Path(__file__).resolve().parents[1]
 TARGETS = {
     "model": ["test_fuzz_model_bytes", "test_fuzz_model_arrays", "test_fuzz_model_meta"],
     "mesh": ["test_fuzz_mesh_text", "test_fuzz_mesh_bytes"],
+    "gltf": ["test_fuzz_glb_bytes", "test_fuzz_gltf_structured"],
     "scene": ["test_fuzz_scene_structured", "test_fuzz_scene_bytes"],
     "envmap": [
         "test_fuzz_envmap_hdr_bytes",

@@ -747,7 +747,7 @@ def _warn_unsupported(name: str, file_notes: list[str], materials: list[GltfMate
         warnings.warn(
             f"lobelight: {name}: not supported, ignored: {', '.join(found)}",
             UserWarning,
-            stacklevel=3,
+            stacklevel=4,  # the caller of read_gltf
         )
 
 
@@ -779,6 +779,12 @@ def read_gltf(
     p = Path(path)
     check_input(p, limit=MAX_GLTF_BYTES)
     doc = _Document(p)
+    # overflow in a file's transforms gives Inf or NaN, which the checks below name
+    with np.errstate(all="ignore"):
+        return _read(doc, textures=textures, device=device, warn=warn)
+
+
+def _read(doc: _Document, *, textures: bool, device, warn: bool):
     name = doc.name
     required = [str(e) for e in _list(doc.gltf.extensionsRequired, f"{name}: extensionsRequired")]
     missing = [e for e in required if e not in _READ_EXTENSIONS]
