@@ -68,8 +68,9 @@ GLTF_SUFFIXES = (".gltf", ".glb")
 MAX_GLTF_BYTES = 2 * 1024**3
 #: Largest texture (pixels): a 16K x 16K texture, as float32 RGBA, is already 4 GiB.
 MAX_TEXTURE_PIXELS = 16384 * 16384
-#: Most triangle corners the default scene may expand to (instancing multiplies a mesh's).
-MAX_CORNERS = 1 << 28
+#: Most triangle corners the default scene may expand to (instancing multiplies a mesh's):
+#: 11 million triangles, far beyond a per-vertex transport's reach, and a few GB while welding.
+MAX_CORNERS = 1 << 25
 
 _COMPONENTS = {
     5120: np.dtype("i1"),
@@ -348,8 +349,8 @@ class _Document:
         dtype, width = _COMPONENTS[ctype], _WIDTH[kind]
         if count * width > MAX_CORNERS * 4:
             raise InputError(here, f"count {count:,} is more than is read ({MAX_CORNERS:,})")
-        if getattr(a, "bufferView", None) is None:
-            return np.zeros((count, width), dtype)  # the specification's all-zero accessor
+        if getattr(a, "bufferView", None) is None:  # all zeros, for sparse accessors to fill
+            raise InputError(here, "has no bufferView (sparse accessors are not read)")
         data, stride = self.view(a.bufferView, here)
         off = _int(getattr(a, "byteOffset", 0) or 0, f"{here}: byteOffset")
         elem = dtype.itemsize * width
