@@ -12,6 +12,7 @@ from lobelight import brdf, envmap
 from lobelight.geometry.camera import Camera
 from lobelight.reference import paths as reference
 from lobelight.scene import Materials, Scene, _shapes, mesh_from_arrays
+from lobelight.scene._materials import gltf_materials
 
 mi = pytest.importorskip("mitsuba", reason="Mitsuba 3 is the independent reference")
 
@@ -72,17 +73,55 @@ def test_env_sampler_is_unbiased_for_the_map_power(builtin_sky):
     assert bool(((mean - power).abs() <= 4 * se + 2e-3 * power).all()), (mean, power, se)
 
 
+def _gltf_sphere_on_ground() -> Scene:
+    """:func:`_sphere_on_ground` with glTF materials: a rough gold-like metal (metallic 0.8)
+    on a rough non-metal ground (Lambert plus the F0 = 0.04 Schlick lobe)."""
+    sc = _sphere_on_ground()
+    on_sphere = sc.materials.diffuse[:, 0] == 0
+    base = torch.where(
+        on_sphere[:, None], torch.tensor([0.9, 0.7, 0.3]), torch.tensor([0.6, 0.5, 0.4])
+    )
+    mats = gltf_materials(base, torch.where(on_sphere, 0.8, 0.0), torch.where(on_sphere, 0.35, 0.8))
+    return Scene(sc.mesh, mats, "builtin", sc.camera, "gltf-sphere-on-ground")
+
+
 @pytest.mark.parametrize("max_depth", [2, 3])
 def test_reference_agrees_with_mitsuba(tmp_path, builtin_sky, max_depth):
     """Mean absolute difference within 3 Monte Carlo standard errors, over the image and over
     four horizontal bands (a wrong orientation, camera, BRDF or MIS weight shows in a band)."""
-    from lobelight.reference.mitsuba import load_mitsuba, scene_dict
+    from lobelight.reference.mitsuba import load_mitsuba
 
-    m = load_mitsuba()
-    sc = _sphere_on_ground()
-    env = builtin_sky
+    _agrees_with_mitsuba(load_mitsuba(), _sphere_on_ground(), builtin_sky, max_depth, tmp_path)
+
+
+def test_gltf_materials_agree_with_mitsuba(tmp_path, builtin_sky):
+    """The same with glTF materials (Mitsuba's diffuse + principled, summed by the export's
+    own BSDF), paths of up to two bounces, at 1024 samples per pixel: the glossy ground's
+    heavier-tailed pixels bias the per-pixel z's mean by the correlation of an estimate with
+    its own standard error (-0.11 seen at 256 samples, -0.06 to 0.01 at 2048), which more
+    samples shrink. Needs Mitsuba's llvm variant: the scalar one calls the Python sum per ray
+    (13 s for two renders at 256 samples)."""
+    from lobelight.reference.mitsuba import load_mitsuba
+
+    try:
+        m = load_mitsuba("llvm_ad_rgb")
+    except (ImportError, AttributeError, ValueError) as exc:  # no LLVM library here
+        pytest.skip(f"Mitsuba's llvm_ad_rgb variant cannot be set here: {exc}")
+    try:
+        # Mitsuba's noise is lower than the test's model of it (ours halved) here: 0.47 of it
+        # seen (principled's own sampling of the lobe); its bound is lowered to 0.3
+        sc = _gltf_sphere_on_ground()
+        _agrees_with_mitsuba(m, sc, builtin_sky, 3, tmp_path, spp=1024, noise=0.3)
+    finally:
+        load_mitsuba()
+
+
+def _agrees_with_mitsuba(m, sc, env, max_depth, tmp_path, spp=256, noise=0.5):
+    """:func:`test_reference_agrees_with_mitsuba`'s checks for scene ``sc``."""
+    from lobelight.reference.mitsuba import scene_dict
+
     env_path = envmap.save(env, tmp_path / "env.exr")
-    w, h, spp = 48, 36, 256
+    w, h = 48, 36
     ours, se = reference.render(
         sc, env, width=w, height=h, spp=spp, max_depth=max_depth, return_stderr=True, seed=1
     )
@@ -122,4 +161,4 @@ def test_reference_agrees_with_mitsuba(tmp_path, builtin_sky, max_depth):
     # averaged over two runs); its image-wide total is checked against the measured one.
     z = (ours - mit) / np.sqrt(1.5 * se**2 + 1e-12)
     assert abs(float(z.mean())) < 0.1 and 0.8 < float(z.std()) < 1.25, float(z.std())
-    assert 0.5 < float(var_mit.sum() / (0.5 * se**2).sum()) < 2
+    assert noise < float(var_mit.sum() / (0.5 * se**2).sum()) < 2
