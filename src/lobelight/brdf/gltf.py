@@ -26,7 +26,7 @@ from typing import Any, ClassVar
 import torch
 
 from ..errors import InputError
-from ._base import _COLOR, _COLOUR, _NUMBER, _SCALAR, _as_param, _check_param
+from ._base import _COLOR, _COLOUR, _NUMBER, _SCALAR, BRDF, _as_param, _check_param
 from .microfacet import _Microfacet
 
 __all__ = ["DIELECTRIC_F0", "GGXSchlick", "metallic_roughness"]
@@ -65,8 +65,10 @@ class GGXSchlick(_Microfacet):
     scene_params: ClassVar[Mapping[str, str]] = {"alpha": _NUMBER, "f0": _COLOUR}
 
     def __init__(self, alpha: Any = 0.1, f0: Any = DIELECTRIC_F0):
-        super().__init__(alpha)
-        del self._p["specular"], self._kind["specular"]
+        BRDF.__init__(self)  # not _Microfacet's: no alpha_u / alpha_v, eta, k or specular
+        self.single_alpha = True
+        self.fresnel = False
+        self._set("alpha", alpha, _SCALAR, lo=0.0)
         self._set("f0", f0, _COLOR, lo=0.0, hi=1.0)
         self._check_shapes()
 
