@@ -20,7 +20,8 @@ at grazing angles and so takes a blend's whole weight). :func:`load_mitsuba` the
 registers one small BSDF of its own, ``lobelight_sum`` (:data:`SUM_PLUGIN`): the plain sum of
 its nested Mitsuba BSDFs ``bsdf_0``, ``bsdf_1``, ..., sampled as their mixture with the fixed
 probabilities ``prob_0``, ``prob_1``, ... Every value and sample comes from Mitsuba's own
-plugins; the sum only adds them.
+plugins; the sum only adds them. The llvm variants compile its Python into their kernels; the
+scalar ones call it per ray, which is far slower.
 
 Mitsuba is optional (``pip install mitsuba``; the ``reference`` extra). :func:`scene_dict`
 builds the scene in the variant that is set (``scalar_rgb`` when none is); any RGB variant
@@ -178,7 +179,9 @@ def _blend(diffuse: torch.Tensor, s: _brdf.BRDF) -> dict:
     any weight ``w`` in (0, 1). ``w = max(specular) / (max(specular) + max(diffuse))`` keeps
     both scaled reflectances within Mitsuba's [0, 1] whenever ``diffuse + specular <= 1`` in
     every channel (``specular``: the lobe's factor, Mitsuba's ``specular_reflectance``), and
-    picks each part for sampling in proportion to its largest value.
+    picks each part for sampling in proportion to its largest value. A lobe whose Mitsuba BSDF
+    has no such factor (:class:`lobelight.brdf.GGXSchlick`'s ``principled``) is summed with
+    the Lambert part instead (:func:`_sum`).
     """
     micro = s.mitsuba_dict()
     d = diffuse.double().reshape(-1).expand(3)
