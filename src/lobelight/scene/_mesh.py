@@ -289,14 +289,28 @@ def _trimesh_arrays(p: Path) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]
     vs, fs, ns, offset = [], [], [], 0
     for t, g, n in parts:
         t = np.asarray(t, dtype=np.float64)
-        v = np.asarray(g.vertices, dtype=np.float64)
+        v, f = _checked_part(p, g)
         vs.append(v @ t[:3, :3].T + t[:3, 3])
-        f = np.asarray(g.faces, dtype=np.int64)
         fs.append((f[:, ::-1] if np.linalg.det(t[:3, :3]) < 0 else f) + offset)
-        ns.append(None if n is None else np.asarray(n, dtype=np.float64) @ _inverse(t[:3, :3]))
+        n = None if n is None else np.asarray(n, dtype=np.float64)
+        ns.append(None if n is None or n.shape != v.shape else n @ _inverse(t[:3, :3]))
         offset += len(v)
     normals = None if any(n is None for n in ns) else np.concatenate(ns)
     return np.concatenate(vs), np.concatenate(fs), normals
+
+
+def _checked_part(p: Path, g) -> tuple[np.ndarray, np.ndarray]:
+    """One trimesh geometry's (V, 3) vertices and (F, 3) faces, shapes and indices checked (a
+    corrupt file can give trimesh other shapes)."""
+    v = np.asarray(g.vertices, dtype=np.float64)
+    f = np.asarray(g.faces)
+    if v.ndim != 2 or v.shape[1] != 3:
+        raise InputError(str(p), f"vertices must be (V, 3), the file gives {v.shape}")
+    if f.ndim != 2 or f.shape[1] != 3 or not np.issubdtype(f.dtype, np.integer):
+        raise InputError(str(p), f"faces must be (F, 3) integers, the file gives {f.shape}")
+    if f.size and (f.min() < 0 or f.max() >= len(v)):
+        raise InputError(str(p), f"face index out of range [0, {len(v)})")
+    return v, f.astype(np.int64)
 
 
 def _inverse(m: np.ndarray) -> np.ndarray:
@@ -334,7 +348,8 @@ def load_mesh(path, *, device=None) -> Mesh:
         geom, _ = read_gltf(p, textures=False, warn=False)
         v, f, n = geom.positions, geom.faces, geom.normals
     else:
-        v, f, n = _trimesh_arrays(p)
+        with np.errstate(all="ignore"):  # NaN or Inf from the file: named by the checks below
+            v, f, n = _trimesh_arrays(p)
         if suffix == ".ply":
             _check_ply_counts(p, len(v), len(f))
     try:
