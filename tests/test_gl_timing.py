@@ -16,7 +16,9 @@ from lobelight.render._gl import PassTimer, gl_available
 needs_gl = pytest.mark.skipif(not gl_available(), reason="no headless OpenGL context (EGL)")
 
 CAM = render.Camera.look_at((0.3, 0.9, 3.0), (0.0, 0.0, 0.0), fov=40)
-PASSES = ("uniforms", "shadow", "clear", "depth", "prt", "background", "resolve", "tonemap")
+PASSES = (
+    "uniforms", "shadow", "table", "clear", "depth", "prt", "background", "resolve", "tonemap"
+)
 
 
 @pytest.fixture(scope="module")
@@ -58,7 +60,7 @@ def test_bench_render_breaks_a_frame_into_passes(monkeypatch, small_env):
     # the float32 target that Renderer.render reads: no tone-mapping, one sample, no sun
     (row,) = bench.bench_render(display=False, profile_frames=2, **kw)["rows"]
     assert row["target"] == "rgba32f"
-    assert tuple(row["cpu_ms"]) == ("uniforms", "clear", "depth", "prt", "background")
+    assert tuple(row["cpu_ms"]) == ("uniforms", "table", "clear", "depth", "prt", "background")
 
 
 @needs_gl

@@ -15,7 +15,7 @@ from __future__ import annotations
 
 import torch
 
-__all__ = ["bilinear", "decode", "encode", "texel_directions"]
+__all__ = ["bilinear", "decode", "encode", "nearest_texel", "texel_directions"]
 
 
 def _fold(p: torch.Tensor) -> torch.Tensor:
@@ -45,6 +45,14 @@ def texel_directions(res: int, *, sub: int = 1, device=None) -> torch.Tensor:
     y, x = torch.meshgrid(g, g, indexing="ij")  # (n, n): rows run along y
     d = decode(torch.stack([x, y], -1))  # (n, n, 3)
     return d.reshape(res, sub, res, sub, 3).permute(0, 2, 1, 3, 4).reshape(res, res, sub * sub, 3)
+
+
+def nearest_texel(dirs: torch.Tensor, res: int) -> torch.Tensor:
+    """The flat index ``row * res + column`` of the ``res x res`` tile's texel holding each unit
+    direction ``(..., 3)``: ``(...)`` int64."""
+    p = encode(dirs)
+    ij = ((p + 1) * (0.5 * res)).floor().long().clamp(0, res - 1)  # (..., 2): column, row
+    return ij[..., 1] * res + ij[..., 0]
 
 
 def bilinear(tiles: torch.Tensor, index: torch.Tensor, dirs: torch.Tensor) -> torch.Tensor:

@@ -9,7 +9,8 @@
   checks on read, the atomic write; ``docs/model-format.md``)
 - :func:`blend_lobes`, :func:`horizon_scale` the view blend (:mod:`lobelight.model._blend`)
 - :func:`visibility_tiles` each vertex's visibility of the environment by direction, on an
-  octahedral tile (:meth:`Model.visibility`): where a sharp reflection is occluded, per pixel
+  octahedral tile (:meth:`Model.visibility`): where a sharp reflection is occluded, per pixel;
+  :func:`hit_tiles` what it sees of the object there (:meth:`Model.hits`)
 
 The model knows nothing of how it was fitted (:mod:`lobelight.fit` builds it).
 """
@@ -17,7 +18,7 @@ The model knows nothing of how it was fitted (:mod:`lobelight.fit` builds it).
 from ._blend import LIVE_FLOOR, MIN_SAY, blend_lobes, horizon_scale
 from ._format import FORMAT, MAX_LIGHT, VERSION
 from ._model import Model, load, save
-from ._visibility import VISIBILITY_RES, visibility_tiles
+from ._visibility import VISIBILITY_RES, hit_tiles, visibility_tiles
 
 __all__ = [
     "FORMAT",
@@ -28,6 +29,7 @@ __all__ = [
     "VISIBILITY_RES",
     "Model",
     "blend_lobes",
+    "hit_tiles",
     "horizon_scale",
     "load",
     "save",

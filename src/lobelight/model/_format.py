@@ -20,6 +20,9 @@ holding
                     as well (the self-shadowed part sees the sun per pixel)
 ``visibility``      optional (V, R, R) uint8: each vertex's octahedral visibility tile
                     (:func:`lobelight.model.visibility_tiles`; computed from the mesh when absent)
+``hit_face``        optional (V, R, R) int32, with ``hit_distance`` (V, R, R) float16: the
+                    triangle and distance each tile texel's ray hits, -1 and 0 for none
+                    (:func:`lobelight.model.hit_tiles`; computed from the mesh when absent)
 
 Beyond the paper's 92 x 7 x V x N floats: ``float16`` halves it, and records are dropped
 where they cannot matter. A view's Gaussians enter rendering only through the spherical
@@ -56,7 +59,7 @@ __all__ = ["FORMAT", "MAX_LIGHT", "VERSION", "read", "write"]
 FORMAT = "lobelight-model"
 VERSION = 1
 _ARRAYS = ("meta", "vertices", "faces", "normals", "views", "keep", "gaussians", "diffuse")
-_OPTIONAL = ("bounce", "visibility")
+_OPTIONAL = ("bounce", "visibility", "hit_face", "hit_distance")
 
 
 #: The most light a Gaussian, or a transfer coefficient, of a fitted model carries: they are
@@ -90,6 +93,7 @@ def write(
     bounce: torch.Tensor | None = None,
     indirect_gaussians: int = 0,
     visibility: torch.Tensor | None = None,
+    hits: tuple[torch.Tensor, torch.Tensor] | None = None,
 ) -> dict[str, Any]:
     """Write a model file atomically (module docstring); returns sizes (bytes, records kept).
 
@@ -141,6 +145,9 @@ def write(
         arrays["bounce"] = bounce.detach().cpu().numpy().astype(dt)
     if visibility is not None:
         arrays["visibility"] = visibility.cpu().numpy().astype(np.uint8)
+    if hits is not None:
+        arrays["hit_face"] = hits[0].cpu().numpy().astype(np.int32)
+        arrays["hit_distance"] = hits[1].cpu().numpy().astype(np.float16)
     with atomic_writer(p) as f:
         np.savez_compressed(f, **arrays)
     return {
@@ -209,7 +216,8 @@ def read(path) -> dict[str, Any]:
     -------
     dict with ``mesh``, ``views (J, 3)``, ``gaussians`` (:class:`Gaussians`, ``(V, J, N)``),
     ``diffuse (V, n, 3)``, ``materials``, ``provenance``, ``bounce`` (or None),
-    ``indirect_gaussians`` and ``visibility`` (or None), all on the CPU
+    ``indirect_gaussians``, ``visibility`` (or None) and ``hits`` (``(face, distance)`` or
+    None), all on the CPU
 
     Raises
     ------
@@ -227,7 +235,31 @@ def read(path) -> dict[str, Any]:
     _check_transfer(a["diffuse"], bounce_arr, name)
     out = _build(p, a, bounce_arr, h, g, name)
     out["visibility"] = _visibility(extra.get("visibility"), h.v, name)
+    out["hits"] = _hits(extra.get("hit_face"), extra.get("hit_distance"), h.v,
+                        out["mesh"].n_faces, name)  # fmt: skip
+    vis, hits = out["visibility"], out["hits"]
+    _need(vis is None or hits is None or tuple(hits[0].shape) == tuple(vis.shape), name,
+          "hit tiles and visibility tiles differ in resolution")  # fmt: skip
     return out
+
+
+def _hits(face: np.ndarray | None, dist: np.ndarray | None, v: int, n_faces: int, name: str):
+    """The optional hit tiles, checked: both or neither; ``(V, R, R)`` int32 triangle ids in
+    ``[-1, F)`` and float16 distances, finite and non-negative."""
+    if face is None and dist is None:
+        return None
+    _need(face is not None and dist is not None, name,
+          "hit_face and hit_distance come together; the file holds only one")  # fmt: skip
+    ok = face.dtype == np.int32 and face.ndim == 3 and face.shape[0] == v
+    _need(ok and face.shape[1] == face.shape[2] >= 2, name,
+          f"hit_face must be ({v}, R, R) int32 tiles, got {face.dtype} {face.shape}")  # fmt: skip
+    _need(dist.dtype == np.float16 and dist.shape == face.shape, name,
+          f"hit_distance must be {face.shape} float16, got {dist.dtype} {dist.shape}")  # fmt: skip
+    _need(face.size == 0 or (int(face.min()) >= -1 and int(face.max()) < n_faces), name,
+          f"hit_face holds triangle ids outside -1..{n_faces - 1}")  # fmt: skip
+    _need(bool(np.isfinite(dist).all()) and not bool((dist < 0).any()), name,
+          "hit_distance holds negative or non-finite distances")  # fmt: skip
+    return torch.from_numpy(face.copy()), torch.from_numpy(dist.copy())
 
 
 def _visibility(arr: np.ndarray | None, v: int, name: str) -> torch.Tensor | None:

@@ -17,7 +17,7 @@ from ..lobes.sg import Gaussians
 from ..scene import Materials, Mesh
 from ._blend import blend_lobes, horizon_scale
 from ._format import read, write
-from ._visibility import visibility_tiles
+from ._visibility import hit_tiles, visibility_tiles
 
 __all__ = ["Model", "load", "save"]
 
@@ -51,6 +51,7 @@ class Model:
     bounce: torch.Tensor | None = None
     indirect_gaussians: int = 0
     _visibility: torch.Tensor | None = field(default=None, init=False, repr=False)
+    _hits: tuple[torch.Tensor, torch.Tensor] | None = field(default=None, init=False, repr=False)
 
     def __post_init__(self):
         n = int(self.gaussians.lam.shape[-1])
@@ -147,6 +148,20 @@ class Model:
             self._visibility = visibility_tiles(self.mesh)
         return self._visibility
 
+    @property
+    def hits_held(self) -> tuple[torch.Tensor, torch.Tensor] | None:
+        """The hit tiles if the model holds them (read from its file, or computed by
+        :meth:`hits`), else None; computes nothing."""
+        return self._hits
+
+    def hits(self) -> tuple[torch.Tensor, torch.Tensor]:
+        """What each vertex sees of the object along its tile's texel centres: ``face (V, R, R)``
+        int32 (-1: none) and ``distance (V, R, R)`` float16 (:func:`lobelight.model.hit_tiles`,
+        at the visibility tiles' resolution), computed from the mesh on first use and kept."""
+        if self._hits is None:
+            self._hits = hit_tiles(self.mesh, res=int(self.visibility().shape[-1]))
+        return self._hits
+
     def to(self, device) -> Model:
         """The model with every tensor on ``device`` (in place; returns it)."""
         g = self.gaussians
@@ -159,14 +174,18 @@ class Model:
             self.bounce = self.bounce.to(device)
         if self._visibility is not None:
             self._visibility = self._visibility.to(device)
+        if self._hits is not None:
+            self._hits = (self._hits[0].to(device), self._hits[1].to(device))
         return self
 
     def save(self, path, *, float16: bool = False, drop: bool = True) -> dict[str, Any]:
         """Write the model to ``path`` (see :func:`save`); returns sizes. A material whose lobe
         the renderers shade per pixel (:func:`lobelight.brdf.sharp_lobe`) has its visibility
-        tiles (:meth:`visibility`) written too, so that no renderer computes them again."""
-        if self._visibility is None and sharp_lobe(self.materials.specular) is not None:
+        and hit tiles (:meth:`visibility`, :meth:`hits`) written too, so that no renderer
+        computes them again."""
+        if sharp_lobe(self.materials.specular) is not None:
             self.visibility()
+            self.hits()
         return write(
             path,
             self.mesh,
@@ -180,6 +199,7 @@ class Model:
             bounce=self.bounce,
             indirect_gaussians=self.indirect_gaussians,
             visibility=self._visibility,
+            hits=self._hits,
         )
 
 
@@ -228,6 +248,8 @@ def load(path, *, device=None) -> Model:
     """
     fields = read(path)
     visibility = fields.pop("visibility")
+    hits = fields.pop("hits")
     model = Model(**fields)
     model._visibility = visibility
+    model._hits = hits
     return model.to(device) if device is not None else model

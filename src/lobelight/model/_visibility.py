@@ -9,6 +9,11 @@ the view (:data:`VISIBILITY_RES`), and the renderer reads it at each pixel's own
 direction (``lobelight.render``'s per-pixel reflection; docs/method.md has the measurement).
 It depends on the mesh alone, so a model computes it on first use when its file does not
 carry it.
+
+Where the tile says the environment is hidden, the object itself is seen: :func:`hit_tiles`
+records, per texel, which triangle the ray through the texel's centre hits and how far away,
+so that a renderer can shade the reflected part of the object per pixel (its position, normal
+and own reflection) instead of a fitted Gaussian's blur of it.
 """
 
 from __future__ import annotations
@@ -19,7 +24,7 @@ from .._checks import check_int
 from ..geometry import octahedral
 from ..geometry.raycast import RayCaster
 
-__all__ = ["VISIBILITY_RES", "VISIBILITY_SUB", "visibility_tiles"]
+__all__ = ["VISIBILITY_RES", "VISIBILITY_SUB", "hit_tiles", "visibility_tiles"]
 
 #: Octahedral tile resolution: 32 x 32 texels over the sphere, about 6.3 degrees apart.
 VISIBILITY_RES = 32
@@ -66,3 +71,40 @@ def visibility_tiles(
         frac = vis.reshape(-1, res * res, sub * sub).mean(-1)  # (b, res^2)
         out[vi] = (frac * 255).round().to(torch.uint8)
     return out.reshape(-1, res, res)
+
+
+def hit_tiles(
+    mesh, *, res: int = VISIBILITY_RES, caster: RayCaster | None = None
+) -> tuple[torch.Tensor, torch.Tensor]:
+    """What each vertex sees of the object along its octahedral tile's texel centres.
+
+    One ray per texel leaves the vertex (lifted off the surface as the transport's are) along
+    the texel's centre direction; directions below the vertex normal's horizon cast none.
+
+    Parameters
+    ----------
+    mesh : lobelight.scene.Mesh (V vertices);  res : tile resolution
+    caster : the mesh's ray caster (built here when None)
+
+    Returns
+    -------
+    face : (V, res, res) int32, the triangle hit, -1 where the ray escapes (or is not cast)
+    distance : (V, res, res) float16, the distance to the hit along the ray, 0 where none
+    """
+    res = check_int(res, "res", minimum=2)
+    caster = RayCaster(mesh) if caster is None else caster
+    dev = mesh.vertices.device
+    d = octahedral.texel_directions(res, device=dev).reshape(-1, 3)  # (D, 3) texel centres
+    n_dirs = d.shape[0]
+    face = torch.full((mesh.n_vertices, n_dirs), -1, dtype=torch.int32, device=dev)
+    dist = torch.zeros(mesh.n_vertices, n_dirs, dtype=torch.float16, device=dev)
+    batch = max(1, _RAYS_PER_BATCH // n_dirs)
+    for s in range(0, mesh.n_vertices, batch):
+        vi = torch.arange(s, min(mesh.n_vertices, s + batch), device=dev)
+        p, n = mesh.vertices[vi], mesh.normals[vi]
+        bi, di = ((n @ d.T) > 0).nonzero(as_tuple=True)  # rays above the horizon
+        tri, t, _ = caster.first_hit(caster.spawn(p[bi], n[bi], d[di]), d[di])
+        hit = tri >= 0
+        face[vi[bi[hit]], di[hit]] = tri[hit].to(torch.int32)
+        dist[vi[bi[hit]], di[hit]] = t[hit].to(torch.float16)
+    return face.reshape(-1, res, res), dist.reshape(-1, res, res)

@@ -72,6 +72,19 @@ _SHADOW_DEPTH_UNIT = 9
 _VIS_UNIT = 10
 #: Width in texels of the visibility atlas and of the face and position textures.
 _VIS_TEX_WIDTH = 4096
+#: Texture units of the sharp reflection's hit points (reflection.glsl): normals, albedos,
+#: hit tiles, and the vertex table's targets (the indirect Gaussians' two per lobe; at most
+#: three indirect Gaussians).
+_SHARP_UNITS = (
+    ("nrm_tex", _VIS_UNIT + 3),
+    ("alb_tex", _VIS_UNIT + 4),
+    ("hit_face_tex", _VIS_UNIT + 5),
+    ("hit_dist_tex", _VIS_UNIT + 6),
+    ("table0_tex", _VIS_UNIT + 7),
+    ("table1_tex", _VIS_UNIT + 8),
+)
+#: The first texture unit of the vertex table's indirect Gaussians (the array table_lobe_tex).
+_TABLE_LOBE_UNIT = _VIS_UNIT + 9
 #: Colour target texel types: float32 (what ``read`` returns exactly) and half float (display).
 HDR_DTYPES = ("f4", "f2")
 #: Uniform-block bindings of the PRT programs: the geodesic planes, frame.glsl's two blocks.
@@ -191,6 +204,15 @@ def _wrap(rows: np.ndarray, width: int = TEX_WIDTH) -> tuple[np.ndarray, int]:
     out = np.zeros((h * width, 4), np.float32)
     out[:t] = rows
     return out.reshape(h, width, 4), width
+
+
+def _tile_atlas(tiles: np.ndarray, per_row: int) -> np.ndarray:
+    """Per-vertex ``(V, R, R)`` tiles laid out ``per_row`` to a row of a 2-D image."""
+    v, r = tiles.shape[0], tiles.shape[1]
+    rows = -(-v // per_row)
+    atlas = np.zeros((rows * per_row, r, r), tiles.dtype)
+    atlas[:v] = tiles
+    return atlas.reshape(rows, per_row, r, r).transpose(0, 2, 1, 3).reshape(rows * r, per_row * r)
 
 
 def _atlas(pf: Prefiltered) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -391,7 +413,8 @@ class PassTimer:
     next (``present``).
 
     Passes: ``uniforms`` (the per-frame block), ``shadow`` (the sun's shadow map, when it is
-    redrawn), ``clear``, ``depth`` (the object's depth pre-pass), ``prt`` (the object's
+    redrawn), ``table`` (the vertex stage's results for the sharp reflection's hit points, with
+    a sharp material), ``clear``, ``depth`` (the object's depth pre-pass), ``prt`` (the object's
     shading), ``background``, ``resolve`` (adding a sample into the frame, with several samples
     per pixel), ``tonemap`` (``present``); a pass run once per sample sums over the samples.
 
@@ -575,6 +598,9 @@ class GLRenderer:
             "HAS_SUN": int(self.has_sun),
             "SUN_GLOSSY": int(self.sun_glossy),
             "SHARP": int(self.sharp is not None),
+            "VERTEX_TABLE": 0,
+            "TABLE_WIDTH": _VIS_TEX_WIDTH,
+            "TABLE_ROWS": max(1, -(-model.mesh.n_vertices // _VIS_TEX_WIDTH)),
             "VIS_RES": VISIBILITY_RES,
             "MIXTURE": MIXTURE,
             "ALBEDO_STEPS": ALBEDO_STEPS,
@@ -599,6 +625,13 @@ class GLRenderer:
             ctx, "prt", {**prt_defines, "DEPTH_ONLY": 1}, ("frame",), ("frame",)
         )
         self.depth_prepass = True
+        # the vertex stage's results as a table, for the sharp reflection's hit points
+        self.table_prog = None
+        if self.sharp is not None:
+            self.table_prog = _program(
+                ctx, "prt", {**prt_defines, "DEPTH_ONLY": 0, "VERTEX_TABLE": 1}, ("frame",),
+                ("frame", "geodesic"),
+            )  # fmt: skip
         self.bg_prog = _program(ctx, "background", {"N_SH": n_sh}, ("frame",), ("frame",))
         self.tm_prog = _program(ctx, "tonemap")
         self.acc_prog = _program(ctx, "accumulate")
@@ -624,12 +657,7 @@ class GLRenderer:
         tiles = model.visibility().cpu().numpy()  # (V, R, R) uint8
         v, r = tiles.shape[0], tiles.shape[1]
         per_row = max(1, min(v, _VIS_TEX_WIDTH // r))
-        rows = -(-v // per_row)
-        atlas = np.zeros((rows * per_row, r, r), np.uint8)
-        atlas[:v] = tiles
-        atlas = (
-            atlas.reshape(rows, per_row, r, r).transpose(0, 2, 1, 3).reshape(rows * r, per_row * r)
-        )
+        atlas = _tile_atlas(tiles, per_row)
         self.vis_tex = self.ctx.texture(
             (atlas.shape[1], atlas.shape[0]), 1, atlas.tobytes(), dtype="f1"
         )
@@ -647,7 +675,29 @@ class GLRenderer:
         self.pos_tex = self.ctx.texture(
             (width, pimg.shape[0] // width), 3, pimg.tobytes(), dtype="f4"
         )
-        for t in (self.face_tex, self.pos_tex):
+        nimg = np.zeros_like(pimg)
+        nimg[: verts.shape[0]] = model.mesh.normals.detach().cpu().numpy()
+        aimg = np.zeros_like(pimg)
+        aimg[: verts.shape[0]] = model.materials.diffuse.detach().cpu().numpy()
+        size = (width, pimg.shape[0] // width)
+        self.nrm_tex = self.ctx.texture(size, 3, nimg.tobytes(), dtype="f4")
+        self.alb_tex = self.ctx.texture(size, 3, aimg.tobytes(), dtype="f4")
+        hit_face, hit_dist = (_tile_atlas(t.cpu().numpy(), per_row) for t in model.hits())
+        self.hit_face_tex = self.ctx.texture(
+            (hit_face.shape[1], hit_face.shape[0]), 1, hit_face.astype(np.int32).tobytes(),
+            dtype="i4",
+        )  # fmt: skip
+        self.hit_dist_tex = self.ctx.texture(
+            (hit_dist.shape[1], hit_dist.shape[0]), 1, hit_dist.astype(np.float16).tobytes(),
+            dtype="f2",
+        )  # fmt: skip
+        # the vertex table's targets (prt.glsl VERTEX_TABLE), one texel per vertex
+        n_targets = 2 + 2 * model.indirect_gaussians
+        self.table_tex = [self.ctx.texture(size, 4, dtype="f4") for _ in range(n_targets)]
+        self.table_fbo = self.ctx.framebuffer(color_attachments=self.table_tex)
+        self.table_size = size
+        for t in (self.face_tex, self.pos_tex, self.nrm_tex, self.alb_tex, self.hit_face_tex,
+                  self.hit_dist_tex, *self.table_tex):  # fmt: skip
             t.filter = (moderngl.NEAREST, moderngl.NEAREST)
         p, sh = self.prog, self.sharp
         p["vis_per_row"].value = per_row
@@ -656,6 +706,23 @@ class GLRenderer:
         p["sharp_lam"].value = tuple(float(x) for x in sh.lam)
         p["sharp_warp"].value = float(sh.warp)
         p["sharp_albedo"].value = [tuple(float(c) for c in row) for row in sh.albedo]
+
+    def _table_pass(self) -> None:
+        """The vertex stage's results for this frame's view into the vertex table (one point
+        per vertex), read by the sharp reflection's hit points."""
+        import moderngl  # optional (the gl extra)
+
+        ctx = self.ctx
+        with self._section("table"):
+            self.table_fbo.use()
+            ctx.viewport = (0, 0, *self.table_size)
+            ctx.disable(moderngl.DEPTH_TEST | moderngl.BLEND)
+            self.gauss_tex.use(0)
+            self.diff_tex.use(1)
+            self.cand_tex.use(2)
+            if self.has_bounce:
+                self.bounce_tex.use(8)
+            self.table_vao.render(moderngl.POINTS, vertices=self._n_vertices)
 
     def _upload_lighting(self, lighting: Lighting, pf: Prefiltered) -> None:
         """The chain's atlas and the background's cube map."""
@@ -674,7 +741,11 @@ class GLRenderer:
         p["tex_width"].value = tex_width
         set_uniforms(p, self._atlas_uniforms)
         p["Planes"].binding = _PLANES_BINDING
-        for prog in (p, self.depth_prog, self.bg_prog, self.shadow_prog):
+        table = () if self.table_prog is None else (self.table_prog,)
+        for t in table:
+            t["tex_width"].value = tex_width
+            t["Planes"].binding = _PLANES_BINDING
+        for prog in (p, self.depth_prog, self.bg_prog, self.shadow_prog, *table):
             for block, binding in (("Frame", _FRAME_BINDING), ("Sample", _SAMPLE_BINDING)):
                 if prog.get(block, None) is not None:  # the shadow pass has no jitter
                     prog[block].binding = binding
@@ -689,10 +760,16 @@ class GLRenderer:
             ("vis_tex", _VIS_UNIT),
             ("face_tex", _VIS_UNIT + 1),
             ("pos_tex", _VIS_UNIT + 2),
+            *_SHARP_UNITS,
         )
-        for name, unit in units:
-            if p.get(name, None) is not None:  # compiled out without a sun or a bounce
-                p[name].value = unit
+        for prog in (p, *table):
+            for name, unit in units:
+                if prog.get(name, None) is not None:  # compiled out without a sun or a bounce
+                    prog[name].value = unit
+            lobes = prog.get("table_lobe_tex", None)  # a sampler array: one unit per element
+            if lobes is not None:
+                n = lobes.array_length
+                lobes.value = list(range(_TABLE_LOBE_UNIT, _TABLE_LOBE_UNIT + n))
         self.bg_prog["env"].value = 4
         self.tm_prog["image"].value = 5
         self.acc_prog["image"].value = 7
@@ -734,6 +811,9 @@ class GLRenderer:
             self.sbo = ctx.buffer(sb.tobytes())
             content.append((self.sbo, "4f 3f 3f", "in_sb0", "in_eta", "in_k"))
         self.vao = ctx.vertex_array(p, content, self.ibo, 4)
+        self.table_vao = None
+        if self.table_prog is not None:
+            self.table_vao = ctx.vertex_array(self.table_prog, content, skip_errors=True)
         self.depth_vao = ctx.vertex_array(
             self.depth_prog, [(self.vbo, "3f", "in_pos")], self.ibo, 4
         )
@@ -989,6 +1069,8 @@ class GLRenderer:
             self._bind_blocks()
         if sun_on:
             self._shadow_pass()
+        if self.sharp is not None and glossy:
+            self._table_pass()
         n = self.offsets.shape[0]
         if n == 1:
             self._draw_sample(out, 0, background)
@@ -1055,6 +1137,12 @@ class GLRenderer:
                 self.vis_tex.use(_VIS_UNIT)
                 self.face_tex.use(_VIS_UNIT + 1)
                 self.pos_tex.use(_VIS_UNIT + 2)
+                sharp_textures = (self.nrm_tex, self.alb_tex, self.hit_face_tex,
+                                  self.hit_dist_tex, *self.table_tex)  # fmt: skip
+                units = [u for _, u in _SHARP_UNITS]
+                units += range(_TABLE_LOBE_UNIT, _TABLE_LOBE_UNIT + len(self.table_tex) - 2)
+                for unit, tex in zip(units, sharp_textures, strict=True):
+                    tex.use(unit)
             self.vao.render(moderngl.TRIANGLES)
             if self.has_sun:  # the unit's sampler would override other textures bound there
                 self.shadow_sampler.clear(_SHADOW_DEPTH_UNIT)
@@ -1107,6 +1195,11 @@ class GLRenderer:
         img = torch.from_numpy(img.copy())
         return img[..., :3].contiguous(), img[..., 3].contiguous()
 
+    def _sharp_objects(self) -> tuple:
+        """The GL objects of the sharp reflection's hit points (released with the renderer)."""
+        return (self.nrm_tex, self.alb_tex, self.hit_face_tex, self.hit_dist_tex,
+                *self.table_tex, self.table_fbo, self.table_vao, self.table_prog)  # fmt: skip
+
     def release(self) -> None:
         self.make_current()
         for o in (self._pass_fbo, self._pass_color, self.abo, self.sbo):
@@ -1144,6 +1237,7 @@ class GLRenderer:
             self.tm_prog,
             self.acc_prog,
             *((self.vis_tex, self.face_tex, self.pos_tex) if self.sharp is not None else ()),
+            *(self._sharp_objects() if self.sharp is not None else ()),
         ):
             o.release()
         self.frame_block.release()

@@ -22,6 +22,17 @@ carry that light, fitted where the stored views' visible fraction ``v_fit`` (the
 Gaussians' light over ``E``) left it; :func:`indirect_scale` rescales them to the pixel's own
 occluded fraction ``(1 - V) / (1 - v_fit)``.
 
+Where the lobe sees the object, the object is shaded where it is seen
+(:func:`object_light`): each corner's hit tile (:meth:`lobelight.model.Model.hits`) names the
+triangle its ray along ``R``'s texel hits and how far away; the hit point is placed from the
+pixel itself, ``q = p + t R``, and projected onto that triangle; there the object's radiance
+towards the pixel is its direct sharp reflection for the view ``-R`` (as above, with the hit's
+own visibility), its diffuse colour, the sun's light (shadowed) and its indirect Gaussians,
+taken from the current view's and re-based on the hit's reflected direction. The corners' hits
+blend with the barycentrics over the corners that found one; the pixel's indirect light is
+then ``E(n.v) (1 - V) L_hit``, and the fitted indirect Gaussians light only the pixels whose
+corners found no hit.
+
 Supported: the BRDFs the sun is shaded with per pixel (:attr:`lobelight.brdf.BRDF.sun_model`)
 with parameters constant over the mesh and a lobe at least as sharp as
 :data:`lobelight.brdf.SHARP_LAM`; other materials keep the fitted Gaussians.
@@ -30,13 +41,26 @@ with parameters constant over the mesh and a lobe at least as sharp as
 
 from __future__ import annotations
 
+import math
+
 import torch
 
 from .._tol import DIVISOR_F32
 from ..brdf import SharpLobe
 from ..geometry import octahedral
+from ..model import blend_lobes
+from ._sun_glossy import sun_glossy, sun_through
+from ._sun_shadow import disc_radius, disc_visibility
 
-__all__ = ["INDIRECT_SCALE_MAX", "OCCLUDED_FLOOR", "indirect_scale", "shade", "visible_fraction"]
+__all__ = [
+    "INDIRECT_SCALE_MAX",
+    "OCCLUDED_FLOOR",
+    "indirect_light",
+    "indirect_scale",
+    "object_light",
+    "shade",
+    "visible_fraction",
+]
 
 #: The pixel's occluded fraction over the stored views' may rescale the indirect Gaussians by
 #: at most this: where the stored views saw no occlusion the indirect Gaussians hold no light
@@ -44,6 +68,9 @@ __all__ = ["INDIRECT_SCALE_MAX", "OCCLUDED_FLOOR", "indirect_scale", "shade", "v
 INDIRECT_SCALE_MAX = 4.0
 #: ``1 - v_fit`` floor of the rescaling's divisor.
 OCCLUDED_FLOOR = 0.05
+#: Shadow rays from a hit point are lifted off its triangle by this fraction of the mesh's
+#: diagonal (as the pixel's own, render/_torch.py).
+HIT_SHADOW_OFFSET = 1e-4
 
 
 def shade(sharp: SharpLobe, lighting, r: torch.Tensor, nv: torch.Tensor, vis: torch.Tensor,
@@ -73,3 +100,112 @@ def indirect_scale(direct_light: torch.Tensor, albedo: torch.Tensor, vis: torch.
     """
     v_fit = (direct_light.mean(-1) / albedo.mean(-1).clamp_min(DIVISOR_F32)).clamp(0, 1)
     return ((1 - vis) / (1 - v_fit).clamp_min(OCCLUDED_FLOOR)).clamp(0, INDIRECT_SCALE_MAX)
+
+
+def indirect_light(model, lighting, e, mu, sigma, rot, *, sun_gl: bool):
+    """The light of indirect Gaussians carrying ``e (P, K, 3)`` about ``mu (P, K, 3)`` of width
+    ``sigma (P, K)``: (P, 3), with the sun's light through them when it is shaded per pixel."""
+    lam = sigma.pow(-2)
+    acc = (e * lighting.lookup(mu, lam, rot, rest=sun_gl).to(e.device)).sum(1)
+    if sun_gl and e.shape[1]:
+        sd = lighting.sun_direction(rot).to(e.device, torch.float32)
+        acc += sun_through(e, mu, lam, sd, lighting.sun).sum(1)
+    return acc
+
+
+def _project(tri: torch.Tensor, q: torch.Tensor) -> torch.Tensor:
+    """Barycentrics ``(P, 3)`` of points ``q (P, 3)`` projected onto triangles ``tri (P, 3, 3)``,
+    clamped to the triangle (a hit placed from the pixel may fall just past its edge)."""
+    a = tri[:, 0]
+    e1, e2, w = tri[:, 1] - a, tri[:, 2] - a, q - a
+    n = torch.linalg.cross(e1, e2)
+    inv = 1 / (n * n).sum(-1).clamp_min(DIVISOR_F32)
+    b1 = (torch.linalg.cross(w, e2) * n).sum(-1) * inv
+    b2 = (torch.linalg.cross(e1, w) * n).sum(-1) * inv
+    b = torch.stack([1 - b1 - b2, b1, b2], -1).clamp_min(0)
+    return b / b.sum(-1, keepdim=True).clamp_min(DIVISOR_F32)
+
+
+def _hit_light(model, lighting, vd, sharp, tri, q, r, rot, *, sun_gl, caster):
+    """The object's radiance towards ``-r`` at points ``q`` near triangles ``tri`` (module
+    docstring): (P, 3)."""
+    mesh = model.mesh
+    c = mesh.faces[tri]  # (P, 3)
+    corner_pos = mesh.vertices[c]
+    b = _project(corner_pos, q)
+    pos = (corner_pos * b[..., None]).sum(1)
+    n = torch.nn.functional.normalize((mesh.normals[c] * b[..., None]).sum(1), dim=-1)
+    v = -r
+    nv = (n * v).sum(-1)
+    rh = 2 * nv[:, None] * n - v
+    nv = nv.clamp_min(0)
+    vis = visible_fraction(model.visibility(), c, b, rh)
+    albedo = sharp.directional_albedo(nv)
+    out = shade(sharp, lighting, rh, nv, vis, rot, rest=sun_gl) + (
+        vd.diffuse[c] * b[..., None]
+    ).sum(1)
+    e, mu, sigma = blend_lobes(vd.e[c], vd.mu[c], vd.sigma[c], b, frame=(vd.mirror[c], rh))
+    k = slice(model.n_gaussians - model.indirect_gaussians, None)
+    e = e[:, k] * indirect_scale(e[:, : model.direct_gaussians].sum(1), albedo, vis)[:, None, None]
+    out += indirect_light(model, lighting, e, mu[:, k], sigma[:, k], rot, sun_gl=sun_gl)
+    if lighting.sun is not None:
+        out += _hit_sun(model, lighting, c, b, pos, n, v, rot, sun_gl=sun_gl, caster=caster)
+    return out
+
+
+def _hit_sun(model, lighting, c, b, pos, n, v, rot, *, sun_gl, caster):
+    """The sun's light leaving hit points towards ``v (P, 3)``: its diffuse part, and its glossy
+    part where it is shaded per pixel, times the disc's visible fraction: (P, 3)."""
+    l = lighting.sun_direction(rot).to(pos.device, torch.float32)
+    cos = (n @ l).clamp_min(0)
+    out = torch.zeros_like(pos)
+    lit = cos > 0
+    if not bool(lit.any()):
+        return out
+    t = model.mesh.vertices[c[lit]]
+    ng = torch.nn.functional.normalize(
+        torch.linalg.cross(t[:, 1] - t[:, 0], t[:, 2] - t[:, 0]), dim=-1
+    )
+    vis = disc_visibility(
+        caster, pos[lit], ng, l, disc_radius(lighting.sun), offset=HIT_SHADOW_OFFSET
+    )
+    albedo = (model.materials.diffuse.to(pos.device)[c[lit]] * b[lit][..., None]).sum(1)
+    light = albedo / math.pi * (lighting.sun.irradiance.to(pos.device) * cos[lit, None])
+    if sun_gl:
+        # the viewer of a hit is the pixel: eye = hit + v
+        light = light + sun_glossy(
+            model, lighting, pos[lit], n[lit], pos[lit] + v[lit], c[lit], b[lit], rot
+        )
+    out[lit] = light * vis[:, None]
+    return out
+
+
+def object_light(model, lighting, vd, sharp, pos, r, corners, bary, rot, *, sun_gl, caster):
+    """The object's radiance seen along the reflected directions ``r (P, 3)`` from points
+    ``pos (P, 3)`` of triangles with ``corners (P, 3)`` and barycentrics ``bary (P, 3)``, from
+    the corners' hit tiles (module docstring).
+
+    Returns
+    -------
+    light : (P, 3), the corners' hits blended over the corners that found one
+    found : (P,) bool, whether any corner found one
+    """
+    face, dist = model.hits()
+    res = face.shape[-1]
+    texel = octahedral.nearest_texel(r, res)  # (P,)
+    face, dist = face.reshape(face.shape[0], -1), dist.reshape(dist.shape[0], -1)
+    light = torch.zeros_like(pos)
+    weight = torch.zeros(pos.shape[0], device=pos.device)
+    for i in range(3):  # the triangle's corners
+        f = face[corners[:, i], texel].long()
+        h = (f >= 0).nonzero().squeeze(-1)
+        if h.numel() == 0:
+            continue
+        q = pos[h] + dist[corners[h, i], texel[h]].float()[:, None] * r[h]
+        hit = _hit_light(
+            model, lighting, vd, sharp, f[h], q, r[h], rot, sun_gl=sun_gl, caster=caster
+        )
+        light[h] += bary[h, i, None] * hit
+        weight[h] += bary[h, i]
+    found = weight > 0
+    return light / weight.clamp_min(DIVISOR_F32)[:, None], found

@@ -33,7 +33,7 @@ from ..geometry.raycast import RayCaster
 from ..lobes import sg
 from ..model import blend_lobes
 from ._lighting import Lighting
-from ._reflection import indirect_scale, shade, visible_fraction
+from ._reflection import indirect_light, indirect_scale, object_light, shade, visible_fraction
 from ._sun_glossy import sun_glossy, sun_glossy_supported, sun_through
 from ._sun_shadow import disc_radius, disc_visibility
 
@@ -115,6 +115,8 @@ def pixel_stage(
     # map without the sun)
     sun_gl = glossy and lighting.sun is not None and sun_glossy_supported(model.materials.specular)
     sharp = sharp_lobe(model.materials.specular) if glossy else None
+    if caster is None and lighting.sun is not None and (diffuse or sun_gl or sharp is not None):
+        raise InputError("caster", "the sun's shadow rays need the mesh's RayCaster")
     for s in range(0, tri.shape[0], PIXEL_BATCH):
         t = tri[s : s + PIXEL_BATCH].to(dev)
         b = bary[s : s + PIXEL_BATCH].to(dev, torch.float32)  # (p, 3)
@@ -123,21 +125,24 @@ def pixel_stage(
         if diffuse:
             acc += (vd.diffuse[c] * b[..., None]).sum(1)
         if glossy:
-            acc += _glossy(model, lighting, vd, c, b, rot, sun_gl=sun_gl, sharp=sharp)
+            acc += _glossy(
+                model, lighting, vd, c, b, rot, sun_gl=sun_gl, sharp=sharp, caster=caster
+            )
         out[s : s + PIXEL_BATCH] = acc
     if (diffuse or sun_gl) and lighting.sun is not None:
-        if caster is None:
-            raise InputError("caster", "the sun's shadow rays need the mesh's RayCaster")
         out += sun_stage(
             model, lighting, tri, bary, rot, caster, diffuse=diffuse, glossy=sun_gl, eye=vd.eye
         )
     return out
 
 
-def _glossy(model, lighting, vd: VertexData, c, b, rot, *, sun_gl: bool, sharp) -> torch.Tensor:
+def _glossy(
+    model, lighting, vd: VertexData, c, b, rot, *, sun_gl: bool, sharp, caster
+) -> torch.Tensor:
     """The Gaussians' glossy light at points of corners ``c (p, 3)`` and barycentrics
     ``b (p, 3)``: (p, 3). With ``sharp`` (:func:`lobelight.brdf.sharp_lobe`) the direct
-    part is the material's own lobe at the point's reflected direction (:mod:`._reflection`)."""
+    part is the material's own lobe at the point's reflected direction, and the object seen
+    in it is shaded where it is seen (:mod:`._reflection`)."""
     dev = model.device
     # means blend as offsets from the corners' mirror directions, re-based on the point's own
     # (from its interpolated normal and its view direction)
@@ -148,27 +153,32 @@ def _glossy(model, lighting, vd: VertexData, c, b, rot, *, sun_gl: bool, sharp) 
     view = torch.nn.functional.normalize(vd.eye - pos, dim=-1)
     r = mirror_direction(nrm, view)
     e, mu, sigma = blend_lobes(vd.e[c], vd.mu[c], vd.sigma[c], b, frame=(vd.mirror[c], r))
-    ni = model.indirect_gaussians
-    k = slice(model.n_gaussians - ni, None)
-    acc = torch.zeros(c.shape[0], 3, device=dev)
-    if sharp is not None:
-        nv = (nrm * view).sum(-1).clamp_min(0)
-        vis = visible_fraction(model.visibility().to(dev), c, b, r)
-        albedo = sharp.directional_albedo(nv)
-        acc += shade(sharp, lighting, r, nv, vis, rot, rest=sun_gl).to(dev)
-        # the indirect Gaussians fill what the pixel's lobe does not see
-        direct = e[:, : model.direct_gaussians].sum(1)
-        e = e[:, k] * indirect_scale(direct, albedo, vis)[:, None, None]
-        mu, sigma = mu[:, k], sigma[:, k]
-    # the carried light times the lighting averaged under the lobe: the integral without
-    # forming the (up to 1e5) peak weight
-    acc += (e * lighting.lookup(mu, sigma.pow(-2), rot, rest=sun_gl).to(dev)).sum(1)
-    if sun_gl and ni:
-        # the sun's light reflected off the object into the indirect lobes
-        sd = lighting.sun_direction(rot).to(dev, torch.float32)
-        j = slice(e.shape[1] - ni, None)
-        acc += sun_through(e[:, j], mu[:, j], sigma[:, j].pow(-2), sd, lighting.sun).sum(1)
-    return acc
+    if sharp is None:
+        # the carried light times the lighting averaged under the lobe: the integral without
+        # forming the (up to 1e5) peak weight
+        acc = (e * lighting.lookup(mu, sigma.pow(-2), rot, rest=sun_gl).to(dev)).sum(1)
+        ni = model.indirect_gaussians
+        if sun_gl and ni:
+            # the sun's light reflected off the object into the indirect lobes
+            k = slice(model.n_gaussians - ni, None)
+            sd = lighting.sun_direction(rot).to(dev, torch.float32)
+            acc += sun_through(e[:, k], mu[:, k], sigma[:, k].pow(-2), sd, lighting.sun).sum(1)
+        return acc
+    nv = (nrm * view).sum(-1).clamp_min(0)
+    vis = visible_fraction(model.visibility().to(dev), c, b, r)
+    albedo = sharp.directional_albedo(nv)
+    acc = shade(sharp, lighting, r, nv, vis, rot, rest=sun_gl).to(dev)
+    # the object seen in the lobe, where a corner's hit tile finds it; elsewhere the indirect
+    # Gaussians fill what the pixel's lobe does not see
+    seen, found = object_light(
+        model, lighting, vd, sharp, pos, r, c, b, rot, sun_gl=sun_gl, caster=caster
+    )
+    k = slice(model.n_gaussians - model.indirect_gaussians, None)
+    direct = e[:, : model.direct_gaussians].sum(1)
+    ei = e[:, k] * indirect_scale(direct, albedo, vis)[:, None, None]
+    fitted = indirect_light(model, lighting, ei, mu[:, k], sigma[:, k], rot, sun_gl=sun_gl)
+    hit = albedo * (1 - vis)[:, None] * seen
+    return acc + torch.where(found[:, None], hit, fitted)
 
 
 def sun_stage(

@@ -2,14 +2,44 @@
 // material's own lobe, a mixture of MIXTURE Gaussians, at the pixel's reflected direction,
 // times its directional albedo and the environment's visible fraction there, read from the
 // triangle's three corners' octahedral visibility tiles (lobelight.model.visibility_tiles)
-// and blended with the pixel's barycentrics. Included in prt.glsl's fragment stage when SHARP
-// is 1; VIS_RES, MIXTURE and ALBEDO_STEPS are defined by the loader.
+// and blended with the pixel's barycentrics; where the lobe sees the object, the object shaded
+// where each corner's hit tile finds it (object_light). Included in prt.glsl's fragment stage
+// when SHARP is 1; VIS_RES, MIXTURE and ALBEDO_STEPS are defined by the loader.
 
 uniform sampler2D vis_tex;        // R8 tiles of VIS_RES^2 texels, vis_per_row tiles per row
 uniform int vis_per_row;
 uniform isampler2D face_tex;      // RGB32I: each triangle's corner vertex ids, face_width wide
 uniform int face_width;
 uniform sampler2D pos_tex;        // RGB32F: vertex positions, face_width wide
+uniform sampler2D nrm_tex;        // RGB32F: vertex normals, face_width wide
+uniform sampler2D alb_tex;        // RGB32F: vertex diffuse albedos, face_width wide
+uniform isampler2D hit_face_tex;  // R32I hit tiles (lobelight.model.hit_tiles), laid out as vis_tex
+uniform sampler2D hit_dist_tex;   // R16F their distances
+// the vertex table (prt.glsl's VERTEX_TABLE pass), face_width wide: diffuse colour, the light
+// of the direct Gaussians, and the indirect Gaussians as (e, live), (live offset, live sigma)
+uniform sampler2D table0_tex;
+uniform sampler2D table1_tex;
+#if N_INDIRECT > 0
+uniform sampler2D table_lobe_tex[2 * N_INDIRECT];
+#endif
+
+// texel t of the vertex table's target j of the indirect Gaussians (a sampler array takes
+// constant indices only)
+vec4 table_lobe(int j, ivec2 t) {
+#if N_INDIRECT > 0
+    if (j == 0) return texelFetch(table_lobe_tex[0], t, 0);
+    if (j == 1) return texelFetch(table_lobe_tex[1], t, 0);
+#endif
+#if N_INDIRECT > 1
+    if (j == 2) return texelFetch(table_lobe_tex[2], t, 0);
+    if (j == 3) return texelFetch(table_lobe_tex[3], t, 0);
+#endif
+#if N_INDIRECT > 2
+    if (j == 4) return texelFetch(table_lobe_tex[4], t, 0);
+    if (j == 5) return texelFetch(table_lobe_tex[5], t, 0);
+#endif
+    return vec4(0.0);
+}
 uniform float sharp_weight[MIXTURE];
 uniform float sharp_lam[MIXTURE];
 uniform float sharp_warp;         // 1: the sharpness divides by n.v (microfacet lobes)
@@ -41,24 +71,30 @@ float tile_lookup(int v, vec3 d) {
     return mix(mix(a, b, f.x), mix(c, e, f.x), f.y);
 }
 
-// the fragment's triangle corners and barycentrics, from its primitive id and position
-void corners(vec3 p, out ivec3 c, out vec3 b) {
-    c = texelFetch(face_tex, ivec2(gl_PrimitiveID % face_width, gl_PrimitiveID / face_width), 0).xyz;
-    vec3 p0 = texelFetch(pos_tex, ivec2(c.x % face_width, c.x / face_width), 0).xyz;
-    vec3 p1 = texelFetch(pos_tex, ivec2(c.y % face_width, c.y / face_width), 0).xyz;
-    vec3 p2 = texelFetch(pos_tex, ivec2(c.z % face_width, c.z / face_width), 0).xyz;
+ivec2 at_face_width(int i) { return ivec2(i % face_width, i / face_width); }
+
+// the corners of triangle f and the barycentrics of p projected onto it, clamped to it
+// (render/_reflection.py _project)
+void triangle_at(int f, vec3 p, out ivec3 c, out vec3 b) {
+    c = texelFetch(face_tex, at_face_width(f), 0).xyz;
+    vec3 p0 = texelFetch(pos_tex, at_face_width(c.x), 0).xyz;
+    vec3 p1 = texelFetch(pos_tex, at_face_width(c.y), 0).xyz;
+    vec3 p2 = texelFetch(pos_tex, at_face_width(c.z), 0).xyz;
     vec3 n = cross(p1 - p0, p2 - p0);
     float inv = 1.0 / max(dot(n, n), 1e-30);
     float b1 = dot(cross(p - p0, p2 - p0), n) * inv;
     float b2 = dot(cross(p1 - p0, p - p0), n) * inv;
-    b = clamp(vec3(1.0 - b1 - b2, b1, b2), 0.0, 1.0);
+    b = max(vec3(1.0 - b1 - b2, b1, b2), 0.0);
     b /= max(b.x + b.y + b.z, 1e-30);
 }
 
-float visible_fraction(vec3 p, vec3 r) {
-    ivec3 c;
-    vec3 b;
-    corners(p, c, b);
+// the fragment's triangle corners and barycentrics, from its primitive id and position
+void corners(vec3 p, out ivec3 c, out vec3 b) {
+    triangle_at(gl_PrimitiveID, p, c, b);
+}
+
+// the visible fraction at direction r of a point of corners c and barycentrics b
+float visible_fraction(ivec3 c, vec3 b, vec3 r) {
     return b.x * tile_lookup(c.x, r) + b.y * tile_lookup(c.y, r) + b.z * tile_lookup(c.z, r);
 }
 
@@ -77,4 +113,94 @@ vec3 sharp_lighting(vec3 r, float nv) {
         acc += sharp_weight[i] * prefiltered_lookup(r, sharp_lam[i] * scale);
     }
     return acc;
+}
+
+#if HAS_SUN
+float sun_visibility(vec3 pos, vec3 n, vec3 ng);  // prt.glsl
+#endif
+#if SUN_GLOSSY
+vec3 sun_brdf_cos(vec3 l, vec3 v, vec3 n);  // prt.glsl
+float sun_through(vec3 mu, float lam);      // prt.glsl
+#endif
+
+// the texel of vertex v's tile holding direction d (lobelight.geometry.octahedral.nearest_texel)
+ivec2 tile_texel(int v, vec3 d) {
+    vec2 p = oct_encode(d);
+    ivec2 x = clamp(ivec2(floor((p + 1.0) * (0.5 * float(VIS_RES)))), ivec2(0), ivec2(VIS_RES - 1));
+    return ivec2(v % vis_per_row, v / vis_per_row) * VIS_RES + x;
+}
+
+// the object's radiance towards -r at point q near triangle f (render/_reflection.py
+// _hit_light): its direct sharp reflection, diffuse colour, indirect Gaussians (the current
+// view's, re-based on its reflected direction) and the sun's light
+vec3 hit_light(int f, vec3 q, vec3 r) {
+    ivec3 c;
+    vec3 b;
+    triangle_at(f, q, c, b);
+    ivec2 t0 = at_face_width(c.x), t1 = at_face_width(c.y), t2 = at_face_width(c.z);
+    vec3 p0 = texelFetch(pos_tex, t0, 0).xyz;
+    vec3 p1 = texelFetch(pos_tex, t1, 0).xyz;
+    vec3 p2 = texelFetch(pos_tex, t2, 0).xyz;
+    vec3 pos = b.x * p0 + b.y * p1 + b.z * p2;
+    vec3 n = normalize(b.x * texelFetch(nrm_tex, t0, 0).xyz + b.y * texelFetch(nrm_tex, t1, 0).xyz
+                       + b.z * texelFetch(nrm_tex, t2, 0).xyz);
+    vec3 v = -r;
+    float nvs = dot(n, v);
+    vec3 rh = 2.0 * nvs * n - v;
+    float nv = max(nvs, 0.0);
+    float vis = visible_fraction(c, b, rh);
+    vec3 albedo = directional_albedo(nv);
+    vec3 light = albedo * sharp_lighting(rot_t * rh, nv) * vis;
+    light += b.x * texelFetch(table0_tex, t0, 0).rgb + b.y * texelFetch(table0_tex, t1, 0).rgb
+             + b.z * texelFetch(table0_tex, t2, 0).rgb;
+    vec3 direct = b.x * texelFetch(table1_tex, t0, 0).rgb + b.y * texelFetch(table1_tex, t1, 0).rgb
+                  + b.z * texelFetch(table1_tex, t2, 0).rgb;
+    float v_fit = clamp((direct.r + direct.g + direct.b) /
+                        max(albedo.r + albedo.g + albedo.b, 1e-30), 0.0, 1.0);
+    float scale = clamp((1.0 - vis) / max(1.0 - v_fit, OCCLUDED_FLOOR), 0.0, INDIRECT_SCALE_MAX);
+    for (int k = 0; k < N_INDIRECT; ++k) {
+        vec4 el = b.x * table_lobe(2 * k, t0) + b.y * table_lobe(2 * k, t1)
+                  + b.z * table_lobe(2 * k, t2);
+        vec4 ms = b.x * table_lobe(2 * k + 1, t0) + b.y * table_lobe(2 * k + 1, t1)
+                  + b.z * table_lobe(2 * k + 1, t2);
+        if (el.w < MIN_SAY) continue;
+        float sigma = ms.w / el.w;
+        vec3 mu = normalize(rh + ms.xyz / el.w);
+        vec3 e = el.rgb * scale;
+        light += e * prefiltered_lookup(rot_t * mu, 1.0 / (sigma * sigma));
+#if SUN_GLOSSY
+        if (sun_on > 0.0) light += e * sun_e * sun_through(mu, 1.0 / (sigma * sigma));
+#endif
+    }
+#if HAS_SUN
+    float cosine = dot(n, sun_dir);
+    if (sun_on > 0.0 && cosine > 0.0) {
+        vec3 ng = cross(p1 - p0, p2 - p0);
+        ng = shadow_frame * (dot(ng, v) < 0.0 ? -ng : ng);
+        float sv = sun_visibility(pos, n, ng);
+        vec3 alb = b.x * texelFetch(alb_tex, t0, 0).rgb + b.y * texelFetch(alb_tex, t1, 0).rgb
+                   + b.z * texelFetch(alb_tex, t2, 0).rgb;
+        light += alb * (0.3183098861837907 * cosine * sv) * sun_e;
+#if SUN_GLOSSY
+        light += sun_brdf_cos(sun_dir, v, n) * sv * sun_e;
+#endif
+    }
+#endif
+    return light;
+}
+
+// the object seen along r from point p of corners c and barycentrics b: the corners' hits
+// blended over those that found one (rgb), and whether any did (a)
+vec4 object_light(vec3 p, vec3 r, ivec3 c, vec3 b) {
+    vec3 light = vec3(0.0);
+    float w = 0.0;
+    for (int i = 0; i < 3; ++i) {
+        ivec2 t = tile_texel(c[i], r);
+        int f = texelFetch(hit_face_tex, t, 0).r;
+        if (f < 0 || b[i] <= 0.0) continue;
+        float dist = texelFetch(hit_dist_tex, t, 0).r;
+        light += b[i] * hit_light(f, p + dist * r, r);
+        w += b[i];
+    }
+    return w > 0.0 ? vec4(light / w, 1.0) : vec4(0.0);
 }
