@@ -634,8 +634,9 @@ class _Textures:
         tex = textures[t]
         here = f"{self.doc.name}: textures[{t}]"
         coord = _int(getattr(info, "texCoord", 0) or 0, f"{where}: texCoord", 0, 64)
-        ext = getattr(info, "extensions", None) or {}
-        transform, coord = _uv_transform(ext.get("KHR_texture_transform"), coord, where)
+        ext = getattr(info, "extensions", None)
+        ext = ext.get("KHR_texture_transform") if isinstance(ext, dict) else None
+        transform, coord = _uv_transform(ext, coord, where)
         if coord:
             notes.append(f"{where.rsplit(': ', 1)[-1]} on TEXCOORD_{coord}")
         notes.extend(e for e in _extension_names(info) + _extension_names(tex)
