@@ -146,6 +146,8 @@ SPECS = [
      "rho = 0.6 }, { cx = 0, cy = 0, cz = 1, exponent = 5, rho = [0.1, 0.2, 0.3] }]"),
     ("ggx:alpha=0.05,specular=0.9,0.8,0.6",
      'model = "ggx"\nalpha = 0.05\nspecular = [0.9, 0.8, 0.6]'),
+    ("ggx_schlick:alpha=0.09,f0=0.9,0.6,0.2,diffuse=0.1",
+     'diffuse = 0.1\nmodel = "ggx_schlick"\nalpha = 0.09\nf0 = [0.9, 0.6, 0.2]'),
     ("ggx:alpha=0.1,specular=0.04,diffuse=0.5,0.5,0.5",
      'diffuse = [0.5, 0.5, 0.5]\nmodel = "ggx"\nspecular = 0.04\nalpha = 0.1'),
     ("beckmann:alpha_u=0.1,alpha_v=0.2,eta=0.2,0.9,1.1,k=3.9,2.4,2.2",
