@@ -8,7 +8,8 @@
   mesh with its UVs, vertex colours and per-vertex material index, and :class:`GltfMaterial`
   records (metallic-roughness factors, :class:`Texture` s with their :class:`Sampler`);
   :func:`vertex_factors` its base colour, metallic and roughness per vertex,
-  :func:`sample_texture` a texture at UVs, :func:`read_gltf` the file unwelded.
+  :func:`sample_texture` a texture at UVs, :func:`read_gltf` the file unwelded;
+  :func:`gltf_materials` turns those per-vertex factors into :class:`Materials`.
 - :class:`Materials` Lambert albedo plus one specular model of :mod:`lobelight.brdf` with
   per-vertex parameters; :func:`uniform` and :func:`gradient` build them from plain specs,
   :func:`parse_material` from a one-line spec (``"ggx:alpha=0.1,diffuse=0.5"``).
@@ -30,6 +31,7 @@ from ._materials import (
     MODEL_PARAMS,
     SPECULAR_MODELS,
     Materials,
+    gltf_materials,
     gradient,
     material_table,
     parse_material,
@@ -81,6 +83,7 @@ __all__ = [
     "VertexFactors",
     "builtin",
     "default_camera",
+    "gltf_materials",
     "gradient",
     "load",
     "load_gltf",
