@@ -329,10 +329,11 @@ def prepare_mesh(scene: GalleryScene, data: Path | None) -> Mesh:
 
 
 def geometry_sha256(mesh: Mesh) -> str:
-    """sha256 of a mesh's vertices, faces and normals (what the renders see)."""
+    """sha256 of a mesh's vertices, faces and normals (what the renders see); a negative zero
+    counts as zero (the same geometry, whichever sign a loader's arithmetic left it)."""
     h = hashlib.sha256()
     for t in (mesh.vertices, mesh.faces, mesh.normals):
-        h.update(np.ascontiguousarray(t.cpu().numpy()).tobytes())
+        h.update(np.ascontiguousarray((t + 0).cpu().numpy()).tobytes())
     return h.hexdigest()
 
 
