@@ -219,16 +219,18 @@ def _add_bake(sub) -> None:
     b = _command(sub, "bake", "run_bake", "fit a model of a mesh or scene (resumes if interrupted)")
     b.add_argument(
         "scene",
-        help="mesh (.ply .obj .stl .glb .off), scene (.toml .json; docs/scene-format.md) or a "
-        "built-in name (knot, knot:2, sphere:3)",
+        help="mesh (.ply .obj .stl .off; .glb .gltf with their materials), scene (.toml "
+        ".json; docs/scene-format.md) or a built-in name (knot, knot:2, sphere:3)",
     )
     _output(b, None, "model file (default: NAME.lobelight.npz)")
     _env(b, "the lighting render, view and compare use by default (default: the scene file's, "
          "else the built-in sky; the model relights under any)")  # fmt: skip
     b.add_argument(
         "--material",
-        help="a bare mesh's material, e.g. 'ggx:alpha=0.05,specular=0.9,0.8,0.6' or "
-        "'diffuse:color=0.7' (the keys of a scene file's [material]; docs/scene-format.md)",
+        help="one material on every vertex, in place of the scene's own (a bare mesh's "
+        "default, a glTF file's materials, a scene file's), e.g. "
+        "'ggx:alpha=0.05,specular=0.9,0.8,0.6' or 'diffuse:color=0.7' (the keys of a scene "
+        "file's [material]; docs/scene-format.md)",
     )
     _gaussians(b, auto=True)
     _memory_gb(b)

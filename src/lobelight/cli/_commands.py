@@ -13,6 +13,7 @@ import math
 import os
 import sys
 import time
+import warnings
 from pathlib import Path
 
 import torch
@@ -77,6 +78,47 @@ def _progress(args) -> Reporter | None:
 def _note(args, text: str) -> None:
     if not args.quiet:
         print(f"lobelight: {text}", file=sys.stderr, flush=True)
+
+
+def _load_scene(args, scene: str, *, material=None):
+    """The scene ``scene`` (:func:`lobelight.scene.load`) on ``args.device``; what its files ask
+    for and lobelight does not use (a glTF's emissive, alpha modes, extensions) is said in one
+    ``lobelight: ...`` line on stderr per warning, even under ``--quiet``, without Python's
+    source-line trailer."""
+    with warnings.catch_warnings(record=True) as caught:
+        sc = load_scene(scene, device=args.device, material=material)
+    for w in caught:
+        text = str(w.message)
+        if issubclass(w.category, UserWarning) and text.startswith("lobelight: "):
+            print(text, file=sys.stderr, flush=True)
+        else:  # someone else's: shown as Python would have
+            warnings.showwarning(w.message, w.category, w.filename, w.lineno)
+    if material is not None and sc.material_records:
+        names = ", ".join(repr(r["name"]) for r in sc.material_records)
+        _note(args, f"--material replaces the materials of the glTF file ({names})")
+    return sc
+
+
+def _material_rows(records) -> list[dict]:
+    """A model's or scene's glTF material records (:attr:`lobelight.scene.Scene.material_records`)
+    as table rows: name, model, vertices, textures (slot names without ``Texture``, comma
+    separated; ``-`` for none), override (``-`` for none)."""
+    rows = []
+    for r in records if isinstance(records, list | tuple) else []:
+        if not isinstance(r, dict):
+            continue
+        slots = r.get("textures") or []
+        textures = [str(t).removesuffix("Texture") for t in slots if isinstance(t, str)]
+        rows.append(
+            {
+                "name": str(r.get("name", "")),
+                "model": str(r.get("model", "")),
+                "vertices": r.get("vertices", ""),
+                "textures": ", ".join(textures) or "-",
+                "override": str(r.get("override") or "-"),
+            }
+        )
+    return rows
 
 
 def _camera_from(text: str | None, provenance: dict, mesh):
@@ -164,7 +206,7 @@ def run_bake(args) -> dict:
     if not (math.isfinite(args.memory_gb) and args.memory_gb > 0):
         raise InputError("--memory-gb", f"must be a positive number, got {args.memory_gb}")
     prog = _progress(args)
-    sc = load_scene(args.scene, device=args.device, material=args.material)
+    sc = _load_scene(args, args.scene, material=args.material)
     if args.env:  # the model's default lighting (render, view, compare), as a scene file's
         env_file = _env_file(args.env)
         if args.env != "builtin":
@@ -190,6 +232,8 @@ def run_bake(args) -> dict:
         checkpoint=ckpt,
         checkpoint_every=args.checkpoint_every,
     )
+    # the glTF materials the scene brought (and what overrode them), for `lobelight info`
+    m.provenance["materials"] = [dict(r) for r in sc.material_records]
     info = m.save(out, float16=args.float16)
     if ckpt.exists():
         ckpt.unlink()  # the model is whole on disk: the checkpoint has served
@@ -199,6 +243,7 @@ def run_bake(args) -> dict:
         "scene": sc.name,
         "environment": sc.environment,
         "material": sc.materials.model,
+        "materials": _material_rows(sc.material_records),
         "vertices": sc.mesh.n_vertices,
         "n_gaussians": m.provenance["n_gaussians"],
         "n_gaussians_choice": m.provenance["n_gaussians_choice"],
@@ -236,6 +281,8 @@ def run_info(args) -> dict:
         "sh_coefficients": int(m.diffuse.shape[1]),
         "records_with_weight": int(live.sum()),
         "material": m.materials.model,
+        # a glTF scene's materials, from the provenance (empty for other scenes)
+        "materials": _material_rows(m.provenance.get("materials")),
         "reflection": _reflection(m),
         "interreflection": _interreflection(m.provenance),
         "provenance": m.provenance,
@@ -369,7 +416,7 @@ def run_view(args) -> dict:
 
 def run_compare(args) -> dict:
     width, height = _size(args)
-    sc = load_scene(args.scene, device=args.device)
+    sc = _load_scene(args, args.scene)
     model = load_model(args.model, device=args.device) if args.model else None
     if model is not None and model.mesh.n_vertices != sc.mesh.n_vertices:
         raise InputError(

@@ -1,7 +1,10 @@
 """Scenes: meshes, per-vertex materials, environment and camera.
 
 - :func:`load` a built-in name, a scene file (TOML/JSON, see :mod:`._scene`) or a bare mesh;
-  :func:`builtin` the scenes that need no files (``"knot"``, ``"sphere"``).
+  :func:`builtin` the scenes that need no files (``"knot"``, ``"sphere"``). A glTF mesh brings
+  its own materials (per-vertex factors averaged as :data:`GLTF_AVERAGE` says), which a scene
+  file may override by name (:data:`MATERIAL_OVERRIDE_KEYS`); :attr:`Scene.material_records`
+  lists them.
 - :class:`Mesh` welded, cleaned triangles with area-weighted vertex normals and CSR adjacency;
   :func:`load_mesh` / :func:`mesh_from_arrays` check their input and name the problem.
 - :func:`load_gltf` a glTF 2.0 asset (``.gltf``/``.glb``) as a :class:`GltfAsset`: the welded
@@ -52,7 +55,10 @@ from ._mesh import (
 from ._scene import (
     BARE_MESH_MATERIAL,
     BUILTIN_SCENES,
+    GLTF_AVERAGE,
+    GLTF_QUADRATURE,
     GRADIENT_KEYS,
+    MATERIAL_OVERRIDE_KEYS,
     SCENE_FILE_MATERIAL,
     SCENE_KEYS,
     Scene,
@@ -64,9 +70,12 @@ from ._scene import (
 __all__ = [
     "BARE_MESH_MATERIAL",
     "BUILTIN_SCENES",
+    "GLTF_AVERAGE",
+    "GLTF_QUADRATURE",
     "GLTF_SUFFIXES",
     "GRADIENT_KEYS",
     "LOBE_PARAMS",
+    "MATERIAL_OVERRIDE_KEYS",
     "MESH_SUFFIXES",
     "MODEL_PARAMS",
     "SCENE_FILE_MATERIAL",

@@ -7,7 +7,7 @@ format, key by key, is in docs/scene-format.md; in short::
     mesh = "bunny.ply"            # OBJ, PLY, STL, glTF/GLB, OFF
     environment = "studio.hdr"    # a file, a bundled map's name, or "builtin"
 
-    [material]                    # one material everywhere ...
+    [material]                    # one material everywhere (without: a glTF keeps its own) ...
     diffuse = [0.6, 0.5, 0.4]
     model = "ggx"                 # phong, blinn_phong, ward, lafortune, ggx, beckmann, none
     specular = [0.9, 0.9, 0.9]
@@ -20,11 +20,23 @@ format, key by key, is in docs/scene-format.md; in short::
     # to = { diffuse = [0.05, 0.3, 0.05], model = "phong", specular = [0.3, 0.8, 0.3],
     #        exponent = 2000 }
 
+    # ... or, for a glTF mesh, its own materials with some overridden by name
+    # [materials.Visor]
+    # base_color = [0.9, 0.9, 0.9]
+    # metallic = 1.0
+    # roughness = 0.1
+    # textures = false
+
     [camera]
     origin = [0, 1, 4]
     target = [0, 0.3, 0]
     up = [0, 1, 0]
     fov = 40
+
+A glTF mesh (``.gltf``/``.glb``, bare or named by a scene file) comes with its own materials:
+:func:`lobelight.scene.load_gltf`, then :func:`lobelight.scene.vertex_factors` with
+:data:`GLTF_AVERAGE`, then :func:`lobelight.scene.gltf_materials` (every glTF material per-vertex
+parameters of one ``ggx_schlick`` model); :attr:`Scene.material_records` lists them.
 
 Built-in scenes (:func:`builtin`) need no files at all.
 """
@@ -49,8 +61,17 @@ from ..data import envmap_names, resolve_envmap
 from ..errors import InputError
 from ..geometry.camera import Camera
 from . import _shapes
-from ._materials import Materials, gradient, parse_material, uniform
-from ._mesh import MESH_SUFFIXES, Mesh, load_mesh, mesh_from_arrays
+from ._gltf import GLTF_SUFFIXES, GltfMaterial
+from ._materials import Materials, _colour, gltf_materials, gradient, parse_material, uniform
+from ._mesh import (
+    MESH_SUFFIXES,
+    GltfAsset,
+    Mesh,
+    load_gltf,
+    load_mesh,
+    mesh_from_arrays,
+    vertex_factors,
+)
 
 try:
     import tomllib
@@ -60,7 +81,10 @@ except ImportError:  # Python 3.10: the tomli backport, a dependency there
 __all__ = [
     "BARE_MESH_MATERIAL",
     "BUILTIN_SCENES",
+    "GLTF_AVERAGE",
+    "GLTF_QUADRATURE",
     "GRADIENT_KEYS",
+    "MATERIAL_OVERRIDE_KEYS",
     "SCENE_FILE_MATERIAL",
     "SCENE_KEYS",
     "Scene",
@@ -70,9 +94,27 @@ __all__ = [
 ]
 
 #: The top-level keys of a scene file.
-SCENE_KEYS = ("name", "mesh", "environment", "material", "gradient", "camera")
+SCENE_KEYS = ("name", "mesh", "environment", "material", "gradient", "materials", "camera")
 #: The keys of a scene file's ``[gradient]`` table.
 GRADIENT_KEYS = ("axis", "from", "to")
+#: The keys of a scene file's ``[materials.NAME]`` table, which overrides the glTF material
+#: ``NAME``: its ``baseColorFactor`` (RGB), ``metallicFactor``, ``roughnessFactor`` and, with
+#: ``textures = false``, drops its textures.
+MATERIAL_OVERRIDE_KEYS = ("base_color", "metallic", "roughness", "textures")
+#: How a glTF scene's per-vertex factors are read from its textures
+#: (:func:`lobelight.scene.vertex_factors`'s ``average``): averaged over each vertex's one-ring
+#: with its hat function, so that the values interpolated across faces keep the texture's mean
+#: over the surface; read at the vertex's UV instead, a texture finer than the mesh is
+#: point-sampled and its mean over the surface is lost (aliasing). The quadrature follows the
+#: texels a face covers (:data:`GLTF_QUADRATURE`); vertex colours (``COLOR_0``), defined at
+#: the vertices, multiply the averaged textures at the vertex itself.
+GLTF_AVERAGE = "one_ring"
+#: The fewest and most sub-triangles per face side of the one-ring quadrature: a face is split
+#: into ``n^2`` with ``n`` about the square root of the texels it covers (the 90th percentile
+#: over the faces), within these bounds.
+GLTF_QUADRATURE = (4, 16)
+#: Texture samples per batch of the one-ring quadrature (bounds its memory).
+_SAMPLES_PER_BATCH = 1 << 20
 #: The material of a bare mesh file (a ``[material]`` table): grey diffuse plus a GGX lobe.
 BARE_MESH_MATERIAL = {
     "diffuse": [0.4, 0.4, 0.4],
@@ -95,6 +137,12 @@ class Scene:
     environment : "builtin" or a path to an HDR/EXR lat-long or cross image
     camera : default viewpoint
     name : for reports and file names
+    material_records : the materials a glTF mesh brought, one JSON-ready dict each (empty for
+        other scenes): ``name``; ``model`` (the specular model its vertices have);
+        ``vertices`` (how many have it); ``textures`` (the texture slots the file gives it,
+        e.g. ``["baseColorTexture", "metallicRoughnessTexture"]``); ``override`` (what
+        replaced the file's values: ``""`` none, ``"[materials.NAME]"``, ``"[material]"``,
+        ``"[gradient]"``, ``"--material"``)
     """
 
     mesh: Mesh
@@ -104,6 +152,7 @@ class Scene:
         default_factory=lambda: Camera.look_at((0.0, 1.5, 5.0), (0.0, 0.0, 0.0), fov=40.0)
     )
     name: str = "scene"
+    material_records: tuple[dict[str, Any], ...] = ()
 
     def __post_init__(self) -> None:
         if self.materials.n_vertices != self.mesh.n_vertices:
@@ -124,6 +173,7 @@ class Scene:
             self.environment,
             self.camera,
             self.name,
+            self.material_records,
         )
 
 
@@ -287,7 +337,8 @@ def load(path_or_name, *, device=None, material=None) -> Scene:
     """A scene from a built-in name, a scene file (``.toml``/``.json``) or a bare mesh file.
 
     A bare mesh gets :data:`BARE_MESH_MATERIAL` (grey diffuse + GGX, alpha 0.15), the built-in
-    environment, and a camera that frames it.
+    environment, and a camera that frames it; a bare glTF (``.gltf``/``.glb``) gets its own
+    materials instead (module docstring), recorded in :attr:`Scene.material_records`.
 
     Parameters
     ----------
@@ -296,7 +347,8 @@ def load(path_or_name, *, device=None, material=None) -> Scene:
     material : None, a material spec string (:func:`parse_material`, e.g.
         ``"ggx:alpha=0.05,specular=0.9,0.8,0.6"``) or a mapping with the keys of a scene file's
         ``[material]``: one material on every vertex in place of the scene's own (a bare
-        mesh's default, a scene file's ``[material]`` or ``[gradient]``, a built-in's)
+        mesh's default, a glTF's materials, a scene file's ``[material]``, ``[gradient]`` or
+        ``[materials.NAME]``, a built-in's)
 
     Raises
     ------
@@ -309,7 +361,13 @@ def load(path_or_name, *, device=None, material=None) -> Scene:
     sc = _load(path_or_name)
     if override is not None:
         n = sc.mesh.n_vertices
-        sc = dataclasses.replace(sc, materials=override.take(torch.zeros(n, dtype=torch.int64)))
+        by = "--material" if isinstance(material, str) else "material"
+        records = tuple({**r, "model": override.model, "override": by} for r in sc.material_records)
+        sc = dataclasses.replace(
+            sc,
+            materials=override.take(torch.zeros(n, dtype=torch.int64)),
+            material_records=records,
+        )
     return sc.to(device) if device is not None else sc
 
 
@@ -333,8 +391,12 @@ def _load(path_or_name) -> Scene:
 
 
 def _bare_mesh_scene(p: Path) -> Scene:
-    """A mesh file as a scene: :data:`BARE_MESH_MATERIAL`, the built-in environment and
-    :func:`default_camera`."""
+    """A mesh file as a scene: :data:`BARE_MESH_MATERIAL` (a glTF: its own materials), the
+    built-in environment and :func:`default_camera`."""
+    if p.suffix.lower() in GLTF_SUFFIXES:
+        asset = load_gltf(p)
+        mats, records = _gltf_scene_materials(asset, {}, "")
+        return Scene(asset.mesh, mats, "builtin", default_camera(asset.mesh), p.stem, records)
     mesh = load_mesh(p)
     mats = uniform(BARE_MESH_MATERIAL, mesh.n_vertices)
     return Scene(mesh, mats, "builtin", default_camera(mesh), p.stem)
@@ -348,19 +410,189 @@ def _described_scene(p: Path, s: str) -> Scene:
     if not isinstance(d.get("name", ""), str):
         raise InputError(f"{s}: name", f"must be a string, got {d['name']!r:.60}")
     mesh_path = _entry_path(p, s, d, "mesh")
+    given = [f"[{k}]" for k in ("material", "gradient", "materials") if k in d]
+    if len(given) > 1:
+        raise InputError(s, f"give one of [material], [gradient] or [materials], not {given}")
+    is_gltf = mesh_path.suffix.lower() in GLTF_SUFFIXES
+    if "materials" in d and not is_gltf:
+        raise InputError(
+            f"{s}: materials",
+            f"overrides a glTF mesh's materials by name; {mesh_path.name} is not a glTF file "
+            "(give [material] or [gradient])",
+        )
     try:
-        mesh = load_mesh(mesh_path)
+        asset = load_gltf(mesh_path) if is_gltf else None
+        mesh = asset.mesh if asset is not None else load_mesh(mesh_path)
     except InputError as exc:  # name the scene file as well as the mesh file
         raise InputError(f"{s}: mesh {exc.what}", exc.problem) from None
-    if "material" in d and "gradient" in d:
-        raise InputError(s, "give either [material] or [gradient], not both")
+    records: tuple[dict[str, Any], ...] = ()
     try:
-        mats = _materials(d, mesh)
+        if asset is not None and "material" not in d and "gradient" not in d:
+            mats, records = _gltf_scene_materials(asset, d.get("materials", {}), s)
+        else:
+            mats = _materials(d, mesh)
+            if asset is not None:  # the file's materials, all replaced by the scene file's
+                by = "[material]" if "material" in d else "[gradient]"
+                records = _gltf_records(asset, mats.model, lambda name: by)
     except InputError as exc:
-        raise InputError(f"{s}: {exc.what}", exc.problem) from None
+        what = exc.what if exc.what.startswith(f"{s}: ") else f"{s}: {exc.what}"
+        raise InputError(what, exc.problem) from None
     env = _environment(p, s, d)
     cam = _camera(d["camera"], f"{s}: camera") if "camera" in d else default_camera(mesh)
-    return Scene(mesh, mats, env, cam, d.get("name", p.stem))
+    return Scene(mesh, mats, env, cam, d.get("name", p.stem), records)
+
+
+# --------------------------------------------------------------------------------------------
+# glTF materials
+
+
+def _texture_slots(mat: GltfMaterial) -> list[str]:
+    """The glTF texture slots ``mat`` has a texture in."""
+    slots = (
+        ("baseColorTexture", mat.base_color_texture),
+        ("metallicRoughnessTexture", mat.metallic_roughness_texture),
+        ("normalTexture", mat.normal_texture),
+    )
+    return [name for name, tex in slots if tex is not None]
+
+
+def _gltf_records(asset: GltfAsset, model: str, override_of) -> tuple[dict[str, Any], ...]:
+    """:attr:`Scene.material_records` of ``asset``: every material of the file (the
+    specification's default one only where a primitive uses it), ``override_of(name)`` what
+    replaced it."""
+    counts = torch.bincount(asset.material.cpu(), minlength=len(asset.materials)).tolist()
+    last = len(asset.materials) - 1  # the default material, for primitives without one
+    return tuple(
+        {
+            "name": mat.name,
+            "model": model,
+            "vertices": int(counts[i]),
+            "textures": _texture_slots(mat),
+            "override": override_of(mat.name),
+        }
+        for i, mat in enumerate(asset.materials)
+        if i < last or counts[i] > 0
+    )
+
+
+def _gltf_names(asset: GltfAsset) -> list[str]:
+    """The material names a scene file may override (as :func:`_gltf_records` lists them)."""
+    counts = torch.bincount(asset.material.cpu(), minlength=len(asset.materials)).tolist()
+    last = len(asset.materials) - 1
+    names = [m.name for i, m in enumerate(asset.materials) if i < last or counts[i] > 0]
+    return list(dict.fromkeys(names))
+
+
+def _gltf_scene_materials(
+    asset: GltfAsset, overrides: Any, s: str
+) -> tuple[Materials, tuple[dict[str, Any], ...]]:
+    """The per-vertex ``ggx_schlick`` materials of ``asset``, its materials overridden by the
+    scene file ``s``'s ``[materials]`` table ``overrides`` (by name), and their records."""
+    if not isinstance(overrides, Mapping):
+        raise InputError(f"{s}: materials", "must be a table of [materials.NAME] tables")
+    names = _gltf_names(asset)
+    for name in overrides:
+        if name not in names:
+            listed = ", ".join(repr(n) for n in names)
+            raise InputError(
+                f"{s}: materials.{name}",
+                f"{asset.mesh.name} has no material {name!r}; its materials: {listed}",
+            )
+    checked = {
+        name: _override(table, f"{s}: materials.{name}") for name, table in overrides.items()
+    }
+    if checked:
+        asset = dataclasses.replace(
+            asset,
+            materials=tuple(_overridden(m, checked.get(m.name)) for m in asset.materials),
+        )
+    f = _vertex_factors(asset)
+    # the factors, textures and vertex colours are each in [0, 1], but COLOR_0 given as floats
+    # is not clipped by the loader, and the one-ring average rounds in float32
+    mats = gltf_materials(f.base_color.clamp(0, 1), f.metallic.clamp(0, 1), f.roughness.clamp(0, 1))
+    records = _gltf_records(
+        asset, mats.model, lambda name: f"[materials.{name}]" if name in checked else ""
+    )
+    return mats, records
+
+
+def _quadrature(asset: GltfAsset) -> int:
+    """Sub-triangles per face side for :func:`_vertex_factors`: about the square root of the
+    texels a face covers (UV area times the texel count of its material's largest texture; the
+    90th percentile over the faces), within :data:`GLTF_QUADRATURE`; 1 without textures (the
+    factors are then constant over each material)."""
+    texels = torch.zeros(len(asset.materials), dtype=torch.float64)
+    for i, mat in enumerate(asset.materials):
+        for tex in (mat.base_color_texture, mat.metallic_roughness_texture):
+            if tex is not None:
+                texels[i] = max(float(texels[i]), tex.image.shape[0] * tex.image.shape[1])
+    if not bool((texels > 0).any()):
+        return 1
+    uv = asset.uvs.double().cpu()[asset.mesh.faces.cpu()]  # (F, 3, 2) corner UVs
+    e1, e2 = uv[:, 1] - uv[:, 0], uv[:, 2] - uv[:, 0]
+    uv_area = 0.5 * (e1[:, 0] * e2[:, 1] - e1[:, 1] * e2[:, 0]).abs()  # (F,)
+    per_face = uv_area * texels[asset.face_material.cpu()]  # (F,) texels covered
+    lo, hi = GLTF_QUADRATURE
+    n = math.ceil(math.sqrt(max(float(np.quantile(per_face.numpy(), 0.9)), 0.0)))
+    return min(max(n, lo), hi)
+
+
+def _vertex_factors(asset: GltfAsset):
+    """The per-vertex factors of a glTF scene (:data:`GLTF_AVERAGE`): the factors and textures
+    averaged over the one-ring, times the vertex colour at the vertex."""
+    n = _quadrature(asset)
+    plain = dataclasses.replace(asset, colors=torch.ones_like(asset.colors))
+    f = vertex_factors(
+        plain, average=GLTF_AVERAGE, quadrature=n, batch=max(1, _SAMPLES_PER_BATCH // n**2)
+    )
+    return dataclasses.replace(f, base_color=f.base_color * asset.colors[:, :3])
+
+
+def _override(table: Any, where: str) -> dict[str, Any]:
+    """A ``[materials.NAME]`` table checked: its keys (:data:`MATERIAL_OVERRIDE_KEYS`) and
+    values (``base_color`` a colour, ``metallic``/``roughness`` numbers in [0, 1],
+    ``textures`` true or false)."""
+    if not isinstance(table, Mapping):
+        raise InputError(where, f"must be a table of values, got {type(table).__name__}")
+    out: dict[str, Any] = {}
+    for key, value in table.items():
+        if key not in MATERIAL_OVERRIDE_KEYS:
+            known = ", ".join(MATERIAL_OVERRIDE_KEYS)
+            raise InputError(f"{where}.{key}", f"unknown key (known: {known})")
+        if key == "textures":
+            if not isinstance(value, bool):
+                raise InputError(f"{where}.textures", f"must be true or false, got {value!r:.60}")
+            out[key] = value
+        elif key == "base_color":
+            colour = _colour(value, f"{where}.base_color")
+            if colour.ndim != 1:
+                raise InputError(f"{where}.base_color", "must be one number or an RGB triple")
+            out[key] = tuple(float(c) for c in colour)
+        else:
+            ok = isinstance(value, int | float) and not isinstance(value, bool)
+            if not ok or not 0.0 <= float(value) <= 1.0:
+                raise InputError(f"{where}.{key}", f"must be a number in [0, 1], got {value!r:.60}")
+            out[key] = float(value)
+    return out
+
+
+def _overridden(mat: GltfMaterial, o: dict[str, Any] | None) -> GltfMaterial:
+    """``mat`` with the factors of the checked override ``o`` (textures dropped where it says
+    ``textures = false``)."""
+    if not o:
+        return mat
+    changes: dict[str, Any] = {}
+    if "base_color" in o:
+        changes["base_color"] = (*o["base_color"], mat.base_color[3])
+    if "metallic" in o:
+        changes["metallic"] = o["metallic"]
+    if "roughness" in o:
+        changes["roughness"] = o["roughness"]
+    if o.get("textures") is False:
+        changes.update(
+            base_color_texture=None, metallic_roughness_texture=None, normal_texture=None
+        )
+    return dataclasses.replace(mat, **changes)
 
 
 def _environment(p: Path, s: str, d: dict[str, Any]) -> str:
