@@ -8,6 +8,7 @@ follows from the glTF specification's formulas, independently of the loader.
 
 from __future__ import annotations
 
+import base64
 import io
 import json
 import struct
@@ -45,9 +46,10 @@ def _png(rgb: np.ndarray) -> bytes:
 
 
 def write_glb(path, prims, materials, images=(), samplers=()) -> None:
-    """A ``.glb`` of one mesh: ``prims`` are dicts of float32 ``POSITION``, ``NORMAL``,
-    ``TEXCOORD_0``, ``COLOR_0`` arrays, ``indices`` and ``material``; ``images`` PNG bytes,
-    texture ``i`` showing image ``i`` with sampler ``samplers[i]`` where given."""
+    """A ``.glb`` of one mesh (a ``.gltf`` with its buffer as a data URI where ``path`` ends
+    so): ``prims`` are dicts of float32 ``POSITION``, ``NORMAL``, ``TEXCOORD_0``, ``COLOR_0``
+    arrays, ``indices`` and ``material``; ``images`` PNG bytes, texture ``i`` showing image
+    ``i`` with sampler ``samplers[i]`` where given."""
     blob, views, accessors = bytearray(), [], []
 
     def accessor(a, kind, ctype=5126):
@@ -83,6 +85,12 @@ def write_glb(path, prims, materials, images=(), samplers=()) -> None:
     for key, items in (("images", gl_images), ("textures", textures), ("samplers", samplers)):
         if items:
             doc[key] = list(items)
+    if path.suffix == ".gltf":
+        doc["buffers"][0]["uri"] = "data:application/octet-stream;base64," + base64.b64encode(
+            bytes(blob)
+        ).decode("ascii")
+        path.write_text(json.dumps(doc))
+        return
     js = json.dumps(doc).encode()
     js += b" " * (-len(js) % 4)
     blob.extend(b"\0" * (-len(blob) % 4))
@@ -181,7 +189,10 @@ def glb(tmp_path):
     return p
 
 
-def test_a_bare_gltf_scene_has_its_materials_per_vertex(glb):
+@pytest.mark.parametrize("suffix", [".glb", ".gltf"])
+def test_a_bare_gltf_scene_has_its_materials_per_vertex(tmp_path, suffix):
+    glb = tmp_path / f"two{suffix}"
+    two_material_glb(glb)
     sc = scene.load(glb)
     assert sc.materials.model == "ggx_schlick" and sc.name == "two"
     # the mesh is the loader's: the shared edge split by material, 4 + 4 vertices
@@ -405,3 +416,16 @@ def test_the_doc_describes_the_overrides():
     for name, table in example["materials"].items():
         assert set(table) <= set(scene.MATERIAL_OVERRIDE_KEYS), name
     assert set(example) <= set(scene.SCENE_KEYS)
+
+
+def test_an_override_reaches_every_material_of_its_name(tmp_path):
+    """Two materials of one name (exporters repeat names): both get the override."""
+    p = tmp_path / "same.glb"
+    mats = [{"name": "same", "pbrMetallicRoughness": {"roughnessFactor": r}} for r in (0.2, 0.9)]
+    write_glb(p, [_quad(0.0, material=0), _quad(1.0, material=1)], mats)
+    assert sorted(set(scene.load(p).materials.specular.params["alpha"].tolist())) == pytest.approx(
+        [0.04, 0.81]
+    )
+    s = _scene_file(tmp_path, 'mesh = "same.glb"\n[materials.same]\nroughness = 0.5\n')
+    alpha = scene.load(s).materials.specular.params["alpha"]
+    assert torch.allclose(alpha, torch.tensor(0.25))
