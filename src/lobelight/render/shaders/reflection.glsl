@@ -190,17 +190,27 @@ vec3 hit_light(int f, vec3 q, vec3 r) {
 }
 
 // the object seen along r from point p of corners c and barycentrics b: the corners' hits
-// blended over those that found one (rgb), and whether any did (a)
+// blended over those that found one (rgb), and whether any did (a). One call site of
+// hit_light in a loop over a bit mask of the corners with a hit: a loop over the three corners
+// is unrolled into three copies, and a rasteriser that runs both sides of a branch under a mask
+// (llvmpipe) runs every copy for every pixel
 vec4 object_light(vec3 p, vec3 r, ivec3 c, vec3 b) {
+    ivec2 t0 = tile_texel(c.x, r), t1 = tile_texel(c.y, r), t2 = tile_texel(c.z, r);
+    ivec3 f = ivec3(texelFetch(hit_face_tex, t0, 0).r, texelFetch(hit_face_tex, t1, 0).r,
+                    texelFetch(hit_face_tex, t2, 0).r);
+    int mask = (f.x >= 0 && b.x > 0.0 ? 1 : 0) | (f.y >= 0 && b.y > 0.0 ? 2 : 0)
+               | (f.z >= 0 && b.z > 0.0 ? 4 : 0);
     vec3 light = vec3(0.0);
     float w = 0.0;
-    for (int i = 0; i < 3; ++i) {
-        ivec2 t = tile_texel(c[i], r);
-        int f = texelFetch(hit_face_tex, t, 0).r;
-        if (f < 0 || b[i] <= 0.0) continue;
+    while (mask != 0) {
+        int i = (mask & 1) != 0 ? 0 : ((mask & 2) != 0 ? 1 : 2);
+        mask &= ~(1 << i);
+        ivec2 t = i == 0 ? t0 : (i == 1 ? t1 : t2);
+        int face = i == 0 ? f.x : (i == 1 ? f.y : f.z);
+        float weight = i == 0 ? b.x : (i == 1 ? b.y : b.z);
         float dist = texelFetch(hit_dist_tex, t, 0).r;
-        light += b[i] * hit_light(f, p + dist * r, r);
-        w += b[i];
+        light += weight * hit_light(face, p + dist * r, r);
+        w += weight;
     }
     return w > 0.0 ? vec4(light / w, 1.0) : vec4(0.0);
 }
