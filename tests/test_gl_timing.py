@@ -17,7 +17,15 @@ needs_gl = pytest.mark.skipif(not gl_available(), reason="no headless OpenGL con
 
 CAM = render.Camera.look_at((0.3, 0.9, 3.0), (0.0, 0.0, 0.0), fov=40)
 PASSES = (
-    "uniforms", "shadow", "table", "clear", "depth", "prt", "background", "resolve", "tonemap"
+    "uniforms",
+    "shadow",
+    "table",
+    "clear",
+    "depth",
+    "prt",
+    "background",
+    "resolve",
+    "tonemap",
 )
 
 
