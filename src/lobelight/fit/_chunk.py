@@ -33,7 +33,9 @@ from ._optimize import Gaussians, fit_batch, initial_guess
 from ._relax import SEPARATED, vertex_flips
 
 __all__ = [
+    "FILL_ITERATIONS",
     "MAX_NEIGHBOURS",
+    "REFIT_ITERATIONS",
     "Bake",
     "BakeState",
     "Chunk",
@@ -44,6 +46,10 @@ __all__ = [
 
 #: Processed neighbours a vertex's S term reads (the rest of a high-valence fan is dropped).
 MAX_NEIGHBOURS = 8
+#: Levenberg-Marquardt iterations of a chunk's fit in the flood fill, and in the relaxation's
+#: refit, which starts from the flood fill's converged lobes.
+FILL_ITERATIONS = 14
+REFIT_ITERATIONS = 8
 #: Face resolution of the cube map of directions the self-shadowed diffuse transfer sums over.
 DIFFUSE_RES = 16
 
@@ -215,7 +221,7 @@ def fit_chunk(bake: Bake, chunk: Chunk) -> None:
         # start from a processed neighbour's Gaussians (the same correspondence of lobes)
         # where they fit this vertex's data, from the data's own guess where they do not
         init = _better_start(data, n, bake.nbr_views, st.gaussians(ids[:, 0]))
-    g, terms = _fit(bake, data, ids, mask, init)
+    g, terms = _fit(bake, data, ids, mask, init, iters=FILL_ITERATIONS)
     st.mu[vidx], st.lam[vidx], st.w[vidx] = g.mu, g.lam, g.w
     st.derr[vidx] = terms["D"]
 
@@ -231,7 +237,7 @@ def refit_chunk(bake: Bake, chunk: Chunk) -> None:
         return
     data = gather(bake.transport, vidx, bake.views, lobe=None).compact()
     ids, mask = _processed_neighbours(bake.mesh, vidx, st.glossy)
-    g, terms = _fit(bake, data, ids, mask, st.gaussians(vidx))
+    g, terms = _fit(bake, data, ids, mask, st.gaussians(vidx), iters=REFIT_ITERATIONS)
     # The refit keeps a vertex's new lobes only where they add no flipped pair against its
     # neighbours, counting all pairs and separated ones: S alone does not hold the lobes (its
     # cubic penalty vanishes for lobes a few tenths of a radian apart), and unguarded the pass
@@ -279,9 +285,9 @@ def _indirect(bake: Bake, chunk: Chunk, vidx: torch.Tensor) -> None:
     bake.indirect_seconds += time.perf_counter() - t
 
 
-def _fit(bake: Bake, data, ids: torch.Tensor, mask: torch.Tensor, init: Gaussians | None):
-    """:func:`lobelight.fit.fit_batch` of a chunk's data, ``S`` against neighbours ``ids``
-    (B, Q) where ``mask`` (with two or more Gaussians per view)."""
+def _fit(bake: Bake, data, ids, mask, init: Gaussians | None, *, iters: int):
+    """:func:`lobelight.fit.fit_batch` of a chunk's data in ``iters`` iterations, ``S`` against
+    neighbours ``ids`` (B, Q) where ``mask`` (with two or more Gaussians per view)."""
     n = bake.n
     return fit_batch(
         data,
@@ -289,6 +295,7 @@ def _fit(bake: Bake, data, ids: torch.Tensor, mask: torch.Tensor, init: Gaussian
         bake.nbr_views,
         weights=bake.weights,
         init=init,
+        iters=iters,
         nbr_mu=bake.state.mu[ids] if n > 1 else None,  # (B, Q, J, N, 3)
         nbr_mask=mask if n > 1 else None,
     )

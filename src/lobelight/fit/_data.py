@@ -54,7 +54,8 @@ class FitData:
     ----------
     dirs : (B, J, S, 3) sample directions (global frame)
     weights : (B, J, S) quadrature solid angles (0 for unused samples)
-    values : (B, J, S, 3) transport values (RGB)
+    values : (B, J, S, 3) transport values (RGB); 0 where the weight is 0 (not evaluated
+        there: no integral of the fit sees those samples)
     below : (B, J) bool, view below the vertex's horizon (transport 0, weight forced to 0)
     """
 
@@ -284,12 +285,13 @@ def gather(
     lvals = tr.direct(vidx, views, ldirs)  # (B, J, K, 3)
     gd = cubemap.texel_directions(global_res, device=dev).reshape(-1, 3)  # (D, 3)
     gom = cubemap.texel_solid_angles(global_res, device=dev).reshape(-1)
-    gvals = tr.direct(vidx, views, gd)  # (B, J, D, 3)
-    # the global set leaves out the directions the cap covers (in its own domain)
+    # the global set leaves out the directions the cap covers (in its own domain): weight 0,
+    # and the transport is not evaluated there
     gcap = gd[None, None] + v[:, :, None] if half else gd[None, None].expand(b, j, -1, 3)
     gcap = torch.nn.functional.normalize(gcap, dim=-1)  # (B, J, D, 3)
     inside = (axis[:, :, None] * gcap).sum(-1) > (1 - s_max)[..., None]  # (B, J, D)
     gw = torch.where(inside, torch.zeros_like(inside, dtype=gom.dtype), gom.expand(b, j, -1))
+    gvals = tr.direct(vidx, views, gd, need=~inside)  # (B, J, D, 3)
     dirs = torch.cat([ldirs, gd.expand(b, j, -1, 3)], 2)
     weights = torch.cat([lw, gw], 2)
     values = torch.cat([lvals, gvals], 2)
@@ -300,5 +302,6 @@ def gather(
         row = ((v + 1) * r / 2).floor().long().clamp(0, r - 1)
         idx = (f * r + row) * r + col  # (B, J, S)
         values = values + torch.gather(indirect.to(dev), 2, idx[..., None].expand(-1, -1, -1, 3))
-    values = torch.where(below[..., None, None], torch.zeros_like(values), values)
+        # (the direct transport is 0 below the horizon already)
+        values = torch.where(below[..., None, None], torch.zeros_like(values), values)
     return FitData(dirs=dirs, weights=weights, values=values, below=below)

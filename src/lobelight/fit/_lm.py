@@ -11,11 +11,14 @@ Residuals of a view ``v`` (their squares sum to that view's share of the objecti
 - data: ``sqrt(Omega_s / E) (sum_k w_kc G_k(omega_s) - T_c(omega_s))`` for every sample and
   channel, ``E`` the vertex's transport energy (so ``D`` is a relative error). The weights ``w``
   are solved exactly for the current means and widths (variable projection), by default under
-  the constraint that the lobes carry the data's light (:func:`._objective.solve_gram`), and
-  held fixed in the Jacobian (Kaufman's simplification, which keeps Gauss-Newton's
-  convergence); under the constraint it is the light each lobe carries, ``w_k Z(lam_k)``, that
-  is held, which makes the held-weights gradient the exact one (the constraint's multiplier
-  acts on the carried light alone, and that sums to the data's light whatever the step).
+  the constraint that the lobes carry the data's light (:func:`._objective.solve_gram`). The
+  Jacobian is Kaufman's: the rows with the weights held, less their part that the weights' own
+  move takes up (projected off the lobes' span, :func:`_projected`), which the weights' re-solve
+  absorbs. Under the constraint it is the light each lobe carries, ``w_k Z(lam_k)``, that is
+  held, and the weights move only so as to keep the sum. The held rows alone would make the
+  iteration an alternation between weights and lobes, which crawls where two lobes overlap (a
+  sharp core on a broad skirt). The gradient is the held-weights one either way (exact at
+  solved weights).
 - ``M``: ``sqrt(beta / J) (normalise(avg_r mu_k^r) - mu_k)`` per Gaussian (3 residuals);
 - ``V``: ``sqrt(gamma / J) (avg_r sigma_k^r - sigma_k) / avg_r sigma_k^r``;
 - ``S``: ``sqrt(delta / J) max(-<dmu_x, dmu_s>, 0)^(3/2)`` per pair of Gaussians and processed
@@ -25,17 +28,19 @@ Residuals of a view ``v`` (their squares sum to that view's share of the objecti
 averages. The gradient has both parts (without the second, the iteration settles where each
 view is best given its neighbours, which is not the objective's minimum); the Hessian keeps its
 per-view blocks only (block-Jacobi Gauss-Newton), so all views of all vertices step at once.
-Each vertex keeps a damping factor: a step that does not lower the vertex's whole objective is
-rejected and its damping raised, as in Marquardt's rule. With ``3 N <= 9`` unknowns per view
-the systems are solved in one batched call, so an iteration costs about three evaluations of
-the mixture at the samples.
+Each view keeps a damping factor, raised where its step is not kept and lowered where it is,
+as in Marquardt's rule. A step is kept per view where it lowers the view's share of the
+objective, as long as the vertex's whole objective falls (else the whole step where that lowers
+it, else none): one view whose step overshoots does not hold back the vertex's other views.
+With ``3 N <= 9`` unknowns per view the systems are solved in one batched call, so an
+iteration costs about three evaluations of the mixture at the samples.
 """
 
 from __future__ import annotations
 
 import torch
 
-from .._tol import DIVISOR_F32
+from .._tol import DIVISOR_F32, DIVISOR_F64
 from ..geometry import sphere
 from ..lobes import sg
 from ._data import FitData
@@ -113,7 +118,7 @@ def levenberg_marquardt(
         "V": (weights.gamma / j) ** 0.5,
         "S": (weights.delta / j) ** 0.5,
     }
-    damp = torch.full((b, 1), 1e-3, dtype=dt, device=mu.device)
+    damp = torch.full((b, j, 1), 1e-3, dtype=dt, device=mu.device)
     valid = (nbr_views >= 0).to(dt)  # (J, 6)
     inv_r = 1 / valid.sum(1)  # (J,) 1 / number of neighbours of each view
 
@@ -144,6 +149,7 @@ def levenberg_marquardt(
     light = (wts_a[..., None] * vals_a.clamp_min(0)).sum(1)[:, None]  # (P, 1, 3), as light_of
     no_below = torch.zeros(p_n, 1, dtype=torch.bool, device=mu.device)
     vertex_of = act // j  # (P,) which vertex each active view belongs to
+    no_data = energy <= 0  # (B, J)
     inv_e_a = inv_e[vertex_of]  # (P,)
 
     def pack(x: torch.Tensor) -> torch.Tensor:
@@ -156,8 +162,9 @@ def levenberg_marquardt(
         return out.index_copy_(0, act, x).reshape(b, j, *x.shape[1:])
 
     def evaluate(mu_, lam_):
-        """G, its exponent (float32, (P, N, S)), the solved weights (P, N, 3), the vertex's whole
-        objective and its data term, and each lobe's quadrature-mean direction (P, N, 3)."""
+        """G, its exponent (float32, (P, N, S)), the solved weights (P, N, 3), each view's data
+        term and its share of the other terms (B, J), and how the weights may move
+        (:func:`_free_weights`)."""
         lam_a = pack(lam_)
         g_, ex_ = _gauss(dirs64_t, pack(mu_), lam_a)
         g64 = g_.double()
@@ -169,11 +176,14 @@ def levenberg_marquardt(
         )[:, 0]
         quad = torch.einsum("pkc,pkl,plc->p", w_, a_, w_)
         d_a = (t2 - 2 * (w_ * rhs).sum((-1, -2)) + quad).clamp_min(0) * inv_e_a
-        d_cost = unpack(d_a)  # (B, J)
+        free = _free_weights(a_ * inv_e_a[:, None, None], lam_a, w_, conserve)
+        return g_, ex_, w_.to(dt), unpack(d_a), reg_views(mu_, lam_), free
+
+    def reg_views(mu_, lam_):
+        """Each view's share of ``M``, ``V`` and ``S`` (B, J) at these means and widths."""
         mb = torch.nn.functional.normalize(_neighbour_mean(mu_, nbr_views), dim=-1)
         sb = _neighbour_mean(lam_.rsqrt(), nbr_views)
-        cost = d_cost + _reg_cost(mu_, lam_, mb, sb, c, nbr_ds, mask)
-        return g_, ex_, w_.to(dt), cost.sum(1), d_cost.sum(1)
+        return _reg_cost(mu_, lam_, mb, sb, c, nbr_ds, mask)
 
     sq_n = (wts_a * inv_e_a[:, None]).sqrt()[:, None]  # (P, 1, S) residual scale
     dflat = dirs_a.transpose(1, 2)  # (P, 3, S)
@@ -182,8 +192,12 @@ def levenberg_marquardt(
     # the neighbours' pair differences are fixed through the iteration: formed once
     nbr_ds = None if nbr_mu is None or n < 2 else _pair_diffs(nbr_mu)  # (B, Q, J, P, 3)
     mu, lam = mu.clone(), lam.clone()
-    g, ex, w, cost0, d0 = evaluate(mu, lam)
-    jac = torch.empty(p_n, n, 3, n_s, dtype=dt, device=mu.device)  # reused every iteration
+    g, ex, w, d0, r0, free = evaluate(mu, lam)
+    # reused every iteration: the scaled Jacobian rows (3N), the lobes (N) and the residual
+    # per lobe (N), so that one product gives the rows' products with all three
+    buf = torch.empty(p_n, 5 * n, n_s, dtype=dt, device=mu.device)
+    jac = buf[:, : 3 * n].view(p_n, n, 3, n_s)
+    own = (4 * n + torch.arange(3 * n, device=mu.device) // 3).expand(p_n, -1)[..., None]
     for _ in range(iters):
         mbar = torch.nn.functional.normalize(_neighbour_mean(mu, nbr_views), dim=-1)
         sigma = lam.rsqrt()  # (B, J, N)
@@ -197,7 +211,7 @@ def levenberg_marquardt(
         # dG/da = G lam sigma (t.w), dG/db = G lam sigma (s.w), dG/dz = G lam (mu.w - 1), and
         # with the light conserved, w_k = e_k / Z(lam_k) with the carried light e_k held, so
         # the z row gains G kappa (:func:`._objective.conserve_factor`)
-        gs = g * sq_n
+        gs = torch.mul(g, sq_n, out=buf[:, 3 * n : 4 * n])
         q = gs * (lam_a * sigma_a)[..., None]
         torch.mul(q, tw, out=jac[:, :, 0])
         torch.mul(q, sw, out=jac[:, :, 1])
@@ -205,14 +219,17 @@ def levenberg_marquardt(
         if conserve:
             zrow = zrow + conserve_factor(lam_a)[..., None]
         torch.mul(gs, zrow, out=jac[:, :, 2])
-        jr = jac.reshape(p_n, 3 * n, n_s)
         ww = torch.bmm(w, w.transpose(1, 2))  # (P, N, N)
-        h = torch.bmm(jr, jr.transpose(1, 2)).reshape(p_n, n, 3, n, 3)
-        h = unpack((h * ww.reshape(p_n, n, 1, n, 1)).reshape(p_n, 3 * n, 3 * n))
         # e_k = sum_c w_kc r_c with r the scaled residual: sqrt(W/E) (sum_l ww_kl G_l - w_k.T)
-        e = torch.baddbmm(torch.bmm(ww, g), w, vals_t, alpha=-1) * sq_n  # (P, N, S)
-        grad = torch.bmm(jr.reshape(p_n * n, 3, n_s), e.reshape(p_n * n, n_s, 1))
-        grad = unpack(grad.reshape(p_n, 3 * n))  # (B, J, 3N)
+        e = torch.baddbmm(torch.bmm(ww, g), w, vals_t, alpha=-1)
+        torch.mul(e, sq_n, out=buf[:, 4 * n :])
+        # the rows' products with each other, with the lobes and with the residuals
+        prods = torch.bmm(buf[:, : 3 * n], buf.transpose(1, 2))  # (P, 3N, 5N)
+        grad = unpack(prods.gather(2, own)[..., 0])  # (B, J, 3N): row (k, i) with e_k
+        prods = prods.double()
+        h = _projected(prods[..., : 3 * n], prods[..., 3 * n : 4 * n], free)
+        h = h.reshape(p_n, n, 3, n, 3) * ww.double().reshape(p_n, n, 1, n, 1)
+        h = unpack(h.reshape(p_n, 3 * n, 3 * n).to(dt))
         # M: residual c_M (mbar - mu); d/d(a, b) = -c_M sigma (t, s); V: c_V (sbar - sigma) /
         # sbar, d/dz = c_V sigma / (2 sbar) (sigma = exp(-z/2) relative to the expansion point)
         rm = c["M"] * (mbar - mu)  # (B, J, N, 3)
@@ -246,27 +263,71 @@ def levenberg_marquardt(
         # has no curvature and no gradient; a floor relative to the system's largest curvature
         # keeps the solve regular (an absolute 1e-12 vanishes in float32) and moves it by 0
         floor = 1e-6 * hd.amax(-1, keepdim=True) + 1e-20
-        lhs = h + torch.diag_embed(damp[..., None] * torch.maximum(hd, floor) + floor)
+        lhs = h + torch.diag_embed(damp * torch.maximum(hd, floor) + floor)
         step = -torch.linalg.solve(lhs, grad).reshape(b, j, n, 3)
         step = step.clamp(-3, 3)  # at most 3 widths / a factor e^3 in sharpness per iteration
         mu1 = torch.nn.functional.normalize(
             mu + sigma[..., None] * (step[..., :1] * t + step[..., 1:2] * s), dim=-1
         )
         lam1 = (lam * torch.exp(step[..., 2])).clamp(*lam_range)
-        g1, ex1, w1, cost1, d1 = evaluate(mu1, lam1)
-        ok = (cost1 <= cost0)[:, None]  # (B, 1): whole vertices step or stay
-        ok_a = ok[vertex_of]  # (P, 1)
-        mu = torch.where(ok[..., None, None], mu1, mu)
-        lam = torch.where(ok[..., None], lam1, lam)
-        g = torch.where(ok_a[..., None], g1, g)
-        ex = torch.where(ok_a[..., None], ex1, ex)
-        w = torch.where(ok_a[..., None], w1, w)
-        cost0 = torch.where(ok[:, 0], cost1, cost0)
-        d0 = torch.where(ok[:, 0], d1, d0)
-        damp = torch.where(ok, damp / 3, damp * 4).clamp(1e-9, 1e9)
+        g1, ex1, w1, d1, r1, free1 = evaluate(mu1, lam1)
+        # a step is kept per view where it lowers the view's share of the objective (its data
+        # term is its own; M, V and S are taken with the neighbours' averages of the step),
+        # as long as the vertex's whole objective falls; else the whole step if that lowers
+        # it; else none. Each view keeps its own damping.
+        gain = (d1 + r1 <= d0 + r0) | no_data  # (B, J)
+        mu_m = torch.where(gain[..., None, None], mu1, mu)
+        lam_m = torch.where(gain[..., None], lam1, lam)
+        d_m = torch.where(gain, d1, d0)
+        r_m = reg_views(mu_m, lam_m)
+        tot0, tot1, tot_m = (d0 + r0).sum(1), (d1 + r1).sum(1), (d_m + r_m).sum(1)
+        mixed = tot_m <= torch.minimum(tot0, tot1)  # (B,)
+        whole = ~mixed & (tot1 <= tot0)
+        take = (mixed[:, None] & gain) | whole[:, None]  # (B, J)
+        take_a = pack(take)[:, None]  # (P, 1)
+        mu = torch.where(take[..., None, None], mu1, mu)
+        lam = torch.where(take[..., None], lam1, lam)
+        g = torch.where(take_a[..., None], g1, g)
+        ex = torch.where(take_a[..., None], ex1, ex)
+        w = torch.where(take_a[..., None], w1, w)
+        free = torch.where(take_a[..., None], free1, free)
+        d0 = torch.where(take, d1, d0)
+        r0 = torch.where(mixed[:, None], r_m, torch.where(whole[:, None], r1, r0))
+        stepped = (take & gain)[..., None]  # (B, J, 1)
+        damp = torch.where(stepped, damp / 3, damp * 4).clamp(1e-9, 1e9)
     if state is not None:
-        state["w"], state["D"] = unpack(w), d0.to(dt)
+        state["w"], state["D"] = unpack(w), d0.sum(1).to(dt)
     return mu, lam
+
+
+def _free_weights(a: torch.Tensor, lam: torch.Tensor, w: torch.Tensor, conserve: bool):
+    """How the solved weights may still move, (P, N, N) float64 for :func:`_projected`: the
+    inverse Gram matrix of the lobes that carry light in every channel, with ``conserve``
+    restricted to the moves that keep their light (``sum_k Z(lam_k) dw_k = 0``). ``a``
+    (P, N, N) is the Gram matrix ``int G_k G_l`` in the data term's scale, ``w`` (P, N, 3) the
+    weights. A lobe clamped to 0 (in some channel) is left out: its weight does not move."""
+    n = a.shape[-1]
+    live = (w > 0).all(-1)  # (P, N)
+    both = live[..., :, None] & live[..., None, :]
+    eye = torch.eye(n, dtype=a.dtype, device=a.device)
+    ref = a.diagonal(dim1=-2, dim2=-1).amax(-1).clamp_min(DIVISOR_F64)[..., None, None]
+    # the live lobes' block, the identity elsewhere (decoupled from it, and masked after)
+    inv = torch.linalg.inv(torch.where(both, a, eye * ref) + 1e-12 * ref * eye)
+    inv = torch.where(both, inv, torch.zeros_like(inv))
+    if conserve:
+        zl = (sg.integral(lam.double()) * live)[..., None]  # (P, N, 1)
+        u = inv @ zl
+        inv = inv - u @ u.transpose(1, 2) / (zl * u).sum(1, keepdim=True).clamp_min(DIVISOR_F64)
+    return inv
+
+
+def _projected(jj: torch.Tensor, jg: torch.Tensor, free: torch.Tensor) -> torch.Tensor:
+    """Kaufman's Gauss-Newton matrix of the variable projection, per active view (P, 3N, 3N)
+    float64, before the weights' products: the rows' products ``jj`` less the part that the
+    weights' own move takes up, ``jg K jg^T``, with ``jg`` (P, 3N, N) the rows' products with
+    the lobes and ``K`` from :func:`_free_weights`. The rows alone (the weights held) make
+    the iteration an alternation between weights and lobes, slow where two lobes overlap."""
+    return jj - jg @ free @ jg.transpose(1, 2)
 
 
 def _add_spatial(h, grad, mu, sigma, t, s, ds, mask, c_s):

@@ -48,6 +48,9 @@ __all__ = ["Gaussians", "fit_batch", "initial_guess", "relabel"]
 
 #: Default sharpness range (:data:`lobelight.lobes.sg.LAM_RANGE`).
 LAM_RANGE = sg.LAM_RANGE
+#: Levenberg-Marquardt iterations of :func:`initial_guess`'s joint refinement of the lobes so
+#: far, before each further lobe is placed.
+INIT_ITERATIONS = 8
 
 
 def _moments(data: FitData, values: torch.Tensor, lam_range) -> tuple[torch.Tensor, torch.Tensor]:
@@ -107,7 +110,7 @@ def initial_guess(
                 nbr_views,
                 Weights(),
                 lam_range=lam_range,
-                iters=8,
+                iters=INIT_ITERATIONS,
                 conserve=False,
             )
         # the greedy steps look for what the lobes so far leave unexplained: the plain L2

@@ -221,6 +221,7 @@ class Transport:
         dirs: torch.Tensor,
         *,
         visibility: torch.Tensor | None = None,
+        need: torch.Tensor | None = None,
     ) -> torch.Tensor:
         """Direct glossy transport ``f_s(w, v) V(w) max(n.w, 0)`` at given directions.
 
@@ -230,6 +231,8 @@ class Transport:
         dirs : (D, 3) shared directions, or (B, J, K, 3) per vertex and view (e.g. a local grid
             around the lobe's peak)
         visibility : optional precomputed visibility, (B, D) or (B, J, K)
+        need : optional (B, J, D) bool with shared directions: where False the transport is not
+            evaluated and 0 is returned (a caller's quadrature weight of 0 there)
 
         Returns
         -------
@@ -248,16 +251,15 @@ class Transport:
             if spec is None:
                 return out
             # evaluate only where the environment is visible (a third to a half of the sphere
-            # for most vertices): the BRDF evaluation is the cost here, not the rays
-            bi, di = vis.nonzero(as_tuple=True)  # (M,) each
-            s = spec.take(vidx[bi]).map_params(
-                lambda t, kind: t if t.ndim <= kind else t.unsqueeze(1)
-            )  # per-element parameters (M, 1, ...)
-            dd, nn = d[di][:, None], n[bi][:, None]  # (M, 1, 3)
-            f = s.eval(dd, views[None].expand(bi.shape[0], j, 3), nn)  # (M, J, 3)
-            f = f * (dd * nn).sum(-1, keepdim=True).clamp_min(0)
-            f = torch.where(below[bi][..., None], torch.zeros_like(f), f)
-            out.permute(0, 2, 1, 3)[bi, di] = f
+            # for most vertices), from views above the horizon and where the caller needs it:
+            # the BRDF evaluation is the cost here, not the rays
+            keep = vis[:, None] & ~below[..., None]  # (B, J, D)
+            if need is not None:
+                keep = keep & need
+            bi, ji, di = keep.nonzero(as_tuple=True)  # (T,) each
+            dd, nn = d[di], n[bi]  # (T, 3)
+            f = spec.take(vidx[bi]).eval(dd, views[ji], nn)  # (T, 3)
+            out[bi, ji, di] = f * (dd * nn).sum(-1, keepdim=True).clamp_min(0)
             return out
         d = dirs.to(self.device, torch.float32)  # (B, J, K, 3)
         k = d.shape[2]
