@@ -28,7 +28,7 @@ data term of the fit is the same quadrature applied to the squared residual.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import torch
 
@@ -63,11 +63,19 @@ class FitData:
     weights: torch.Tensor
     values: torch.Tensor
     below: torch.Tensor
+    _unit: torch.Tensor | None = field(default=None, init=False, repr=False)
 
     @property
     def shape(self) -> tuple[int, int, int]:
         b, j, s, _ = self.dirs.shape
         return b, j, s
+
+    def unit_dirs(self) -> torch.Tensor:
+        """``dirs`` as float64 unit vectors (B, J, S, 3), formed once (the fit evaluates its
+        Gaussians at them many times, :func:`lobelight.fit._objective.gaussians_at`)."""
+        if self._unit is None:
+            self._unit = torch.nn.functional.normalize(self.dirs.double(), dim=-1)
+        return self._unit
 
     def energy(self) -> torch.Tensor:
         """``int |T|^2`` per vertex and view, summed over channels, (B, J)."""

@@ -76,6 +76,14 @@ def _gauss(dirs64_t: torch.Tensor, mu: torch.Tensor, lam: torch.Tensor):
     return torch.exp(ex), ex
 
 
+def _components(axes: torch.Tensor, dirs_t: torch.Tensor) -> torch.Tensor:
+    """``axes . omega_s`` (P, K, S) for ``axes`` (P, K, 3) and ``dirs_t`` (P, 3, S): three fused
+    multiply-adds, which for K of a few beat a batched matmul of inner dimension 3."""
+    out = axes[..., :1] * dirs_t[:, None, 0]
+    out.addcmul_(axes[..., 1:2], dirs_t[:, None, 1])
+    return out.addcmul_(axes[..., 2:], dirs_t[:, None, 2])
+
+
 def _reg_cost(mu, lam, mbar, sbar, c, nbr_ds, nbr_mask):
     """Per-view cost of ``M``, ``V`` and ``S`` (B, J), the neighbours' averages held fixed;
     ``nbr_ds`` (B, Q, J, P, 3) the processed neighbours' pair differences (or None)."""
@@ -137,15 +145,16 @@ def levenberg_marquardt(
     act = (energy > 0).reshape(-1).nonzero().squeeze(1)  # (P,) flat (vertex, view) indices
     p_n = act.numel()
     dirs_a = data.dirs.reshape(bj, n_s, 3)[act]  # (P, S, 3)
-    dirs64_t = unit64(dirs_a).transpose(1, 2)  # (P, 3, S)
+    dirs64_t = data.unit_dirs().reshape(bj, n_s, 3)[act].transpose(1, 2)  # (P, 3, S)
     wts_a = data.weights.reshape(bj, n_s)[act]  # (P, S)
     vals_a = data.values.reshape(bj, n_s, 3)[act]  # (P, S, 3)
-    w64 = wts_a.double()[:, None]  # (P, 1, S)
-    vals64 = vals_a.double()
+    root_w = wts_a.sqrt()[:, None]  # (P, 1, S)
     # the data term from the normal equations: sum_s W_s |sum_k w_k G_k - T|^2
     # = int |T|^2 - 2 w.b + w^T A w per view (in float64, where the cancellation is harmless),
-    # so no iteration evaluates the mixture and its residual at every sample
-    t2 = (w64[:, 0, :, None] * vals64**2).sum((-1, -2))  # (P,)
+    # so no iteration evaluates the mixture and its residual at every sample; the products are
+    # those of sqrt(W) G and sqrt(W) T, so all three terms are of one rounded data set
+    tw64 = root_w.double().transpose(1, 2) * vals_a.double()  # (P, S, 3)
+    t2 = (tw64**2).sum((-1, -2))  # (P,)
     light = (wts_a[..., None] * vals_a.clamp_min(0)).sum(1)[:, None]  # (P, 1, 3), as light_of
     no_below = torch.zeros(p_n, 1, dtype=torch.bool, device=mu.device)
     vertex_of = act // j  # (P,) which vertex each active view belongs to
@@ -167,10 +176,9 @@ def levenberg_marquardt(
         (:func:`_free_weights`)."""
         lam_a = pack(lam_)
         g_, ex_ = _gauss(dirs64_t, pack(mu_), lam_a)
-        g64 = g_.double()
-        gw = g64 * w64
-        a_ = torch.bmm(gw, g64.transpose(1, 2))  # (P, N, N)
-        rhs = torch.bmm(gw, vals64)  # (P, N, 3)
+        gw = (g_ * root_w).double()  # (P, N, S)
+        a_ = torch.bmm(gw, gw.transpose(1, 2))  # (P, N, N)
+        rhs = torch.bmm(gw, tw64)  # (P, N, 3)
         w_ = solve_gram(
             a_[:, None], rhs[:, None], lam_a[:, None], no_below, light, conserve=conserve
         )[:, 0]
@@ -203,9 +211,9 @@ def levenberg_marquardt(
         sigma = lam.rsqrt()  # (B, J, N)
         sbar = _neighbour_mean(sigma, nbr_views)
         t, s, _ = sphere.frame(mu)  # (B, J, N, 3) each
-        # tangent components of the sample directions, by matmul: (P, N, S) each
+        # tangent components of the sample directions: (P, N, S) each
         lam_a, sigma_a = pack(lam), pack(sigma)  # (P, N)
-        ts = torch.bmm(torch.cat([pack(t), pack(s)], 1), dflat)  # (P, 2N, S)
+        ts = _components(torch.cat([pack(t), pack(s)], 1), dflat)  # (P, 2N, S)
         tw, sw = ts[:, :n], ts[:, n:]
         # scaled Jacobian rows d (w_k G_k) / d (a, b, z)_k / w_k * sqrt(W_s / E), in place:
         # dG/da = G lam sigma (t.w), dG/db = G lam sigma (s.w), dG/dz = G lam (mu.w - 1), and

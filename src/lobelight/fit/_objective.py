@@ -62,9 +62,12 @@ def unit64(x: torch.Tensor) -> torch.Tensor:
     return torch.nn.functional.normalize(x.double(), dim=-1)
 
 
-def gaussians_at(dirs: torch.Tensor, mu: torch.Tensor, lam: torch.Tensor) -> torch.Tensor:
+def gaussians_at(
+    dirs: torch.Tensor, mu: torch.Tensor, lam: torch.Tensor, *, unit: torch.Tensor | None = None
+) -> torch.Tensor:
     """``G_k(omega_s)`` of N Gaussians per (vertex, view) at its samples, (B, J, N, S) in
-    ``dirs``' dtype, for ``dirs`` (B, J, S, 3), ``mu`` (B, J, N, 3), ``lam`` (B, J, N).
+    ``dirs``' dtype, for ``dirs`` (B, J, S, 3), ``mu`` (B, J, N, 3), ``lam`` (B, J, N);
+    ``unit``: ``unit64(dirs)`` where the caller has it (:meth:`lobelight.fit.FitData.unit_dirs`).
 
     The exponent ``lam (mu.w - 1)`` is formed as ``(lam mu).w - lam`` in one float64 batched
     matmul of the directions renormalised in float64 (its rounding is ``lam`` times 1e-16,
@@ -77,7 +80,8 @@ def gaussians_at(dirs: torch.Tensor, mu: torch.Tensor, lam: torch.Tensor) -> tor
     n = mu.shape[2]
     lam64 = lam.double().reshape(b * j, n, 1)
     a = lam64 * unit64(mu).reshape(b * j, n, 3)
-    ex = torch.baddbmm(-lam64, a, unit64(dirs).reshape(b * j, s, 3).transpose(1, 2))
+    unit = unit64(dirs) if unit is None else unit
+    ex = torch.baddbmm(-lam64, a, unit.reshape(b * j, s, 3).transpose(1, 2))
     return torch.exp(ex.to(dirs.dtype)).reshape(b, j, n, s)
 
 
@@ -88,7 +92,7 @@ def mixture(data: FitData, w: torch.Tensor, mu: torch.Tensor, lam: torch.Tensor)
     ----------
     w : (B, J, N, 3);  mu : (B, J, N, 3);  lam : (B, J, N)
     """
-    g = gaussians_at(data.dirs, mu, lam)  # (B, J, N, S)
+    g = gaussians_at(data.dirs, mu, lam, unit=data.unit_dirs())  # (B, J, N, S)
     return torch.einsum("bjns,bjnc->bjsc", g, w)
 
 
@@ -108,7 +112,7 @@ def solve_weights(
     channel (:func:`solve_gram`); views below the horizon get 0.
     """
     if g is None:  # (B, J, N, S); callers that have it pass it
-        g = gaussians_at(data.dirs, mu, lam)
+        g = gaussians_at(data.dirs, mu, lam, unit=data.unit_dirs())
     gw = g * data.weights[:, :, None]
     a = torch.einsum("bjks,bjls->bjkl", gw, g)  # (B, J, N, N)
     rhs = torch.einsum("bjks,bjsc->bjkc", gw, data.values)  # (B, J, N, 3)

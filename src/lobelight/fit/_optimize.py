@@ -117,7 +117,7 @@ def initial_guess(
         # residual, where one lobe held to all the light would smear over the sharp and the
         # broad part alike
         w = solve_weights(data, mus, lams, conserve=False)
-        g = gaussians_at(data.dirs, mus, lams)
+        g = gaussians_at(data.dirs, mus, lams, unit=data.unit_dirs())
         resid = (data.values - torch.einsum("bjns,bjnc->bjsc", g, w)).clamp_min(0)
         # moments of the squared residual: weighted by energy, not mass, so a small sharp peak
         # left over is found rather than the broad misfit around it; a Gaussian squared is
