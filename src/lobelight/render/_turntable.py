@@ -18,6 +18,7 @@ from ._lighting import as_rotation
 from ._renderer import Renderer
 from ._tonemap import (
     CURVES,
+    DEFAULT_CURVE,
     auto_exposure,
     check_output_path,
     check_type,
@@ -59,7 +60,7 @@ def turntable(
     out_dir,
     *,
     exposure: float | None = None,
-    curve: str = "srgb",
+    curve: str = DEFAULT_CURVE,
     rotate: str = "camera",
     animation: str | None = "frames.gif",
     fps: float = 25.0,
@@ -80,7 +81,8 @@ def turntable(
     out_dir : folder of the frames
     exposure : stops, one for every frame (no flicker); None: :func:`auto_exposure` of the
         first frame's pixels entirely on the object (of the whole frame if there are none)
-    curve : the display curve, ``"srgb"`` or ``"aces"`` (:func:`tonemap`)
+    curve : the display curve, ``"neutral"`` (Khronos PBR Neutral), ``"srgb"`` or ``"aces"``
+        (:func:`tonemap`)
     rotate : ``"camera"`` orbits the camera about its target along its up (:func:`orbit`),
         the light fixed; ``"light"`` turns the environment about +y, the camera fixed
     animation : file name in ``out_dir`` (or a path) of the animation, ``.gif`` (256 colours
@@ -119,7 +121,7 @@ def turntable(
             cam, rot, diffuse=diffuse, glossy=glossy, background=background, return_mask=True
         )
         if exposure is None:
-            exposure = auto_exposure(img, mask if bool(mask.any()) else None)
+            exposure = auto_exposure(img, mask if bool(mask.any()) else None, curve=curve)
         t_render += time.perf_counter() - t
         t = time.perf_counter()
         frame = Image.fromarray(tonemap(img, exposure=exposure, curve=curve))
