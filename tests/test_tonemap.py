@@ -241,3 +241,65 @@ def test_orbit_starts_at_the_camera_and_keeps_its_distance(cam):
     # pitch is the elevation above the plane normal to the camera's up
     up = np.asarray(cam.up) / np.linalg.norm(cam.up)
     assert math.asin(float(eye @ up) / np.linalg.norm(eye)) == pytest.approx(0.4)
+
+
+class _NoWindow:
+    """glfw's calls that :func:`lobelight.render.view` makes, with no window: a 48x40
+    framebuffer, closed after two frames."""
+
+    PRESS, MOUSE_BUTTON_LEFT = 1, 0
+
+    def __init__(self):
+        self.polls = 0
+
+    def __getattr__(self, name):
+        return lambda *args, **kwargs: None
+
+    def get_framebuffer_size(self, _win):
+        return (48, 40)
+
+    def window_should_close(self, _win):
+        self.polls += 1
+        return self.polls > 2
+
+
+@needs_gl
+def test_view_draws_its_first_frame_from_the_model_camera(monkeypatch):
+    import moderngl  # optional (the gl extra)
+
+    from lobelight.render import _gl, _window
+
+    cam = render.Camera.look_at((3.1, 1.4, -3.3), (0.0, 0.12, 0.1), fov=30)
+    model = bench.synthetic_model(600, 1)
+    model.provenance["camera"] = cam.to_dict()
+    drawn, shown = [], []
+    draw = _gl.GLRenderer.draw
+
+    def record_draw(self, camera, *args, **kwargs):
+        drawn.append(camera)
+        return draw(self, camera, *args, **kwargs)
+
+    monkeypatch.setattr(_window, "_open_window", lambda w, h, t: (_NoWindow(), object()))
+    # the window's context: a headless one (view's call has no arguments; moderngl's own
+    # standalone contexts, the renderer's, pass theirs through)
+    real = moderngl.create_context
+    headless = {"standalone": True, "backend": "egl", "require": 330}
+    monkeypatch.setattr(moderngl, "create_context", lambda **kw: real(**(kw or headless)))
+    monkeypatch.setattr(_gl.GLRenderer, "draw", record_draw)
+    monkeypatch.setattr(_gl.GLRenderer, "present", lambda self, screen, **kw: shown.append(kw))
+    sky = envmap.builtin().to_latlong(32)
+    out = render.view(model, env=sky, samples=1)
+    assert out["frames"] == 2
+    # the first draw is the exposure's probe frame, then the window's frames: all from the
+    # scene's camera (nothing moved it)
+    assert len(drawn) >= 3
+    for c in drawn:
+        np.testing.assert_allclose(c.origin, cam.origin, atol=1e-9)
+        assert (c.target, c.fov, c.fov_axis) == (cam.target, cam.fov, cam.fov_axis)
+    assert [kw["curve"] for kw in shown] == ["neutral", "neutral"]
+    # the window's renderer: the sun taken out of the map, as view's default
+    with render.Renderer(model, sky, 48, 40, backend="gl", samples=1, sun=True) as ren:
+        img, mask = ren.render(cam, return_mask=True)
+    want = auto_exposure(img, mask, curve="neutral")
+    # the window's half-float target against float32: a few thousandths of a stop
+    assert shown[0]["exposure"] == pytest.approx(want, abs=0.01)
