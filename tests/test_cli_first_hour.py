@@ -98,7 +98,7 @@ def test_cuda_without_cuda_is_bad_input(capsys):
 
     if torch.cuda.is_available():
         pytest.skip("this machine has CUDA")
-    assert main(["info", "missing.npz", "--device", "cuda"]) == 2
+    assert main(["render", "missing.npz", "--device", "cuda"]) == 2
     assert "CUDA" in capsys.readouterr().err
 
 
@@ -154,7 +154,11 @@ def test_flag_names_are_shared_across_commands():
     cmds = _subparsers()
     for name, sp in cmds.items():
         opts = {o for a in sp._actions for o in a.option_strings}
-        assert {"--json", "--device", "--quiet"} <= opts, name
+        assert {"--json", "--quiet"} <= opts, name
+        # --device and --rays where there is heavy work to place; nowhere else
+        heavy = name not in ("info", "view", "figure5")
+        assert ({"--device", "--rays"} <= opts) == heavy, name
+        assert heavy or not {"--device", "--rays"} & opts, name
         if "--output" in opts:
             assert {"-o", "--output"} <= opts, name
         assert not {"--out", "--ref-spp", "--lobes"} & opts, name
@@ -204,3 +208,86 @@ def test_render_writes_jpeg_and_a_turntable(tiny_model, tmp_path, capsys):
     assert len(list(frames.glob("frame_*.png"))) == 3
     gif = Image.open(frames / "frames.gif")
     assert gif.n_frames == 3
+
+
+def test_every_flag_s_help_shows_its_default():
+    """Each option's help says its default: the formatter adds it where there is one (a
+    boolean pair names the flag that is on), and an option without one says what happens."""
+    from lobelight.cli._arguments import _Help
+
+    plain = (argparse._HelpAction, argparse._VersionAction, argparse._StoreTrueAction)
+    for name, sp in _subparsers().items():
+        fmt = _Help(sp.prog)
+        for action in sp._actions:
+            if not action.option_strings or isinstance(action, plain):
+                continue
+            text = fmt._get_help_string(action) or ""
+            assert "default" in text, f"lobelight {name} {action.option_strings[0]}: {text!r}"
+    render = _subparsers()["render"].format_help()
+    assert "vertical axis" in render and "(default: 0.0)" in render  # --rotate: axis, default
+
+
+def test_the_gitignore_keeps_the_readme_s_outputs_out_of_git():
+    """What the README's commands write in a clone (the demo's and compare's folders, models)
+    is ignored; asked of git itself where the tests run in a work tree."""
+    import shutil
+    import subprocess
+    from pathlib import Path
+
+    root = Path(__file__).resolve().parents[1]
+    paths = ["lobelight-demo/report.md", "lobelight-compare/compare.json", "spot.npz",
+             "examples/gold.npz"]  # fmt: skip
+    if shutil.which("git") is None or not (root / ".git").exists():
+        text = (root / ".gitignore").read_text()
+        assert {"/lobelight-demo/", "/lobelight-compare/", "*.npz"} <= set(text.split())
+        return
+    for path in paths:
+        r = subprocess.run(["git", "check-ignore", "-q", path], cwd=root, check=False)
+        assert r.returncode == 0, f"{path} is not ignored"
+    r = subprocess.run(["git", "check-ignore", "-q", "README.md"], cwd=root, check=False)
+    assert r.returncode == 1  # and the sources are not
+
+
+def test_a_fall_back_to_the_torch_renderer_is_said_in_one_line(monkeypatch, capsys):
+    monkeypatch.setattr(_commands, "gl_available", lambda: False)
+    assert _commands._backend("auto") == "torch"
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "torch renderer" in err[0] and "EGL" in err[0]
+    assert _commands._backend("torch") == "torch"  # asked for: nothing to say
+    assert _commands._backend("gl") == "gl"
+    assert capsys.readouterr().err == ""
+
+
+def test_an_unknown_map_name_lists_the_bundled_maps(capsys):
+    from lobelight.data import envmap_names
+
+    assert main(["bake", "sphere:1", "--env", "park"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "park" in err[0] and "no such file" in err[0]
+    assert envmap_names() and all(n in err[0] for n in envmap_names())
+
+
+def test_a_diffuse_model_reports_no_gaussians_and_no_glossy_paths(tmp_path, capsys):
+    from lobelight import fit, scene
+
+    path = tmp_path / "d.npz"
+    sc = scene.load("sphere:0", material="diffuse:color=0.7")
+    fit.fit_model(sc, 1, bounces=1, progress=None).save(path)
+    assert main(["info", str(path), "--json"]) == 0
+    info = json.loads(capsys.readouterr().out)
+    assert info["n_gaussians"] == 0 and info["indirect_gaussians"] == 0
+    # the diffuse bounce applies and is reported; glossy paths do not
+    assert info["interreflection"] == {"bounces": 1, "indirect_paths": 0}
+
+
+def test_the_bake_s_fit_error_comes_with_a_hint():
+    assert "0 is exact" in _commands._ERROR_HINT and "compare" in _commands._ERROR_HINT
+
+
+def test_gallery_list_fits_a_terminal(capsys):
+    assert main(["gallery", "list"]) == 0
+    lines = capsys.readouterr().out.splitlines()
+    assert len(lines) > 10 and max(map(len, lines)) <= 120
+    assert main(["gallery", "list", "--json"]) == 0  # every field under --json
+    scenes = json.loads(capsys.readouterr().out)["scenes"]
+    assert {"name", "mesh", "envmap", "material", "description"} <= set(scenes[0])

@@ -38,7 +38,12 @@ class _Help(argparse.ArgumentDefaultsHelpFormatter):
     """Shows each flag's default (where it has one) after its help."""
 
     def _get_help_string(self, action):
-        if action.default in (None, False) or action.default is argparse.SUPPRESS:
+        if isinstance(action, argparse.BooleanOptionalAction) and isinstance(action.default, bool):
+            on, off = action.option_strings[:2]
+            return f"{action.help} (default: {on if action.default else off})"
+        if action.default is None or action.default is False:
+            return action.help
+        if action.default is argparse.SUPPRESS or "%(default)" in (action.help or ""):
             return action.help
         return super()._get_help_string(action)
 
@@ -74,25 +79,30 @@ def _parser() -> argparse.ArgumentParser:
 # options the commands share
 
 
-def _command(sub, name: str, run: str, help: str) -> argparse.ArgumentParser:
-    """A command's parser with every command's options: ``--json``, ``--device``, ``-q`` and
-    ``--rays``; ``run`` names its function in :mod:`lobelight.cli._commands`."""
+def _command(sub, name: str, run: str, help: str, *, heavy: bool = True) -> argparse.ArgumentParser:
+    """A command's parser with every command's options: ``--json`` and ``-q``, and for a
+    command that does heavy work (``heavy``) ``--device`` and ``--rays`` (the others run on
+    the CPU with the default ray engine); ``run`` names its function in
+    :mod:`lobelight.cli._commands`."""
     sp = sub.add_parser(name, help=help, description=help, formatter_class=_Help)
     sp.add_argument(
         "--json",
         action="store_true",
         help="print a machine-readable summary on stdout (errors too, as JSON)",
     )
-    sp.add_argument(
-        "--device", default="cpu", help="torch device of the heavy work (cpu, cuda, cuda:1)"
-    )
     sp.add_argument("-q", "--quiet", action="store_true", help="no progress on stderr")
-    sp.add_argument(
-        "--rays",
-        default="auto",
-        choices=["auto", "embree", "warp"],
-        help="ray engine (auto: Warp on a CUDA device, Embree on the CPU)",
-    )
+    if heavy:
+        sp.add_argument(
+            "--device", default="cpu", help="torch device of the heavy work (cpu, cuda, cuda:1)"
+        )
+        sp.add_argument(
+            "--rays",
+            default="auto",
+            choices=["auto", "embree", "warp"],
+            help="ray engine (auto: Warp on a CUDA device, Embree on the CPU)",
+        )
+    else:
+        sp.set_defaults(device="cpu", rays="auto")
     sp.set_defaults(run=run)
     return sp
 
@@ -104,7 +114,7 @@ def _output(sp, default, what: str) -> None:
 def _size(sp, w: int = 512, h: int = 512) -> None:
     sp.add_argument("--width", type=int, default=w, help="image width in pixels")
     sp.add_argument("--height", type=int, default=h, help="image height in pixels")
-    sp.add_argument("--size", help="N or WxH: sets --width and --height together")
+    sp.add_argument("--size", help="N or WxH: sets --width and --height together (default: theirs)")
 
 
 def _square(sp, n: int) -> None:
@@ -187,6 +197,16 @@ def _samples(sp, default: int) -> None:
     )
 
 
+def _rotate(sp) -> None:
+    sp.add_argument(
+        "--rotate",
+        type=float,
+        default=0.0,
+        metavar="DEGREES",
+        help="turn the lighting about the vertical axis (+y, the lat-long map's up)",
+    )
+
+
 def _env(sp, what: str, *, repeat: bool = False) -> None:
     sp.add_argument(
         "--env",
@@ -261,7 +281,7 @@ def _add_bake(sub) -> None:
 
 
 def _add_info(sub) -> None:
-    i = _command(sub, "info", "run_info", "describe a model file")
+    i = _command(sub, "info", "run_info", "describe a model file", heavy=False)
     i.add_argument("model", help="a model file written by bake")
 
 
@@ -272,7 +292,7 @@ def _add_render(sub) -> None:
             "with --turntable")  # fmt: skip
     _env(r, "default: the model's, else the built-in sky")
     r.add_argument("--camera", help="'ox,oy,oz:tx,ty,tz[:fov]' (default: the scene's)")
-    r.add_argument("--rotate", type=float, default=None, help="turn the lighting (degrees)")
+    _rotate(r)
     r.add_argument(
         "--parts", choices=["both", "diffuse", "glossy"], default="both", help="what to shade"
     )
@@ -294,7 +314,8 @@ def _add_render(sub) -> None:
         "--turntable",
         type=int,
         metavar="N",
-        help="render N frames around the object into the folder -o, and an animated GIF",
+        help="render N frames around the object into the folder -o, and an animated GIF "
+        "(default: one still image)",
     )
     r.add_argument(
         "--spin",
@@ -312,6 +333,7 @@ def _add_view(sub) -> None:
         "run_view",
         "interactive window: drag to orbit, right-drag to turn the "
         "light, wheel to zoom, d/g/b diffuse/glossy/both, +/- exposure, e next map",
+        heavy=False,
     )
     v.add_argument("model", help="a model file written by bake")
     _env(
@@ -328,20 +350,39 @@ def _add_compare(sub) -> None:
     c = _command(
         sub, "compare", "run_compare", "score a model against the path tracer and baselines"
     )
-    c.add_argument("scene", help="the scene (fitted here unless --model is given)")
-    c.add_argument("--model", help="a model file of that scene")
+    c.add_argument(
+        "scene",
+        nargs="?",
+        help="the scene (fitted here unless --model is given); with --model it may be left "
+        "out: the model's own mesh, material, map and camera are scored",
+    )
+    c.add_argument(
+        "--model",
+        help="a model file: its material, map and camera are used, and a scene whose mesh, "
+        "material or map differs from them is refused (see --allow-mismatch); default: none, "
+        "the scene is fitted here",
+    )
+    c.add_argument(
+        "--allow-mismatch",
+        action="store_true",
+        help="score the given scene's own material and map although the model was baked "
+        "with others (the mesh must still match)",
+    )
     _gaussians(c)
     _env(c, "default: the scene's")
     _output(c, "lobelight-compare", "output folder (images, compare.json)")
     _spp(c, 1024)
-    c.add_argument("--rotate", type=float, default=None, help="turn the lighting (degrees)")
+    _rotate(c)
     _backend(c)
     c.add_argument(
         "--baselines",
         nargs="*",
-        default=["linear", "no_visibility", "sh10"],
+        default=["linear"],
         choices=["linear", "no_visibility", "sh10"],
-        help="the paper's baselines to score as well",
+        help="the paper's baselines to score as well: linear reuses the model (seconds); "
+        "no_visibility fits a model without visibility and sh10 gathers the transport "
+        "again (each about as long as the bake's fit stage; the expected seconds are said "
+        "before they start); none: --baselines with no name",
     )
     _base_res(c)
     _sun(c)
@@ -379,7 +420,13 @@ def _add_gallery(sub) -> None:
 
 
 def _add_figure5(sub) -> None:
-    f = _command(sub, "figure5", "run_figure5", "the paper's Figure 5: Gaussians vs Haar vs SH")
+    f = _command(
+        sub,
+        "figure5",
+        "run_figure5",
+        "the paper's Figure 5: Gaussians vs Haar vs SH",
+        heavy=False,
+    )
     _output(f, "lobelight-figure5", "output folder")
 
 
@@ -417,12 +464,14 @@ def _add_bench(sub) -> None:
         ],
         help="which benchmark (all: every benchmark with a goal, on --device, in one run)",
     )
-    _output(be, None, "bench all: JSON file of the results, rewritten after each benchmark")
+    _output(be, None, "bench all: JSON file of the results, rewritten after each benchmark "
+            "(default: none, the summary on stdout only)")  # fmt: skip
     be.add_argument(
         "--budget",
         type=float,
         default=None,
-        help="bench all: seconds after which benchmarks not yet started are skipped",
+        help="bench all: seconds after which benchmarks not yet started are skipped (default: "
+        "none, every benchmark runs)",
     )
     be.add_argument("--scene", default="knot:2", help="scene of transport/fit (knot:2: 11.5K)")
     be.add_argument(
@@ -430,7 +479,7 @@ def _add_bench(sub) -> None:
         default=None,
         metavar="SPEC",
         help="fit: a bare mesh's material (as bake's --material), e.g. 'ggx:alpha=0.04,"
-        "specular=0.9' for a metal",
+        "specular=0.9' for a metal (default: the scene's own)",
     )
     _gaussians(be, auto=True)
     _memory_gb(be)

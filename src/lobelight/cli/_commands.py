@@ -19,9 +19,10 @@ from pathlib import Path
 import torch
 
 from .. import bench
+from .._tol import DIVISOR_F64
 from ..bench import bench_all, bench_brdf_fit, bench_lobes, bench_rays, bench_tables
 from ..brdf import sharp_lobe
-from ..data import resolve_envmap
+from ..data import envmap_names, resolve_envmap
 from ..envmap import builtin
 from ..envmap import load as load_env
 from ..errors import InputError
@@ -40,7 +41,7 @@ from ..render import (
     turntable,
     view,
 )
-from ..scene import default_camera
+from ..scene import Scene, default_camera
 from ..scene import load as load_scene
 from ..studies.compare import compare
 from ..studies.compare_brdf import compare_brdf
@@ -156,14 +157,34 @@ def _env_source(path: str | None, provenance: dict | None = None) -> str:
 
 
 def _env_file(source: str) -> str:
-    """``source`` as a file path (a bundled map's name resolves to its file); unresolved, as
-    given, so that the loader names what is missing."""
-    return resolve_envmap(source) or source
+    """``source`` as a file path (a bundled map's name resolves to its file), or an InputError
+    naming the bundled maps where ``source`` is neither a file nor one of them."""
+    resolved = resolve_envmap(source)
+    if resolved is None:
+        names = ", ".join(envmap_names())
+        raise InputError(source, f"no such file, nor a bundled map's name ({names}) or 'builtin'")
+    return resolved
 
 
 def _env(path: str | None, provenance: dict | None = None):
     source = _env_source(path, provenance)
     return builtin() if source == "builtin" else load_env(_env_file(source))
+
+
+def _backend(choice: str) -> str:
+    """``--backend``: ``auto`` is ``gl`` where an OpenGL context opens, else ``torch``, and then
+    says so in one line on stderr (even under ``--quiet``: the frames come slower)."""
+    if choice != "auto":
+        return choice
+    if gl_available():
+        return "gl"
+    print(
+        "lobelight: OpenGL (EGL) is not available here: rendering with the torch renderer "
+        "(slower; the README names the system packages EGL needs)",
+        file=sys.stderr,
+        flush=True,
+    )
+    return "torch"
 
 
 def _check_output(path: str | os.PathLike) -> Path:
@@ -245,13 +266,13 @@ def run_bake(args) -> dict:
         "material": sc.materials.model,
         "materials": _material_rows(sc.material_records),
         "vertices": sc.mesh.n_vertices,
-        "n_gaussians": m.provenance["n_gaussians"],
-        "n_gaussians_choice": m.provenance["n_gaussians_choice"],
-        "interreflection": _interreflection(m.provenance),
+        **_glossy_summary(m, m.provenance["n_gaussians"], m.provenance["n_gaussians_choice"]),
+        "interreflection": _interreflection(m.provenance, _has_glossy(m)),
         "bytes": info["bytes"],
         "records_kept": info["records"],
         "records_total": info["records_total"],
         "relative_l2_error_mean": m.provenance["relative_l2_error_mean"],
+        "relative_l2_error_hint": _ERROR_HINT if _has_glossy(m) else "no glossy lobe to fit",
         "flips_before": m.provenance["flips_before"],
         "flips_after": m.provenance["flips_after"],
         "separated_flips_before": m.provenance["separated_flips_before"],
@@ -274,17 +295,16 @@ def run_info(args) -> dict:
         "vertices": m.mesh.n_vertices,
         "faces": int(m.mesh.faces.shape[0]),
         "views": int(m.views.shape[0]),
-        "n_gaussians": m.direct_gaussians,
-        # why the bake chose that many (older models' provenance does not say)
-        "n_gaussians_choice": m.provenance.get("n_gaussians_choice"),
-        "indirect_gaussians": m.indirect_gaussians,
+        # how many and why the bake chose that many (older models' provenance does not say)
+        **_glossy_summary(m, m.direct_gaussians, m.provenance.get("n_gaussians_choice")),
+        "indirect_gaussians": m.indirect_gaussians if _has_glossy(m) else 0,
         "sh_coefficients": int(m.diffuse.shape[1]),
         "records_with_weight": int(live.sum()),
         "material": m.materials.model,
         # a glTF scene's materials, from the provenance (empty for other scenes)
         "materials": _material_rows(m.provenance.get("materials")),
         "reflection": _reflection(m),
-        "interreflection": _interreflection(m.provenance),
+        "interreflection": _interreflection(m.provenance, _has_glossy(m)),
         "provenance": m.provenance,
     }
 
@@ -300,13 +320,35 @@ def _reflection(m) -> str:
     return f"per pixel (visibility tiles {tiles.shape[1]}x{tiles.shape[2]} stored)"
 
 
-def _interreflection(provenance: dict) -> dict:
+def _interreflection(provenance: dict, glossy: bool = True) -> dict:
     """What a model baked of interreflection: diffuse bounces and indirect glossy paths (0 where
-    its provenance does not say)."""
+    its provenance does not say, and paths 0 for a material without a glossy lobe, which
+    reflects no glossy light to trace)."""
     return {
         "bounces": int(provenance.get("bounces", 0)),
-        "indirect_paths": int(provenance.get("indirect_paths", 0)),
+        "indirect_paths": int(provenance.get("indirect_paths", 0)) if glossy else 0,
     }
+
+
+#: What a bake's ``relative_l2_error_mean`` means, beside the figure.
+_ERROR_HINT = (
+    "the glossy fit's error on its raw transport samples (visibility edges included), not "
+    "the image's: 0 is exact, 0.3-0.6 is usual for plastics and metals (docs/results.md, "
+    "'fit error'); lobelight compare scores the image against the path tracer"
+)
+
+
+def _has_glossy(m) -> bool:
+    """Whether the model's material has a glossy (specular) lobe."""
+    return m.materials.specular is not None
+
+
+def _glossy_summary(m, n_gaussians, choice) -> dict:
+    """``n_gaussians`` and ``n_gaussians_choice`` as a summary says them: 0 and the reason for a
+    material without a glossy lobe (no Gaussian carries any light there)."""
+    if not _has_glossy(m):
+        return {"n_gaussians": 0, "n_gaussians_choice": "diffuse material: no glossy lobe"}
+    return {"n_gaussians": n_gaussians, "n_gaussians_choice": choice}
 
 
 def _exposure(text: str) -> float | None:
@@ -342,9 +384,7 @@ def run_render(args) -> dict:
     m = load_model(args.model, device=args.device)
     env = _env(args.env, m.provenance)
     cam = _camera_from(args.camera, m.provenance, m.mesh)
-    backend = args.backend
-    if backend == "auto":
-        backend = "gl" if gl_available() else "torch"
+    backend = _backend(args.backend)
     t0 = time.perf_counter()
     with Renderer(
         m,
@@ -414,18 +454,28 @@ def run_view(args) -> dict:
     return view(m, env=envs, width=width, height=height, sun=args.sun)
 
 
+#: Scene arguments that are bare meshes: they bring a mesh and nothing else (their material is
+#: a default, their map the built-in sky), so a model's own material and map take their place.
+_BARE_MESH = (".ply", ".obj", ".stl", ".off")
+#: Relative tolerance of "the same material": a model stored in half floats keeps parameters
+#: to 2^-11 relative (about 5e-4); a material that differs on purpose differs far more.
+_SAME_MATERIAL_RTOL = 1e-3
+#: Tolerance of "the same mesh", relative to the bounding box's diagonal: half-float vertex
+#: positions are within 2^-11 of it; another mesh with the same count is off by far more.
+_SAME_MESH_RTOL = 1e-3
+
+
 def run_compare(args) -> dict:
     width, height = _size(args)
-    sc = _load_scene(args, args.scene)
+    if args.scene is None and args.model is None:
+        raise InputError("scene", "give a scene, or --model MODEL to score a model's own scene")
     model = load_model(args.model, device=args.device) if args.model else None
-    if model is not None and model.mesh.n_vertices != sc.mesh.n_vertices:
-        raise InputError(
-            args.model,
-            f"has {model.mesh.n_vertices} vertices, the scene "
-            f"{sc.mesh.n_vertices}: not a model of this scene",
-        )
+    sc = _compare_scene(args, model)
     return {
         "command": "compare",
+        # what is scored: the model's (or the scene's) map unless --env, and material
+        "environment": args.env or sc.environment,
+        "material": sc.materials.model,
         **compare(
             sc,
             model=model,
@@ -434,8 +484,8 @@ def run_compare(args) -> dict:
             width=width,
             height=height,
             spp=args.spp,
-            light_rotation=args.rotate,
-            backend=args.backend,
+            light_rotation=args.rotate or None,
+            backend=_backend(args.backend),
             baselines=tuple(args.baselines),
             base_res=args.base_res,
             out=args.output,
@@ -444,6 +494,116 @@ def run_compare(args) -> dict:
             progress=_progress(args),
         ),
     }
+
+
+def _model_scene(model):
+    """The scene a model was baked from, as the model holds it: its mesh and material, the map
+    and camera of its provenance (the built-in sky where its map file is gone)."""
+    prov = model.provenance or {}
+    return Scene(
+        mesh=model.mesh,
+        materials=model.materials,
+        environment=_env_file(_env_source(None, prov)),
+        camera=_camera_from(None, prov, model.mesh),
+        name=str(prov.get("scene", "model")),
+    )
+
+
+def _compare_scene(args, model):
+    """The scene ``compare`` scores: the given one without a model; with a model, the model's
+    own (:func:`_model_scene`), whose camera a scene file's replaces; a given scene whose mesh,
+    material (a scene file's, a glTF's, a built-in's) or map (a scene file's) differs from the
+    model's is refused, or scored as given with ``--allow-mismatch`` (its mesh must match)."""
+    if model is None:
+        return _load_scene(args, args.scene)
+    own = _model_scene(model)
+    if args.scene is None:
+        return own
+    sc = _load_scene(args, args.scene)
+    _check_mesh(args.model, model.mesh, sc.mesh)
+    suffix = Path(str(args.scene)).suffix.lower()
+    scene_file = suffix in (".toml", ".json")
+    problems = []
+    if suffix not in _BARE_MESH and not _same_materials(sc.materials, model.materials):
+        problems.append(
+            f"the model's material is {model.materials.model}, the scene's "
+            f"{sc.materials.model}" + (" with other parameters" if
+            sc.materials.model == model.materials.model else "")
+        )  # fmt: skip
+    if scene_file and not _same_map(sc.environment, own.environment):
+        problems.append(f"the model's map is {own.environment}, the scene's {sc.environment}")
+    if problems and not args.allow_mismatch:
+        raise InputError(
+            str(args.scene),
+            f"is not the scene {args.model} was baked with ({'; '.join(problems)}): leave the "
+            "scene out to score the model's own, or pass --allow-mismatch to score this one",
+        )
+    if problems:
+        _note(args, f"--allow-mismatch: scoring {args.scene} as given ({'; '.join(problems)})")
+        return sc if scene_file or suffix not in _BARE_MESH else dataclasses.replace(
+            sc, camera=own.camera
+        )  # fmt: skip
+    return dataclasses.replace(own, camera=sc.camera) if scene_file else own
+
+
+def _check_mesh(model_path: str, mesh, scene_mesh) -> None:
+    """Refuses a scene whose mesh is not the model's (vertex count, positions)."""
+    if mesh.n_vertices != scene_mesh.n_vertices:
+        raise InputError(
+            model_path,
+            f"has {mesh.n_vertices} vertices, the scene {scene_mesh.n_vertices}: not a model of "
+            "this scene",
+        )
+    a = mesh.vertices.detach().cpu().double()
+    b = scene_mesh.vertices.detach().cpu().double()
+    diag = float((a.amax(0) - a.amin(0)).norm())
+    if float((a - b).abs().max()) > _SAME_MESH_RTOL * max(diag, DIVISOR_F64):
+        raise InputError(
+            model_path, "has the scene's vertex count but other vertex positions: another mesh"
+        )
+
+
+def _same_materials(a, b) -> bool:
+    """Whether two :class:`lobelight.scene.Materials` agree within :data:`_SAME_MATERIAL_RTOL`."""
+    if a.model != b.model:
+        return False
+    if not _close(a.diffuse, b.diffuse):
+        return False
+    if a.specular is None or b.specular is None:
+        return a.specular is None and b.specular is None
+    return _same_params(a.specular.to_dict(), b.specular.to_dict())
+
+
+def _same_params(x, y) -> bool:
+    if isinstance(x, dict) and isinstance(y, dict):
+        return x.keys() == y.keys() and all(_same_params(x[k], y[k]) for k in x)
+    if isinstance(x, str) or isinstance(y, str):
+        return x == y
+    if isinstance(x, list) and x and isinstance(x[0], dict):
+        return isinstance(y, list) and len(x) == len(y) and all(map(_same_params, x, y))
+    try:
+        return _close(
+            torch.as_tensor(x, dtype=torch.float64), torch.as_tensor(y, dtype=torch.float64)
+        )
+    except (TypeError, ValueError):
+        return x == y
+
+
+def _close(a: torch.Tensor, b: torch.Tensor) -> bool:
+    a, b = a.detach().cpu().double(), b.detach().cpu().double()
+    try:
+        a, b = torch.broadcast_tensors(a, b)
+    except RuntimeError:
+        return False
+    return bool(torch.allclose(a, b, rtol=_SAME_MATERIAL_RTOL, atol=_SAME_MATERIAL_RTOL))
+
+
+def _same_map(a: str, b: str) -> bool:
+    """Whether two environments (``builtin``, a bundled name or a file) are the same map."""
+    fa, fb = _env_file(str(a)), _env_file(str(b))
+    if "builtin" in (fa, fb):
+        return fa == fb
+    return Path(fa).resolve() == Path(fb).resolve()
 
 
 def run_compare_brdf(args) -> dict:

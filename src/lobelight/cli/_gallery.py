@@ -147,6 +147,16 @@ def _fit_options(items: list[str]) -> dict[str, Any]:
     return out
 
 
+#: The columns of ``gallery list``'s table (``--json`` gives every field of every scene).
+_LIST_COLUMNS = ("name", "mesh", "envmap", "material")
+
+
+def _short(value) -> str:
+    """A table cell: a map file's stem, ``-`` for nothing."""
+    text = "-" if value is None else str(value)
+    return text.removesuffix(".hdr").removesuffix(".exr")
+
+
 def gallery_main(args: argparse.Namespace) -> dict[str, Any]:
     """Run the action ``args`` ask for (:func:`add_arguments`); returns its summary. Bad input
     raises :class:`lobelight.errors.InputError` naming it."""
@@ -154,7 +164,10 @@ def gallery_main(args: argparse.Namespace) -> dict[str, Any]:
     device = getattr(args, "device", None)
     refs = args.refs or os.environ.get(REFS_ENV) or DEFAULT_REFS
     if args.action == "list":
-        return {"scenes": [s.to_dict() for s in gallery.select(args.scenes)]}
+        scenes = [s.to_dict() for s in gallery.select(args.scenes)]
+        if not getattr(args, "json", False):  # a table that fits a terminal; --json: every field
+            scenes = [{k: _short(s.get(k)) for k in _LIST_COLUMNS} for s in scenes]
+        return {"scenes": scenes}
     if args.action == "references":
         w, h = (check_pixels("--size", v) for v in parse_size(args.size))
         settings = gallery.ReferenceSettings(

@@ -72,7 +72,13 @@ def reference_depth(model) -> int:
     return REFERENCE_DEPTH if baked else 2
 
 
-__all__ = ["compare", "linear_glossy", "reference_depth", "sh_glossy"]
+__all__ = ["BASELINES", "compare", "linear_glossy", "reference_depth", "sh_glossy"]
+
+#: The baselines :func:`compare` knows, and what each costs beside the model's own render:
+#: ``linear`` reuses the model's Gaussians (seconds); ``no_visibility`` fits a new model of the
+#: scene without visibility (no interreflection either: a bake's fit stage); ``sh10``
+#: gathers the glossy transport of every vertex and view again (about a bake's fit stage).
+BASELINES = ("linear", "no_visibility", "sh10")
 
 
 #: What each score and picture of a comparison means (also in ``compare.json``).
@@ -125,9 +131,19 @@ def linear_glossy(model, lighting: Lighting, camera: Camera, rot, tri, bary) -> 
 
 
 def sh_glossy(
-    scene, model, lighting: Lighting, camera: Camera, rot, tri, bary, *, order: int = 10
+    scene,
+    model,
+    lighting: Lighting,
+    camera: Camera,
+    rot,
+    tri,
+    bary,
+    *,
+    order: int = 10,
+    progress=None,
 ) -> torch.Tensor:
-    """The order-``order`` SH baseline's glossy image ``(H, W, 3)`` (module docstring)."""
+    """The order-``order`` SH baseline's glossy image ``(H, W, 3)`` (module docstring);
+    ``progress(stage, done, total)`` is called per batch of vertices (stage ``"transport"``)."""
 
     tr = Transport(scene, device=model.device)
     views = model.views
@@ -143,6 +159,8 @@ def sh_glossy(
         per_view = (coef * light).sum(-2)  # (B, J, 3): int T L in the SH basis
         pv = per_view.gather(1, idx[vidx][..., None].expand(-1, -1, 3))  # (B, 3, 3)
         colours[vidx] = (pv * b[vidx][..., None]).sum(1)
+        if progress is not None:
+            progress("transport", int(vidx[-1]) + 1, model.mesh.n_vertices)
     return _gouraud(model, colours, tri, bary)
 
 
@@ -158,7 +176,7 @@ def compare(
     light_rotation=None,
     backend: str = "auto",
     base_res: int = 256,
-    baselines: tuple[str, ...] = ("linear", "no_visibility", "sh10"),
+    baselines: tuple[str, ...] = ("linear",),
     out=None,
     device=None,
     seed: int = 0,
@@ -178,8 +196,14 @@ def compare(
     sun : shade the map's sun per pixel with shadows (:class:`Lighting`: its diffuse light,
         and its glossy light where the BRDF allows); the paper's lighting (the sun in the SH
         diffuse and in the Gaussians' lighting) is then scored too, as ``ours_sh_diffuse``
+    baselines : names from :data:`BASELINES`; the default, ``linear``, reuses the model's
+        Gaussians; ``no_visibility`` and ``sh10`` cost about a bake's fit stage each
     progress : True (stderr), None/False (silent) or ``progress(stage, done, total)``, for
-        the fit and the reference renders (:mod:`lobelight.progress`)
+        every long stage, each under its own name (``fit``, ``reference``, ``reference,
+        glossy``, ``no_visibility baseline: ...``, ``sh10 baseline: transport``;
+        :mod:`lobelight.progress`); a reporter with a ``note(text)`` method (as
+        :class:`lobelight.progress.Reporter`) is also told the plan before the reference
+        starts, and the expected seconds in all once its first batches are timed
 
     Returns
     -------
@@ -187,6 +211,9 @@ def compare(
     noise (mean standard error relative to the mean) and image paths
     """
 
+    unknown = [b for b in baselines if b not in BASELINES]
+    if unknown:
+        raise ValueError(f"unknown baseline {unknown[0]!r} (known: {', '.join(BASELINES)})")
     progress = resolve(progress)
     t0 = time.perf_counter()
     timings: dict[str, float] = {}
@@ -224,20 +251,22 @@ def compare(
 
     # references: the environment is turned by rotating the map itself (independent of ours)
     ref_env = env if light_rotation is None else env.rotate(rot)
-    t = time.perf_counter()
     depth = reference_depth(model)
     kw = dict(width=width, height=height, spp=spp, max_depth=depth, seed=seed, jitter=False)
-
-    def step(name):  # one progress bar per reference image
-        return None if progress is None else (lambda _, done, total: progress(name, done, total))
-
+    first = _say_plan(progress, model, kw, baselines, timings["ours"])
+    t = time.perf_counter()
     ref_full, err_full = reference.render(
-        scene, ref_env, camera, return_stderr=True, progress=step("reference"), **kw
+        scene, ref_env, camera, return_stderr=True, progress=first, **kw
     )
     dark = dataclasses.replace(scene.materials, diffuse=torch.zeros_like(scene.materials.diffuse))
     glossy_scene = dataclasses.replace(scene, materials=dark)
     ref_glossy, err_glossy = reference.render(
-        glossy_scene, ref_env, camera, return_stderr=True, progress=step("reference, glossy"), **kw
+        glossy_scene,
+        ref_env,
+        camera,
+        return_stderr=True,
+        progress=_named(progress, "reference, glossy"),
+        **kw,
     )
     timings["reference"] = time.perf_counter() - t
     mask = mask.cpu()
@@ -269,26 +298,20 @@ def compare(
     background = full.cpu() * (~mask)[..., None]
     for name in baselines:
         t = time.perf_counter()
+        stage = _named(progress, f"{name} baseline", prefix=True)
         if name == "linear":
             g = linear_glossy(model, lighting, camera, rot, tri, bary)
         elif name == "sh10":
-            g = sh_glossy(scene, model, lighting, camera, rot, tri, bary)
-        elif name == "no_visibility":
-            nv = fit_model(
-                scene, model.direct_gaussians, device=model.device, shadows=False, progress=progress
+            g = sh_glossy(scene, model, lighting, camera, rot, tri, bary, progress=stage)
+        else:  # no_visibility
+            g, d2 = _no_visibility(
+                scene, model, plain, camera, rot, (width, height), backend, stage
             )
-            r2 = Renderer(nv, plain, width, height, backend=backend, samples=1)  # no shadows
-            g = r2.render(camera, rot, diffuse=False, background=False).cpu()
-            # unshadowed diffuse as well: plain environment mapping has no visibility at all
-            d2 = r2.render(camera, rot, glossy=False, background=False).cpu()
-            r2.close()
             images[name] = g + d2 + background
             score(name, "full", images[name])
             score(name, "glossy", g + background)
             timings[name] = time.perf_counter() - t
             continue
-        else:
-            raise ValueError(f"unknown baseline {name!r}")
         g = g * mask[..., None]
         images[name] = g + diff_only + background
         score(name, "full", images[name])
@@ -325,6 +348,99 @@ def compare(
     if out is not None:
         result["images"] = _write(Path(out), images, mask, result)
     return result
+
+
+def _named(progress, name: str, *, prefix: bool = False):
+    """``progress`` with its stage named ``name`` (``prefix``: ``"name: stage"``), or None."""
+    if progress is None:
+        return None
+    if prefix:
+        return lambda stage, done, total: progress(f"{name}: {stage}", done, total)
+    return lambda _, done, total: progress(name, done, total)
+
+
+def _no_visibility(scene, model, plain: Lighting, camera, rot, size, backend, progress):
+    """The ``no_visibility`` baseline's glossy and diffuse images: a model of ``scene`` fitted
+    to transport without visibility (and so without interreflection: plain environment
+    mapping), rendered without shadows under ``plain`` (the sun in the SH)."""
+    nv = fit_model(
+        scene,
+        model.direct_gaussians,
+        device=model.device,
+        shadows=False,
+        indirect_paths=0,
+        bounces=0,
+        progress=progress,
+    )
+    with Renderer(nv, plain, *size, backend=backend, samples=1) as r2:
+        g = r2.render(camera, rot, diffuse=False, background=False).cpu()
+        d2 = r2.render(camera, rot, glossy=False, background=False).cpu()
+    return g, d2
+
+
+def _baseline_seconds(model, baselines) -> dict[str, float]:
+    """The expected seconds of the baselines that fit or gather transport again: the model's
+    own fit stage from its provenance, less its indirect glossy paths (0 where it does not
+    say)."""
+    stages = (model.provenance or {}).get("seconds") or {}
+    fit_s = float(stages.get("fit", 0.0) or 0.0)
+    direct_fit = max(fit_s - float(stages.get("indirect_glossy", 0.0) or 0.0), 0.0)
+    return {name: direct_fit for name in baselines if name in ("no_visibility", "sh10")}
+
+
+def _say_plan(progress, model, kw, baselines, ours_s: float):
+    """Tells a reporter with a ``note`` (:class:`lobelight.progress.Reporter`) the stages to
+    come and what each costs; returns the first reference image's progress, which adds the
+    expected seconds of the whole comparison once the path tracer's first batches are timed
+    (:class:`_Forecast`), or the plain named progress where there is no ``note``."""
+    note = getattr(progress, "note", None)
+    if not callable(note):
+        return _named(progress, "reference")
+    est = _baseline_seconds(model, baselines)
+    parts = [f"ours {ours_s:.1f} s (done)"]
+    parts.append(
+        f"the reference, 2 path-traced images {kw['width']}x{kw['height']} at {kw['spp']} spp "
+        "(its seconds follow from its first batches)"
+    )
+    for name in baselines:
+        cost = {"linear": "seconds", "no_visibility": "fits a model without visibility",
+                "sh10": "gathers the transport again"}[name]  # fmt: skip
+        if name in est:
+            cost += f", about {est[name]:.0f} s" if est[name] > 0 else ", time unknown"
+        parts.append(f"{name} baseline: {cost}")
+    note("compare: " + "; ".join(parts))
+    return _Forecast(progress, note, kw["spp"], ours_s + sum(est.values()))
+
+
+class _Forecast:
+    """The first reference image's progress (stage ``reference``) that, from its second batch
+    on and once a sixteenth of its samples are done, notes once the comparison's expected
+    seconds in all: the two images' set-up and samples, timed
+    on the batches so far (the first batch's time, less its samples', is the set-up), plus
+    ``other_s`` (done and expected stages)."""
+
+    def __init__(self, progress, note, spp: int, other_s: float):
+        self.progress, self.note, self.spp, self.other_s = progress, note, spp, other_s
+        self.t0 = time.perf_counter()
+        self.first: tuple[float, int] | None = None
+        self.said = False
+
+    def __call__(self, _stage, done: int, total: int) -> None:
+        self.progress("reference", done, total)
+        now = time.perf_counter()
+        if self.first is None:
+            self.first = (now, done)
+            return
+        if self.said or done <= self.first[1] or 16 * done < self.spp:
+            return  # timed on a sixteenth of the samples at least: steadier under load
+        per_spp = (now - self.first[0]) / (done - self.first[1])
+        setup = max(self.first[0] - self.t0 - self.first[1] * per_spp, 0.0)
+        ref_s = 2.0 * (setup + self.spp * per_spp)
+        self.note(
+            f"compare: expected about {self.other_s + ref_s:.0f} s in all (the reference "
+            f"about {ref_s:.0f} s, timed on its first {done} samples per pixel)"
+        )
+        self.said = True
 
 
 def _write(out: Path, images: dict, mask, result: dict) -> dict[str, str]:

@@ -5,6 +5,7 @@ path tracer, and write a Markdown report of it all (``lobelight demo``).
 from __future__ import annotations
 
 import os
+import sys
 import time
 from pathlib import Path
 
@@ -61,6 +62,13 @@ def demo(
     t_bake = time.perf_counter() - t0
 
     backend = "gl" if gl_available() else "torch"
+    if backend == "torch":  # said even when silent: the frames come slower
+        print(
+            "lobelight: OpenGL (EGL) is not available here: rendering with the torch renderer "
+            "(slower; the README names the system packages EGL needs)",
+            file=sys.stderr,
+            flush=True,
+        )
     envs = {"builtin": builtin(), DEFAULT_ENVMAP: load_env(envmap_path(DEFAULT_ENVMAP))}
     stills: dict[str, str] = {}
     t1 = time.perf_counter()
