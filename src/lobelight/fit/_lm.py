@@ -46,6 +46,7 @@ from ..lobes import sg
 from ._data import FitData
 from ._objective import (
     Weights,
+    _neighbour_matrix,
     _neighbour_mean,
     _pair_diffs,
     conserve_factor,
@@ -129,12 +130,15 @@ def levenberg_marquardt(
     damp = torch.full((b, j, 1), 1e-3, dtype=dt, device=mu.device)
     valid = (nbr_views >= 0).to(dt)  # (J, 6)
     inv_r = 1 / valid.sum(1)  # (J,) 1 / number of neighbours of each view
+    avg = _neighbour_matrix(nbr_views, dt)  # (J, J)
+    back = avg.T.contiguous()
 
     def to_neighbours(x: torch.Tensor) -> torch.Tensor:
-        """sum over u in nbr(v) of x_u / R_u (views' neighbourhoods are symmetric), (B, J, ...)."""
-        xr = x * inv_r.reshape(1, -1, *([1] * (x.ndim - 2)))
-        g = xr[:, nbr_views.clamp_min(0)]  # (B, J, 6, ...)
-        return (g * valid.reshape(1, *valid.shape, *([1] * (x.ndim - 2)))).sum(2)
+        """sum over the views u that have v as a neighbour of x_u / R_u, (B, J, ...)."""
+        return torch.matmul(back, x.reshape(*x.shape[:2], -1)).reshape(x.shape)
+
+    def nmean(x: torch.Tensor) -> torch.Tensor:
+        return _neighbour_mean(x, nbr_views, avg)
 
     # Only views whose samples carry light have a data term: below the horizon, or fully
     # occluded, the transport is 0, the solved weights are 0 and so are the data residuals and
@@ -189,8 +193,8 @@ def levenberg_marquardt(
 
     def reg_views(mu_, lam_):
         """Each view's share of ``M``, ``V`` and ``S`` (B, J) at these means and widths."""
-        mb = torch.nn.functional.normalize(_neighbour_mean(mu_, nbr_views), dim=-1)
-        sb = _neighbour_mean(lam_.rsqrt(), nbr_views)
+        mb = torch.nn.functional.normalize(nmean(mu_), dim=-1)
+        sb = nmean(lam_.rsqrt())
         return _reg_cost(mu_, lam_, mb, sb, c, nbr_ds, mask)
 
     sq_n = (wts_a * inv_e_a[:, None]).sqrt()[:, None]  # (P, 1, S) residual scale
@@ -207,9 +211,9 @@ def levenberg_marquardt(
     jac = buf[:, : 3 * n].view(p_n, n, 3, n_s)
     own = (4 * n + torch.arange(3 * n, device=mu.device) // 3).expand(p_n, -1)[..., None]
     for _ in range(iters):
-        mbar = torch.nn.functional.normalize(_neighbour_mean(mu, nbr_views), dim=-1)
+        mbar = torch.nn.functional.normalize(nmean(mu), dim=-1)
         sigma = lam.rsqrt()  # (B, J, N)
-        sbar = _neighbour_mean(sigma, nbr_views)
+        sbar = nmean(sigma)
         t, s, _ = sphere.frame(mu)  # (B, J, N, 3) each
         # tangent components of the sample directions: (P, N, S) each
         lam_a, sigma_a = pack(lam), pack(sigma)  # (P, N)

@@ -219,12 +219,24 @@ def data_term(data: FitData, w, mu, lam) -> torch.Tensor:
     return err / data.energy().sum(1).clamp_min(DIVISOR_F32)
 
 
-def _neighbour_mean(x: torch.Tensor, nbr: torch.Tensor) -> torch.Tensor:
-    """Average of ``x`` (B, J, ...) over each view's neighbours ``nbr`` (J, 6) (-1 padded)."""
-    valid = (nbr >= 0).to(x.dtype)  # (J, 6)
-    g = x[:, nbr.clamp_min(0)]  # (B, J, 6, ...)
-    shape = (1, *valid.shape, *([1] * (x.ndim - 2)))
-    return (g * valid.reshape(shape)).sum(2) / valid.sum(1).reshape(1, -1, *([1] * (x.ndim - 2)))
+def _neighbour_matrix(nbr: torch.Tensor, dtype: torch.dtype) -> torch.Tensor:
+    """The averaging matrix (J, J) of the views' neighbour table ``nbr`` (J, 6) (-1 padded):
+    row ``v`` holds ``1 / R_v`` at each of its ``R_v`` neighbours."""
+    j = nbr.shape[0]
+    valid = nbr >= 0
+    rows = torch.arange(j, device=nbr.device)[:, None].expand_as(nbr)[valid]
+    m = torch.zeros(j, j, dtype=dtype, device=nbr.device)
+    m.index_put_((rows, nbr[valid]), torch.ones_like(rows, dtype=dtype), accumulate=True)
+    return m / valid.sum(1, keepdim=True).to(dtype)
+
+
+def _neighbour_mean(
+    x: torch.Tensor, nbr: torch.Tensor, matrix: torch.Tensor | None = None
+) -> torch.Tensor:
+    """Average of ``x`` (B, J, ...) over each view's neighbours ``nbr`` (J, 6) (-1 padded), as
+    one product with their averaging matrix (:func:`_neighbour_matrix`, or ``matrix``)."""
+    m = _neighbour_matrix(nbr, x.dtype) if matrix is None else matrix
+    return torch.matmul(m, x.reshape(*x.shape[:2], -1)).reshape(x.shape)
 
 
 def mean_term(mu: torch.Tensor, nbr: torch.Tensor) -> torch.Tensor:
