@@ -369,7 +369,7 @@ def _add_compare(sub) -> None:
         "with others (the mesh must still match)",
     )
     _gaussians(c)
-    _env(c, "default: the scene's")
+    _env(c, "default: the model's with --model, else the scene's")
     _output(c, "lobelight-compare", "output folder (images, compare.json)")
     _spp(c, 1024)
     _rotate(c)

@@ -9,8 +9,9 @@ the object's pixels (the background is the environment in all of them):
 ``linear``          the same Gaussians, but each view's lobes are integrated against the
                     lighting first and the *radiance* is blended across views and then across
                     the triangle (Gouraud): the cross-fading the paper avoids (its Figure 2)
-``no_visibility``   a model fitted to transport without visibility, rendered the same way:
-                    prefiltered environment mapping (the paper's Figure 6)
+``no_visibility``   a model fitted to transport without visibility (and so without
+                    interreflection), rendered the same way: prefiltered environment mapping
+                    (the paper's Figure 6)
 ``sh10``            the glossy transport of every vertex and view projected onto order-10
                     spherical harmonics (100 coefficients, by the fit's own quadrature),
                     integrated against the lighting's order-10 projection, blended linearly
