@@ -381,8 +381,8 @@ def _add_compare(sub) -> None:
         choices=["linear", "no_visibility", "sh10"],
         help="the paper's baselines to score as well: linear reuses the model (seconds); "
         "no_visibility fits a model without visibility and sh10 gathers the transport "
-        "again (each about as long as the bake's fit stage; the expected seconds are said "
-        "before they start); none: --baselines with no name",
+        "again (each at least as long as the bake's fit stage, said before the comparison "
+        "starts); none: --baselines with no name",
     )
     _base_res(c)
     _sun(c)

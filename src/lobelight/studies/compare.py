@@ -77,8 +77,8 @@ __all__ = ["BASELINES", "compare", "linear_glossy", "reference_depth", "sh_gloss
 
 #: The baselines :func:`compare` knows, and what each costs beside the model's own render:
 #: ``linear`` reuses the model's Gaussians (seconds); ``no_visibility`` fits a new model of the
-#: scene without visibility (no interreflection either: a bake's fit stage); ``sh10``
-#: gathers the glossy transport of every vertex and view again (about a bake's fit stage).
+#: scene without visibility (no interreflection either); ``sh10`` gathers the glossy transport
+#: of every vertex and view again; each takes at least as long as the model's fit stage.
 BASELINES = ("linear", "no_visibility", "sh10")
 
 
@@ -198,7 +198,7 @@ def compare(
         and its glossy light where the BRDF allows); the paper's lighting (the sun in the SH
         diffuse and in the Gaussians' lighting) is then scored too, as ``ours_sh_diffuse``
     baselines : names from :data:`BASELINES`; the default, ``linear``, reuses the model's
-        Gaussians; ``no_visibility`` and ``sh10`` cost about a bake's fit stage each
+        Gaussians; ``no_visibility`` and ``sh10`` take at least a bake's fit stage each
     progress : True (stderr), None/False (silent) or ``progress(stage, done, total)``, for
         every long stage, each under its own name (``fit``, ``reference``, ``reference,
         glossy``, ``no_visibility baseline: ...``, ``sh10 baseline: transport``;
@@ -407,10 +407,11 @@ def _say_plan(progress, model, kw, baselines, ours_s: float):
         cost = {"linear": "seconds", "no_visibility": "fits a model without visibility",
                 "sh10": "gathers the transport again"}[name]  # fmt: skip
         if name in est:
-            cost += f", about {est[name]:.0f} s" if est[name] > 0 else ", time unknown"
+            # a floor, not a forecast: the baselines' work per vertex is not the fit's
+            cost += f", {est[name]:.0f} s or more" if est[name] > 0 else ", time unknown"
         parts.append(f"{name} baseline: {cost}")
     note("compare: " + "; ".join(parts))
-    return _Forecast(progress, note, kw["spp"], ours_s + sum(est.values()))
+    return _Forecast(progress, note, kw["spp"], ours_s + sum(est.values()), floor=bool(est))
 
 
 class _Forecast:
@@ -418,10 +419,11 @@ class _Forecast:
     on and once a sixteenth of its samples are done, notes once the comparison's expected
     seconds in all: the two images' set-up and samples, timed
     on the batches so far (the first batch's time, less its samples', is the set-up), plus
-    ``other_s`` (done and expected stages)."""
+    ``other_s`` (done and expected stages; ``floor``: a lower bound, said "at least")."""
 
-    def __init__(self, progress, note, spp: int, other_s: float):
+    def __init__(self, progress, note, spp: int, other_s: float, *, floor: bool = False):
         self.progress, self.note, self.spp, self.other_s = progress, note, spp, other_s
+        self.floor = floor  # other_s holds a floor, not an estimate: "at least"
         self.t0 = time.perf_counter()
         self.first: tuple[float, int] | None = None
         self.said = False
@@ -438,7 +440,8 @@ class _Forecast:
         setup = max(self.first[0] - self.t0 - self.first[1] * per_spp, 0.0)
         ref_s = 2.0 * (setup + self.spp * per_spp)
         self.note(
-            f"compare: expected about {self.other_s + ref_s:.0f} s in all (the reference "
+            f"compare: expected {'at least ' if self.floor else ''}about "
+            f"{self.other_s + ref_s:.0f} s in all (the reference "
             f"about {ref_s:.0f} s, timed on its first {done} samples per pixel)"
         )
         self.said = True
