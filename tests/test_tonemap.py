@@ -25,17 +25,8 @@ from lobelight.render._window import Orbit, model_camera
 needs_gl = pytest.mark.skipif(not gl_available(), reason="no headless OpenGL context (EGL)")
 
 RED_PLASTIC = np.array([0.6, 0.12, 0.08])
-#: The curves through the GL path; Neutral waits on ``present`` passing a curve's index in
-#: ``CURVES`` as the shader's code (it passes 1 for ACES, else 0): strict, so that the fix
-#: shows as an XPASS failure and this mark goes.
-GL_CURVES = [
-    "srgb",
-    "aces",
-    pytest.param(
-        "neutral",
-        marks=pytest.mark.xfail(strict=True, reason="present() maps only aces to a curve code"),
-    ),
-]
+#: The curves through the GL path (``present`` passes a curve's index in ``CURVES``).
+GL_CURVES = ["srgb", "aces", "neutral"]
 
 
 def _neutral_spec(rgb) -> np.ndarray:

@@ -12,7 +12,8 @@
   a CPU, the NVIDIA driver on a GPU); ``"torch"`` does the same stages in torch on any device
   (``_torch.py``, by ray casting), and is what the shaders are tested against.
 - :class:`Lighting` an environment ready to render: prefiltered chain, SH projection, rotation.
-- :func:`tonemap` exposure, ``"srgb"`` or ``"aces"``, to 8-bit; :func:`auto_exposure`;
+- :func:`tonemap` exposure, ``"neutral"`` (Khronos PBR Neutral, :func:`neutral`, the default),
+  ``"srgb"`` or ``"aces"``, to 8-bit; :func:`auto_exposure` (with a curve: the highlights' rule);
   :func:`save_image` (``.png``/``.jpg`` tone-mapped, ``.exr``/``.hdr`` linear), atomically;
   :func:`check_output_path` the checks it makes first, for callers to make before rendering.
 - :func:`turntable` frames over a full turn of the camera (or the light), one exposure, and a
@@ -31,20 +32,33 @@ from ._gl import create_context, gl_available
 from ._gl_sgbrdf import GLSGBRDFRenderer
 from ._lighting import Lighting, as_rotation
 from ._renderer import Renderer, sample_offsets
-from ._tonemap import auto_exposure, check_output_path, save_image, tonemap
+from ._tonemap import (
+    CURVES,
+    DEFAULT_CURVE,
+    auto_exposure,
+    check_output_path,
+    neutral,
+    save_image,
+    tonemap,
+)
 from ._turntable import orbit, turntable
-from ._window import require_display, view
+from ._window import Orbit, model_camera, require_display, view
 
 __all__ = [
+    "CURVES",
+    "DEFAULT_CURVE",
     "Camera",
     "GLSGBRDFRenderer",
     "Lighting",
+    "Orbit",
     "Renderer",
     "as_rotation",
     "auto_exposure",
     "check_output_path",
     "create_context",
     "gl_available",
+    "model_camera",
+    "neutral",
     "orbit",
     "require_display",
     "sample_offsets",

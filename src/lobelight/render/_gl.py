@@ -45,6 +45,7 @@ from ._sun_glossy import (
     sun_widened,
 )
 from ._sun_shadow import BLOCKER_SAMPLES, SHADOW_SAMPLES, disc_radius, sun_frame
+from ._tonemap import CURVES, DEFAULT_CURVE
 
 __all__ = [
     "GLRenderer",
@@ -1171,8 +1172,9 @@ class GLRenderer:
             ctx.depth_func = "<"
             self.shadow_vao.render(moderngl.TRIANGLES)
 
-    def present(self, screen, *, exposure: float = 0.0, curve: str = "srgb") -> None:
-        """Tone-map the last frame onto ``screen`` (a window's framebuffer)."""
+    def present(self, screen, *, exposure: float = 0.0, curve: str = DEFAULT_CURVE) -> None:
+        """Tone-map the last frame onto ``screen`` (a window's framebuffer) with display curve
+        ``curve`` (one of :data:`lobelight.render._tonemap.CURVES`)."""
         import moderngl  # optional (the gl extra)
 
         self.make_current()
@@ -1182,7 +1184,7 @@ class GLRenderer:
             self.ctx.disable(moderngl.DEPTH_TEST)
             self.color.use(5)
             self._uniform(self.tm_prog, "scale", float(2.0**exposure))
-            self._uniform(self.tm_prog, "curve", 1 if curve == "aces" else 0)
+            self._uniform(self.tm_prog, "curve", CURVES.index(curve))
             self.tm_vao.render(moderngl.TRIANGLE_STRIP)
 
     def read(self) -> tuple[torch.Tensor, torch.Tensor]:
