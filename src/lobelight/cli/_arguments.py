@@ -305,7 +305,11 @@ def _add_render(sub) -> None:
     _sun(r)
     r.add_argument("--exposure", default="auto", help="stops, or 'auto' (the object's pixels)")
     r.add_argument(
-        "--tonemap", choices=["srgb", "aces"], default="srgb", help="display curve (.png, .jpg)"
+        "--tonemap",
+        choices=["neutral", "srgb", "aces"],
+        default="neutral",
+        help="display curve (.png, .jpg): neutral keeps saturated colours (Khronos PBR Neutral), "
+        "srgb clips, aces is filmic (default: %(default)s)",
     )
     _backend(r)
     _base_res(r)
@@ -331,8 +335,8 @@ def _add_view(sub) -> None:
         sub,
         "view",
         "run_view",
-        "interactive window: drag to orbit, right-drag to turn the "
-        "light, wheel to zoom, d/g/b diffuse/glossy/both, +/- exposure, e next map",
+        "interactive window: drag to orbit, right-drag to turn the light, wheel to zoom, "
+        "d/g/b diffuse/glossy/both, +/- exposure, t display curve, e next map",
         heavy=False,
     )
     v.add_argument("model", help="a model file written by bake")

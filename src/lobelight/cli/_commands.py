@@ -311,13 +311,14 @@ def run_info(args) -> dict:
 
 def _reflection(m) -> str:
     """How the renderers shade the model's direct glossy light: per pixel for a sharp lobe
-    (``lobelight.brdf.sharp_lobe``), with or without its visibility tiles in the file."""
+    (``lobelight.brdf.sharp_lobe``), with the object it sees shaded where it is seen, with or
+    without its visibility and hit tiles in the file."""
     if sharp_lobe(m.materials.specular) is None:
         return "fitted Gaussians"
-    tiles = m.visibility_held
-    if tiles is None:
-        return "per pixel (visibility tiles computed from the mesh on first render)"
-    return f"per pixel (visibility tiles {tiles.shape[1]}x{tiles.shape[2]} stored)"
+    tiles, hits = m.visibility_held, m.hits_held
+    if tiles is None or hits is None:
+        return "per pixel (visibility and hit tiles computed from the mesh on first render)"
+    return f"per pixel (visibility and hit tiles {tiles.shape[1]}x{tiles.shape[2]} stored)"
 
 
 def _interreflection(provenance: dict, glossy: bool = True) -> dict:
@@ -430,7 +431,7 @@ def run_render(args) -> dict:
         img, mask = ren.render(cam, args.rotate, return_mask=True, **parts)
         t2 = time.perf_counter()
     if exposure is None:
-        exposure = auto_exposure(img, mask)
+        exposure = auto_exposure(img, mask, curve=args.tonemap)
     out = save_image(args.output, img, exposure=exposure, curve=args.tonemap)
     return {
         "command": "render",

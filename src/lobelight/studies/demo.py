@@ -15,7 +15,7 @@ from ..envmap import builtin
 from ..envmap import load as load_env
 from ..fit import fit_model
 from ..progress import Reporter, resolve
-from ..render import Renderer, auto_exposure, gl_available, save_image
+from ..render import DEFAULT_CURVE, Renderer, auto_exposure, gl_available, save_image
 from ..scene import load
 from .compare import compare
 
@@ -80,7 +80,8 @@ def demo(
                 if lit != name:
                     continue
                 img, mask = ren.render(sc.camera, rot, return_mask=True)
-                path = save_image(outp / f"{stem}.png", img, exposure=auto_exposure(img, mask))
+                exposure = auto_exposure(img, mask, curve=DEFAULT_CURVE)
+                path = save_image(outp / f"{stem}.png", img, exposure=exposure)
                 stills[stem] = str(path)
             if t_frame is None:
                 t = time.perf_counter()
