@@ -124,6 +124,15 @@ def _torus() -> scene.Mesh:
     return scene.mesh_from_arrays(tm.vertices, tm.faces, name="torus")
 
 
+#: A view of the torus from above, its inner side in sight.
+TORUS_CAM = render.Camera.look_at((0.0, 2.2, 2.6), (0.0, 0.0, 0.0), fov=45)
+
+
+def _sharp_torus() -> scene.Scene:
+    mesh = _torus()
+    return scene.Scene(mesh, scene.uniform(SHARP, mesh.n_vertices), name="torus")
+
+
 def _mitsuba(sc, env, cam, w, h, tmp_path, spp=256, max_depth=2):
     mi = pytest.importorskip("mitsuba", reason="Mitsuba 3 is the independent reference")
     from lobelight.reference.mitsuba import load_mitsuba, scene_dict
@@ -179,11 +188,7 @@ def test_concave_shape_occludes_its_reflection_per_pixel(tmp_path):
     # in the path tracer's image; the visibility tiles put them there per pixel. Against an
     # unoccluded lobe (visibility 1 everywhere) the error must fall several times over.
     # (the object seen in the lobe is left out: hit tiles that find nothing)
-    mesh = _torus()
-    sc = scene.Scene(mesh, scene.uniform(SHARP, mesh.n_vertices), name="torus")
-    env = _step_sky()
-    cam = render.Camera.look_at((0.0, 2.2, 2.6), (0.0, 0.0, 0.0), fov=45)
-    w = h = 96
+    sc, env, cam, w, h = _sharp_torus(), _step_sky(), TORUS_CAM, 96, 96
     ref = _mitsuba(sc, env, cam, w, h, tmp_path)
     img, cov = _ours(sc, env, cam, w, h)
     m = _no_hits(_bare_model(sc))
@@ -220,12 +225,8 @@ def test_concave_shape_shows_itself_in_its_reflection(tmp_path):
     # bounce more than direct light (max_depth 3) against ours with a model that carries no
     # fitted light (the mirror's second bounce comes from the hit tiles alone). Against the
     # same model with hit tiles that find nothing (those reflections black) the error must
-    # fall several times over.
-    mesh = _torus()
-    sc = scene.Scene(mesh, scene.uniform(SHARP, mesh.n_vertices), name="torus")
-    env = _step_sky()
-    cam = render.Camera.look_at((0.0, 2.2, 2.6), (0.0, 0.0, 0.0), fov=45)
-    w = h = 96
+    # fall to at most 1 / 1.8 of it.
+    sc, env, cam, w, h = _sharp_torus(), _step_sky(), TORUS_CAM, 96, 96
     ref = _mitsuba(sc, env, cam, w, h, tmp_path, max_depth=3)
     img, cov = _ours(sc, env, cam, w, h, hits=True)
     blind, _ = _ours(sc, env, cam, w, h)
@@ -277,7 +278,7 @@ def test_shaders_match_the_torch_path_where_the_object_sees_itself():
     sc = scene.Scene(mesh, scene.uniform(SHARP, v), name="torus")
     m = Model(mesh, views, Gaussians(w, mu, lam), diffuse, sc.materials, {}, None, 1)
     light = render.Lighting(_step_sky(), base_res=128)
-    cam = render.Camera.look_at((0.0, 2.2, 2.6), (0.0, 0.0, 0.0), fov=45)
+    cam = TORUS_CAM
     with render.Renderer(m, light, 80, 80, backend="gl", samples=1) as r:
         img, mask = r.render(cam, return_mask=True)
     rows, cols = mask.nonzero().unbind(-1)
