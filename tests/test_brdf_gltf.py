@@ -37,6 +37,7 @@ from test_brdf import (
     to_world,
     upper_dirs,
 )
+from test_sun import assert_sun_highlight_matches_torch, dark_model, needs_gl
 
 _BASE = [0.8, 0.5, 0.2]
 
@@ -311,16 +312,12 @@ def sun_light(builtin_sky):
     return render.Lighting(builtin_sky, base_res=16, sun=True)
 
 
+@needs_gl
 def test_the_sun_shader_evaluates_the_lobe(sun_light):
     # prt.glsl's Schlick branch against lobelight.brdf's eval (the torch path), as
     # tests/test_sun.py checks the other models: a sphere with a per-vertex F0 and roughness,
     # no Gaussians and no SH, so the glossy image is the sun's highlight alone. Tolerances as
     # there: 1e-3 relative where the highlight is, float32 GLSL against float32 torch.
-    from lobelight.render._gl import gl_available
-    from test_sun import dark_model
-
-    if not gl_available():
-        pytest.skip("no headless OpenGL context (EGL)")
     sc = scene.builtin("sphere", subdivisions=4)
     # fields smooth over the sphere, as textures give: F0 from dielectric to coloured metal
     x, y, _ = (0.5 + 0.5 * sc.mesh.vertices / sc.mesh.vertices.norm(dim=-1, keepdim=True)).unbind(
@@ -329,17 +326,4 @@ def test_the_sun_shader_evaluates_the_lobe(sun_light):
     base = torch.stack([0.2 + 0.8 * x, torch.full_like(x, 0.6), torch.full_like(x, 0.1)], -1)
     mats = gltf_materials(base, y, 0.3 + 0.2 * x)
     m = dark_model(dataclasses.replace(sc, materials=mats))
-    cam = render.Camera.look_at((0.3, 0.8, 3.0), (0.0, 0.0, 0.0), fov=40)
-    out = {}
-    for backend in ("gl", "torch"):
-        with render.Renderer(m, sun_light, 96, 72, backend=backend) as ren:
-            out[backend] = ren.render(cam, 200.0, background=False, diffuse=False, return_mask=True)
-    (a, ma), (t, mt) = out["gl"], out["torch"]
-    both = ma & mt
-    peak = float(t[both].amax())
-    assert peak > 1.0
-    lit = t[both].amax(-1) > 1e-3 * peak
-    assert int(lit.sum()) > 50
-    rel = (a - t)[both].abs().amax(-1) / t[both].amax(-1).clamp_min(1e-3 * peak)
-    assert float((rel[lit] > 1e-3).float().mean()) < 0.02, float(rel[lit].max())
-    assert float((a - t)[both].abs().mean()) < 1e-3 * float(t[both].mean())
+    assert_sun_highlight_matches_torch(m, sun_light)

@@ -228,9 +228,18 @@ def mutate_json(doc, ops):
 
 
 _JSON_OPS = ["delete", "replace", "replace", "add", "wrap"]
-json_ops = st.lists(
-    st.tuples(st.sampled_from(_JSON_OPS), st.integers(0, 999), json_values), min_size=1, max_size=3
-)
+#: The edits of the glTF and scene documents: replacing weighs more there.
+_DOC_OPS = ["delete", "replace", "replace", "replace", "add", "wrap"]
+
+
+def _edits(values, names=_JSON_OPS):
+    """Lists of one to three (operation, position, value) edits of a JSON-like document."""
+    return st.lists(
+        st.tuples(st.sampled_from(names), st.integers(0, 999), values), min_size=1, max_size=3
+    )
+
+
+json_ops = _edits(json_values)
 
 
 def _finite(t) -> bool:
@@ -567,17 +576,7 @@ _GLTF_VALUES = st.one_of(
 
 
 @fuzz(200)
-@given(
-    ops=st.lists(
-        st.tuples(
-            st.sampled_from(["delete", "replace", "replace", "replace", "add", "wrap"]),
-            st.integers(0, 999),
-            _GLTF_VALUES,
-        ),
-        min_size=1,
-        max_size=3,
-    )
-)
+@given(ops=_edits(_GLTF_VALUES, _DOC_OPS))
 def test_fuzz_gltf_structured(gltf_files, ops):
     doc = mutate_json(gltf_files["doc"], ops)
     p = gltf_files["dir"] / "m.gltf"  # beside a.bin and albedo.png, which it may name
@@ -655,15 +654,7 @@ def scene_dir(tmp_path_factory):
 @fuzz(500)
 @given(
     base=st.sampled_from([_SCENE, _SCENE_GRADIENT]),
-    ops=st.lists(
-        st.tuples(
-            st.sampled_from(["delete", "replace", "replace", "replace", "add", "wrap"]),
-            st.integers(0, 999),
-            _SCENE_VALUES,
-        ),
-        min_size=1,
-        max_size=3,
-    ),
+    ops=_edits(_SCENE_VALUES, _DOC_OPS),
     fmt=st.sampled_from(["json", "toml"]),
 )
 def test_fuzz_scene_structured(scene_dir, base, ops, fmt):

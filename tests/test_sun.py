@@ -213,8 +213,12 @@ def test_sun_glossy_shader_matches_the_torch_brdf(sun_light, name):
     # interpolation against barycentrics of the ray hit: equal up to rounding)
     sc = scene.builtin("sphere", subdivisions=4)
     sc = _with_specular(sc, _SPECULARS[name](sc.mesh.n_vertices))
-    m = dark_model(sc)
-    light = sun_light
+    assert_sun_highlight_matches_torch(dark_model(sc), sun_light)
+
+
+def assert_sun_highlight_matches_torch(m: Model, light) -> None:
+    """The glossy image of a model with no Gaussians and no SH (the sun's highlight alone) in
+    GL and in torch, seen from one camera: the two agree."""
     cam = render.Camera.look_at((0.3, 0.8, 3.0), (0.0, 0.0, 0.0), fov=40)
     out = {}
     for backend in ("gl", "torch"):

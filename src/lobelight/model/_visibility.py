@@ -58,19 +58,27 @@ def visibility_tiles(
     caster = RayCaster(mesh) if caster is None else caster
     dev = mesh.vertices.device
     d = octahedral.texel_directions(res, sub=sub, device=dev).reshape(-1, 3)  # (D, 3)
-    n_dirs = d.shape[0]
     out = torch.zeros(mesh.n_vertices, res * res, dtype=torch.uint8, device=dev)
-    batch = max(1, _RAYS_PER_BATCH // n_dirs)
-    for s in range(0, mesh.n_vertices, batch):
-        vi = torch.arange(s, min(mesh.n_vertices, s + batch), device=dev)
-        p, n = mesh.vertices[vi], mesh.normals[vi]
-        bi, di = ((n @ d.T) > 0).nonzero(as_tuple=True)  # rays above the horizon
-        vis = torch.zeros(vi.shape[0], n_dirs, device=dev)
-        o = caster.spawn(p[bi], n[bi], d[di])
+    for vi, bi, di, o in _rays_above_horizon(mesh, d, caster):
+        vis = torch.zeros(vi.shape[0], d.shape[0], device=dev)
         vis[bi, di] = (~caster.occluded(o, d[di])).float()
         frac = vis.reshape(-1, res * res, sub * sub).mean(-1)  # (b, res^2)
         out[vi] = (frac * 255).round().to(torch.uint8)
     return out.reshape(-1, res, res)
+
+
+def _rays_above_horizon(mesh, d: torch.Tensor, caster: RayCaster):
+    """The rays of each batch of vertices along directions ``d (D, 3)`` above the vertex
+    normal's horizon, at most :data:`_RAYS_PER_BATCH` per batch: yields ``vi (b,)`` the
+    batch's vertex ids, ``bi, di (R,)`` each ray's row in the batch and direction index, and
+    ``origins (R, 3)`` lifted off the surface (the caster's offset)."""
+    dev = mesh.vertices.device
+    batch = max(1, _RAYS_PER_BATCH // d.shape[0])
+    for s in range(0, mesh.n_vertices, batch):
+        vi = torch.arange(s, min(mesh.n_vertices, s + batch), device=dev)
+        p, n = mesh.vertices[vi], mesh.normals[vi]
+        bi, di = ((n @ d.T) > 0).nonzero(as_tuple=True)
+        yield vi, bi, di, caster.spawn(p[bi], n[bi], d[di])
 
 
 def hit_tiles(
@@ -95,15 +103,10 @@ def hit_tiles(
     caster = RayCaster(mesh) if caster is None else caster
     dev = mesh.vertices.device
     d = octahedral.texel_directions(res, device=dev).reshape(-1, 3)  # (D, 3) texel centres
-    n_dirs = d.shape[0]
-    face = torch.full((mesh.n_vertices, n_dirs), -1, dtype=torch.int32, device=dev)
-    dist = torch.zeros(mesh.n_vertices, n_dirs, dtype=torch.float16, device=dev)
-    batch = max(1, _RAYS_PER_BATCH // n_dirs)
-    for s in range(0, mesh.n_vertices, batch):
-        vi = torch.arange(s, min(mesh.n_vertices, s + batch), device=dev)
-        p, n = mesh.vertices[vi], mesh.normals[vi]
-        bi, di = ((n @ d.T) > 0).nonzero(as_tuple=True)  # rays above the horizon
-        tri, t, _ = caster.first_hit(caster.spawn(p[bi], n[bi], d[di]), d[di])
+    face = torch.full((mesh.n_vertices, d.shape[0]), -1, dtype=torch.int32, device=dev)
+    dist = torch.zeros(mesh.n_vertices, d.shape[0], dtype=torch.float16, device=dev)
+    for vi, bi, di, o in _rays_above_horizon(mesh, d, caster):
+        tri, t, _ = caster.first_hit(o, d[di])
         hit = tri >= 0
         face[vi[bi[hit]], di[hit]] = tri[hit].to(torch.int32)
         dist[vi[bi[hit]], di[hit]] = t[hit].to(torch.float16)
