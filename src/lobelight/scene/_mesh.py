@@ -382,6 +382,17 @@ class GltfAsset:
     material: torch.Tensor
     materials: tuple[GltfMaterial, ...]
 
+    def to(self, device) -> GltfAsset:
+        """The asset with its mesh and per-vertex arrays on ``device`` (the textures stay
+        where they are: they are read where a renderer or a reference needs them)."""
+        return GltfAsset(
+            self.mesh.to(device),
+            self.uvs.to(device),
+            self.colors.to(device),
+            self.material.to(device),
+            self.materials,
+        )
+
     @property
     def face_material(self) -> torch.Tensor:
         """``(F,)`` int64 material of each face (its vertices all have the same)."""

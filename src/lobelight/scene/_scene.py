@@ -143,6 +143,10 @@ class Scene:
         e.g. ``["baseColorTexture", "metallicRoughnessTexture"]``); ``override`` (what
         replaced the file's values: ``""`` none, ``"[materials.NAME]"``, ``"[material]"``,
         ``"[gradient]"``, ``"--material"``)
+    gltf : the glTF asset whose materials the vertices have (its UVs, per-vertex material
+        indices and textures, with the scene file's ``[materials.NAME]`` overrides applied);
+        ``None`` for other meshes and where ``[material]`` or ``[gradient]`` replaces them.
+        Renderers read its base colour textures per pixel and references its textures whole
     """
 
     mesh: Mesh
@@ -153,6 +157,7 @@ class Scene:
     )
     name: str = "scene"
     material_records: tuple[dict[str, Any], ...] = ()
+    gltf: GltfAsset | None = None
 
     def __post_init__(self) -> None:
         if self.materials.n_vertices != self.mesh.n_vertices:
@@ -174,6 +179,7 @@ class Scene:
             self.camera,
             self.name,
             self.material_records,
+            None if self.gltf is None else self.gltf.to(device),
         )
 
 
@@ -395,8 +401,9 @@ def _bare_mesh_scene(p: Path) -> Scene:
     built-in environment and :func:`default_camera`."""
     if p.suffix.lower() in GLTF_SUFFIXES:
         asset = load_gltf(p)
-        mats, records = _gltf_scene_materials(asset, {}, "")
-        return Scene(asset.mesh, mats, "builtin", default_camera(asset.mesh), p.stem, records)
+        mats, records, asset = _gltf_scene_materials(asset, {}, "")
+        cam = default_camera(asset.mesh)
+        return Scene(asset.mesh, mats, "builtin", cam, p.stem, records, asset)
     mesh = load_mesh(p)
     mats = uniform(BARE_MESH_MATERIAL, mesh.n_vertices)
     return Scene(mesh, mats, "builtin", default_camera(mesh), p.stem)
@@ -428,18 +435,19 @@ def _described_scene(p: Path, s: str) -> Scene:
     records: tuple[dict[str, Any], ...] = ()
     try:
         if asset is not None and "material" not in d and "gradient" not in d:
-            mats, records = _gltf_scene_materials(asset, d.get("materials", {}), s)
+            mats, records, asset = _gltf_scene_materials(asset, d.get("materials", {}), s)
         else:
             mats = _materials(d, mesh)
             if asset is not None:  # the file's materials, all replaced by the scene file's
                 by = "[material]" if "material" in d else "[gradient]"
                 records = _gltf_records(asset, mats.model, lambda name: by)
+                asset = None
     except InputError as exc:
         what = exc.what if exc.what.startswith(f"{s}: ") else f"{s}: {exc.what}"
         raise InputError(what, exc.problem) from None
     env = _environment(p, s, d)
     cam = _camera(d["camera"], f"{s}: camera") if "camera" in d else default_camera(mesh)
-    return Scene(mesh, mats, env, cam, d.get("name", p.stem), records)
+    return Scene(mesh, mats, env, cam, d.get("name", p.stem), records, asset)
 
 
 # --------------------------------------------------------------------------------------------
@@ -485,9 +493,10 @@ def _gltf_names(asset: GltfAsset) -> list[str]:
 
 def _gltf_scene_materials(
     asset: GltfAsset, overrides: Any, s: str
-) -> tuple[Materials, tuple[dict[str, Any], ...]]:
+) -> tuple[Materials, tuple[dict[str, Any], ...], GltfAsset]:
     """The per-vertex ``ggx_schlick`` materials of ``asset``, its materials overridden by the
-    scene file ``s``'s ``[materials]`` table ``overrides`` (by name), and their records."""
+    scene file ``s``'s ``[materials]`` table ``overrides`` (by name), their records, and the
+    asset with the overrides applied."""
     if not isinstance(overrides, Mapping):
         raise InputError(f"{s}: materials", "must be a table of [materials.NAME] tables")
     names = _gltf_names(asset)
@@ -513,7 +522,7 @@ def _gltf_scene_materials(
     records = _gltf_records(
         asset, mats.model, lambda name: f"[materials.{name}]" if name in checked else ""
     )
-    return mats, records
+    return mats, records, asset
 
 
 def _quadrature(asset: GltfAsset) -> int:
