@@ -1,8 +1,9 @@
 """Mitsuba 3 versions of our scenes, for independent reference renders.
 
 :func:`scene_dict` turns a :class:`lobelight.scene.Scene` (with materials that are uniform over
-groups of faces), an environment file and a camera into a ``mi.load_dict`` scene: one PLY shape
-per material group (vertex normals included, so Mitsuba shades with the same smooth normals),
+groups of faces, or a glTF asset: below), an environment file and a camera into a
+``mi.load_dict`` scene: one PLY shape per material group (vertex normals included, so Mitsuba
+shades with the same smooth normals),
 ``envmap`` lighting, a ``perspective`` sensor with a box pixel filter (the reference renderer's
 pixel footprint) and the ``path`` integrator. Materials map one to one: Lambert -> ``diffuse``,
 a specular model -> its own :meth:`~lobelight.brdf.BRDF.mitsuba_dict` (GGX/Beckmann ->
@@ -23,6 +24,24 @@ probabilities ``prob_0``, ``prob_1``, ... Every value and sample comes from Mits
 plugins; the sum only adds them. The llvm variants compile its Python into their kernels; the
 scalar ones call it per ray, which is far slower.
 
+A scene with a glTF asset (:attr:`lobelight.scene.Scene.gltf`) is exported with its true
+textured materials, not the per-vertex values the transport bakes (:func:`gltf_bsdf`): one PLY
+shape per glTF material, with the asset's normals and ``TEXCOORD_0``; its diffuse part
+``baseColor (1 - metallic)`` and the lobe's ``F0 = mix(0.04, baseColor, metallic)`` and
+roughness as ``bitmap`` textures of linear data (``raw``), with the sampler's filter and wrap
+mode and the ``KHR_texture_transform`` as the bitmap's ``to_uv``. Mitsuba multiplies no
+textures, so each slot is one image composed texel by texel from the base colour texture
+(times its factor and the material's constant ``COLOR_0``) and the metallic-roughness texture
+(B metal and G rough, times their factors): exact where one of the two is untextured (the
+slot is then linear in the other texture, which bilinear filtering keeps), and where both are,
+wherever the textures are constant across the bilinear footprint (a product of
+interpolations is not the interpolation of the product between differing texels). Refused
+with an :class:`~lobelight.errors.InputError` naming the material: two textures of one
+material with different UV transforms, wrap modes or filters, a wrap mode that differs
+between U and V, and vertex colours that vary within a material. A ``doubleSided`` material
+is wrapped in ``twosided``. Normal, occlusion and emissive textures are not exported (as
+lobelight's renderers, which do not read them).
+
 Mitsuba is optional (``pip install mitsuba``; the ``reference`` extra). :func:`scene_dict`
 builds the scene in the variant that is set (``scalar_rgb`` when none is); any RGB variant
 renders it.
@@ -35,14 +54,13 @@ from pathlib import Path
 
 import numpy as np
 import torch
-import trimesh
 
 from .. import brdf as _brdf
 from ..errors import InputError
 from ..geometry.camera import Camera
-from ..scene import Scene
+from ..scene import GltfAsset, GltfMaterial, Scene, Texture, sample_texture
 
-__all__ = ["SUM_PLUGIN", "load_mitsuba", "material_dict", "scene_dict"]
+__all__ = ["SUM_PLUGIN", "gltf_bsdf", "load_mitsuba", "material_dict", "scene_dict"]
 
 #: Rounding allowed when checking that Lambert plus specular reflectance stays within 1 per
 #: channel (values read from float32 materials).
@@ -172,6 +190,146 @@ def _groups(scene: Scene) -> list[tuple[np.ndarray, dict]]:
     return out
 
 
+def _gltf_groups(asset: GltfAsset) -> list[tuple[np.ndarray, dict]]:
+    """Faces grouped by glTF material: ``[(face ids, mitsuba bsdf dict)]``."""
+    fmat = asset.face_material.cpu()
+    faces = asset.mesh.faces.cpu()
+    out = []
+    for m in torch.unique(fmat).tolist():
+        fid = (fmat == m).nonzero().squeeze(-1).numpy()
+        used = torch.unique(faces[torch.from_numpy(fid)])
+        out.append((fid, gltf_bsdf(asset.materials[m], asset.colors[used].cpu())))
+    return out
+
+
+def _texture_key(tex: Texture) -> tuple:
+    """What must agree for two textures to be composed into one image."""
+    return tex.sampler.wrap_s, tex.sampler.wrap_t, tex.sampler.mag_filter, tex.uv_transform
+
+
+def _grid(textures: list[Texture], where: str) -> tuple[int, int]:
+    """The (H, W) of the image composed from ``textures`` (the finest of them), after
+    checking that they can be composed (module docstring)."""
+    keys = {_texture_key(t) for t in textures}
+    if len(keys) > 1:
+        raise InputError(
+            where,
+            "its base colour and metallic-roughness textures differ in UV transform, wrap "
+            f"modes or filter ({sorted(map(str, keys))}): Mitsuba cannot compose them",
+        )
+    s = textures[0].sampler
+    if s.wrap_s != s.wrap_t:
+        raise InputError(
+            where,
+            f"wraps U by {s.wrap_s!r} and V by {s.wrap_t!r}: Mitsuba's bitmap has one wrap mode",
+        )
+    return max(t.image.shape[0] for t in textures), max(t.image.shape[1] for t in textures)
+
+
+def _on_grid(tex: Texture, h: int, w: int) -> torch.Tensor:
+    """``tex``'s image (h, w, C) float64: itself when it has that size, else read at the
+    texel centres of an h x w grid by its own sampler."""
+    img = tex.image.detach().cpu().double()
+    if img.shape[:2] == (h, w):
+        return img
+    plain = Texture(img, tex.sampler, tex.source)  # no UV transform: the grid is texture space
+    v, u = torch.meshgrid(
+        (torch.arange(h, dtype=torch.float64) + 0.5) / h,
+        (torch.arange(w, dtype=torch.float64) + 0.5) / w,
+        indexing="ij",
+    )
+    return sample_texture(plain, torch.stack([u, v], -1))  # (h, w, C)
+
+
+def _bitmap(mi, data: torch.Tensor, tex: Texture) -> dict:
+    """A ``bitmap`` texture of linear ``data`` (H, W, C) read as ``tex``'s sampler says."""
+    s = tex.sampler
+    d = {
+        "type": "bitmap",
+        "data": mi.TensorXf(np.ascontiguousarray(data.float().numpy())),
+        "raw": True,
+        "filter_type": "nearest" if s.mag_filter == "nearest" else "bilinear",
+        "wrap_mode": s.wrap_s,
+    }
+    if tex.uv_transform is not None:
+        rows = [list(r) for r in tex.uv_transform] + [[0.0, 0.0, 1.0]]
+        d["to_uv"] = mi.ScalarTransform3f(mi.ScalarMatrix3f(rows))
+    return d
+
+
+def _vertex_colour(mat: GltfMaterial, colors: torch.Tensor) -> torch.Tensor:
+    """The material's one ``COLOR_0`` RGB (3,) float64 (``colors``: (k, 4) of its vertices);
+    InputError when it varies."""
+    rgb = colors[:, :3].double()
+    if len(rgb) and not bool((rgb == rgb[:1]).all()):
+        raise InputError(
+            f"material {mat.name!r}",
+            "has vertex colours (COLOR_0) that vary: Mitsuba cannot multiply them into its "
+            "textures",
+        )
+    return rgb[0] if len(rgb) else torch.ones(3, dtype=torch.float64)
+
+
+def gltf_bsdf(material: GltfMaterial, colors=None) -> dict:
+    """The Mitsuba BSDF (a ``mi.load_dict`` entry) of one glTF metallic-roughness material
+    with its textures (module docstring): Lambert ``baseColor (1 - metallic)`` plus the
+    :class:`lobelight.brdf.GGXSchlick` lobe (``principled`` with ``metallic = 1``), summed by
+    :data:`SUM_PLUGIN`; wrapped in ``twosided`` when the material is double-sided. Builds
+    Mitsuba objects, so the variant must be set (:func:`load_mitsuba`).
+
+    Parameters
+    ----------
+    material : the glTF material (:class:`lobelight.scene.GltfMaterial`)
+    colors : (k, 4) linear ``COLOR_0`` of the material's vertices (None: white)
+
+    Raises
+    ------
+    InputError
+        naming the material, for what Mitsuba cannot express (module docstring)
+    """
+    import mitsuba as mi  # optional: the reference extra
+
+    where = f"material {material.name!r}"
+    colour = torch.ones(3, dtype=torch.float64)
+    if colors is not None:
+        colour = _vertex_colour(material, torch.as_tensor(colors))
+    base_factor = torch.tensor(material.base_color[:3], dtype=torch.float64) * colour  # (3,)
+    bt, mt = material.base_color_texture, material.metallic_roughness_texture
+    textures = [t for t in (bt, mt) if t is not None]
+    if not textures:
+        diffuse, spec = _brdf.metallic_roughness(
+            base_factor.clamp(0, 1), material.metallic, material.roughness
+        )
+        d = _sum(diffuse.double(), spec.mitsuba_dict())
+        return _sided(d, material)
+    h, w = _grid(textures, where)
+    base = base_factor.expand(h, w, 3)
+    if bt is not None:
+        base = base * _on_grid(bt, h, w)[..., :3]
+    metal = torch.full((h, w, 1), material.metallic, dtype=torch.float64)
+    rough = torch.full((h, w, 1), material.roughness, dtype=torch.float64)
+    if mt is not None:
+        mr = _on_grid(mt, h, w)
+        metal, rough = metal * mr[..., 2:3], rough * mr[..., 1:2]
+    base, metal, rough = base.clamp(0, 1), metal.clamp(0, 1), rough.clamp(0, 1)
+    diffuse = base * (1 - metal)  # (h, w, 3)
+    f0 = _brdf.DIELECTRIC_F0 * (1 - metal) + base * metal  # (h, w, 3)
+    lead = textures[0]
+    lobe = {
+        "type": "principled",
+        "base_color": _bitmap(mi, f0, lead),
+        "metallic": 1.0,
+        "roughness": _bitmap(mi, rough, lead) if mt is not None else material.roughness,
+    }
+    d = _sum(diffuse.mean((0, 1)), lobe, f0=f0.mean((0, 1)).tolist())
+    d["bsdf_0"]["reflectance"] = _bitmap(mi, diffuse, lead)
+    return _sided(d, material)
+
+
+def _sided(d: dict, material: GltfMaterial) -> dict:
+    return {"type": "twosided", "bsdf": d} if material.double_sided else d
+
+
 def _blend(diffuse: torch.Tensor, s: _brdf.BRDF) -> dict:
     """Lambert ``diffuse`` (3,) plus the microfacet lobe ``s`` as Mitsuba's ``blendbsdf``.
 
@@ -203,11 +361,12 @@ def _blend(diffuse: torch.Tensor, s: _brdf.BRDF) -> dict:
     return {"type": "blendbsdf", "weight": w, "bsdf_0": base, "bsdf_1": micro}
 
 
-def _sum(d: torch.Tensor, micro: dict) -> dict:
+def _sum(d: torch.Tensor, micro: dict, f0: list[float] | None = None) -> dict:
     """Lambert ``d`` (3,) plus the ``principled`` metallic lobe ``micro`` as
     :data:`SUM_PLUGIN`, each part sampled in proportion to its mean reflectance (the lobe's
-    Schlick term at 60 degrees, ``F0 + (1 - F0) / 32``)."""
-    f0 = micro["base_color"]["value"]
+    Schlick term at 60 degrees, ``F0 + (1 - F0) / 32``; ``f0``: the lobe's mean F0 where its
+    ``base_color`` is a texture)."""
+    f0 = micro["base_color"]["value"] if f0 is None else f0
     lobe = sum(b + (1 - b) / 32 for b in f0) / len(f0)
     diff = float(d.mean())
     total = lobe + diff if lobe + diff > 0 else 1.0
@@ -292,15 +451,31 @@ def scene_dict(
         },
         "env": {"type": "envmap", "filename": str(env_path)},
     }
-    for g, (fid, bsdf) in enumerate(_groups(scene)):
+    if scene.gltf is not None:
+        groups = _gltf_groups(scene.gltf)
+        uv = scene.gltf.uvs.cpu().numpy().astype(np.float64)
+    else:
+        groups, uv = _groups(scene), None
+    for g, (fid, bsdf) in enumerate(groups):
         used = np.unique(f[fid])
         remap = np.full(len(v), -1)
         remap[used] = np.arange(len(used))
-        tm = trimesh.Trimesh(v[used], remap[f[fid]], vertex_normals=n[used], process=False)
         path = work / f"group{g}.ply"
-        ply = trimesh.exchange.ply.export_ply(
-            tm, encoding="binary", vertex_normal=True, include_attributes=False
-        )
-        path.write_bytes(ply)
+        path.write_bytes(_ply(v[used], n[used], remap[f[fid]], None if uv is None else uv[used]))
         d[f"shape{g}"] = {"type": "ply", "filename": str(path), "bsdf": bsdf, "face_normals": False}
     return d
+
+
+def _ply(v: np.ndarray, n: np.ndarray, f: np.ndarray, uv: np.ndarray | None) -> bytes:
+    """A binary PLY of vertices ``v`` (k, 3), normals ``n`` (k, 3), faces ``f`` (m, 3) and,
+    given, texture coordinates ``uv`` (k, 2) as Mitsuba reads them (``u``, ``v``: the
+    glTF's, unflipped; Mitsuba's bitmap puts V = 0 at the image's first row, as glTF does)."""
+    names = ["x", "y", "z", "nx", "ny", "nz"] + ([] if uv is None else ["u", "v"])
+    cols = [v, n] + ([] if uv is None else [uv])
+    vert = np.ascontiguousarray(np.concatenate(cols, 1), dtype="<f4")  # (k, 6 or 8)
+    face = np.zeros(len(f), dtype=[("n", "u1"), ("i", "<i4", (3,))])
+    face["n"], face["i"] = 3, f
+    head = ["ply", "format binary_little_endian 1.0", f"element vertex {len(v)}"]
+    head += [f"property float {c}" for c in names]
+    head += [f"element face {len(f)}", "property list uchar int vertex_indices", "end_header"]
+    return ("\n".join(head) + "\n").encode() + vert.tobytes() + face.tobytes()
