@@ -30,12 +30,16 @@ triangles of views it belongs to, whose other corners are its geodesic neighbour
 and all its neighbours have zero weight, every triangle it is in interpolates to zero weight,
 so its means and widths are never seen. Those records are dropped (on load they come back with
 zero weight). Writes go to a temporary name and are renamed into place, so a file is either
-whole or absent.
+whole or absent, and only after the arrays pass the reader's checks (:func:`check`), so a file
+written is one the reader accepts. A read holds at most :data:`MAX_READ_BYTES` of arrays and
+expanded Gaussians: a file whose declared sizes and counts add up to more is refused before
+they are allocated.
 """
 
 from __future__ import annotations
 
 import json
+import math
 import zipfile
 import zlib
 from dataclasses import dataclass
@@ -54,7 +58,17 @@ from ..lobes import sg
 from ..lobes.sg import Gaussians
 from ..scene import Materials, Mesh
 
-__all__ = ["FORMAT", "MAX_LIGHT", "VERSION", "read", "write"]
+__all__ = [
+    "FORMAT",
+    "MAX_LIGHT",
+    "MAX_READ_BYTES",
+    "SIGMA_MAX",
+    "SIGMA_MIN",
+    "VERSION",
+    "check",
+    "read",
+    "write",
+]
 
 FORMAT = "lobelight-model"
 VERSION = 1
@@ -100,6 +114,15 @@ def write(
     ``g``: the Gaussians, ``(V, J, N)``, of ``views (J, 3)``; ``diffuse (V, n, 3)``; ``float16``
     stores the Gaussians and SH as half floats; ``drop`` leaves out the records no rendering
     can see; the last ``indirect_gaussians`` of the N hold indirect glossy transport.
+
+    The arrays pass the reader's checks (:func:`check`) before anything is written, so a file
+    this writes is one :func:`read` accepts.
+
+    Raises
+    ------
+    InputError
+        naming ``path``: its folder is missing, or the model fails a check of the reader
+        (non-finite Gaussians, say), with the check's problem.
     """
     p = Path(path)
     if not p.parent.is_dir():
@@ -112,7 +135,9 @@ def write(
         # light the lobe carries, at most the albedo) fit half floats with full relative
         # precision, so half-float files store those
         w = w * sg.integral(g.lam.double()).to(w.dtype)[..., None]
-    sigma = g.lam.clamp_min(SHARPNESS_MIN).rsqrt()  # (V, J, N)
+    # widths up to SHARPNESS_MIN^-1/2; half floats hold up to 65504, a lobe as flat over the
+    # sphere as a wider one (they differ by under 2 lam = 5e-10 anywhere)
+    sigma = g.lam.clamp_min(SHARPNESS_MIN).rsqrt().clamp_max(_SIGMA_F16 if float16 else SIGMA_MAX)
     rec = torch.cat([w, g.mu, sigma[..., None]], -1)  # (V, J, N, 7)
     kept = rec[keep.to(rec.device)]  # (K, N, 7)
     dt = np.float16 if float16 else np.float32
@@ -131,8 +156,12 @@ def write(
         "materials": materials.to_dict(),
         "provenance": {"lobelight": __version__, **(provenance or {})},
     }
+    try:
+        text = json.dumps(meta)
+    except (TypeError, ValueError) as exc:  # a provenance value JSON cannot hold
+        raise InputError(str(p), f"cannot write the model's metadata: {exc}") from None
     arrays = {
-        "meta": np.frombuffer(json.dumps(meta).encode(), dtype=np.uint8),
+        "meta": np.frombuffer(text.encode(), dtype=np.uint8),
         "vertices": mesh.vertices.detach().cpu().numpy().astype(np.float32),
         "faces": mesh.faces.cpu().numpy().astype(np.int32),
         "normals": mesh.normals.detach().cpu().numpy().astype(np.float32),
@@ -148,6 +177,10 @@ def write(
     if hits is not None:
         arrays["hit_face"] = hits[0].cpu().numpy().astype(np.int32)
         arrays["hit_distance"] = hits[1].cpu().numpy().astype(np.float16)
+    try:
+        check(arrays, str(p))
+    except InputError as exc:
+        raise InputError(str(p), f"not written, a reader would refuse it: {exc.problem}") from None
     with atomic_writer(p) as f:
         np.savez_compressed(f, **arrays)
     return {
@@ -189,28 +222,67 @@ MAX_FILE_BYTES = 1 << 36
 EXPANSION_SLACK = 64 << 20
 EXPANSION = 100
 
+#: The most memory a model takes once read, in bytes (8 GiB): its arrays as decompressed plus
+#: its Gaussians expanded to every (vertex, view) record, 7 float32 per Gaussian, which is
+#: ``2,576 N`` bytes per vertex for N Gaussians per view (a million vertices at N = 3, 417,000
+#: at N = 8). A file whose sizes (those the zip directory declares, and the counts of its
+#: metadata) add up to more is refused before they are allocated; a read's peak stays within
+#: about twice this (the arrays are copied as the model is built from them).
+MAX_READ_BYTES = 8 << 30
+
+#: Bytes of the metadata beyond ``_META_PER_VERTEX_BYTE`` times the vertex array's bytes: the
+#: settings, provenance and material records (a per-vertex albedo in the materials takes at
+#: most 76 bytes of JSON per vertex, under 7 times the vertex's 12 bytes of position).
+_META_SLACK = 16 << 20
+_META_PER_VERTEX_BYTE = 7
+
+#: The widths ``sigma`` a model file holds, in radians: at least 1e-6 (the sharpness
+#: ``sigma**-2`` stays a finite float32), at most :data:`lobelight._tol.SHARPNESS_MIN`
+#: ``**-0.5`` (the writer's floor of the sharpness; a lobe that wide is flat over the sphere).
+SIGMA_MIN = 1e-6
+SIGMA_MAX = SHARPNESS_MIN**-0.5
+# the widest half-float width (65504): half-float files hold widths up to it
+_SIGMA_F16 = 65504.0
+# float32's rsqrt rounds by a few ulps (1e-7 relative): a width written at SIGMA_MAX reads
+# back within this fraction above it
+_SIGMA_ROUNDING = 1e-5
+
+# bytes per expanded Gaussian: 7 float32 (RGB weight, mean, sharpness)
+_GAUSSIAN_BYTES = 28
+
 
 def _check_sizes(archive: zipfile.ZipFile, file_bytes: int, name: str) -> None:
     """Refuse an archive whose members would decompress to more than ``EXPANSION`` times the
-    file's size plus ``EXPANSION_SLACK``: the memory a read takes is bounded by that. The
-    sizes are those the zip directory declares, which decompression never exceeds."""
+    file's size plus ``EXPANSION_SLACK``, or to more than :data:`MAX_READ_BYTES`, or whose
+    metadata is larger than its vertices could need: the memory a read takes is bounded by
+    that. The sizes are those the zip directory declares, which decompression never exceeds."""
     total = sum(info.file_size for info in archive.infolist())
-    limit = EXPANSION_SLACK + EXPANSION * file_bytes
+    limit = min(EXPANSION_SLACK + EXPANSION * file_bytes, MAX_READ_BYTES)
     _need(
         total <= limit,
         name,
         f"its members would decompress to {total:,} bytes, over {limit:,} for a file of "
         f"{file_bytes:,} bytes: not a model file",
     )
+    meta, vertices = archive.getinfo("meta.npy"), archive.getinfo("vertices.npy")
+    _check_meta_size(meta.file_size, vertices.file_size, name)
+
+
+def _check_meta_size(meta_bytes: int, vertex_bytes: int, name: str) -> None:
+    limit = _META_SLACK + _META_PER_VERTEX_BYTE * vertex_bytes
+    _need(
+        meta_bytes <= limit,
+        name,
+        f"its metadata takes {meta_bytes:,} bytes, over {limit:,} for its vertices",
+    )
 
 
 def read(path) -> dict[str, Any]:
     """Read and check a model file: the :class:`lobelight.model.Model` fields it holds.
 
-    The checks run in stages, each on what the one before has vouched for: the container
-    (:func:`_open`), the metadata (:func:`_header`), the arrays (:func:`_check_arrays`), the
-    Gaussians and the light they carry (:func:`_gaussians`, :func:`_check_transfer`), and the
-    mesh, materials and bounce transfer built from them (:func:`_build`).
+    The container is checked first (:func:`_open`: a zip of arrays whose declared sizes fit
+    :data:`MAX_READ_BYTES`), then everything :func:`check` checks, before the Gaussians are
+    expanded to every (vertex, view) record and the model built.
 
     Returns
     -------
@@ -223,53 +295,118 @@ def read(path) -> dict[str, Any]:
     ------
     InputError
         naming the file: missing, not a model file, unknown version, missing or malformed
-        arrays, non-finite values, inconsistent shapes.
+        arrays, non-finite values, inconsistent shapes, sizes over the limits.
     """
     p = Path(path)
     name = str(p)
-    a, extra = _open(p, name)
-    bounce_arr = extra.get("bounce")
-    h = _header(a["meta"], name)
-    _check_arrays(a, h, name)
-    g = _gaussians(a, h, name)
-    _check_transfer(a["diffuse"], bounce_arr, name)
-    out = _build(p, a, bounce_arr, h, g, name)
-    out["visibility"] = _visibility(extra.get("visibility"), h.v, name)
-    out["hits"] = _hits(extra.get("hit_face"), extra.get("hit_distance"), h.v,
-                        out["mesh"].n_faces, name)  # fmt: skip
-    vis, hits = out["visibility"], out["hits"]
-    _need(vis is None or hits is None or tuple(hits[0].shape) == tuple(vis.shape), name,
-          "hit tiles and visibility tiles differ in resolution")  # fmt: skip
+    a = _open(p, name)
+    h, mats = check(a, name)
+    g = _expand(a["gaussians"], a["keep"], h)
+    out = _build(p, a, h, mats, g)
+    vis, face, dist = (a.get(k) for k in ("visibility", "hit_face", "hit_distance"))
+    out["visibility"] = None if vis is None else torch.from_numpy(vis.copy())
+    out["hits"] = None if face is None else (torch.from_numpy(face.copy()),
+                                             torch.from_numpy(dist.copy()))  # fmt: skip
     return out
 
 
-def _hits(face: np.ndarray | None, dist: np.ndarray | None, v: int, n_faces: int, name: str):
-    """The optional hit tiles, checked: both or neither; ``(V, R, R)`` int32 triangle ids in
-    ``[-1, F)`` and float16 distances, finite and non-negative."""
+def check(a: dict[str, np.ndarray], name: str) -> tuple[_Header, Materials]:
+    """Every check of a model's arrays (those of a file, or those about to be written): the
+    dtypes (:func:`_check_dtypes`), the metadata (:func:`_header`), the memory the model takes
+    (:func:`_check_memory`), the arrays against the metadata (:func:`_check_arrays`), the light
+    they carry (:func:`_check_transfer`), the optional tiles, the provenance
+    (:func:`_check_provenance`) and the materials. Nothing is allocated beyond the arrays'
+    size. Returns the checked metadata and the materials.
+
+    Raises
+    ------
+    InputError
+        naming ``name`` and the part of the model at fault.
+    """
+    missing = [k for k in _ARRAYS if k not in a]
+    _need(not missing, name, f"not a lobelight model file (missing {missing})")
+    for k, arr in a.items():
+        # a member without the .npy header comes back as raw bytes
+        _need(isinstance(arr, np.ndarray), name, f"{k} is not an array")
+    _check_dtypes(a, name)
+    _need(a["meta"].ndim == 1 and a["vertices"].ndim >= 1, name, "meta must be UTF-8 bytes")
+    _check_meta_size(a["meta"].nbytes, a["vertices"].nbytes, name)
+    h = _header(a["meta"], name)
+    _check_memory(a, h, name)
+    _check_arrays(a, h, name)
+    _check_transfer(a["diffuse"], a.get("bounce"), name)
+    n_faces = int(a["faces"].shape[0])
+    _check_tiles(a.get("visibility"), a.get("hit_face"), a.get("hit_distance"), h.v, n_faces, name)
+    _check_provenance(h.provenance, name)
+    return h, _materials(h, name)
+
+
+#: The dtypes each array may have: floating arrays any of float16, float32 and float64 (read
+#: as float32, so their values must be finite in float32), faces any integer type.
+_FLOATS = (np.dtype(np.float16), np.dtype(np.float32), np.dtype(np.float64))
+_DTYPES = {
+    "meta": ((np.dtype(np.uint8),), "UTF-8 bytes (uint8)"),
+    "vertices": (_FLOATS, "floating point"),
+    "normals": (_FLOATS, "floating point"),
+    "views": (_FLOATS, "floating point"),
+    "gaussians": (_FLOATS, "floating point"),
+    "diffuse": (_FLOATS, "floating point"),
+    "bounce": (_FLOATS, "floating point"),
+    "keep": ((np.dtype(np.bool_),), "boolean"),
+    "visibility": ((np.dtype(np.uint8),), "uint8"),
+    "hit_face": ((np.dtype(np.int32),), "int32"),
+    "hit_distance": ((np.dtype(np.float16),), "float16"),
+}
+
+
+def _check_dtypes(a: dict[str, np.ndarray], name: str) -> None:
+    """Each array of a dtype it may have (strings, objects, structures and the like are not)."""
+    for k, arr in a.items():
+        if k == "faces":
+            ok, what = arr.dtype.kind in "iu", "integers"
+        elif k in _DTYPES:
+            allowed, what = _DTYPES[k]
+            ok = arr.dtype in allowed
+        else:
+            continue
+        _need(ok, name, f"{k} must be {what}, got dtype {str(arr.dtype)!r}")
+
+
+def _check_memory(a: dict[str, np.ndarray], h: _Header, name: str) -> None:
+    """The arrays and the Gaussians expanded to every (vertex, view) record within
+    :data:`MAX_READ_BYTES`, before the expansion is allocated."""
+    arrays = sum(arr.nbytes for arr in a.values())
+    expanded = _GAUSSIAN_BYTES * h.v * h.j * h.n
+    total = arrays + expanded
+    _need(
+        total <= MAX_READ_BYTES,
+        name,
+        f"{h.v:,} vertices with {h.n} Gaussian(s) per view take {total / 2**30:.1f} GiB "
+        f"in memory, over the reader's limit of {MAX_READ_BYTES / 2**30:g} GiB",
+    )
+
+
+def _check_tiles(vis, face, dist, v: int, n_faces: int, name: str) -> None:
+    """The optional tiles: visibility ``(V, R, R)`` uint8 with ``R >= 2``; hit tiles both or
+    neither, ``(V, R, R)`` int32 triangle ids in ``[-1, F)`` and float16 distances, finite and
+    non-negative, of the visibility tiles' resolution where both are held."""
+    if vis is not None:
+        ok = vis.ndim == 3 and vis.shape[0] == v and vis.shape[1] == vis.shape[2] >= 2
+        _need(ok, name, f"visibility must be ({v}, R, R) uint8 tiles, got {vis.shape}")
     if face is None and dist is None:
-        return None
+        return
     _need(face is not None and dist is not None, name,
           "hit_face and hit_distance come together; the file holds only one")  # fmt: skip
-    ok = face.dtype == np.int32 and face.ndim == 3 and face.shape[0] == v
-    _need(ok and face.shape[1] == face.shape[2] >= 2, name,
-          f"hit_face must be ({v}, R, R) int32 tiles, got {face.dtype} {face.shape}")  # fmt: skip
-    _need(dist.dtype == np.float16 and dist.shape == face.shape, name,
-          f"hit_distance must be {face.shape} float16, got {dist.dtype} {dist.shape}")  # fmt: skip
+    ok = face.ndim == 3 and face.shape[0] == v and face.shape[1] == face.shape[2] >= 2
+    _need(ok, name, f"hit_face must be ({v}, R, R) int32 tiles, got {face.shape}")
+    _need(dist.shape == face.shape, name,
+          f"hit_distance must be {face.shape} float16, got {dist.shape}")  # fmt: skip
     _need(face.size == 0 or (int(face.min()) >= -1 and int(face.max()) < n_faces), name,
           f"hit_face holds triangle ids outside -1..{n_faces - 1}")  # fmt: skip
     _need(bool(np.isfinite(dist).all()) and not bool((dist < 0).any()), name,
           "hit_distance holds negative or non-finite distances")  # fmt: skip
-    return torch.from_numpy(face.copy()), torch.from_numpy(dist.copy())
-
-
-def _visibility(arr: np.ndarray | None, v: int, name: str) -> torch.Tensor | None:
-    """The optional visibility tiles, checked: ``(V, R, R)`` uint8 with ``R >= 2``."""
-    if arr is None:
-        return None
-    ok = arr.dtype == np.uint8 and arr.ndim == 3 and arr.shape[0] == v
-    _need(ok and arr.shape[1] == arr.shape[2] >= 2, name,
-          f"visibility must be ({v}, R, R) uint8 tiles, got {arr.dtype} {arr.shape}")  # fmt: skip
-    return torch.from_numpy(arr.copy())
+    _need(vis is None or face.shape == vis.shape, name,
+          "hit tiles and visibility tiles differ in resolution")  # fmt: skip
 
 
 @dataclass(frozen=True)
@@ -300,9 +437,9 @@ _UNREADABLE = (
 )
 
 
-def _open(p: Path, name: str) -> tuple[dict[str, np.ndarray], dict[str, np.ndarray]]:
+def _open(p: Path, name: str) -> dict[str, np.ndarray]:
     """The container: a regular zip archive of ``.npy`` arrays holding every array of
-    ``_ARRAYS``, of a plausible expanded size. Returns the arrays, and those of ``_OPTIONAL``
+    ``_ARRAYS``, of a plausible expanded size. Returns the arrays, with those of ``_OPTIONAL``
     it holds."""
     check_input(p, limit=MAX_FILE_BYTES)  # a regular file (not a device or pipe)
     _need(_is_zip(p), name, _not_a_model(p))
@@ -314,22 +451,16 @@ def _open(p: Path, name: str) -> tuple[dict[str, np.ndarray], dict[str, np.ndarr
             missing = [k for k in _ARRAYS if k not in z.files]
             _need(not missing, name, f"not a lobelight model file (missing {missing})")
             _check_sizes(z.zip, p.stat().st_size, name)  # before anything is decompressed
-            a = {k: z[k] for k in _ARRAYS}
-            extra = {k: z[k] for k in _OPTIONAL if k in z.files}
+            return {k: z[k] for k in (*_ARRAYS, *_OPTIONAL) if k in z.files}
     except InputError:
         raise
     except _UNREADABLE as exc:
         raise InputError(name, f"cannot read model file: {type(exc).__name__}: {exc}") from None
-    for k, arr in (*a.items(), *extra.items()):
-        # a member without the .npy header comes back as raw bytes
-        _need(isinstance(arr, np.ndarray), name, f"{k} is not an array")
-    return a, extra
 
 
 def _header(raw: np.ndarray, name: str) -> _Header:
     """The metadata: UTF-8 JSON of this format and version, with counts in range (checked
     before anything is allocated from them)."""
-    _need(raw.dtype == np.uint8 and raw.ndim == 1, name, "meta must be UTF-8 bytes")
     try:
         meta = json.loads(bytes(raw).decode())
     except (ValueError, UnicodeDecodeError) as exc:
@@ -342,24 +473,21 @@ def _header(raw: np.ndarray, name: str) -> _Header:
     _need(
         meta.get("weights", "peak") in ("peak", "integral"),
         name,
-        f"unknown weights encoding {meta.get('weights')!r}",
+        f"unknown weights encoding {meta.get('weights')!r:.40}",
     )
     _need(
         meta.get("version") == VERSION,
         name,
-        f"model format version {meta.get('version')!r}; this lobelight reads version {VERSION}",
+        f"model format version {meta.get('version')!r:.40}; this lobelight reads version {VERSION}",
     )
-    try:
-        v, j, n = int(meta["n_vertices"]), int(meta["n_views"]), int(meta["n_gaussians"])
-    except (KeyError, TypeError, ValueError, OverflowError):
-        raise InputError(name, "metadata lacks the vertex, view or Gaussian counts") from None
+    v, j, n = (_count(meta.get(k), k, name) for k in ("n_vertices", "n_views", "n_gaussians"))
     # bounds before anything is allocated from these counts
     _need(1 <= n <= 8, name, f"n_gaussians must be 1..8, got {n}")
     ni = meta.get("indirect_gaussians", 0)
     _need(
-        isinstance(ni, int) and not isinstance(ni, bool) and 0 <= ni < n,
+        _is_int(ni) and 0 <= ni < n,
         name,
-        f"indirect_gaussians must be a whole number in 0..{n - 1}, got {ni!r}",
+        f"indirect_gaussians must be a whole number in 0..{n - 1}, got {ni!r:.40}",
     )
     # every renderer and Model.transport blend between the 92 geodesic views
     _need(
@@ -369,16 +497,32 @@ def _header(raw: np.ndarray, name: str) -> _Header:
     return _Header(meta, prov, v, j, n, ni)
 
 
+def _is_int(x: Any) -> bool:
+    return isinstance(x, int) and not isinstance(x, bool)
+
+
+def _count(x: Any, key: str, name: str) -> int:
+    _need(x is not None, name, "metadata lacks the vertex, view or Gaussian counts")
+    _need(_is_int(x), name, f"{key} must be a whole number, got {x!r:.40}")
+    return x
+
+
 def _check_arrays(a: dict[str, np.ndarray], h: _Header, name: str) -> None:
-    """Each array against the header: shapes, dtypes, finite values, then the geometry, the
-    views, the SH order and the stored Gaussians' means and widths."""
+    """Each array against the header: shapes, finite values in float32, then the geometry, the
+    views, the SH order and the stored Gaussians' means, widths and weights."""
     _check_shapes(a, h, name)
-    for k in ("vertices", "normals", "views", "gaussians", "diffuse"):
-        _need(np.issubdtype(a[k].dtype, np.floating), name, f"{k} must be floating point")
-        _need(bool(np.isfinite(a[k]).all()), name, f"{k} has NaN or Inf values")
+    for k in ("vertices", "normals", "views", "gaussians", "diffuse", "bounce"):
+        if k in a:
+            _need(_finite32(a[k]), name, f"{k} has NaN or Inf values, or values beyond float32")
     _check_geometry(a, h.v, name)
     _check_sh_order(a["diffuse"], h.meta, name)
-    _check_records(a["gaussians"], name)
+    _check_records(a["gaussians"], h.meta.get("weights", "peak") == "integral", name)
+
+
+def _finite32(arr: np.ndarray) -> bool:
+    """Whether every value of ``arr`` is finite once read as float32."""
+    with np.errstate(over="ignore", invalid="ignore"):  # float64 beyond float32 becomes Inf
+        return bool(np.isfinite(arr.astype(np.float32, copy=False)).all())
 
 
 def _check_shapes(a: dict[str, np.ndarray], h: _Header, name: str) -> None:
@@ -391,7 +535,6 @@ def _check_shapes(a: dict[str, np.ndarray], h: _Header, name: str) -> None:
     }
     for k, shape in shapes.items():
         _need(a[k].shape == shape, name, f"{k} has shape {a[k].shape}, expected {shape}")
-    _need(a["keep"].dtype == np.bool_, name, "keep must be boolean")
     kept = int(a["keep"].sum())
     _need(
         a["gaussians"].shape == (kept, n, 7),
@@ -404,20 +547,26 @@ def _check_shapes(a: dict[str, np.ndarray], h: _Header, name: str) -> None:
         name,
         f"diffuse has shape {a['diffuse'].shape}",
     )
+    b = a.get("bounce")
+    if b is not None:
+        _need(b.shape == a["diffuse"].shape, name,
+              f"bounce has shape {b.shape}, diffuse {a['diffuse'].shape}")  # fmt: skip
 
 
 def _check_geometry(a: dict[str, np.ndarray], v: int, name: str) -> None:
     """Faces, vertices, normals and views: indices in range, an extent, no zero vectors, and
     the views the geodesic set."""
     f = a["faces"]
-    _need(np.issubdtype(f.dtype, np.integer), name, "faces must be integers")
     _need(f.shape[0] > 0, name, "has no faces")
     _need(f.min() >= 0 and f.max() < v, name, "face index out of range")
-    _need(float(np.ptp(a["vertices"], axis=0).max()) > 0, name, "all vertices coincide (no extent)")
+    vert = a["vertices"].astype(np.float32)
+    _need(float(np.ptp(vert, axis=0).max()) > 0, name, "all vertices coincide (no extent)")
     for k in ("normals", "views"):
-        _need(bool((np.linalg.norm(a[k], axis=-1) > 1e-6).all()), name, f"{k} has zero vectors")
+        norm = np.linalg.norm(a[k].astype(np.float64), axis=-1)
+        _need(bool((norm > 1e-6).all()), name, f"{k} has zero vectors")
     geodesic = sphere.geodesic_views(dtype=torch.float64).numpy()
-    unit = a["views"] / np.linalg.norm(a["views"], axis=-1, keepdims=True)
+    views = a["views"].astype(np.float64)
+    unit = views / np.linalg.norm(views, axis=-1, keepdims=True)
     # within float32 rounding of the geodesic set, in its order
     _need(
         float((unit * geodesic).sum(-1).min()) > 1 - 1e-6,
@@ -429,52 +578,46 @@ def _check_geometry(a: dict[str, np.ndarray], v: int, name: str) -> None:
 def _check_sh_order(diffuse: np.ndarray, meta: dict[str, Any], name: str) -> None:
     order = meta.get("sh_order", 5)
     _need(
-        isinstance(order, int) and not isinstance(order, bool) and 1 <= order <= 10,
+        _is_int(order) and 1 <= order <= 10,
         name,
-        f"sh_order must be a whole number in 1..10, got {order!r}",
+        f"sh_order must be a whole number in 1..10, got {order!r:.40}",
     )
     _need(
         diffuse.shape[1] == order**2,
         name,
-        f"diffuse has {diffuse.shape[1]} SH coefficients, sh_order {meta.get('sh_order')!r}",
+        f"diffuse has {diffuse.shape[1]} SH coefficients, sh_order {order}",
     )
 
 
-def _check_records(g7: np.ndarray, name: str) -> None:
-    """The stored Gaussians (K, N, 7): means not zero, widths a float32 sharpness can hold."""
-    if g7.size:
-        _need(
-            bool((np.linalg.norm(g7[..., 3:6].astype(np.float64), axis=-1) > 1e-6).all()),
-            name,
-            "a Gaussian mean is a zero vector",
-        )
-        sig = g7[..., 6].astype(np.float64)
-        # sigma >= 1e-6: lam = sigma^-2 must be a finite float32
-        _need(bool((sig >= 1e-6).all()), name, "sigma must be at least 1e-6")
-
-
-def _gaussians(a: dict[str, np.ndarray], h: _Header, name: str) -> Gaussians:
-    """The Gaussians (V, J, N) of every record, dropped ones with zero weight; checks their
-    weights and the light each carries."""
-    rec = torch.zeros(h.v, h.j, h.n, 7)
-    rec[..., 3:6] = torch.tensor([0.0, 1.0, 0.0])  # dropped records: zero weight
-    rec[..., 6] = 1.0
-    rec[torch.from_numpy(a["keep"])] = torch.from_numpy(a["gaussians"].astype(np.float32))
-    sigma = rec[..., 6]
-    _need(bool((sigma > 0).all()), name, "sigma must be positive")
-    _need(bool((rec[..., :3] >= 0).all()), name, "Gaussian weights must be non-negative")
-    mu = torch.nn.functional.normalize(rec[..., 3:6], dim=-1)
-    lam = sigma.pow(-2)
-    w = rec[..., :3].contiguous()
-    if h.meta.get("weights", "peak") == "integral":
-        w = w / sg.integral(lam.double()).to(w.dtype)[..., None]
-    carried = float((w.double() * sg.integral(lam.double())[..., None]).max()) if w.numel() else 0
+def _check_records(g7: np.ndarray, integral: bool, name: str) -> None:
+    """The stored Gaussians (K, N, 7): means not zero, widths in ``SIGMA_MIN..SIGMA_MAX``,
+    weights non-negative, none carrying more than :data:`MAX_LIGHT` (the weight times the
+    Gaussian's integral; ``integral``: the weights stored are that product)."""
+    if not g7.size:
+        return
+    _need(
+        bool((np.linalg.norm(g7[..., 3:6].astype(np.float64), axis=-1) > 1e-6).all()),
+        name,
+        "a Gaussian mean is a zero vector",
+    )
+    sig = g7[..., 6].astype(np.float64)  # (K, N)
+    lo, hi = float(sig.min()), float(sig.max())
+    _need(
+        SIGMA_MIN <= lo and hi <= SIGMA_MAX * (1 + _SIGMA_ROUNDING),
+        name,
+        f"Gaussian widths (sigma) must be in {SIGMA_MIN:g}..{SIGMA_MAX:g} radians, "
+        f"got {lo:.3g}..{hi:.3g}",
+    )
+    w = g7[..., :3].astype(np.float64)  # (K, N, 3)
+    _need(bool((w >= 0).all()), name, "Gaussian weights must be non-negative")
+    if not integral:
+        w = w * sg.integral(torch.from_numpy(sig**-2)).numpy()[..., None]
+    carried = float(w.max())
     _need(
         carried <= MAX_LIGHT,
         name,
         f"a Gaussian carries {carried:.3g} of light, over {MAX_LIGHT:g}: not a fitted model",
     )
-    return Gaussians(w, mu, lam)
 
 
 def _check_transfer(diffuse: np.ndarray, bounce: np.ndarray | None, name: str) -> None:
@@ -484,30 +627,94 @@ def _check_transfer(diffuse: np.ndarray, bounce: np.ndarray | None, name: str) -
             raise InputError(name, f"{k} transfer over {MAX_LIGHT:g}: not a fitted model")
 
 
-def _build(p: Path, a, bounce_arr, h: _Header, g: Gaussians, name: str) -> dict[str, Any]:
-    """The fields of the model: the mesh, the materials (checked against the vertex count) and
-    the bounce transfer (checked against ``diffuse``), with the rest as read."""
+#: Provenance entries the commands read, and the JSON types each must have (other entries are
+#: kept as they are).
+_PROVENANCE = {
+    "scene": (str,),
+    "environment": (str,),
+    "camera": (dict,),
+    "n_gaussians_choice": (dict, str),
+    "materials": (list,),
+    "seconds": (dict,),
+    "memory": (dict,),
+    "weights": (dict,),
+    "lobelight": (str,),
+}
+#: Provenance entries that are counts (whole numbers, at least 0).
+_PROVENANCE_COUNTS = (
+    "bounces",
+    "indirect_paths",
+    "n_gaussians",
+    "flips_before",
+    "flips_after",
+    "separated_flips_before",
+    "separated_flips_after",
+)
+
+
+def _check_provenance(prov: dict[str, Any], name: str) -> None:
+    """The provenance entries the commands read, of the types the writer gives them: strings,
+    mappings and lists, counts, stage times and the fit's error (finite numbers, at least 0)."""
+    for k, types in _PROVENANCE.items():
+        x = prov.get(k)
+        _need(x is None or isinstance(x, types), name,
+              f"provenance {k} must be {' or '.join(_JSON_NAMES[t] for t in types)}, "
+              f"got {type(x).__name__}")  # fmt: skip
+    for k in _PROVENANCE_COUNTS:
+        x = prov.get(k)
+        _need(x is None or (_is_int(x) and x >= 0), name,
+              f"provenance {k} must be a whole number >= 0, got {x!r:.40}")  # fmt: skip
+    numbers = {f"seconds.{k}": x for k, x in (prov.get("seconds") or {}).items()}
+    numbers["relative_l2_error_mean"] = prov.get("relative_l2_error_mean")
+    for k, x in numbers.items():
+        ok = x is None or (isinstance(x, int | float) and not isinstance(x, bool))
+        _need(ok and (x is None or (math.isfinite(x) and x >= 0)), name,
+              f"provenance {k} must be a finite number >= 0, got {x!r:.40}")  # fmt: skip
+
+
+_JSON_NAMES = {str: "a string", dict: "a mapping", list: "a list"}
+
+
+def _materials(h: _Header, name: str) -> Materials:
+    """The materials of the metadata, for the model's vertices."""
+    try:
+        return Materials.from_dict(h.meta.get("materials"), h.v)
+    except (KeyError, TypeError) as exc:
+        raise InputError(name, f"bad materials entry: {exc}") from None
+    except InputError as exc:
+        raise InputError(name, f"bad materials entry: {exc}") from None
+
+
+def _expand(g7: np.ndarray, keep: np.ndarray, h: _Header) -> Gaussians:
+    """The Gaussians (V, J, N) of every record, dropped ones with zero weight (checked records
+    ``g7 (K, N, 7)`` of the ``keep (V, J)`` mask). Allocates the expanded arrays and nothing of
+    their size besides (:func:`_check_memory` has bounded them)."""
+    mask = torch.from_numpy(keep)
+    rec = torch.from_numpy(np.asarray(g7, dtype=np.float32))  # (K, N, 7)
+    lam_k = rec[..., 6].pow(-2)  # (K, N)
+    w_k = rec[..., :3]
+    if h.meta.get("weights", "peak") == "integral":
+        w_k = w_k / sg.integral(lam_k.double()).float()[..., None]
+    w = torch.zeros(h.v, h.j, h.n, 3)
+    w[mask] = w_k
+    mu = torch.zeros(h.v, h.j, h.n, 3)
+    mu[..., 1] = 1.0  # dropped records: zero weight, any unit mean
+    mu[mask] = torch.nn.functional.normalize(rec[..., 3:6], dim=-1)
+    lam = torch.ones(h.v, h.j, h.n)
+    lam[mask] = lam_k
+    return Gaussians(w, mu, lam)
+
+
+def _build(p: Path, a, h: _Header, mats: Materials, g: Gaussians) -> dict[str, Any]:
+    """The fields of the model from the checked arrays: the mesh (named by the provenance's
+    scene), the transfer, and the rest as read."""
     mesh = Mesh(
         vertices=torch.from_numpy(a["vertices"].astype(np.float32)),
         faces=torch.from_numpy(a["faces"].astype(np.int64)),
         normals=torch.from_numpy(a["normals"].astype(np.float32)),
         name=str(h.provenance.get("scene", p.stem)),
     )
-    try:
-        mats = Materials.from_dict(h.meta["materials"], h.v)
-    except (KeyError, TypeError) as exc:
-        raise InputError(name, f"bad materials entry: {exc}") from None
-    except InputError as exc:
-        raise InputError(name, f"bad materials entry: {exc}") from None
-    bounce = None
-    if bounce_arr is not None:
-        _need(
-            bounce_arr.shape == a["diffuse"].shape,
-            name,
-            f"bounce has shape {bounce_arr.shape}, diffuse {a['diffuse'].shape}",
-        )
-        _need(bool(np.isfinite(bounce_arr).all()), name, "bounce has non-finite values")
-        bounce = torch.from_numpy(bounce_arr.astype(np.float32))
+    b = a.get("bounce")
     return {
         "mesh": mesh,
         "views": torch.from_numpy(a["views"].astype(np.float32)),
@@ -515,6 +722,6 @@ def _build(p: Path, a, bounce_arr, h: _Header, g: Gaussians, name: str) -> dict[
         "diffuse": torch.from_numpy(a["diffuse"].astype(np.float32)),
         "materials": mats,
         "provenance": dict(h.provenance),
-        "bounce": bounce,
+        "bounce": None if b is None else torch.from_numpy(b.astype(np.float32)),
         "indirect_gaussians": h.ni,
     }
