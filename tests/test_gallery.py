@@ -54,8 +54,10 @@ from lobelight.studies.gallery import (
     select,
     spp_levels,
     summarise,
+    to_scene,
     write_reference,
 )
+from lobelight.studies.gallery._scenes import GLTF_ENV, GLTF_MATERIAL
 from lobelight.studies.score import noise_psnr_display, psnr_display
 
 
@@ -151,28 +153,29 @@ def test_summary_takes_the_median_and_the_worst_scene():
 
 
 def test_scene_list_covers_the_meshes_maps_and_materials():
-    assert len(SCENES) >= 30
+    plain = [s for s in SCENES if not s.is_gltf]  # the glTF scenes: test_gltf_scenes_...
+    assert len(plain) >= 30
     assert len({s.name for s in SCENES}) == len(SCENES)
     meshes = {"bunny_hr.obj", "spot.obj", "teapot.obj", "suzanne.obj", "scorpion.obj"}
-    assert {s.mesh for s in SCENES} == meshes
+    assert {s.mesh for s in plain} == meshes
     assert set(MAPS) == {"park", "studio", "overcast", "grace", "dawn", "interior"}
-    assert {s.envmap for s in SCENES} == set(MAPS.values())
-    assert {s.material for s in SCENES} == set(MATERIALS.values())
+    assert {s.envmap for s in plain} == set(MAPS.values())
+    assert {s.material for s in plain} == set(MATERIALS.values())
     assert "alpha=0.03" in MATERIALS["sharp_metal"] and "alpha=0.25" in MATERIALS["rough_metal"]
     # every bake under three maps or more, every material under three maps or more
-    per_bake = Counter(s.bake for s in SCENES)
+    per_bake = Counter(s.bake for s in plain)
     assert min(per_bake.values()) >= 3
     maps_per_material = {
-        m: {s.envmap for s in SCENES if s.material == m} for m in MATERIALS.values()
+        m: {s.envmap for s in plain if s.material == m} for m in MATERIALS.values()
     }
     assert min(len(v) for v in maps_per_material.values()) >= 3
     # the first four meshes' bakes see every (material, map) pair once: each map four times
-    first = [s for s in SCENES if s.mesh != "scorpion.obj"]
+    first = [s for s in plain if s.mesh != "scorpion.obj"]
     pairs = Counter((s.material, s.envmap) for s in first)
     assert set(pairs) == {(m, e) for m in MATERIALS.values() for e in MAPS.values()}
     assert set(pairs.values()) == {1}
     # the new maps are each used several times
-    per_map = Counter(s.envmap for s in SCENES)
+    per_map = Counter(s.envmap for s in plain)
     assert per_map[MAPS["dawn"]] >= 4 and per_map[MAPS["interior"]] >= 4
     # the scorpion: a rough metal and another material, decimated by the gallery itself
     scorpion = [s for s in SCENES if s.mesh == "scorpion.obj"]
@@ -185,6 +188,141 @@ def test_scene_list_covers_the_meshes_maps_and_materials():
     assert select() == list(SCENES)
     assert all(s.max_vertices for s in SCENES if s.mesh == "bunny_hr.obj")
     assert all(s.subdivisions >= 1 for s in SCENES if s.mesh == "suzanne.obj")
+
+
+def test_gltf_scenes_are_four_assets_each_under_a_sharp_sun_and_a_soft_map():
+    gltf = [s for s in SCENES if s.is_gltf]
+    assets = Counter(s.mesh for s in gltf)
+    assert len(assets) >= 4 and set(assets.values()) == {2}
+    assert {s.material for s in gltf} == {GLTF_MATERIAL}
+    for mesh in assets:
+        name = Path(mesh).stem
+        assert mesh == f"{name}/{name}.glb"
+        maps = {s.envmap for s in gltf if s.mesh == mesh}
+        assert MAPS["park"] in maps  # a small unclipped sun: sharp shadows and highlights
+        assert maps & {MAPS["interior"], MAPS["overcast"]}
+        bakes = {s.bake for s in gltf if s.mesh == mesh}
+        assert len(bakes) == 1 and all(s.name.startswith(f"{s.bake}-") for s in gltf)
+    # neither subdivided nor decimated (their UVs would not follow), each with a camera
+    assert all(s.subdivisions == 0 and s.max_vertices is None for s in gltf)
+    assert all(s.camera is not None for s in gltf)
+    assert [s.name for s in select(["helmet"])] == ["helmet-park", "helmet-interior"]
+
+
+# --------------------------------------------------------------------------------------------
+# glTF scenes
+
+
+#: The repository's glTF assets, found from this file (an installed package has none).
+REPO_GLTF = Path(__file__).resolve().parents[1] / "assets" / "gltf"
+
+
+def _gltf_rows() -> dict[str, list[str]]:
+    """``{file: cells}`` of the table in assets/gltf/LICENSES.md."""
+    rows = {}
+    for line in (REPO_GLTF / "LICENSES.md").read_text().splitlines():
+        cells = [c.strip() for c in line.strip().strip("|").split("|")]
+        if line.startswith("| `") and len(cells) == 6:
+            rows[cells[0].strip("`")] = cells
+    return rows
+
+
+def test_every_gltf_asset_has_its_source_and_licence():
+    """Each glTF asset a scene names has a row (source repository @ commit, author, licence,
+    size, md5); the files themselves are checked where they are present (they are fetched
+    data, kept beside the repository's files, not in git: LICENSES.md)."""
+    rows = _gltf_rows()
+    assert {s.mesh for s in SCENES if s.is_gltf} <= set(rows)
+    for name, (_, source, author, licence, size, md5) in rows.items():
+        assert "@" in source and author and licence, name
+        path = REPO_GLTF / name
+        if path.is_file():
+            data = path.read_bytes()
+            assert int(size.replace(",", "")) == len(data), name
+            assert hashlib.md5(data).hexdigest() == md5, name
+
+
+def test_the_package_finds_the_gltf_assets_of_the_source_tree_it_runs_from():
+    here = Path(_scenes.__file__).resolve().parents[4] / "assets" / "gltf"
+    assert _scenes.GLTF_ASSETS == (here if here.is_dir() else None)
+
+
+def _tiny_glb(path: Path, scale: float = 3.0) -> None:
+    """A textured two-material glTF (tests/test_gltf.py's quads), scaled up by ``scale``."""
+    from test_gltf import Gltf, two_material_quads
+
+    g = Gltf()
+    two_material_quads(g)
+    g.doc["nodes"][0]["scale"] = [scale] * 3
+    path.parent.mkdir(parents=True, exist_ok=True)
+    g.write(path)
+
+
+TINY = GalleryScene(
+    "tiny-sky", "tiny", "Tiny/Tiny.glb", "sky.hdr", GLTF_MATERIAL, camera=_scenes.default_camera()
+)
+
+
+def test_a_gltf_scene_is_the_asset_with_its_materials_centred_and_scaled(
+    data_dir, tmp_path, monkeypatch
+):
+    monkeypatch.setenv(GLTF_ENV, str(tmp_path / "assets"))
+    _tiny_glb(tmp_path / "assets" / "Tiny" / "Tiny.glb")
+    assert find_mesh(TINY, data_dir) == tmp_path / "assets" / "Tiny" / "Tiny.glb"
+    mesh = prepare_mesh(TINY, data_dir)
+    lo, hi = mesh.bounds
+    assert float((hi - lo).norm()) == pytest.approx(2.0, rel=1e-5)
+    assert float((lo + hi).abs().max()) < 1e-5
+    sc = to_scene(TINY, data_dir)
+    assert sc.mesh is sc.gltf.mesh and torch.equal(sc.mesh.vertices, mesh.vertices)
+    assert [m.name for m in sc.gltf.materials[:2]] == ["painted", "plain"]
+    assert sc.gltf.materials[0].base_color_texture is not None
+    assert sc.environment == str(data_dir / "envmaps" / "sky.hdr") and sc.name == "tiny-sky"
+    # the file's own normals (+z), not recomputed; the hash follows the file's bytes
+    assert torch.allclose(sc.mesh.normals, torch.tensor([0.0, 0.0, 1.0]).expand_as(sc.mesh.normals))
+    before = scene_hash(TINY, data_dir)
+    _tiny_glb(tmp_path / "assets" / "Tiny" / "Tiny.glb", scale=2.0)
+    assert scene_hash(TINY, data_dir) != before
+    # not decimated, not subdivided
+    with pytest.raises(InputError, match="neither subdivided nor decimated"):
+        prepare_mesh(dataclasses.replace(TINY, max_vertices=10), data_dir)
+
+
+def test_a_gltf_asset_is_looked_for_in_the_folders_in_order(data_dir, tmp_path, monkeypatch):
+    monkeypatch.delenv(GLTF_ENV, raising=False)
+    monkeypatch.setattr(_scenes, "GLTF_ASSETS", tmp_path / "repo")
+    _tiny_glb(tmp_path / "repo" / "Tiny" / "Tiny.glb")
+    assert find_mesh(TINY, data_dir) == tmp_path / "repo" / "Tiny" / "Tiny.glb"
+    _tiny_glb(data_dir / "gltf" / "Tiny" / "Tiny.glb")
+    assert find_mesh(TINY, data_dir) == data_dir / "gltf" / "Tiny" / "Tiny.glb"
+    monkeypatch.setenv(GLTF_ENV, str(tmp_path / "mine"))
+    with pytest.raises(InputError, match=r"\$LOBELIGHT_GLTF: no such folder"):
+        find_mesh(TINY, data_dir)
+    _tiny_glb(tmp_path / "mine" / "Tiny" / "Tiny.glb")
+    assert find_mesh(TINY, data_dir) == tmp_path / "mine" / "Tiny" / "Tiny.glb"
+    # nowhere: one error naming the asset, every place looked and the variable
+    gone = dataclasses.replace(TINY, mesh="Gone/Gone.glb")
+    with pytest.raises(InputError, match=r"tiny-sky: mesh: 'Gone/Gone\.glb'") as err:
+        find_mesh(gone, data_dir)
+    for place in (tmp_path / "mine", data_dir / "gltf", tmp_path / "repo"):
+        assert str(place) in str(err.value)
+
+
+@pytest.mark.skipif(
+    not any(REPO_GLTF.glob("*/*.glb")), reason="the glTF assets are not beside the repository"
+)
+def test_the_repository_gltf_assets_load_as_bare_meshes():
+    """Every gallery glTF asset present loads with lobelight.scene.load: its materials and
+    textures read, what is not supported only warned about."""
+    from lobelight.scene import load
+
+    for mesh in sorted({s.mesh for s in SCENES if s.is_gltf}):
+        path = REPO_GLTF / mesh
+        if not path.is_file():
+            continue
+        sc = load(path)
+        assert sc.gltf is not None and sc.mesh.n_vertices > 300
+        assert any(m.base_color_texture is not None for m in sc.gltf.materials)
 
 
 def test_select_names_scenes_and_bakes_and_refuses_unknown_names():

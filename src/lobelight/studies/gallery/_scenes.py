@@ -1,4 +1,11 @@
-"""The gallery's scenes: their declarations, the data folder and the prepared meshes."""
+"""The gallery's scenes: their declarations, the data folder and the prepared meshes.
+
+Most scenes are a mesh with one material (:data:`MATERIALS`). A glTF scene (a ``.glb`` mesh,
+material :data:`GLTF_MATERIAL`) is a textured asset with its own materials
+(:func:`lobelight.scene.load`), looked for in ``$LOBELIGHT_GLTF``, else the data folder's
+``gltf/``, else the repository's ``assets/gltf/`` (:data:`GLTF_ASSETS`, with the assets' sources
+and licences in its ``LICENSES.md``), as ``NAME/NAME.glb``.
+"""
 
 from __future__ import annotations
 
@@ -16,11 +23,23 @@ import trimesh
 from ...data import DATA_ENV
 from ...errors import InputError
 from ...geometry.camera import Camera
-from ...scene import Mesh, Scene, load_mesh, mesh_from_arrays, parse_material
+from ...scene import (
+    GLTF_SUFFIXES,
+    Mesh,
+    Scene,
+    load,
+    load_gltf,
+    load_mesh,
+    mesh_from_arrays,
+    parse_material,
+)
 
 __all__ = [
     "GALLERY_DATA",
     "GAUSSIANS",
+    "GLTF_ASSETS",
+    "GLTF_ENV",
+    "GLTF_MATERIAL",
     "MAPS",
     "MATERIALS",
     "PREPARATION",
@@ -46,6 +65,18 @@ _REPO_DATA_NAME = "gallery-data"
 GALLERY_DATA: Path | None = Path(__file__).resolve().parents[4] / _REPO_DATA_NAME
 if not GALLERY_DATA.is_dir():
     GALLERY_DATA = None
+
+#: The environment variable naming a folder of glTF assets, looked in first for a glTF scene's
+#: file (``NAME/NAME.glb`` under it).
+GLTF_ENV = "LOBELIGHT_GLTF"
+#: The repository's glTF assets (``NAME/NAME.glb``, their sources and licences in its
+#: ``LICENSES.md``): the folder ``assets/gltf`` at the root of the source tree this package
+#: runs from, None when it is not there (an installed package).
+GLTF_ASSETS: Path | None = Path(__file__).resolve().parents[4] / "assets" / "gltf"
+if not GLTF_ASSETS.is_dir():
+    GLTF_ASSETS = None
+#: The material of a glTF scene: the asset's own (its glTF materials and textures).
+GLTF_MATERIAL = "gltf"
 
 #: Version of the mesh preparation (:func:`prepare_mesh`); part of every scene's hash, so a
 #: change to it marks the references rendered before it as stale.
@@ -73,15 +104,18 @@ MAPS = {
 
 @dataclass(frozen=True)
 class GalleryScene:
-    """One scene of the gallery: a mesh with one material, under one map, seen by one camera.
+    """One scene of the gallery: a mesh with one material (or a glTF asset with its own), under
+    one map, seen by one camera.
 
     Attributes
     ----------
     name : unique, used for file names (``[a-z0-9-]``)
     bake : the name of its (mesh, material) bake; scenes of one bake share the model
-    mesh : file name in the data folder's ``meshes/`` (or the folder itself)
+    mesh : file name in the data folder's ``meshes/`` (or the folder itself); a glTF asset's
+        ``NAME/NAME.glb`` in a glTF folder (module docstring)
     envmap : file name in the data folder's ``envmaps/`` (or the folder itself)
-    material : a material spec (:func:`lobelight.scene.parse_material`)
+    material : a material spec (:func:`lobelight.scene.parse_material`), or
+        :data:`GLTF_MATERIAL` for a glTF asset's own materials
     camera : the viewpoint (None: :func:`default_camera`)
     subdivisions : Loop subdivisions of the mesh before anything else
     max_vertices : decimate the mesh to about this many vertices (``fast-simplification``)
@@ -114,6 +148,11 @@ class GalleryScene:
 
     def view(self) -> Camera:
         return self.camera if self.camera is not None else default_camera()
+
+    @property
+    def is_gltf(self) -> bool:
+        """Whether the mesh is a glTF asset with its own materials."""
+        return Path(self.mesh).suffix.lower() in GLTF_SUFFIXES
 
 
 def default_camera(azimuth: float = 0.0) -> Camera:
@@ -171,9 +210,42 @@ _SCORPION = {
     "thin legs, claws and tail over deep gaps, decimated from 49,997 to about 12,000 vertices",
 }
 
-#: The gallery: 10 (mesh, material) bakes, each under 3 maps. The first 8 bakes see every
-#: (material, map) pair once, so each map four times; the scorpion's two add a rough metal and
-#: a plastic on a mesh with thin parts and deep concavities.
+
+def _gltf(bake, asset, maps, **kw) -> tuple[GalleryScene, ...]:
+    """The glTF asset ``assets/gltf/ASSET/ASSET.glb`` with its own materials under each of
+    ``maps``."""
+    return tuple(
+        GalleryScene(f"{bake}-{m}", bake, f"{asset}/{asset}.glb", MAPS[m], GLTF_MATERIAL, **kw)
+        for m in maps
+    )
+
+
+_HELMET = {
+    "camera": default_camera(25.0),
+    "description": "DamagedHelmet (glTF sample asset): one textured metallic-roughness "
+    "material, 14,353 vertices, base colour and metallic-roughness textures of 2048^2",
+}
+_TRUCK = {
+    "camera": default_camera(45.0),
+    "description": "CesiumMilkTruck (glTF sample asset): four materials (textured body and "
+    "wheels sharing one 2048^2 texture, dark glass, window trim), 3,564 vertices",
+}
+_BOTTLE = {
+    "camera": default_camera(20.0),
+    "description": "WaterBottle (glTF sample asset): a metal cap and a painted bottle in one "
+    "material with base colour and metallic-roughness textures of 2048^2, 2,508 vertices",
+}
+_AVOCADO = {
+    "camera": default_camera(20.0),
+    "description": "Avocado (glTF sample asset): a halved avocado, one material with base "
+    "colour and metallic-roughness textures of 2048^2 on 406 vertices",
+}
+
+#: The gallery: 10 (mesh, material) bakes, each under 3 maps, and 4 textured glTF assets,
+#: each under 2. The first 8 bakes see every (material, map) pair once, so each map four
+#: times; the scorpion's two add a rough metal and a plastic on a mesh with thin parts and
+#: deep concavities. The glTF assets (module docstring) are each under the park's sharp sun
+#: and an interior or overcast map.
 SCENES: tuple[GalleryScene, ...] = (
     *_bake(
         "bunny-sharp-metal", "bunny_hr.obj", "sharp_metal", ("park", "grace", "interior"), **_BUNNY
@@ -207,6 +279,10 @@ SCENES: tuple[GalleryScene, ...] = (
         ("interior", "studio", "overcast"),
         **_SCORPION,
     ),
+    *_gltf("helmet", "DamagedHelmet", ("park", "interior"), **_HELMET),
+    *_gltf("truck", "CesiumMilkTruck", ("park", "overcast"), **_TRUCK),
+    *_gltf("bottle", "WaterBottle", ("park", "interior"), **_BOTTLE),
+    *_gltf("avocado", "Avocado", ("park", "overcast"), **_AVOCADO),
 )
 
 
@@ -273,8 +349,39 @@ def find_map(scene: GalleryScene, data: Path | None) -> Path:
 
 
 def find_mesh(scene: GalleryScene, data: Path | None) -> Path:
-    """The scene's mesh file (:func:`_find`)."""
+    """The scene's mesh file (:func:`_find`; a glTF asset: :func:`_find_gltf`)."""
+    if scene.is_gltf:
+        return _find_gltf(data, scene.mesh, f"{scene.name}: mesh")
     return _find(data, "meshes", scene.mesh, f"{scene.name}: mesh")
+
+
+def _gltf_folders(data: Path | None) -> list[tuple[str, Path]]:
+    """Where glTF assets are looked for, in order, each with how it was named."""
+    out = []
+    given = os.environ.get(GLTF_ENV) or None
+    if given is not None:
+        folder = Path(given).expanduser()
+        if not folder.is_dir():
+            raise InputError(f"${GLTF_ENV}", f"no such folder: {str(folder)!r}")
+        out.append((f"${GLTF_ENV}", folder))
+    if data is not None:
+        out.append(("the data folder's gltf/", data / "gltf"))
+    if GLTF_ASSETS is not None:
+        out.append(("the repository's assets/gltf/", GLTF_ASSETS))
+    return out
+
+
+def _find_gltf(data: Path | None, name: str, what: str) -> Path:
+    """The glTF asset ``name`` (``NAME/NAME.glb``): under ``$LOBELIGHT_GLTF``, else the data
+    folder's ``gltf/``, else the repository's :data:`GLTF_ASSETS`."""
+    places = _gltf_folders(data)
+    for _, folder in places:
+        if (folder / name).is_file():
+            return folder / name
+    looked = "; ".join(f"{label} ({str(folder)!r})" for label, folder in places)
+    if GLTF_ASSETS is None:
+        looked += "; the repository's assets/gltf/ (not found next to the package)"
+    raise InputError(what, f"{name!r} is in none of: {looked} (set ${GLTF_ENV} to its folder)")
 
 
 def sha256_file(path) -> str:
@@ -303,8 +410,16 @@ def scene_hash(scene: GalleryScene, data: Path | None) -> str:
 def prepare_mesh(scene: GalleryScene, data: Path | None) -> Mesh:
     """The scene's mesh as the gallery uses it: loaded (welded, cleaned), Loop-subdivided
     ``subdivisions`` times, decimated to about ``max_vertices``, then centred on its bounding
-    box and scaled to a bounding-box diagonal of 2."""
+    box and scaled to a bounding-box diagonal of 2. A glTF asset is loaded as
+    :func:`lobelight.scene.load_gltf` welds it (its own normals and UV seams kept) and only
+    centred and scaled: it is neither subdivided nor decimated (its UVs would not follow)."""
     path = find_mesh(scene, data)
+    if scene.is_gltf:
+        if scene.subdivisions or scene.max_vertices is not None:
+            raise InputError(
+                scene.name, "a glTF asset is neither subdivided nor decimated by the gallery"
+            )
+        return _normalised(load_gltf(path).mesh)
     m = load_mesh(path)
     v = m.vertices.double().numpy()  # (V, 3)
     f = m.faces.numpy()  # (F, 3)
@@ -328,6 +443,15 @@ def prepare_mesh(scene: GalleryScene, data: Path | None) -> Mesh:
     return mesh_from_arrays(v.astype(np.float32), f, name=Path(scene.mesh).stem)
 
 
+def _normalised(mesh: Mesh) -> Mesh:
+    """``mesh`` centred on its bounding box and scaled to a bounding-box diagonal of 2, its
+    normals, faces and vertex order unchanged."""
+    v = mesh.vertices.double()
+    lo, hi = v.amin(0), v.amax(0)
+    v = (v - (lo + hi) / 2) * (2.0 / float((hi - lo).norm()))
+    return Mesh(v.to(mesh.vertices.dtype), mesh.faces, mesh.normals, mesh.name)
+
+
 def geometry_sha256(mesh: Mesh) -> str:
     """sha256 of a mesh's vertices, faces and normals (what the renders see); a negative zero
     counts as zero (the same geometry, whichever sign a loader's arithmetic left it)."""
@@ -341,5 +465,29 @@ def to_scene(scene: GalleryScene, data: Path | None, mesh: Mesh | None = None) -
     """The :class:`lobelight.scene.Scene` of a gallery scene (``mesh``: its prepared mesh, when
     already at hand)."""
     mesh = prepare_mesh(scene, data) if mesh is None else mesh
+    env = str(find_map(scene, data))
+    if scene.is_gltf:
+        return _gltf_scene(scene, data, mesh, env)
     mats = parse_material(scene.material, mesh.n_vertices, what=f"{scene.name}: material")
-    return Scene(mesh, mats, str(find_map(scene, data)), scene.view(), scene.name)
+    return Scene(mesh, mats, env, scene.view(), scene.name)
+
+
+def _gltf_scene(scene: GalleryScene, data: Path | None, mesh: Mesh, env: str) -> Scene:
+    """A glTF scene: the asset as :func:`lobelight.scene.load` reads a bare ``.glb`` (its own
+    materials and textures), on the prepared ``mesh`` (the same vertices, centred and
+    scaled)."""
+    if scene.material != GLTF_MATERIAL:
+        raise InputError(
+            f"{scene.name}: material", f"a glTF scene takes {GLTF_MATERIAL!r} (its own materials)"
+        )
+    sc = load(find_mesh(scene, data))
+    if sc.gltf is None or sc.mesh.n_vertices != mesh.n_vertices:
+        raise InputError(f"{scene.name}: mesh", "the prepared mesh is not the asset's")
+    return dataclasses.replace(
+        sc,
+        mesh=mesh,
+        gltf=dataclasses.replace(sc.gltf, mesh=mesh),
+        environment=env,
+        camera=scene.view(),
+        name=scene.name,
+    )
