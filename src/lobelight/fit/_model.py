@@ -10,7 +10,7 @@ from collections.abc import Callable
 import torch
 
 from .. import __version__
-from ..model import Model
+from ..model import Model, per_unit_albedo
 from ..progress import resolve
 from ..scene import Scene
 from ..transport import BOUNCES, INDIRECT_PATHS
@@ -129,13 +129,19 @@ def fit_model(
     }
     mesh = scene.mesh.to(mf.gaussians.w.device)
     mats = scene.materials.to(mesh.vertices.device)
+    diffuse, bounce, albedo = mf.diffuse, mf.bounce, scene.albedo
+    if albedo is not None:  # the texture is read per pixel: its average comes out
+        albedo = albedo.to(mesh.vertices.device)
+        diffuse = per_unit_albedo(diffuse, mats.diffuse)
+        bounce = None if bounce is None else per_unit_albedo(bounce, mats.diffuse)
     return Model(
         mesh,
         mf.views,
         mf.gaussians,
-        mf.diffuse,
+        diffuse,
         mats,
         prov,
-        bounce=mf.bounce,
+        bounce=bounce,
         indirect_gaussians=mf.indirect_gaussians,
+        albedo=albedo,
     )

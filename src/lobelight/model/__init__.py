@@ -17,10 +17,11 @@ The model knows nothing of how it was fitted (:mod:`lobelight.fit` builds it).
 
 from ._blend import LIVE_FLOOR, MIN_SAY, blend_lobes, horizon_scale
 from ._format import FORMAT, MAX_LIGHT, VERSION
-from ._model import Model, load, save
+from ._model import ALBEDO_MIN, Model, load, per_unit_albedo, save
 from ._visibility import VISIBILITY_RES, hit_tiles, visibility_tiles
 
 __all__ = [
+    "ALBEDO_MIN",
     "FORMAT",
     "LIVE_FLOOR",
     "MAX_LIGHT",
@@ -32,6 +33,7 @@ __all__ = [
     "hit_tiles",
     "horizon_scale",
     "load",
+    "per_unit_albedo",
     "save",
     "visibility_tiles",
 ]

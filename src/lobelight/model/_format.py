@@ -23,6 +23,8 @@ holding
 ``hit_face``        optional (V, R, R) int32, with ``hit_distance`` (V, R, R) float16: the
                     triangle and distance each tile texel's ray hits, -1 and 0 for none
                     (:func:`lobelight.model.hit_tiles`; computed from the mesh when absent)
+``albedo_*``        optional: the albedo textures read per pixel (``lobelight.model._albedo_file``);
+                    with them ``diffuse`` and ``bounce`` are per unit albedo
 
 Beyond the paper's 92 x 7 x V x N floats: ``float16`` halves it, and records are dropped
 where they cannot matter. A view's Gaussians enter rendering only through the spherical
@@ -56,7 +58,8 @@ from ..errors import InputError
 from ..geometry import sphere
 from ..lobes import sg
 from ..lobes.sg import Gaussians
-from ..scene import Materials, Mesh
+from ..scene import AlbedoTexture, Materials, Mesh
+from ._albedo_file import ALBEDO_ARRAYS, ALBEDO_DTYPES, albedo_arrays, check_albedo, read_albedo
 
 __all__ = [
     "FORMAT",
@@ -73,7 +76,7 @@ __all__ = [
 FORMAT = "lobelight-model"
 VERSION = 1
 _ARRAYS = ("meta", "vertices", "faces", "normals", "views", "keep", "gaussians", "diffuse")
-_OPTIONAL = ("bounce", "visibility", "hit_face", "hit_distance")
+_OPTIONAL = ("bounce", "visibility", "hit_face", "hit_distance", *ALBEDO_ARRAYS)
 
 
 #: The most light a Gaussian, or a transfer coefficient, of a fitted model carries: they are
@@ -108,6 +111,7 @@ def write(
     indirect_gaussians: int = 0,
     visibility: torch.Tensor | None = None,
     hits: tuple[torch.Tensor, torch.Tensor] | None = None,
+    albedo: AlbedoTexture | None = None,
 ) -> dict[str, Any]:
     """Write a model file atomically (module docstring); returns sizes (bytes, records kept).
 
@@ -177,6 +181,7 @@ def write(
     if hits is not None:
         arrays["hit_face"] = hits[0].cpu().numpy().astype(np.int32)
         arrays["hit_distance"] = hits[1].cpu().numpy().astype(np.float16)
+    arrays.update(albedo_arrays(albedo))
     try:
         check(arrays, str(p))
     except InputError as exc:
@@ -288,8 +293,8 @@ def read(path) -> dict[str, Any]:
     -------
     dict with ``mesh``, ``views (J, 3)``, ``gaussians`` (:class:`Gaussians`, ``(V, J, N)``),
     ``diffuse (V, n, 3)``, ``materials``, ``provenance``, ``bounce`` (or None),
-    ``indirect_gaussians``, ``visibility`` (or None) and ``hits`` (``(face, distance)`` or
-    None), all on the CPU
+    ``indirect_gaussians``, ``visibility`` (or None), ``hits`` (``(face, distance)`` or
+    None) and ``albedo`` (:class:`lobelight.scene.AlbedoTexture` or None), all on the CPU
 
     Raises
     ------
@@ -307,6 +312,7 @@ def read(path) -> dict[str, Any]:
     out["visibility"] = None if vis is None else torch.from_numpy(vis.copy())
     out["hits"] = None if face is None else (torch.from_numpy(face.copy()),
                                              torch.from_numpy(dist.copy()))  # fmt: skip
+    out["albedo"] = read_albedo(a)
     return out
 
 
@@ -337,6 +343,7 @@ def check(a: dict[str, np.ndarray], name: str) -> tuple[_Header, Materials]:
     _check_transfer(a["diffuse"], a.get("bounce"), name)
     n_faces = int(a["faces"].shape[0])
     _check_tiles(a.get("visibility"), a.get("hit_face"), a.get("hit_distance"), h.v, n_faces, name)
+    check_albedo(a, h.v, name)
     _check_provenance(h.provenance, name)
     return h, _materials(h, name)
 
@@ -356,6 +363,7 @@ _DTYPES = {
     "visibility": ((np.dtype(np.uint8),), "uint8"),
     "hit_face": ((np.dtype(np.int32),), "int32"),
     "hit_distance": ((np.dtype(np.float16),), "float16"),
+    **ALBEDO_DTYPES,
 }
 
 

@@ -14,12 +14,35 @@ from ..errors import InputError
 from ..geometry import sphere
 from ..lobes import sg
 from ..lobes.sg import Gaussians
-from ..scene import Materials, Mesh
+from ..scene import AlbedoTexture, Materials, Mesh
 from ._blend import blend_lobes, horizon_scale
 from ._format import read, write
 from ._visibility import hit_tiles, visibility_tiles
 
-__all__ = ["Model", "load", "save"]
+__all__ = ["ALBEDO_MIN", "Model", "load", "per_unit_albedo", "save"]
+
+#: A vertex albedo below this (per channel) holds no transfer to divide out: its transfer per
+#: unit albedo is taken as zero (the light it reflects is zero either way).
+ALBEDO_MIN = 1e-6
+
+
+def per_unit_albedo(transfer: torch.Tensor, albedo: torch.Tensor) -> torch.Tensor:
+    """Diffuse transfer per unit albedo of the receiving vertex: ``transfer / albedo`` per
+    channel (0 where the albedo is below :data:`ALBEDO_MIN`).
+
+    The diffuse transfer a bake computes is the receiver's albedo over pi times what reaches it
+    (directly, and bounced off the rest of the object), so the division is exact.
+
+    Parameters
+    ----------
+    transfer : (V, n, 3);  albedo : (V, 3) the albedo it was computed with
+
+    Returns
+    -------
+    (V, n, 3)
+    """
+    a = albedo.to(transfer)[:, None, :]
+    return torch.where(a >= ALBEDO_MIN, transfer / a.clamp_min(ALBEDO_MIN), 0.0)
 
 
 @dataclass(eq=False)
@@ -40,6 +63,12 @@ class Model:
         A renderer that shades the sun's glossy light per pixel, with the other lobes seeing
         the map without it, lets the sun light these (render/_sun_glossy.py):
         a mirror shows the sun's reflection in another mirror
+    albedo : optional diffuse albedo per pixel (:class:`lobelight.scene.AlbedoTexture`, a glTF
+        asset's base colour textures). With it ``diffuse`` and ``bounce`` hold the transfer
+        per unit albedo of the receiving vertex (:func:`per_unit_albedo`), and a renderer
+        multiplies the interpolated diffuse light by the albedo read at the pixel: exact for
+        direct light, while the light bounced off the object keeps each sender's per-vertex
+        albedo (``materials.diffuse``, the texture averaged over its one-ring)
     """
 
     mesh: Mesh
@@ -50,6 +79,7 @@ class Model:
     provenance: dict[str, Any] = field(default_factory=dict)
     bounce: torch.Tensor | None = None
     indirect_gaussians: int = 0
+    albedo: AlbedoTexture | None = None
     _visibility: torch.Tensor | None = field(default=None, init=False, repr=False)
     _hits: tuple[torch.Tensor, torch.Tensor] | None = field(default=None, init=False, repr=False)
 
@@ -58,6 +88,10 @@ class Model:
         if not 0 <= self.indirect_gaussians < n:
             raise InputError(
                 "indirect_gaussians", f"must be in 0..{n - 1}, got {self.indirect_gaussians}"
+            )
+        if self.albedo is not None and self.albedo.n_vertices != self.mesh.n_vertices:
+            raise InputError(
+                "albedo", f"{self.albedo.n_vertices} entries for {self.mesh.n_vertices} vertices"
             )
 
     @property
@@ -172,6 +206,8 @@ class Model:
         self.materials = self.materials.to(device)
         if self.bounce is not None:
             self.bounce = self.bounce.to(device)
+        if self.albedo is not None:
+            self.albedo = self.albedo.to(device)
         if self._visibility is not None:
             self._visibility = self._visibility.to(device)
         if self._hits is not None:
@@ -200,6 +236,7 @@ class Model:
             indirect_gaussians=self.indirect_gaussians,
             visibility=self._visibility,
             hits=self._hits,
+            albedo=self.albedo,
         )
 
 

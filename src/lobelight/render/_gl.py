@@ -36,6 +36,7 @@ from ..geometry import sphere
 from ..geometry.camera import Camera
 from ..lobes import sg
 from ..model import VISIBILITY_RES
+from ._gl_albedo import albedo_array, albedo_uniforms
 from ._lighting import Lighting
 from ._reflection import INDIRECT_SCALE_MAX, OCCLUDED_FLOOR
 from ._sun_glossy import (
@@ -86,6 +87,8 @@ _SHARP_UNITS = (
 )
 #: The first texture unit of the vertex table's indirect Gaussians (the array table_lobe_tex).
 _TABLE_LOBE_UNIT = _VIS_UNIT + 9
+#: Texture unit of the albedo textures (albedo.glsl), after the vertex table's at most six.
+_ALBEDO_UNIT = _TABLE_LOBE_UNIT + 6
 #: Colour target texel types: float32 (what ``read`` returns exactly) and half float (display).
 HDR_DTYPES = ("f4", "f2")
 #: Uniform-block bindings of the PRT programs: the geodesic planes, frame.glsl's two blocks.
@@ -599,6 +602,8 @@ class GLRenderer:
             "HAS_SUN": int(self.has_sun),
             "SUN_GLOSSY": int(self.sun_glossy),
             "SHARP": int(self.sharp is not None),
+            "ALBEDO_TEX": int(model.albedo is not None),
+            "ALBEDO_LAYERS": 1 if model.albedo is None else len(model.albedo.images),
             "VERTEX_TABLE": 0,
             "TABLE_WIDTH": _VIS_TEX_WIDTH,
             "TABLE_ROWS": max(1, -(-model.mesh.n_vertices // _VIS_TEX_WIDTH)),
@@ -611,13 +616,14 @@ class GLRenderer:
             "BLOCKER_SAMPLES": BLOCKER_SAMPLES,
             **geo_defines,
         }
+        include = ("frame", "prefiltered")
+        include += ("reflection",) if self.sharp else ()
+        include += ("albedo",) if model.albedo is not None else ()
         self.prog = _program(
             ctx,
             "prt",
             {**prt_defines, "DEPTH_ONLY": 0},
-            include=("frame", "prefiltered", "reflection")
-            if self.sharp
-            else ("frame", "prefiltered"),
+            include=include,
             vertex_include=("frame", "geodesic"),
         )
         # the depth pre-pass: the object's depth alone, from the same projection code
@@ -647,7 +653,23 @@ class GLRenderer:
         self.bounce_tex = self._data_texture(bounce)
         if self.sharp is not None:
             self._upload_sharp(model)
+        self.albedo_tex = None
+        if model.albedo is not None:
+            self._upload_albedo(model.albedo)
         return width
+
+    def _upload_albedo(self, albedo) -> None:
+        """The albedo textures as one mipmapped half-float texture array
+        (:func:`albedo_array`), and the uniforms that say how each layer is read."""
+        import moderngl  # optional (the gl extra)
+
+        layers = albedo_array(albedo)  # (L, H, W, 3)
+        n, h, w = layers.shape[:3]
+        self.albedo_tex = self.ctx.texture_array((w, h, n), 3, layers.tobytes(), dtype="f2")
+        self.albedo_tex.repeat_x = self.albedo_tex.repeat_y = True
+        self.albedo_tex.build_mipmaps()
+        self.albedo_tex.filter = (moderngl.LINEAR_MIPMAP_LINEAR, moderngl.LINEAR)
+        set_uniforms(self.prog, albedo_uniforms(albedo))
 
     def _upload_sharp(self, model) -> None:
         """The per-pixel reflection's inputs (reflection.glsl): the vertices' visibility tiles,
@@ -761,6 +783,7 @@ class GLRenderer:
             ("vis_tex", _VIS_UNIT),
             ("face_tex", _VIS_UNIT + 1),
             ("pos_tex", _VIS_UNIT + 2),
+            ("albedo_tex", _ALBEDO_UNIT),
             *_SHARP_UNITS,
         )
         for prog in (p, *table):
@@ -803,6 +826,15 @@ class GLRenderer:
             albedo = model.materials.diffuse.detach().cpu().numpy().astype(np.float32)
             self.abo = ctx.buffer(albedo.tobytes())
             content.append((self.abo, "3f", "in_albedo"))
+        self.uvbo = None  # the albedo textures' per-vertex inputs, when the model has them
+        if model.albedo is not None:
+            a = model.albedo
+            layer = a.layer.detach().cpu().numpy().astype(np.float32)[:, None]
+            attrs = np.concatenate(
+                [a.uvs.detach().cpu().numpy(), layer, a.factor.detach().cpu().numpy()], axis=1
+            ).astype(np.float32)
+            self.uvbo = ctx.buffer(np.ascontiguousarray(attrs).tobytes())
+            content.append((self.uvbo, "2f 1f 3f", "in_uv", "in_layer", "in_factor"))
         if self.sun_glossy:
             spec = self._specular
             sb = sun_glossy_vertex_params(sun_widened(spec, lighting.sun.spread), mesh.n_vertices)
@@ -1134,6 +1166,8 @@ class GLRenderer:
             if self.has_bounce:
                 self.bounce_tex.use(8)
             self.atlas.use(3)
+            if self.albedo_tex is not None:
+                self.albedo_tex.use(_ALBEDO_UNIT)
             if self.sharp is not None:
                 self.vis_tex.use(_VIS_UNIT)
                 self.face_tex.use(_VIS_UNIT + 1)
@@ -1204,7 +1238,7 @@ class GLRenderer:
 
     def release(self) -> None:
         self.make_current()
-        for o in (self._pass_fbo, self._pass_color, self.abo, self.sbo):
+        for o in (self._pass_fbo, self._pass_color, self.abo, self.sbo, self.uvbo, self.albedo_tex):
             if o is not None:
                 o.release()
         for o in (

@@ -49,6 +49,7 @@ from .._tol import DIVISOR_F32
 from ..brdf import SharpLobe
 from ..geometry import octahedral
 from ..model import blend_lobes
+from ._albedo import hit_diffuse_light
 from ._sun_glossy import sun_glossy, sun_through
 from ._sun_shadow import disc_radius, disc_visibility
 
@@ -141,9 +142,8 @@ def _hit_light(model, lighting, vd, sharp, tri, q, r, rot, *, sun_gl, caster):
     nv = nv.clamp_min(0)
     vis = visible_fraction(model.visibility(), c, b, rh)
     albedo = sharp.directional_albedo(nv)
-    out = shade(sharp, lighting, rh, nv, vis, rot, rest=sun_gl) + (
-        vd.diffuse[c] * b[..., None]
-    ).sum(1)
+    out = shade(sharp, lighting, rh, nv, vis, rot, rest=sun_gl)
+    out += hit_diffuse_light(model, vd.diffuse, c, b)
     e, mu, sigma = blend_lobes(vd.e[c], vd.mu[c], vd.sigma[c], b, frame=(vd.mirror[c], rh))
     k = slice(model.n_gaussians - model.indirect_gaussians, None)
     e = e[:, k] * indirect_scale(e[:, : model.direct_gaussians].sum(1), albedo, vis)[:, None, None]

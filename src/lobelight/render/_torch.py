@@ -32,6 +32,7 @@ from ..geometry.camera import Camera
 from ..geometry.raycast import RayCaster
 from ..lobes import sg
 from ..model import blend_lobes
+from ._albedo import diffuse_albedo, diffuse_light
 from ._lighting import Lighting
 from ._reflection import indirect_light, indirect_scale, object_light, shade, visible_fraction
 from ._sun_glossy import sun_glossy, sun_glossy_supported, sun_through
@@ -52,8 +53,9 @@ class VertexData:
     Attributes
     ----------
     e : (V, N, 3) the light each lobe carries (weight times integral);  mu : (V, N, 3) unit;
-    sigma : (V, N);  diffuse : (V, 3);  mirror : (V, 3) each vertex's view direction reflected
-    about its normal;  eye : (3,) the camera's position
+    sigma : (V, N);  diffuse : (V, 3) the diffuse transfer times the lighting (per unit
+    albedo where the model reads its albedo per pixel);  mirror : (V, 3) each vertex's view
+    direction reflected about its normal;  eye : (3,) the camera's position
     """
 
     e: torch.Tensor
@@ -123,7 +125,7 @@ def pixel_stage(
         c = faces[t]  # (p, 3) corner vertex ids
         acc = torch.zeros(t.shape[0], 3, device=dev)
         if diffuse:
-            acc += (vd.diffuse[c] * b[..., None]).sum(1)
+            acc += diffuse_light(model, vd.diffuse, c, b)
         if glossy:
             acc += _glossy(
                 model, lighting, vd, c, b, rot, sun_gl=sun_gl, sharp=sharp, caster=caster
@@ -208,7 +210,7 @@ def sun_stage(
     verts = mesh.vertices.to(dev)
     pos = (verts[f] * b).sum(1)
     n = torch.nn.functional.normalize((mesh.normals.to(dev)[f] * b).sum(1), dim=-1)
-    albedo = (model.materials.diffuse.to(dev)[f] * b).sum(1)
+    albedo = diffuse_albedo(model, f, b[..., 0])
     l = lighting.sun_direction(rot).to(dev, torch.float32)
     cos = (n @ l).clamp_min(0)  # (P,)
     lit = cos > 0

@@ -12,7 +12,9 @@
   records (metallic-roughness factors, :class:`Texture` s with their :class:`Sampler`);
   :func:`vertex_factors` its base colour, metallic and roughness per vertex,
   :func:`sample_texture` a texture at UVs, :func:`read_gltf` the file unwelded;
-  :func:`gltf_materials` turns those per-vertex factors into :class:`Materials`.
+  :func:`gltf_materials` turns those per-vertex factors into :class:`Materials`;
+  :class:`AlbedoTexture` (:func:`albedo_texture`) its base colour textures read per pixel
+  (:attr:`Scene.albedo`).
 - :class:`Materials` Lambert albedo plus one specular model of :mod:`lobelight.brdf` with
   per-vertex parameters; :func:`uniform` and :func:`gradient` build them from plain specs,
   :func:`parse_material` from a one-line spec (``"ggx:alpha=0.1,diffuse=0.5"``).
@@ -20,6 +22,7 @@
 The scene-file format is described in docs/scene-format.md.
 """
 
+from ._albedo import WRAP_MODES, AlbedoTexture, albedo_texture, srgb_decode, srgb_encode
 from ._gltf import (
     GLTF_SUFFIXES,
     GltfGeometry,
@@ -81,6 +84,8 @@ __all__ = [
     "SCENE_FILE_MATERIAL",
     "SCENE_KEYS",
     "SPECULAR_MODELS",
+    "WRAP_MODES",
+    "AlbedoTexture",
     "GltfAsset",
     "GltfGeometry",
     "GltfMaterial",
@@ -90,6 +95,7 @@ __all__ = [
     "Scene",
     "Texture",
     "VertexFactors",
+    "albedo_texture",
     "builtin",
     "default_camera",
     "gltf_materials",
@@ -102,6 +108,8 @@ __all__ = [
     "parse_material",
     "read_gltf",
     "sample_texture",
+    "srgb_decode",
+    "srgb_encode",
     "triangle_areas",
     "uniform",
     "vertex_factors",

@@ -61,6 +61,7 @@ from ..data import envmap_names, resolve_envmap
 from ..errors import InputError
 from ..geometry.camera import Camera
 from . import _shapes
+from ._albedo import AlbedoTexture, albedo_texture
 from ._gltf import GLTF_SUFFIXES, GltfMaterial
 from ._materials import Materials, _colour, gltf_materials, gradient, parse_material, uniform
 from ._mesh import (
@@ -146,7 +147,9 @@ class Scene:
     gltf : the glTF asset whose materials the vertices have (its UVs, per-vertex material
         indices and textures, with the scene file's ``[materials.NAME]`` overrides applied);
         ``None`` for other meshes and where ``[material]`` or ``[gradient]`` replaces them.
-        Renderers read its base colour textures per pixel and references its textures whole
+        References read its textures whole
+    albedo : the diffuse albedo per pixel where ``gltf``'s base colour textures give it
+        (:class:`lobelight.scene.AlbedoTexture`), else ``None``
     """
 
     mesh: Mesh
@@ -158,12 +161,17 @@ class Scene:
     name: str = "scene"
     material_records: tuple[dict[str, Any], ...] = ()
     gltf: GltfAsset | None = None
+    albedo: AlbedoTexture | None = None
 
     def __post_init__(self) -> None:
         if self.materials.n_vertices != self.mesh.n_vertices:
             raise InputError(
                 "materials",
                 f"{self.materials.n_vertices} entries for {self.mesh.n_vertices} vertices",
+            )
+        if self.albedo is not None and self.albedo.n_vertices != self.mesh.n_vertices:
+            raise InputError(
+                "albedo", f"{self.albedo.n_vertices} entries for {self.mesh.n_vertices} vertices"
             )
 
     def load_environment(self, *, device=None):
@@ -180,6 +188,7 @@ class Scene:
             self.name,
             self.material_records,
             None if self.gltf is None else self.gltf.to(device),
+            None if self.albedo is None else self.albedo.to(device),
         )
 
 
@@ -401,9 +410,9 @@ def _bare_mesh_scene(p: Path) -> Scene:
     built-in environment and :func:`default_camera`."""
     if p.suffix.lower() in GLTF_SUFFIXES:
         asset = load_gltf(p)
-        mats, records, asset = _gltf_scene_materials(asset, {}, "")
+        mats, records, asset, albedo = _gltf_scene_materials(asset, {}, "")
         cam = default_camera(asset.mesh)
-        return Scene(asset.mesh, mats, "builtin", cam, p.stem, records, asset)
+        return Scene(asset.mesh, mats, "builtin", cam, p.stem, records, asset, albedo)
     mesh = load_mesh(p)
     mats = uniform(BARE_MESH_MATERIAL, mesh.n_vertices)
     return Scene(mesh, mats, "builtin", default_camera(mesh), p.stem)
@@ -433,9 +442,10 @@ def _described_scene(p: Path, s: str) -> Scene:
     except InputError as exc:  # name the scene file as well as the mesh file
         raise InputError(f"{s}: mesh {exc.what}", exc.problem) from None
     records: tuple[dict[str, Any], ...] = ()
+    albedo = None
     try:
         if asset is not None and "material" not in d and "gradient" not in d:
-            mats, records, asset = _gltf_scene_materials(asset, d.get("materials", {}), s)
+            mats, records, asset, albedo = _gltf_scene_materials(asset, d.get("materials", {}), s)
         else:
             mats = _materials(d, mesh)
             if asset is not None:  # the file's materials, all replaced by the scene file's
@@ -447,7 +457,7 @@ def _described_scene(p: Path, s: str) -> Scene:
         raise InputError(what, exc.problem) from None
     env = _environment(p, s, d)
     cam = _camera(d["camera"], f"{s}: camera") if "camera" in d else default_camera(mesh)
-    return Scene(mesh, mats, env, cam, d.get("name", p.stem), records, asset)
+    return Scene(mesh, mats, env, cam, d.get("name", p.stem), records, asset, albedo)
 
 
 # --------------------------------------------------------------------------------------------
@@ -493,10 +503,10 @@ def _gltf_names(asset: GltfAsset) -> list[str]:
 
 def _gltf_scene_materials(
     asset: GltfAsset, overrides: Any, s: str
-) -> tuple[Materials, tuple[dict[str, Any], ...], GltfAsset]:
+) -> tuple[Materials, tuple[dict[str, Any], ...], GltfAsset, AlbedoTexture | None]:
     """The per-vertex ``ggx_schlick`` materials of ``asset``, its materials overridden by the
-    scene file ``s``'s ``[materials]`` table ``overrides`` (by name), their records, and the
-    asset with the overrides applied."""
+    scene file ``s``'s ``[materials]`` table ``overrides`` (by name), their records, the
+    asset with the overrides applied, and its albedo per pixel."""
     if not isinstance(overrides, Mapping):
         raise InputError(f"{s}: materials", "must be a table of [materials.NAME] tables")
     names = _gltf_names(asset)
@@ -522,7 +532,8 @@ def _gltf_scene_materials(
     records = _gltf_records(
         asset, mats.model, lambda name: f"[materials.{name}]" if name in checked else ""
     )
-    return mats, records, asset
+    metallic = f.metallic.clamp(0, 1)
+    return mats, records, asset, albedo_texture(asset, mats.diffuse, metallic)
 
 
 def _quadrature(asset: GltfAsset) -> int:

@@ -7,8 +7,9 @@
 // Stages are selected by VERTEX_SHADER / FRAGMENT_SHADER; N_GAUSSIANS (Gaussians per view),
 // N_INDIRECT (how many of the last hold indirect glossy transport,
 // lobelight.model.Model.indirect_gaussians), HAS_SUN (the lighting has a sun) and SUN_GLOSSY (its
-// glossy reflection is shaded per pixel) and DEPTH_ONLY (1: the depth pre-pass, which projects
-// the vertices and shades nothing) are defined by the loader, and the per-frame values (camera,
+// glossy reflection is shaded per pixel), ALBEDO_TEX (the diffuse albedo is read per pixel from
+// textures, albedo.glsl, and the diffuse transfer is per unit albedo) and DEPTH_ONLY (1: the
+// depth pre-pass, which projects the vertices and shades nothing) are defined by the loader, and the per-frame values (camera,
 // rotation, SH lighting, sun) come from frame.glsl's block. The torch path (render/_torch.py)
 // mirrors this file step by step.
 //
@@ -22,6 +23,11 @@ in vec3 in_pos;
 in vec3 in_normal;
 #if HAS_SUN
 in vec3 in_albedo;
+#endif
+#if ALBEDO_TEX
+in vec2 in_uv;                 // lobelight.scene.AlbedoTexture: UV, layer, per-vertex factor
+in float in_layer;
+in vec3 in_factor;
 #endif
 #if SUN_GLOSSY
 in vec4 in_sb0;                // the sun's glossy BRDF (render/_sun_glossy.py): alpha, specular
@@ -43,6 +49,11 @@ out vec3 v_pos;
 out vec3 v_normal;
 #if HAS_SUN
 out vec3 v_albedo;
+#endif
+#if ALBEDO_TEX
+out vec2 v_uv;
+flat out int v_layer;
+out vec3 v_factor;
 #endif
 #if SUN_GLOSSY
 out vec4 v_sb0;
@@ -123,6 +134,11 @@ void main() {
 #if HAS_SUN
     v_albedo = in_albedo;
 #endif
+#if ALBEDO_TEX
+    v_uv = in_uv;
+    v_layer = int(in_layer + 0.5);
+    v_factor = in_factor;
+#endif
 #if SUN_GLOSSY
     v_sb0 = in_sb0;
     v_eta = in_eta;
@@ -173,6 +189,11 @@ in vec4 v_lobe[2 * N_GAUSSIANS];
 in vec3 v_diffuse;
 in vec3 v_pos;
 in vec3 v_normal;
+#if ALBEDO_TEX
+in vec2 v_uv;
+flat in int v_layer;
+in vec3 v_factor;
+#endif
 #if HAS_SUN
 in vec3 v_albedo;
 
@@ -356,7 +377,16 @@ float sun_through(vec3 mu, float lam) {
 out vec4 frag;
 
 void main() {
+#if ALBEDO_TEX
+    // the transfer is per unit albedo: times the albedo read here
+    vec3 albedo_px = v_factor * albedo_at(v_uv, v_layer);
+    vec3 c = diffuse_on * v_diffuse * albedo_px;
+#elif HAS_SUN
+    vec3 albedo_px = v_albedo;
     vec3 c = diffuse_on * v_diffuse;
+#else
+    vec3 c = diffuse_on * v_diffuse;
+#endif
     vec3 n = normalize(v_normal);
     vec3 d = normalize(eye - v_pos);
 #if SUN_GLOSSY
@@ -373,7 +403,7 @@ void main() {
         float cosine = dot(n, sun_dir);
         if (cosine > 0.0) {
             float vis = sun_visibility(v_pos, n, ng);
-            if (diffuse_on > 0.0) c += v_albedo * (0.3183098861837907 * cosine * vis) * sun_e;
+            if (diffuse_on > 0.0) c += albedo_px * (0.3183098861837907 * cosine * vis) * sun_e;
 #if SUN_GLOSSY
             if (sun_gl) c += sun_brdf_cos(sun_dir, d, n) * vis * sun_e;
 #endif

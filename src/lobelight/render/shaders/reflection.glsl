@@ -151,8 +151,16 @@ vec3 hit_light(int f, vec3 q, vec3 r) {
     float vis = visible_fraction(c, b, rh);
     vec3 albedo = directional_albedo(nv);
     vec3 light = albedo * sharp_lighting(rot_t * rh, nv) * vis;
+#if ALBEDO_TEX
+    // the transfer is per unit albedo: the hit's vertices' own albedos (render/_albedo.py
+    // hit_diffuse_light)
+    light += b.x * texelFetch(table0_tex, t0, 0).rgb * texelFetch(alb_tex, t0, 0).rgb
+             + b.y * texelFetch(table0_tex, t1, 0).rgb * texelFetch(alb_tex, t1, 0).rgb
+             + b.z * texelFetch(table0_tex, t2, 0).rgb * texelFetch(alb_tex, t2, 0).rgb;
+#else
     light += b.x * texelFetch(table0_tex, t0, 0).rgb + b.y * texelFetch(table0_tex, t1, 0).rgb
              + b.z * texelFetch(table0_tex, t2, 0).rgb;
+#endif
     vec3 direct = b.x * texelFetch(table1_tex, t0, 0).rgb + b.y * texelFetch(table1_tex, t1, 0).rgb
                   + b.z * texelFetch(table1_tex, t2, 0).rgb;
     float v_fit = clamp((direct.r + direct.g + direct.b) /

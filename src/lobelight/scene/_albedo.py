@@ -1,0 +1,241 @@
+"""Diffuse albedo per pixel: a glTF asset's base colour textures, read at each point's UV.
+
+A mesh's per-vertex colours, interpolated across a triangle, cannot show a texture finer than
+the triangle. :class:`AlbedoTexture` keeps what the renderers need to read the texture per
+pixel instead: every vertex's UV, the image layer of its material and a per-vertex factor, so
+that the diffuse albedo at a surface point of barycentrics ``b`` on corners ``c`` is
+
+    albedo = (sum_i b_i factor[c_i]) * image[layer](sum_i b_i uv[c_i])
+
+For a textured material (its base colour texture on ``TEXCOORD_0``) the factor is the glTF
+``baseColorFactor x COLOR_0 x (1 - metallic)``, with the vertex's metallic (averaged over its
+one-ring as the bake's materials are: a metallic texture varies the diffuse part per vertex,
+not per pixel). Every other vertex reads layer 0, one white texel, with the bake's own
+per-vertex diffuse albedo as its factor: such a vertex renders as it would without textures.
+
+The images are kept as the textures are stored, 8-bit sRGB-encoded RGB, and decoded to linear
+values when they are read (the bilinear filter runs on linear values, as a GPU's sRGB textures
+do).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import torch
+
+from ..errors import InputError
+from ._gltf import Texture
+
+__all__ = ["WRAP_MODES", "AlbedoTexture", "albedo_texture", "srgb_decode", "srgb_encode"]
+
+#: Wrap modes by code: the order of :attr:`AlbedoTexture.wrap`'s codes.
+WRAP_MODES = ("repeat", "clamp", "mirror")
+
+
+def srgb_decode(x: torch.Tensor) -> torch.Tensor:
+    """sRGB-encoded values in [0, 1] to linear ones (the sRGB transfer function's inverse)."""
+    return torch.where(x <= 0.04045, x / 12.92, ((x + 0.055) / 1.055).clamp_min(0) ** 2.4)
+
+
+def srgb_encode(x: torch.Tensor) -> torch.Tensor:
+    """Linear values in [0, 1] to sRGB-encoded ones."""
+    x = x.clamp(0, 1)
+    return torch.where(x <= 0.0031308, x * 12.92, 1.055 * x.clamp_min(1e-12) ** (1 / 2.4) - 0.055)
+
+
+def _decode_table() -> torch.Tensor:
+    """(256,) float32: the linear value of each 8-bit sRGB code."""
+    return srgb_decode(torch.arange(256, dtype=torch.float64) / 255).float()
+
+
+_DECODE = _decode_table()
+
+
+@dataclass(eq=False)
+class AlbedoTexture:
+    """Per-vertex UVs, layers and factors, and the layers' images (module docstring).
+
+    Attributes
+    ----------
+    uvs : (V, 2) float32 UVs (``TEXCOORD_0``; UV (0, 0) is an image's top-left corner)
+    layer : (V,) int64 image layer of each vertex's material (0: one white texel)
+    factor : (V, 3) float32 linear RGB factor
+    images : L images, each (H_l, W_l, 3) uint8 sRGB-encoded RGB
+    wrap : (L, 2) int64 wrap codes along U and V (:data:`WRAP_MODES`)
+    transform : (L, 2, 3) float32 affine map applied to UVs before reading
+        (``KHR_texture_transform``; the identity for none)
+    nearest : (L,) bool: the layer is read at its nearest texel (the sampler's magnification
+        filter), else bilinearly
+    """
+
+    uvs: torch.Tensor
+    layer: torch.Tensor
+    factor: torch.Tensor
+    images: tuple[torch.Tensor, ...]
+    wrap: torch.Tensor
+    transform: torch.Tensor
+    nearest: torch.Tensor
+
+    def __post_init__(self) -> None:
+        v = int(self.uvs.shape[0])
+        n = len(self.images)
+        checks = (
+            ("uvs", tuple(self.uvs.shape) == (v, 2), f"({v}, 2)"),
+            ("layer", tuple(self.layer.shape) == (v,), f"({v},)"),
+            ("factor", tuple(self.factor.shape) == (v, 3), f"({v}, 3)"),
+            ("wrap", tuple(self.wrap.shape) == (n, 2), f"({n}, 2)"),
+            ("transform", tuple(self.transform.shape) == (n, 2, 3), f"({n}, 2, 3)"),
+            ("nearest", tuple(self.nearest.shape) == (n,), f"({n},)"),
+        )
+        for name, ok, want in checks:
+            if not ok:
+                got = tuple(getattr(self, name).shape)
+                raise InputError(f"albedo {name}", f"expected shape {want}, got {got}")
+        for i, img in enumerate(self.images):
+            if img.dtype != torch.uint8 or img.ndim != 3 or img.shape[2] != 3 or 0 in img.shape:
+                raise InputError(
+                    f"albedo image {i}",
+                    f"must be (H, W, 3) uint8, got {img.dtype} {tuple(img.shape)}",
+                )
+        if v and (int(self.layer.min()) < 0 or int(self.layer.max()) >= n):
+            raise InputError("albedo layer", f"holds layers outside 0..{n - 1}")
+        if self.wrap.numel() and (int(self.wrap.min()) < 0 or int(self.wrap.max()) > 2):
+            raise InputError("albedo wrap", "holds codes outside 0..2")
+        for name in ("uvs", "factor", "transform"):
+            if not bool(torch.isfinite(getattr(self, name)).all()):
+                raise InputError(f"albedo {name}", "has NaN or Inf values")
+
+    @property
+    def n_vertices(self) -> int:
+        return int(self.uvs.shape[0])
+
+    def to(self, device) -> AlbedoTexture:
+        """The per-vertex arrays on ``device`` (the images stay on the CPU, where they are
+        uploaded from or read in batches)."""
+        return AlbedoTexture(
+            self.uvs.to(device),
+            self.layer.to(device),
+            self.factor.to(device),
+            self.images,
+            self.wrap,
+            self.transform,
+            self.nearest,
+        )
+
+    def at(self, corners: torch.Tensor, bary: torch.Tensor) -> torch.Tensor:
+        """The albedo at surface points: (P, 3) linear RGB.
+
+        Parameters
+        ----------
+        corners : (P, 3) vertex ids of each point's triangle (its corners have one material);
+        bary : (P, 3) barycentrics
+        """
+        dev = self.uvs.device
+        c = corners.to(dev)
+        b = bary.to(dev, torch.float32)[..., None]
+        uv = (self.uvs[c] * b).sum(1)  # (P, 2)
+        factor = (self.factor[c] * b).sum(1)  # (P, 3)
+        layer = self.layer[c[:, 0]]
+        out = torch.ones_like(factor)
+        for i in torch.unique(layer).tolist():
+            if i == 0:
+                continue  # the white texel
+            sel = layer == i
+            out[sel] = self.sample(i, uv[sel])
+        return factor * out
+
+    def sample(self, i: int, uv: torch.Tensor) -> torch.Tensor:
+        """Layer ``i`` at ``uv`` (P, 2): (P, 3) linear RGB, bilinear between texel centres (or
+        the nearest texel), the layer's transform applied first and indices beyond the edges
+        wrapped by its modes."""
+        img = self.images[i]
+        h, w = int(img.shape[0]), int(img.shape[1])
+        a = self.transform[i].to(uv)
+        uv = uv @ a[:, :2].T + a[:, 2]
+        x = uv[:, 0] * w - 0.5  # texel centres at integer + 0.5
+        y = uv[:, 1] * h - 0.5
+        ws, wt = (WRAP_MODES[int(m)] for m in self.wrap[i])
+        table = _DECODE.to(uv.device)
+        flat = img.to(uv.device).reshape(-1, 3).long()
+
+        def texel(iy: torch.Tensor, ix: torch.Tensor) -> torch.Tensor:
+            return table[flat[_wrap(iy, h, wt) * w + _wrap(ix, w, ws)]]
+
+        if bool(self.nearest[i]):
+            return texel(torch.floor(y + 0.5).long(), torch.floor(x + 0.5).long())
+        x0, y0 = torch.floor(x), torch.floor(y)
+        fx, fy = (x - x0)[:, None], (y - y0)[:, None]
+        x0, y0 = x0.long(), y0.long()
+        top = texel(y0, x0) * (1 - fx) + texel(y0, x0 + 1) * fx
+        bottom = texel(y0 + 1, x0) * (1 - fx) + texel(y0 + 1, x0 + 1) * fx
+        return top * (1 - fy) + bottom * fy
+
+
+def _wrap(i: torch.Tensor, n: int, mode: str) -> torch.Tensor:
+    """Integer texel indices ``i`` wrapped into [0, n) by ``mode``."""
+    if mode == "clamp":
+        return i.clamp(0, n - 1)
+    if mode == "mirror":
+        j = torch.remainder(i, 2 * n)
+        return torch.where(j >= n, 2 * n - 1 - j, j)
+    return torch.remainder(i, n)
+
+
+def _layer_of(tex: Texture) -> tuple[torch.Tensor, tuple[int, int], np.ndarray, bool]:
+    """A base colour texture as a layer: its RGB re-encoded to 8-bit sRGB (the loader decoded
+    it to linear float32; an 8-bit image comes back to its own codes), its wrap codes, its
+    transform and its filter."""
+    rgb = tex.image[..., :3].detach().cpu().double()
+    img = torch.round(srgb_encode(rgb) * 255).to(torch.uint8).contiguous()
+    s = tex.sampler
+    wrap = (WRAP_MODES.index(s.wrap_s), WRAP_MODES.index(s.wrap_t))
+    xf = np.array(tex.uv_transform if tex.uv_transform is not None else _IDENTITY, np.float32)
+    return img, wrap, xf, s.mag_filter == "nearest"
+
+
+_IDENTITY = ((1.0, 0.0, 0.0), (0.0, 1.0, 0.0))
+
+
+def albedo_texture(asset, diffuse: torch.Tensor, metallic: torch.Tensor) -> AlbedoTexture | None:
+    """The per-pixel albedo of a glTF asset (module docstring); None where no material has a
+    base colour texture on ``TEXCOORD_0`` (the per-vertex albedo is then all there is).
+
+    Parameters
+    ----------
+    asset : :class:`lobelight.scene.GltfAsset` (V vertices)
+    diffuse : (V, 3) the bake's per-vertex diffuse albedo (the factor of untextured vertices)
+    metallic : (V,) per-vertex metallic
+    """
+    mats = asset.materials
+    textured = [
+        m.base_color_texture is not None and m.base_color_texture.tex_coord == 0 for m in mats
+    ]
+    if not any(textured):
+        return None
+    dev = asset.uvs.device
+    images = [torch.full((1, 1, 3), 255, dtype=torch.uint8)]
+    wraps, xforms, nearest = [(0, 0)], [np.array(_IDENTITY, np.float32)], [False]
+    of_material = torch.zeros(len(mats), dtype=torch.int64)
+    for m, (mat, has) in enumerate(zip(mats, textured, strict=True)):
+        if has:
+            img, wrap, xf, near = _layer_of(mat.base_color_texture)
+            of_material[m] = len(images)
+            images.append(img)
+            wraps.append(wrap)
+            xforms.append(xf)
+            nearest.append(near)
+    layer = of_material.to(dev)[asset.material]
+    base = torch.tensor([m.base_color[:3] for m in mats], dtype=torch.float32, device=dev)
+    factor = base[asset.material] * asset.colors[:, :3] * (1 - metallic.to(dev))[:, None]
+    factor = torch.where((layer > 0)[:, None], factor, diffuse.to(dev, torch.float32))
+    return AlbedoTexture(
+        uvs=asset.uvs.to(torch.float32),
+        layer=layer,
+        factor=factor.contiguous(),
+        images=tuple(images),
+        wrap=torch.tensor(wraps, dtype=torch.int64),
+        transform=torch.from_numpy(np.stack(xforms)),
+        nearest=torch.tensor(nearest),
+    )
