@@ -21,41 +21,54 @@ machine description (:func:`machine`).
 - :func:`bench_all` every benchmark with a goal in one run, and :func:`table` the Markdown rows
   made from its record (:mod:`~lobelight.bench.suite`; ``python -m lobelight.bench table
   RESULT.json`` prints them)
+- :func:`bench_start` a render's start: ``lobelight render`` in a fresh process, cold and warm,
+  and where its time goes (:mod:`~lobelight.bench.start`)
 - :func:`machine` where a benchmark ran; :func:`sync` waits for a device's queued work
+
+Each name is imported from its module when first used (the modules import what they measure:
+the fit, the cosine lobes, the ray engines), so that importing this package, as the command
+line does, costs nothing until a benchmark runs.
 
 Benchmarks import the library's packages below them and no study; the studies' comparison of
 the SG-BRDF method (:mod:`lobelight.studies.compare_brdf`) times its GLSL rows with
 :func:`time_frames` and records :func:`machine`.
 """
 
-from ._machine import machine, sync
-from .brdf_fit import bench_brdf_fit
-from .cosine import bench_lobes, bench_tables
-from .fit import bench_fit
-from .prefilter import bench_prefilter
-from .rays import bench_rays
-from .render import bench_render
-from .sgbrdf_gl import bench_sgbrdf_gl, time_frames
-from .suite import BENCHMARKS, GOALS, bench_all, table
-from .synthetic import synthetic_model
-from .transport import bench_transport
+import importlib
 
-__all__ = [
-    "BENCHMARKS",
-    "GOALS",
-    "bench_all",
-    "bench_brdf_fit",
-    "bench_fit",
-    "bench_lobes",
-    "bench_prefilter",
-    "bench_rays",
-    "bench_render",
-    "bench_sgbrdf_gl",
-    "bench_tables",
-    "bench_transport",
-    "machine",
-    "sync",
-    "synthetic_model",
-    "table",
-    "time_frames",
-]
+#: Where each public name lives (module of this package).
+_HOMES = {
+    "BENCHMARKS": ".suite",
+    "GOALS": ".suite",
+    "bench_all": ".suite",
+    "bench_brdf_fit": ".brdf_fit",
+    "bench_fit": ".fit",
+    "bench_lobes": ".cosine",
+    "bench_prefilter": ".prefilter",
+    "bench_rays": ".rays",
+    "bench_render": ".render",
+    "bench_sgbrdf_gl": ".sgbrdf_gl",
+    "bench_start": ".start",
+    "bench_tables": ".cosine",
+    "bench_transport": ".transport",
+    "machine": "._machine",
+    "sync": "._machine",
+    "synthetic_model": ".synthetic",
+    "table": ".suite",
+    "time_frames": ".sgbrdf_gl",
+}
+
+
+def __getattr__(name: str):
+    if name not in _HOMES:
+        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+    value = getattr(importlib.import_module(_HOMES[name], __name__), name)
+    globals()[name] = value
+    return value
+
+
+def __dir__() -> list[str]:
+    return sorted({*globals(), *_HOMES})
+
+
+__all__ = sorted(_HOMES)

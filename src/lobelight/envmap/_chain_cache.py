@@ -1,4 +1,5 @@
-"""Prefiltered chains kept on disk, so that a map is prefiltered once per machine.
+"""Prefiltered chains, and resampled cube maps, kept on disk: a map is prefiltered (and
+resampled for a renderer's background and SH projection) once per machine.
 
 Layout: one uncompressed ``.npz`` (no pickles) per chain, ``<folder>/<key>.npz`` with the folder
 ``lobelight._cache.cache_dir() / "prefilter"`` by default, holding
@@ -16,6 +17,12 @@ numerical constants) followed by the source's float32 bytes. Reading checks ever
 be read at all, is a miss: the chain is computed again and the entry rewritten. Entries are
 written atomically (:func:`lobelight._io.atomic_writer`), so concurrent writers of one key
 leave one whole entry, and deleting any of them, or the folder, at any time is harmless.
+
+A resampled cube map (:meth:`lobelight.envmap.EnvMap.to_cubemap` with ``cache``) is an entry
+``<folder>/cube-<key>.npz`` in the same folder, holding ``header`` (as above) and ``cube``:
+``(6, R, R, 3)`` float32 as computed; its key is made the same way (:func:`chain_key`, with the
+resampling's version, resolution and constants as the description), read with the same checks
+(:func:`read_cube`) and written the same way (:func:`write_cube`).
 
 The folder is kept under a size cap (:func:`max_bytes`: ``$LOBELIGHT_CACHE_MAX_MB``, default
 2048 MB; a base-512 chain takes about 100 MB): after each write the least recently used entries
@@ -43,8 +50,10 @@ __all__ = [
     "default_folder",
     "max_bytes",
     "read_chain",
+    "read_cube",
     "trim",
     "write_chain",
+    "write_cube",
 ]
 
 #: Layout of the stored file; bumped when it changes (the key changes with it).
@@ -190,6 +199,57 @@ def write_chain(
     }
     for k, lv in enumerate(levels):
         arrays[f"level_{k:02d}"] = lv.detach().to("cpu", torch.float32).numpy()
+    with atomic_writer(path) as f:
+        np.savez(f, **arrays)
+    trim(Path(path).parent, max_bytes(), keep=path)
+
+
+def cube_path(folder: str | os.PathLike, key: str) -> Path:
+    """Where the resampled cube map named ``key`` is kept in ``folder``."""
+    return Path(folder) / f"cube-{key}.npz"
+
+
+def read_cube(path: str | os.PathLike, key: str, res: int) -> np.ndarray | None:
+    """The ``(6, res, res, 3)`` float32 cube map of an entry, or None when the file is missing,
+    unreadable or not exactly the cube ``key`` at ``res`` (finite values included)."""
+    path = Path(path)
+    try:
+        z = np.load(path, allow_pickle=False)
+    except FileNotFoundError:
+        return None
+    except UNREADABLE as exc:
+        logger.info("ignoring the unreadable cube cache entry %s (%r)", path, exc)
+        return None
+    if not isinstance(z, np.lib.npyio.NpzFile):
+        logger.info("ignoring %s: not a cube cache entry", path)
+        return None
+    try:
+        with z:
+            header = z["header"]
+            if header.dtype.kind != "U" or header.ndim != 0:
+                return None
+            head = json.loads(header.item())
+            if not isinstance(head, dict) or head.get("key") != key:
+                return None
+            cube = z["cube"]
+    except UNREADABLE as exc:
+        logger.info("ignoring the unreadable cube cache entry %s (%r)", path, exc)
+        return None
+    if cube.dtype != np.float32 or cube.shape != (6, res, res, 3) or not np.isfinite(cube).all():
+        return None
+    _touch(path)
+    return cube
+
+
+def write_cube(
+    path: str | os.PathLike, key: str, description: dict[str, Any], cube: torch.Tensor
+) -> None:
+    """Store a resampled cube map ``(6, R, R, 3)`` as ``path`` (atomically; the folder is
+    created), then trim the folder. Raises OSError on failure."""
+    arrays = {
+        "header": np.array(json.dumps({**description, "key": key}, sort_keys=True)),
+        "cube": cube.detach().to("cpu", torch.float32).numpy(),
+    }
     with atomic_writer(path) as f:
         np.savez(f, **arrays)
     trim(Path(path).parent, max_bytes(), keep=path)

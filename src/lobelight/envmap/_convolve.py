@@ -49,7 +49,6 @@ import warnings
 from functools import lru_cache
 
 import numpy as np
-import scipy.special
 import torch
 
 from .._tol import SMALL
@@ -694,15 +693,31 @@ def dense_increment(level: torch.Tensor, lam: float, *, chunk: int = 2048) -> to
 # spherical harmonics for the widest lobes
 
 
+#: Extra terms of the continued fraction of :func:`vmf_band_factors` past ``order + lam``,
+#: where its terms ``lam / (2 l + 1)`` have fallen below 1 and each one past gains a factor.
+_BESSEL_EXTRA_TERMS = 64
+
+
 def vmf_band_factors(lam: float, order: int) -> np.ndarray:
     """Funk-Hecke factors ``a_l = i_l(lam) / i_0(lam)`` of the normalised vMF, ``(order,)``.
 
-    ``(L * vMF)_lm = a_l L_lm``; exponentially scaled Bessel functions, so no overflow.
+    ``(L * vMF)_lm = a_l L_lm``, with ``i_l`` the modified spherical Bessel functions. Computed
+    as products of the ratios ``r_l = i_l / i_{l-1}``, which the recurrence
+    ``i_{l-1} - i_{l+1} = (2 l + 1) / lam * i_l`` gives as the continued fraction
+    ``r_l = lam / (2 l + 1 + lam r_{l+1})``, evaluated backwards from ``r = 0`` far enough out
+    (``i_l`` is the recurrence's minimal solution, so the backward sweep is stable): ratios,
+    so nothing overflows at any ``lam``.
     """
     l = np.arange(order, dtype=np.float64)
     if lam < 1e-8:
         return (l == 0).astype(np.float64)
-    return scipy.special.ive(l + 0.5, lam) / scipy.special.ive(0.5, lam)
+    ratios = np.ones(order, dtype=np.float64)
+    r = 0.0
+    for k in range(order + math.ceil(lam) + _BESSEL_EXTRA_TERMS, 0, -1):
+        r = lam / (2 * k + 1 + lam * r)
+        if k < order:
+            ratios[k] = r
+    return np.cumprod(ratios)
 
 
 def sh_order_for(lam: float) -> int:

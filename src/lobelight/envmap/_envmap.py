@@ -49,11 +49,18 @@ split as ``min(L, c) + spikes``, ``c`` the level exceeded by only the brightest 
 
 So a round trip lat-long -> cube map -> lat-long keeps the power of the spikes to float
 rounding and that of the bounded part to its sub-sampling error.
+
+A resampled cube map can be kept on disk (:meth:`EnvMap.to_cubemap`'s ``cache``), beside the
+prefiltered chains (:mod:`._chain_cache`), keyed by a hash of the map's values and of the
+resampling's settings (:data:`RESAMPLE_VERSION` and the constants below): a renderer that
+starts again with the same map reads its background and SH projection's cubes back.
 """
 
 from __future__ import annotations
 
+import logging
 import math
+import os
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
@@ -66,9 +73,12 @@ from .._checks import check_int
 from .._tol import SMALL
 from ..errors import InputError
 from ..geometry import cubemap
+from . import _chain_cache
 from ._files import save
 
-__all__ = ["LAYOUTS", "EnvMap", "describe_bad_values"]
+__all__ = ["LAYOUTS", "RESAMPLE_VERSION", "EnvMap", "describe_bad_values"]
+
+logger = logging.getLogger(__name__)
 
 LAYOUTS = ("latlong", "cubemap")
 
@@ -93,6 +103,9 @@ _SPLAT_PER_CELL = 16.0
 _CHUNK = 1 << 20
 # Tolerance on R^T R = I and det R = 1 for rotate().
 _ROTATION_TOL = 1e-4
+#: Version of what the resampling computes, part of a cached cube map's key: bumped whenever a
+#: change to the algorithm changes its values (the constants above are in the key by value).
+RESAMPLE_VERSION = 1
 
 Lookup = Callable[[torch.Tensor], torch.Tensor]
 
@@ -256,7 +269,9 @@ class EnvMap:
 
     # -- resampling --------------------------------------------------------------------------
 
-    def to_cubemap(self, res: int, *, supersample: int | None = None) -> torch.Tensor:
+    def to_cubemap(
+        self, res: int, *, supersample: int | None = None, cache: bool | str | os.PathLike = False
+    ) -> torch.Tensor:
         """Resample to a cube map, each texel the solid-angle-weighted average over the texel.
 
         Parameters
@@ -264,6 +279,10 @@ class EnvMap:
         res : face resolution R
         supersample : sub-samples per texel along each axis (``s x s`` in all) for every texel;
             by default chosen per texel (module docstring).
+        cache : keep the resampled cube on disk (module docstring): False (the default) never
+            reads or writes one, True keeps it beside the prefiltered chains
+            (``lobelight._cache.cache_dir() / "prefilter"``), a folder keeps it there. An entry
+            that is damaged or is not this map's is computed again and rewritten.
 
         Returns
         -------
@@ -277,6 +296,24 @@ class EnvMap:
                 return self.data
             if supersample is None and src % res == 0:
                 return _cube_block_average(self.data, src // res)
+        folder = _cube_folder(cache)
+        if folder is None:
+            return self._resample_cube(res, supersample)
+        description = _resample_description(self.layout, res, supersample)
+        key = _chain_cache.chain_key(self.data, description)
+        path = _chain_cache.cube_path(folder, key)
+        hit = _chain_cache.read_cube(path, key, res)
+        if hit is not None:
+            return torch.from_numpy(hit).to(self.device)
+        out = self._resample_cube(res, supersample)
+        try:
+            _chain_cache.write_cube(path, key, description, out)
+        except OSError as exc:  # a cache that cannot be written only costs the next run time
+            logger.warning("could not write the resampled cube map to %s: %s", path, exc)
+        return out
+
+    def _resample_cube(self, res: int, supersample: int | None) -> torch.Tensor:
+        """:meth:`to_cubemap` by cell averaging, ``(6, res, res, 3)``."""
         cells = _CubeCells(res, device=self.device)
         out = _resample(self, cells, supersample=_check_s(supersample))
         return out.reshape(6, res, res, 3)
@@ -753,3 +790,33 @@ def _cube_block_average(cube: torch.Tensor, m: int) -> torch.Tensor:
 
 def _check_s(supersample: Any) -> int | None:
     return None if supersample is None else check_int(supersample, "supersample")
+
+
+def _cube_folder(cache) -> Path | None:
+    """Where :meth:`EnvMap.to_cubemap` keeps its cube for its ``cache`` argument (None: not)."""
+    if cache is False:
+        return None
+    if cache is True:
+        return _chain_cache.default_folder()
+    if isinstance(cache, (str, os.PathLike)):
+        return Path(cache)
+    raise InputError("cache", f"must be a bool or a folder, got {cache!r}")
+
+
+def _resample_description(layout: str, res: int, supersample: int | None) -> dict:
+    """Everything besides the map's values that a resampled cube depends on (its cache key)."""
+    return {
+        "kind": "cubemap-resample",
+        "resample_version": RESAMPLE_VERSION,
+        "layout": layout,
+        "res": res,
+        "supersample": supersample,
+        "constants": {
+            "SAMPLES_PER_SOURCE_PIXEL": _SAMPLES_PER_SOURCE_PIXEL,
+            "LADDER": _LADDER.tolist(),
+            "SPIKE_FRACTION": _SPIKE_FRACTION,
+            "MAX_SPIKES": _MAX_SPIKES,
+            "SPLAT_BUDGET": _SPLAT_BUDGET,
+            "SPLAT_PER_CELL": _SPLAT_PER_CELL,
+        },
+    }

@@ -284,7 +284,7 @@ def _inverse_langevin(a: float) -> float:
 #: Version of what :func:`prefilter` computes, part of every cache key: bumped whenever a change
 #: to the algorithm changes the levels (the constants above and in :mod:`._convolve` are in the
 #: key by value, so changing one of them needs no bump).
-CHAIN_VERSION = 1
+CHAIN_VERSION = 2
 
 
 def _description(kind: str, base_res: int, phases: int) -> dict:

@@ -29,16 +29,16 @@ the others).
 from __future__ import annotations
 
 import contextlib
+import functools
+import importlib
 import itertools
 import os
 from collections.abc import Callable, Iterator
 from concurrent.futures import ThreadPoolExecutor
-from typing import Protocol
+from typing import Any, Protocol
 
 import numpy as np
 import torch
-import trimesh
-from trimesh.ray.ray_pyembree import RayMeshIntersector
 
 from .._tol import DIVISOR_F64
 from ..errors import InputError
@@ -139,12 +139,22 @@ def resolve_engine(name: str | None, device: torch.device | str) -> str:
     return name
 
 
+@functools.cache
+def _trimesh() -> tuple[Any, Any]:
+    """trimesh and its Embree intersector class, imported when the first Embree caster is made
+    rather than with this module: importing trimesh loads scipy and networkx, a large part of
+    the start of a process that casts no ray (a render of a model that holds its tiles)."""
+    trimesh = importlib.import_module("trimesh")
+    return trimesh, importlib.import_module("trimesh.ray.ray_pyembree").RayMeshIntersector
+
+
 class _EmbreeRays:
     """trimesh's Embree intersector for one mesh; rays and results on the CPU."""
 
     device = torch.device("cpu")
 
     def __init__(self, vertices: torch.Tensor, faces: torch.Tensor):
+        trimesh, RayMeshIntersector = _trimesh()
         tm = trimesh.Trimesh(
             vertices=vertices.detach().cpu().numpy().astype(np.float64),
             faces=faces.cpu().numpy(),

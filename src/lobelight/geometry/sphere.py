@@ -43,13 +43,19 @@ The 92 views (Green et al. 2006, section 3.2)
 from __future__ import annotations
 
 import functools
+import hashlib
+import json
+import logging
 import math
 from typing import Any
 
+import numpy as np
 import torch
 
 from .._backend import as_float, dispatch
+from .._cache import UNREADABLE, cache_dir
 from .._checks import check_directions
+from .._io import atomic_writer
 from ..errors import InputError
 from . import cubemap
 
@@ -81,7 +87,17 @@ __all__ = [
     "triangle_candidates",
 ]
 
+logger = logging.getLogger(__name__)
+
 N_VIEWS = 92
+
+#: Version of what :func:`triangle_candidates` computes, part of its disk cache's key: bumped
+#: whenever the computation changes (the geodesic triangles' planes and the tolerance are in
+#: the key by value, so a change to them needs no bump).
+CANDIDATES_VERSION = 1
+#: How far outside a triangle (its smallest unnormalised barycentric) a grid point of a texel
+#: may lie and still make the triangle a candidate: about 0.006 degrees.
+_CANDIDATE_TOL = 1e-4
 
 # Icosahedron faces over the 12 vertices above, outward (counter-clockwise seen from outside):
 # top cap (0, u_k, u_k+1), upper band (u_k, l_k, u_k+1), lower band (l_k, l_k+1, u_k+1),
@@ -289,7 +305,7 @@ def locate_views(dirs, /, *, chunk: int = 16384):
 
 
 @functools.lru_cache(maxsize=4)
-def triangle_candidates(res: int = 32, *, sub: int = 8) -> torch.Tensor:
+def triangle_candidates(res: int = 32, *, sub: int = 8, cache: bool = True) -> torch.Tensor:
     """For each texel of a cube map, the geodesic triangles a direction in it may fall in.
 
     A renderer that locates many directions (a vertex shader, per frame) tests only these few
@@ -299,12 +315,33 @@ def triangle_candidates(res: int = 32, *, sub: int = 8) -> torch.Tensor:
     texels of the same face, so that a thin corner of a triangle between grid points is not
     missed (triangles span ~15 degrees, a texel 2.8 degrees at ``res = 32``).
 
+    The table is the same in every process: with ``cache`` (the default) it is kept on disk,
+    ``lobelight._cache.cache_dir() / "geometry"``, one small file per ``(res, sub)`` keyed by a
+    hash of :data:`CANDIDATES_VERSION`, the settings and the triangles' planes. Reading checks
+    the key, shape, dtype, range and a hash of the values; an entry that fails, or cannot be
+    read, is computed again and rewritten (atomically: a reader never sees half a file).
+
     Returns
     -------
     (6, res, res, K) int64 triangle indices (rows of :func:`geodesic_faces`), ``-1`` padded;
     ``[face, row (t), col (s)]`` as :func:`lobelight.geometry.cubemap.texel_directions`
     """
+    if not cache:
+        return _compute_candidates(res, sub)
+    key = _candidates_key(res, sub)
+    path = cache_dir() / "geometry" / f"triangle-candidates-{res}-{sub}-{key[:16]}.npz"
+    table = _read_candidates(path, key, res)
+    if table is None:
+        table = _compute_candidates(res, sub)
+        try:
+            _write_candidates(path, key, table)
+        except OSError as exc:  # a cache that cannot be written only costs the next run time
+            logger.warning("could not write the triangle candidates to %s: %s", path, exc)
+    return table
 
+
+def _compute_candidates(res: int, sub: int) -> torch.Tensor:
+    """:func:`triangle_candidates` computed afresh."""
     g = res * sub + 1
     c = torch.linspace(-1.0, 1.0, g, dtype=torch.float64)
     v, u = torch.meshgrid(c, c, indexing="ij")  # (G, G): rows follow v (t), columns u (s)
@@ -316,7 +353,7 @@ def triangle_candidates(res: int = 32, *, sub: int = 8) -> torch.Tensor:
     hit = torch.zeros(6 * g * g, 180, dtype=torch.bool)
     for s0 in range(0, d.shape[0], 16384):  # bounded memory: chunk x 540 values
         det = (d[s0 : s0 + 16384] @ planes).reshape(-1, 180, 3)
-        hit[s0 : s0 + 16384] = det.amin(-1) >= -1e-4  # in the triangle or within ~0.006 deg
+        hit[s0 : s0 + 16384] = det.amin(-1) >= -_CANDIDATE_TOL  # in it, or within the tolerance
     hit = hit.reshape(6, g, g, 180)
     # texel (i, j) owns grid points i*sub .. (i+1)*sub in each direction (shared edges)
     own = torch.zeros(6, res, res, 180, dtype=torch.bool)
@@ -331,6 +368,56 @@ def triangle_candidates(res: int = 32, *, sub: int = 8) -> torch.Tensor:
     order = torch.argsort((~wide).to(torch.int8), dim=-1, stable=True)[..., :k]
     ok = torch.gather(wide, -1, order)
     return torch.where(ok, order, torch.full_like(order, -1))
+
+
+def _candidates_key(res: int, sub: int) -> str:
+    """Hex sha256 naming the candidate table at ``(res, sub)`` of today's code and triangles."""
+    head = {"version": CANDIDATES_VERSION, "res": res, "sub": sub, "tol": _CANDIDATE_TOL}
+    planes, faces = face_planes(torch.float64, torch.device("cpu"))
+    h = hashlib.sha256(json.dumps(head, sort_keys=True).encode())
+    h.update(planes.contiguous().numpy().tobytes())
+    h.update(faces.contiguous().numpy().tobytes())
+    return h.hexdigest()
+
+
+def _values_digest(table: np.ndarray) -> str:
+    return hashlib.sha256(np.ascontiguousarray(table).tobytes()).hexdigest()
+
+
+def _read_candidates(path, key: str, res: int) -> torch.Tensor | None:
+    """The table stored at ``path`` as an int64 tensor, or None when the file is missing,
+    unreadable, or not exactly a whole table named ``key`` (the docstring's checks)."""
+    try:
+        with np.load(path, allow_pickle=False) as z:
+            head = json.loads(str(z["header"][()]))
+            table = z["table"]
+    except FileNotFoundError:
+        return None
+    except (*UNREADABLE, TypeError, AttributeError, IndexError) as exc:
+        logger.info("ignoring the unreadable candidate table %s (%r)", path, exc)
+        return None
+    ok = (
+        isinstance(head, dict)
+        and head.get("key") == key
+        and table.dtype == np.int16
+        and table.ndim == 4
+        and table.shape[:3] == (6, res, res)
+        and table.shape[3] >= 1
+        and head.get("values") == _values_digest(table)
+        and bool(((table >= -1) & (table < 180)).all())
+    )
+    if not ok:
+        logger.info("ignoring the candidate table %s: not the table asked for", path)
+        return None
+    return torch.from_numpy(table.astype(np.int64))
+
+
+def _write_candidates(path, key: str, table: torch.Tensor) -> None:
+    """Store a table as ``path`` (atomically; the folder is created). Raises OSError."""
+    arr = table.numpy().astype(np.int16)  # triangle indices < 180 and -1
+    header = json.dumps({"key": key, "values": _values_digest(arr)}, sort_keys=True)
+    with atomic_writer(path) as f:
+        np.savez(f, header=np.array(header), table=arr)
 
 
 # --------------------------------------------------------------------------------------------

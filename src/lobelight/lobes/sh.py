@@ -285,7 +285,7 @@ def project_cubemap(cube, order):
     return out.to(_float_dtype(cube))
 
 
-def project_envmap(env, order, *, res=64):
+def project_envmap(env, order, *, res=64, cache=False):
     """Project an environment map through its cube-map form.
 
     Parameters
@@ -294,6 +294,9 @@ def project_envmap(env, order, *, res=64):
     order : int >= 1
     res : cube face resolution used for the projection (exact solid angles; see
         :func:`project_cubemap` for the discretisation error)
+    cache : when not False, passed on as ``to_cubemap(res, cache=cache)``: an EnvMap then keeps
+        the resampled cube on disk (``lobelight.envmap.EnvMap.to_cubemap``), so that a process
+        projecting the same map again reads it back instead of resampling
 
     Returns
     -------
@@ -302,7 +305,8 @@ def project_envmap(env, order, *, res=64):
     to_cube = getattr(env, "to_cubemap", None)
     if not callable(to_cube):
         raise InputError("env", f"needs a to_cubemap(res) method, got {type(env).__name__}")
-    return project_cubemap(to_cube(res), order)
+    cube = to_cube(res) if cache is False else to_cube(res, cache=cache)
+    return project_cubemap(cube, order)
 
 
 @dispatch
