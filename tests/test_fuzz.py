@@ -28,6 +28,7 @@ import math
 import os
 import resource
 import signal
+import tempfile
 import time
 import warnings
 from pathlib import Path
@@ -987,4 +988,452 @@ def test_fuzz_cli_arguments(cli_files, monkeypatch, capsys, argv):
     assert len(lines) == 1 and err.strip() == lines[0].strip(), (argv, err)
     if "--json" in argv:
         assert set(json.loads(out)) == {"error"}, (argv, out)
+    _tally("clean_errors")
+
+
+# --------------------------------------------------------------------------------------------
+# structured targets: what a careful user's unusual but well-formed inputs look like
+#
+# Meshes with far, tiny, flipped and stray parts; model files whose metadata claims large
+# sizes; the command line's numeric flags at the limits of their types; outputs aimed at
+# inputs. Each input is well formed, so the outcomes are stricter than a clean error: a mesh
+# is refused or kept faithfully (its shape, its vertices, its outward winding), a model file
+# is refused or read within a stated memory bound, a flag is refused before any work or within
+# its stated range, and an output aimed at an input is refused with the input unchanged.
+
+#: The most a structured model load may add to the process's peak resident memory (MB): the
+#: claims drawn expand either to well under it or far past the reader's own limit, which it
+#: must refuse before allocating.
+MODEL_PEAK_MB = 512
+
+
+def _peak_rss_kb() -> int | None:
+    """This process's peak resident memory since the last reset (VmHWM, kB), or None where the
+    platform does not tell."""
+    try:
+        with open("/proc/self/status") as f:
+            for line in f:
+                if line.startswith("VmHWM:"):
+                    return int(line.split()[1])
+    except OSError:
+        return None
+    return None
+
+
+@contextlib.contextmanager
+def _peak_within(mb: float):
+    """Fails when the peak resident memory grows by more than ``mb`` within the block (Linux:
+    the peak is reset by writing 5 to /proc/self/clear_refs; elsewhere not measured)."""
+    try:
+        with open("/proc/self/clear_refs", "w") as f:
+            f.write("5")
+        base = _peak_rss_kb()
+    except OSError:
+        base = None
+    yield
+    if base is not None:
+        peak = _peak_rss_kb()
+        grew = (peak - base) / 1024
+        _tally_peak(grew)
+        assert grew <= mb, f"peak memory grew by {grew:.0f} MB, over the bound of {mb} MB"
+
+
+def _tally_peak(mb: float) -> None:
+    test = os.environ.get("PYTEST_CURRENT_TEST", "?").split("::")[-1].split(" ")[0]
+    TALLY[test]["peak_mb"] = max(TALLY[test]["peak_mb"], math.ceil(mb))
+
+
+# -- meshes: far, tiny, flipped and stray parts ----------------------------------------------
+
+_AXES = [(1, 0, 0), (0, 1, 0), (0, 0, 1), (1, 1, 1), (-1, 0.5, 0.25)]
+
+
+@st.composite
+def mesh_scene(draw):
+    """A closed icosphere moved ``10**offset`` along an axis and scaled by ``10**scale``, maybe
+    inside out, with stray unreferenced vertices and an extra triangle, tiny or large, far away."""
+    return {
+        "sub": draw(st.integers(0, 2)),
+        "offset": draw(st.one_of(st.none(), st.integers(-3, 12))),
+        "axis": draw(st.sampled_from(_AXES)),
+        "scale": draw(st.integers(-16, 16)),
+        "flip": draw(st.booleans()),
+        "stray": draw(st.lists(st.tuples(st.integers(0, 12), st.sampled_from(_AXES)), max_size=3)),
+        "extra": draw(
+            st.one_of(st.none(), st.tuples(st.integers(-12, 12), st.integers(0, 12)))
+        ),  # (its size, its distance) as powers of ten
+        "fmt": draw(st.sampled_from(["obj", "ply", "off"])),
+    }
+
+
+def _mesh_arrays(spec) -> tuple[np.ndarray, np.ndarray, int]:
+    """(V, 3) float64 vertices, (F, 3) faces and the main part's vertex count."""
+    ico = trimesh.creation.icosphere(spec["sub"])
+    v = np.asarray(ico.vertices, np.float64) * 10.0 ** spec["scale"]
+    if spec["offset"] is not None:
+        axis = np.asarray(spec["axis"], np.float64)
+        v = v + axis / np.linalg.norm(axis) * 10.0 ** spec["offset"]
+    f = np.asarray(ico.faces, np.int64)
+    if spec["flip"]:
+        f = f[:, ::-1]
+    main = len(v)
+    parts_v, parts_f = [v], [f]
+    if spec["extra"] is not None:
+        size, dist = spec["extra"]
+        tri = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0]], np.float64) * 10.0**size
+        parts_v.append(tri + 10.0**dist)
+        parts_f.append(np.arange(3)[None] + main)
+    for dist, axis in spec["stray"]:  # unreferenced
+        parts_v.append(np.asarray(axis, np.float64)[None] * 10.0**dist)
+    return np.concatenate(parts_v), np.concatenate(parts_f), main
+
+
+def _mesh_file(v: np.ndarray, f: np.ndarray, fmt: str) -> bytes:
+    """The mesh as OBJ, ASCII PLY or OFF text, coordinates written exactly (``repr``)."""
+    vs = "\n".join(" ".join(repr(float(x)) for x in row) for row in v)
+    if fmt == "obj":
+        text = "\n".join("v " + r for r in vs.split("\n"))
+        text += "\n" + "\n".join("f " + " ".join(str(i + 1) for i in t) for t in f)
+    elif fmt == "off":
+        text = f"OFF\n{len(v)} {len(f)} 0\n{vs}\n" + "\n".join(
+            "3 " + " ".join(map(str, t)) for t in f
+        )
+    else:
+        head = (
+            f"ply\nformat ascii 1.0\nelement vertex {len(v)}\nproperty double x\n"
+            f"property double y\nproperty double z\nelement face {len(f)}\n"
+            "property list uchar int vertex_indices\nend_header\n"
+        )
+        text = head + vs + "\n" + "\n".join("3 " + " ".join(map(str, t)) for t in f)
+    return (text + "\n").encode()
+
+
+def _normalised(x: np.ndarray) -> np.ndarray:
+    """Points moved to their mean and scaled to unit RMS radius (shape up to similarity)."""
+    x = x - x.mean(0)
+    return x / max(float(np.sqrt((x**2).sum(1).mean())), 1e-300)
+
+
+def _signed_volume(v: np.ndarray, f: np.ndarray) -> float:
+    a, b, c = v[f[:, 0]], v[f[:, 1]], v[f[:, 2]]
+    return float(np.einsum("ij,ij->i", a, np.cross(b, c)).sum() / 6)
+
+
+def _check_faithful(m, v: np.ndarray, f: np.ndarray, main: int, spec) -> None:
+    """An accepted mesh kept what the file holds: every vertex referenced (stray ones dropped),
+    the main part not collapsed; without an extra part, its shape (up to a move and a scale,
+    1e-3 of its radius: float32 storage of a recentred part is exact to 1e-7, a weld at 1e-6
+    of the diagonal moves nothing further) and its outward winding (a closed part's signed
+    volume is positive once an inside-out file is fixed)."""
+    _check_mesh(m)
+    used = torch.zeros(m.n_vertices, dtype=torch.bool)
+    used[m.faces.reshape(-1)] = True
+    assert bool(used.all()), "unreferenced vertices kept"
+    assert m.n_vertices >= main, f"the main part collapsed: {m.n_vertices} of {main} vertices"
+    if spec["extra"] is not None:
+        return
+    got = m.vertices.detach().cpu().double().numpy()
+    assert m.n_vertices == main, f"{m.n_vertices} vertices for a part of {main}"
+    want, have = _normalised(v[:main]), _normalised(got)
+    d = np.sqrt(((want[:, None] - have[None]) ** 2).sum(-1)).min(1)  # (main,) nearest
+    assert float(d.max()) < 1e-3, f"the shape moved by {float(d.max()):.2g} of its radius"
+    vol = _signed_volume(have, m.faces.detach().cpu().numpy())
+    assert vol > 0, "inside out: the closed mesh's signed volume is negative"
+
+
+@pytest.mark.xfail(
+    reason="meshes are not yet repaired: stray vertices collapse the weld, far or tiny parts "
+    "lose their shape in float32, inside-out meshes stay inside out (tools/fuzz.py runs it "
+    "with --runxfail)",
+    strict=False,
+)
+@fuzz(60)
+@given(spec=mesh_scene())
+def test_fuzz_mesh_structured(tmp_path, spec):
+    v, f, main = _mesh_arrays(spec)
+    p = tmp_path / f"m.{spec['fmt']}"
+    p.write_bytes(_mesh_file(v, f, spec["fmt"]))
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")  # an inside-out mesh is fixed with a warning
+        m = load_or_input_error(scene.load_mesh, p)
+    if m is not None:
+        _check_faithful(m, v, f, main, spec)
+
+
+# -- model files whose metadata claims large sizes -------------------------------------------
+
+
+@st.composite
+def model_claim(draw):
+    """Counts a model file claims: vertices, Gaussians per view (direct and indirect), the SH
+    order, how many records hold weight, and whether the arrays follow the claim (sparse,
+    compressed: a small file) or keep their real size (the claim contradicts them)."""
+    follow = draw(st.booleans())
+    small = [12, 1000, 20_000]
+    large = [150_000, 500_000, 2_000_000, 2**31 - 1, 2**40, 10**30]
+    v = draw(st.sampled_from(small if follow else small + large))
+    return {
+        "v": v,
+        "n": draw(st.sampled_from([1, 2, 3, 8, 64, 2**20, 2**62])),
+        "ni": draw(st.sampled_from([0, 1, 8, 2**20])),
+        "sh_order": draw(st.sampled_from([3, 5, 7, 30, 2**20])),
+        "live": draw(st.integers(0, 4)),
+        "follow": follow,
+        "big_views": draw(st.sampled_from([None, 10**6, 2**40])),
+    }
+
+
+def _claiming_model(arrays: dict, claim) -> dict:
+    """The model's arrays and metadata with ``claim``'s counts."""
+    meta = json.loads(bytes(arrays["meta"]).decode())
+    meta.update(n_vertices=claim["v"], n_gaussians=claim["n"], indirect_gaussians=claim["ni"],
+                sh_order=claim["sh_order"])  # fmt: skip
+    if claim["big_views"] is not None:
+        meta["n_views"] = claim["big_views"]
+    meta["materials"]["diffuse"] = [0.1, 0.1, 0.1]  # one colour for every vertex
+    out = dict(arrays)
+    if claim["follow"]:
+        v, real = claim["v"], len(arrays["vertices"])
+        n_all = min(claim["n"] + claim["ni"], 64)
+        k = min(claim["live"], v)
+        out["vertices"] = np.zeros((v, 3), np.float32)
+        out["vertices"][: min(v, real)] = arrays["vertices"][: min(v, real)]
+        out["normals"] = np.tile(np.float32([0, 0, 1]), (v, 1))
+        out["faces"] = arrays["faces"][(arrays["faces"] < v).all(1)]
+        keep = np.zeros((v, len(arrays["views"])), bool)
+        keep.reshape(-1)[:k] = True
+        out["keep"] = keep
+        g = np.zeros((k, n_all, 7), np.float32)
+        g[..., :3], g[..., 5], g[..., 6] = 0.5, 1.0, 10.0  # weights, +z lobes, sharpness 10
+        out["gaussians"] = g
+        sh = min(claim["sh_order"], 9) ** 2
+        out["diffuse"] = np.zeros((v, sh, 3), np.float32)
+    out["meta"] = np.frombuffer(json.dumps(meta).encode(), dtype=np.uint8)
+    return out
+
+
+@fuzz(40)
+@given(claim=model_claim())
+def test_fuzz_model_claims(tmp_path, model_files, claim):
+    _, arrays = model_files[False]
+    p = tmp_path / "m.npz"
+    p.write_bytes(_npz_bytes(_claiming_model(arrays, claim), compressed=True))
+    with _peak_within(MODEL_PEAK_MB):
+        _load_model(p)
+
+
+# -- the command line's numeric flags at the limits of their types ---------------------------
+
+#: Values at the edges of the types a flag's number passes through: int32, int64, uint64,
+#: float32 and float64 limits, their neighbours, signed zeros, NaN and the infinities, and
+#: the stated maxima of the flags and one past them.
+_EDGE_NUMBERS = [
+    "0", "-0", "1", "-1", "2", "3", "255", "256", "257", "16383", "16384", "16385", "65535",
+    "65536", str(2**31 - 1), str(2**31), str(-(2**31)), str(2**32), str(2**53 + 1),
+    str(2**63 - 1), str(2**63), str(-(2**63)), str(2**64), str(10**400), "3.4028235e38",
+    "3.5e38", "1e308", "1.7976931348623157e308", "-1e308", "1e-308", "5e-324", "1e-45", "inf",
+    "-inf", "nan", "-nan", "0x10", "1_000", " 7", "7 ", "+8", "1e3", "2048", "4096", "4097",
+    "64", "65", "-64", "-65", "1048576", "1048577", "3600", "3601", "10000", "10001",
+]  # fmt: skip
+#: Per command, its numeric flags (and a --size in each form).
+_NUMERIC = {
+    "render": ["--width", "--height", "--size", "--samples", "--base-res", "--exposure",
+               "--rotate", "--turntable"],
+    "bake": ["--bounces", "--indirect-paths", "--seed", "--checkpoint-every", "--memory-gb"],
+    "compare": ["--width", "--height", "--size", "--spp", "--base-res", "--rotate"],
+    "lobes-demo": ["--frames", "--size"],
+    "compare-brdf": ["--size", "--spp"],
+    "bench": ["--base-res", "--repeats", "--budget", "--memory-gb", "--samples"],
+    "gallery": ["--spp", "--pass-spp", "--max-depth", "--seed", "--size", "--samples",
+                "--base-res", "--sweep-max-spp"],
+}  # fmt: skip
+_POSITIONAL = {
+    "render": ["{m}"], "bake": ["{obj}"], "compare": ["{obj}"], "lobes-demo": [],
+    "compare-brdf": [], "bench": ["prefilter"], "gallery": ["references"],
+}  # fmt: skip
+
+
+@st.composite
+def numeric_argv(draw):
+    cmd = draw(st.sampled_from(sorted(_NUMERIC)))
+    argv = [cmd, *_POSITIONAL[cmd]]
+    for flag in draw(st.lists(st.sampled_from(_NUMERIC[cmd]), min_size=1, max_size=3)):
+        value = draw(st.one_of(st.sampled_from(_EDGE_NUMBERS), st.integers().map(str),
+                               st.floats().map(repr)))  # fmt: skip
+        if flag == "--size" and draw(st.booleans()):
+            value = f"{value}x{draw(st.sampled_from(_EDGE_NUMBERS))}"
+        argv += [flag, value]
+    if cmd == "render" and "--turntable" in argv:
+        argv += ["-o", "{o}/spin"]
+    return argv
+
+
+def _within_stated_ranges(args) -> None:
+    """The parsed values a command's work receives are within the ranges its help states."""
+    from lobelight.cli import _limits
+
+    w, h = getattr(args, "width", 1), getattr(args, "height", 1)
+    if getattr(args, "size", None):
+        w, h = _commands.parse_size(args.size)
+    assert 1 <= w <= _limits.MAX_SIDE and 1 <= h <= _limits.MAX_SIDE, (w, h)
+    assert w * h <= _limits.MAX_RENDER_PIXELS, (w, h)
+    for name, lo, hi in [
+        ("base_res", 1, _limits.MAX_BASE_RES), ("samples", 1, _limits.MAX_SAMPLES),
+        ("spp", 1, _limits.MAX_SPP), ("bounces", 0, _limits.MAX_BOUNCES),
+        ("indirect_paths", 0, _limits.MAX_INDIRECT_PATHS), ("seed", 0, _limits.MAX_SEED),
+        ("frames", 1, _limits.MAX_FRAMES), ("turntable", 1, _limits.MAX_FRAMES),
+        ("repeats", 1, _limits.MAX_REPEATS),
+    ]:  # fmt: skip
+        value = getattr(args, name, None)
+        assert value is None or lo <= value <= hi, (name, value)
+    for name in ("rotate", "memory_gb", "budget"):
+        value = getattr(args, name, None)
+        assert value is None or math.isfinite(value), (name, value)
+    exposure = getattr(args, "exposure", "auto")
+    assert exposure == "auto" or abs(float(exposure)) <= _limits.MAX_EXPOSURE
+
+
+@fuzz(150)
+@given(argv=numeric_argv())
+def test_fuzz_cli_numeric_limits(cli_files, monkeypatch, capsys, argv):
+    """A numeric flag at the edge of its type: refused with one line (exit 2) before any
+    work, or the work receives a value within the flag's stated range."""
+    d = cli_files
+    argv = [a.replace("{m}", str(d / "m.npz")).replace("{obj}", str(d / "ball.obj"))
+            .replace("{o}", str(d / "out")) for a in argv]  # fmt: skip
+    seen = {}
+
+    def work(*args, **kwargs):
+        raise _WorkStarted
+
+    real_run = {}
+
+    def catching(name):
+        def run(args):
+            seen["args"] = args
+            return real_run[name](args)
+
+        return run
+
+    with monkeypatch.context() as mp:
+        for name in _WORK:
+            mp.setattr(_commands, name, work)
+        for name in _BENCH_WORK:
+            mp.setattr(_commands.bench, name, work)
+        for name in [n for n in _commands.__all__ if n.startswith("run_")]:
+            real_run[name] = getattr(_commands, name)
+            mp.setattr(_commands, name, catching(name))
+        capsys.readouterr()
+        with _time_limit(LOAD_SECONDS), _peak_within(MODEL_PEAK_MB):
+            try:
+                code = cli.main(argv)
+            except _WorkStarted:
+                _within_stated_ranges(seen["args"])
+                _tally("accepted")
+                return
+    _, err = capsys.readouterr()
+    assert code in (0, 2), (argv, code, err)
+    if code == 0:
+        _tally("accepted")
+        return
+    lines = err.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith("lobelight: error"), (argv, err)
+    _tally("clean_errors")
+
+
+# -- outputs aimed at inputs -----------------------------------------------------------------
+
+#: How an output may name an input: the same path, another spelling of it, a symbolic link, a
+#: link to a link, a hard link.
+_ALIASES = ["same", "dot", "parent", "absolute", "symlink", "symlink2", "hardlink", "fresh"]
+
+
+@st.composite
+def output_at_input(draw):
+    cmd = draw(st.sampled_from(["bake-mesh", "bake-scene", "render", "render-turntable"]))
+    inputs = {
+        "bake-mesh": ["ball.obj"],
+        "bake-scene": ["s.toml", "ball.obj", "env.hdr"],
+        "render": ["m.npz", "env.hdr"],
+        "render-turntable": ["m.npz", "env.hdr"],
+    }[cmd]
+    return cmd, draw(st.sampled_from(inputs)), draw(st.sampled_from(_ALIASES))
+
+
+def _alias(d: Path, target: str, how: str, k: int) -> str:
+    """A name in ``d`` for the file ``target`` (made fresh per example ``k``)."""
+    t = d / target
+    if how == "same":
+        return target
+    if how == "dot":
+        return f"./{target}"
+    if how == "parent":
+        return f"sub/../{target}"
+    if how == "absolute":
+        return str(t)
+    if how == "fresh":
+        return f"new{k}.png" if target != "ball.obj" else f"new{k}.npz"
+    link = d / f"link{k}{t.suffix if t.suffix in ('.hdr', '.png') else '.png'}"
+    if how == "hardlink":
+        os.link(t, link)
+    elif how == "symlink":
+        link.symlink_to(t)
+    else:
+        (d / f"hop{k}").symlink_to(t)
+        link.symlink_to(d / f"hop{k}")
+    return link.name
+
+
+@fuzz(80)
+@given(case=output_at_input())
+def test_fuzz_outputs_aimed_at_inputs(tmp_path, model_files, monkeypatch, capsys, case):
+    """Every output that resolves to an input is refused (exit 2, one line) before any work,
+    with every input unchanged; an output elsewhere reaches the work."""
+    cmd, target, how = case
+    d = Path(tempfile.mkdtemp(dir=tmp_path))  # a folder per example
+    k = 0
+    (d / "sub").mkdir()
+    (d / "m.npz").write_bytes(model_files[False][0])
+    (d / "ball.obj").write_bytes(MESHES["obj"])
+    (d / "env.hdr").write_bytes(_hdr_bytes(_img(4, 8)))
+    (d / "s.toml").write_text('mesh = "ball.obj"\nenvironment = "env.hdr"\n')
+    monkeypatch.chdir(d)
+    out = _alias(d, target, how, k)
+    argv = {
+        "bake-mesh": ["bake", "ball.obj", "-o", out],
+        "bake-scene": ["bake", "s.toml", "-o", out],
+        "render": ["render", "m.npz", "--env", "env.hdr", "-o", out],
+        "render-turntable": ["render", "m.npz", "--env", "env.hdr", "--turntable", "2", "-o", "."],
+    }[cmd]
+    if cmd == "render-turntable" and how != "fresh":  # a frame's name aimed at the input
+        (d / "frame_001.png").unlink(missing_ok=True)
+        os.link(d / target, d / "frame_001.png") if how == "hardlink" else (
+            d / "frame_001.png").symlink_to(d / target)  # fmt: skip
+    before = {p.name: p.read_bytes() for p in d.iterdir() if p.is_file() and not p.is_symlink()}
+
+    def work(*args, **kwargs):
+        raise _WorkStarted
+
+    with monkeypatch.context() as mp:
+        for name in _WORK:
+            mp.setattr(_commands, name, work)
+        capsys.readouterr()
+        with _time_limit(LOAD_SECONDS):
+            try:
+                code = cli.main([*argv, "-q"])
+            except _WorkStarted:
+                code = None
+    _, err = capsys.readouterr()
+    after = {n: (d / n).read_bytes() for n in before}
+    assert after == before, f"{argv}: an input changed"
+    if how == "fresh":
+        assert code is None, (argv, err)
+        _tally("accepted")
+        return
+    assert code == 2, (argv, code, err)
+    lines = err.strip().splitlines()
+    # refused as the input, or for what its name says (a model's name is no image name)
+    assert len(lines) == 1 and lines[0].startswith("lobelight: error"), (argv, err)
+    if Path(out).suffix in (".png", ".hdr") or cmd.startswith("bake"):
+        assert "is the input" in lines[0], (argv, err)
     _tally("clean_errors")

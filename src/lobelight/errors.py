@@ -7,11 +7,22 @@ it as a single line and exit with a documented code instead of a traceback.
 
 from __future__ import annotations
 
-__all__ = ["InputError", "LobelightError", "one_line"]
+__all__ = ["InputError", "LobelightError", "Terminated", "one_line", "shorten"]
+
+#: The longest name or problem an error message quotes in full: a longer one (a million-element
+#: argument, a file's whole line) keeps its head and tail (:func:`shorten`).
+MAX_QUOTED = 2000
 
 
 class LobelightError(Exception):
     """Base class of every error lobelight raises on purpose."""
+
+
+class Terminated(BaseException):
+    """SIGTERM arrived (a batch scheduler pre-empting the job): raised by the command line's
+    signal handler and unwound like :class:`KeyboardInterrupt`, so that ``finally`` blocks and
+    checkpoints run. Not an :class:`Exception`, so that no reader's ``except Exception`` takes
+    it for a bad input."""
 
 
 class InputError(LobelightError, ValueError):
@@ -28,8 +39,8 @@ class InputError(LobelightError, ValueError):
     def __init__(self, what: str, problem: str):
         # names and values quoted from the input may hold line breaks or other control
         # characters: escaped, so that the message stays one line
-        self.what = one_line(str(what))
-        self.problem = one_line(str(problem))
+        self.what = shorten(one_line(str(what)), 4 * MAX_QUOTED)  # a whole path (PATH_MAX 4096)
+        self.problem = shorten(one_line(str(problem)))
         super().__init__(f"{self.what}: {self.problem}")
 
 
@@ -39,3 +50,12 @@ def one_line(text: str) -> str:
     if text.isprintable():
         return text
     return "".join(c if c.isprintable() else repr(c)[1:-1] for c in text)
+
+
+def shorten(text: str, limit: int = MAX_QUOTED) -> str:
+    """``text`` if it has at most ``limit`` characters, else its head and tail around a note of
+    how many characters were left out."""
+    if len(text) <= limit:
+        return text
+    keep = max(limit // 2, 1)
+    return f"{text[:keep]}... ({len(text) - 2 * keep:,} characters left out) ...{text[-keep:]}"

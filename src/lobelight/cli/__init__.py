@@ -10,9 +10,15 @@ Every command takes ``--json`` (stdout carries only the JSON summary, or a JSON 
 every few seconds elsewhere (:mod:`lobelight.progress`). Flags share their names across
 commands: ``-o/--output``, ``--width/--height``, ``--spp``, ``--sun/--no-sun``, ``--backend``.
 
-Exit codes: 0 success; 1 unexpected error; 2 bad input (one line on stderr naming the input and
-the problem); 130 interrupted (Ctrl-C), 143 terminated (SIGTERM, as batch schedulers send it):
-one line each, and a bake resumes from its checkpoint when run again.
+Exit codes: 0 success; 1 unexpected error (one line on stderr naming the log file that holds
+the traceback, or the traceback itself with ``--debug``); 2 bad input (one line on stderr naming
+the input and the problem); 130 interrupted (Ctrl-C), 143 terminated (SIGTERM, as batch
+schedulers send it): one line each, and a bake resumes from its checkpoint when run again. Under
+``--json`` every error is also a JSON object ``{"error": {...}}`` on stdout.
+
+Outputs never replace inputs: a file the command read (the same path, a hard link or a symbolic
+link to it) is refused as an output before any work (:func:`lobelight._io.check_outputs`), and
+no write replaces one (:func:`lobelight._io.protect_inputs`).
 """
 
 from __future__ import annotations
@@ -22,11 +28,19 @@ import json
 import math
 import os
 import re
+import shlex
 import signal
 import sys
+import tempfile
 import threading
+import time
+import traceback
+from pathlib import Path
 
-from ..errors import InputError, one_line
+from .. import __version__
+from .._cache import cache_dir, check_environment
+from .._io import protect_inputs
+from ..errors import MAX_QUOTED, InputError, Terminated, one_line, shorten
 from ._arguments import _parser, _UsageError
 from ._process import tune
 
@@ -40,7 +54,9 @@ def _plain(x):
 
 
 def _cell(v) -> str:
-    return f"{v:.4g}" if isinstance(v, float) else str(v)
+    """A value as text: floats to 4 digits; a string from a file (a scene's name, a provenance
+    field) with its control characters escaped (a terminal escape is shown, not obeyed)."""
+    return f"{v:.4g}" if isinstance(v, float) else one_line(str(v))
 
 
 def _print_text(summary: dict) -> None:
@@ -50,15 +66,16 @@ def _print_text(summary: dict) -> None:
             cols = list(v[0])
             cells = [cols] + [[_cell(r.get(c, "")) for c in cols] for r in v]
             widths = [max(len(row[i]) for row in cells) for i in range(len(cols))]
-            print(f"{k}:")
+            print(f"{one_line(str(k))}:")
             for row in cells:
-                print("  " + "  ".join(c.ljust(w) for c, w in zip(row, widths, strict=True)))
+                line = "  ".join(c.ljust(w) for c, w in zip(row, widths, strict=True))
+                print("  " + line.rstrip())
         elif isinstance(v, dict):
-            print(f"{k}:")
+            print(f"{one_line(str(k))}:")
             for kk, vv in v.items():
-                print(f"  {kk}: {_cell(vv)}")
+                print(f"  {one_line(str(kk))}: {_cell(vv)}")
         else:
-            print(f"{k}: {_cell(v)}")
+            print(f"{one_line(str(k))}: {_cell(v)}")
 
 
 # options whose values may start with '-' (a camera below the origin, a negative angle)
@@ -82,23 +99,21 @@ def _join_signed(argv: list[str]) -> list[str]:
     return out
 
 
-def _fail(json_mode: bool, what: str, problem: str, code: int) -> int:
-    """Report an error: one line on stderr, and the JSON error object on stdout under --json."""
-    what, problem = one_line(what), one_line(problem)  # a usage error quotes the arguments
+def _fail(json_mode: bool, what: str, problem: str, code: int, **extra) -> int:
+    """Report an error: one line on stderr, and the JSON error object on stdout under --json
+    (with ``extra`` fields, e.g. the log file of an unexpected error)."""
+    # a usage error quotes the arguments: escaped, and a long one shortened
+    what, problem = shorten(one_line(what), 4 * MAX_QUOTED), shorten(one_line(problem))
     print(f"lobelight: error: {what}: {problem}" if what else f"lobelight: error: {problem}",
           file=sys.stderr)  # fmt: skip
     if json_mode:
-        err = {"error": {"code": code, "input": what, "problem": problem}}
+        err = {"error": {"code": code, "input": what, "problem": problem, **extra}}
         print(json.dumps(err, indent=2))
     return code
 
 
-class _Terminated(Exception):
-    """SIGTERM arrived: unwound like Ctrl-C, so that ``finally`` blocks and checkpoints run."""
-
-
 def _on_sigterm(signum, frame) -> None:
-    raise _Terminated
+    raise Terminated
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -116,28 +131,21 @@ def main(argv: list[str] | None = None) -> int:
 def _main(argv: list[str] | None) -> int:
     argv = _join_signed(list(sys.argv[1:] if argv is None else argv))
     json_mode = "--json" in argv
+    debug = "--debug" in argv
     try:
         args = _parser().parse_args(argv)
     except _UsageError as e:
         return _fail(json_mode, "", str(e), 2)
+    except Exception:  # the parser's own failure: the one door below
+        return _unexpected(json_mode, debug)
     try:
-        # the commands (and torch) load once the line is parsed: --help and a mistyped
-        # command answer at once
-        commands = importlib.import_module("lobelight.cli._commands")
-        # the process is ours: its allocator and OpenMP settings (:mod:`._process`), made
-        # once torch is loaded, so that the short spin reaches only the runtimes loaded later
-        tune()
-        args.device = commands.check_device(args.device)
-        commands.use_rays(args.rays)
-        summary = getattr(commands, args.run)(args)
+        summary = _run(args)
     except InputError as e:
         return _fail(args.json, e.what, e.problem, 2)
-    except (KeyboardInterrupt, _Terminated) as e:
-        code, what = (143, "terminated") if isinstance(e, _Terminated) else (130, "interrupted")
-        print(f"lobelight: {what} (a bake resumes when run again)", file=sys.stderr)
-        if args.json:
-            print(json.dumps({"error": {"code": code, "input": "", "problem": what}}))
-        return code
+    except (KeyboardInterrupt, Terminated) as e:
+        return _stopped(args, e)
+    except Exception:
+        return _unexpected(args.json, args.debug)
     try:
         if args.json:
             print(json.dumps(summary, indent=2, default=_plain))
@@ -149,3 +157,61 @@ def _main(argv: list[str] | None) -> int:
         # point stdout at devnull so that the interpreter's final flush does not fail again
         os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
     return 0
+
+
+def _run(args) -> dict:
+    """The command ``args`` name, after the checks every command shares (the environment's
+    settings, the device, the ray engine), with its outputs kept off its inputs
+    (:func:`lobelight._io.protect_inputs`)."""
+    check_environment()
+    # the commands (and torch) load once the line is parsed: --help and a mistyped
+    # command answer at once
+    commands = importlib.import_module("lobelight.cli._commands")
+    # the process is ours: its allocator and OpenMP settings (:mod:`._process`), made
+    # once torch is loaded, so that the short spin reaches only the runtimes loaded later
+    tune()
+    args.device = commands.check_device(args.device)
+    commands.use_rays(args.rays)
+    with protect_inputs():
+        return getattr(commands, args.run)(args)
+
+
+def _stopped(args, e: BaseException) -> int:
+    """Ctrl-C (130) or SIGTERM (143): one line; a bake says that it resumes (its checkpoint),
+    other commands leave no file half-written (every file is written whole)."""
+    code, what = (143, "terminated") if isinstance(e, Terminated) else (130, "interrupted")
+    note = " (a bake resumes when run again)" if args.command == "bake" else ""
+    print(f"lobelight: {what}{note}", file=sys.stderr)
+    if args.json:
+        print(json.dumps({"error": {"code": code, "input": "", "problem": what}}))
+    return code
+
+
+def _unexpected(json_mode: bool, debug: bool) -> int:
+    """An error no check foresaw (a bug, or a library's failure): exit 1 with one line naming
+    the log file that holds the traceback, or the traceback itself under ``--debug``."""
+    exc = sys.exc_info()[1]
+    summary = f"unexpected {type(exc).__name__}: {exc}"
+    if debug:
+        traceback.print_exc()
+        return _fail(json_mode, "", summary, 1)
+    log = _write_log(traceback.format_exc())
+    where = f"the traceback is in {log}" if log else "no log file could be written"
+    return _fail(json_mode, "", f"{summary} ({where}; --debug prints it)", 1, log=log)
+
+
+def _write_log(text: str) -> str | None:
+    """``text`` in a new file under the cache folder's ``logs`` (else the temporary folder);
+    its path, or None where neither can be written."""
+    for folder in (cache_dir() / "logs", Path(tempfile.gettempdir())):
+        try:
+            folder.mkdir(parents=True, exist_ok=True)
+            stamp = time.strftime("%Y%m%d-%H%M%S")
+            fd, path = tempfile.mkstemp(prefix=f"lobelight-{stamp}-", suffix=".log", dir=folder)
+            with os.fdopen(fd, "w") as f:
+                f.write(f"lobelight {__version__}: {' '.join(map(shlex.quote, sys.argv))}\n")
+                f.write(text)
+            return path
+        except OSError:
+            continue
+    return None

@@ -8,11 +8,28 @@ Building it imports no torch, so that ``--help`` and a usage error answer at onc
 from __future__ import annotations
 
 import argparse
+import math
 
 from .. import __version__
 from ..data import envmap_names
 from ._gallery import add_arguments as add_gallery_arguments
 from ._gallery import gaussian_count
+from ._limits import (
+    MAX_BASE_RES,
+    MAX_BOUNCES,
+    MAX_EXPOSURE,
+    MAX_FRAMES,
+    MAX_INDIRECT_PATHS,
+    MAX_REPEATS,
+    MAX_SAMPLES,
+    MAX_SEED,
+    MAX_SIDE,
+    MAX_SPP,
+    bounded_float,
+    bounded_int,
+    memory_bytes,
+    pixels_help,
+)
 
 #: A bake's memory budget in GB, :data:`lobelight.fit.MEMORY_GB` restated likewise.
 _MEMORY_GB = 4.0
@@ -91,6 +108,12 @@ def _command(sub, name: str, run: str, help: str, *, heavy: bool = True) -> argp
         help="print a machine-readable summary on stdout (errors too, as JSON)",
     )
     sp.add_argument("-q", "--quiet", action="store_true", help="no progress on stderr")
+    sp.add_argument(
+        "--debug",
+        action="store_true",
+        help="on an unexpected error (exit 1), print its traceback on stderr (default: write it "
+        "to a log file, whose path the error line names)",
+    )
     if heavy:
         sp.add_argument(
             "--device", default="cpu", help="torch device of the heavy work (cpu, cuda, cuda:1)"
@@ -107,19 +130,31 @@ def _command(sub, name: str, run: str, help: str, *, heavy: bool = True) -> argp
     return sp
 
 
+def _percent(text: str) -> str:
+    """``text`` for an argparse help string (which formats ``%``)."""
+    return text.replace("%", "%%")
+
+
 def _output(sp, default, what: str) -> None:
     sp.add_argument("-o", "--output", default=default, help=what)
 
 
 def _size(sp, w: int = 512, h: int = 512) -> None:
-    sp.add_argument("--width", type=int, default=w, help="image width in pixels")
-    sp.add_argument("--height", type=int, default=h, help="image height in pixels")
-    sp.add_argument("--size", help="N or WxH: sets --width and --height together (default: theirs)")
+    side = bounded_int(1, MAX_SIDE)
+    sp.add_argument("--width", type=side, default=w, help="image width in pixels")
+    sp.add_argument("--height", type=side, default=h, help="image height in pixels")
+    sp.add_argument(
+        "--size",
+        help="N or WxH: sets --width and --height together (default: theirs); "
+        + _percent(pixels_help()),
+    )
 
 
 def _square(sp, n: int) -> None:
     sp.set_defaults(width=n, height=n)
-    sp.add_argument("--size", default=str(n), help="image size in pixels (square)")
+    sp.add_argument(
+        "--size", default=str(n), help=f"image size in pixels (square); {_percent(pixels_help())}"
+    )
 
 
 def _sun(sp, default: bool = True) -> None:
@@ -156,13 +191,14 @@ def _gaussians(sp, *, auto: bool = False) -> None:
 
 
 def _memory_gb(sp) -> None:
+    gb = memory_bytes() / 2**30
     sp.add_argument(
         "--memory-gb",
-        type=float,
+        type=bounded_float(0.0, round(gb, 1), lo_open=True),
         default=_MEMORY_GB,
         metavar="GB",
         help="the bake's memory budget (resident, GB): every stage's batches are sized to it, "
-        "so a mesh of any size bakes within it",
+        f"so a mesh of any size bakes within it (at most this machine's {gb:.1f} GB)",
     )
 
 
@@ -178,32 +214,40 @@ def _backend(sp) -> None:
 def _base_res(sp, default: int = 256) -> None:
     sp.add_argument(
         "--base-res",
-        type=int,
+        type=bounded_int(1, MAX_BASE_RES),
         default=default,
-        help="face resolution of the sharpest prefiltered level (a power of two)",
+        help="face resolution of the sharpest prefiltered level (a power of two, at most "
+        f"{MAX_BASE_RES}: the largest whose chain fits half of this machine's memory)",
     )
 
 
 def _spp(sp, default: int) -> None:
-    sp.add_argument("--spp", type=int, default=default, help="reference samples per pixel")
+    sp.add_argument(
+        "--spp",
+        type=bounded_int(1, MAX_SPP),
+        default=default,
+        help=f"reference samples per pixel (1..{MAX_SPP})",
+    )
 
 
 def _samples(sp, default: int) -> None:
     sp.add_argument(
         "--samples",
-        type=int,
+        type=bounded_int(1, MAX_SAMPLES),
         default=default,
-        help="anti-aliasing samples per pixel, each a full shading pass (1: none)",
+        help=f"anti-aliasing samples per pixel, each a full shading pass (1: none; at most "
+        f"{MAX_SAMPLES})",
     )
 
 
 def _rotate(sp) -> None:
     sp.add_argument(
         "--rotate",
-        type=float,
+        type=bounded_float(-1e9, 1e9),
         default=0.0,
         metavar="DEGREES",
-        help="turn the lighting about the vertical axis (+y, the lat-long map's up)",
+        help="turn the lighting about the vertical axis (+y, the lat-long map's up; "
+        "-1e9..1e9, taken modulo 360)",
     )
 
 
@@ -256,27 +300,33 @@ def _add_bake(sub) -> None:
     _memory_gb(b)
     b.add_argument(
         "--bounces",
-        type=int,
+        type=bounded_int(0, MAX_BOUNCES),
         default=_BOUNCES,
         help="bounces of diffuse interreflection in the SH transfer, carrying the diffuse and "
-        "glossy light of the points a vertex sees (0: self-shadowed only)",
+        f"glossy light of the points a vertex sees (0: self-shadowed only; at most {MAX_BOUNCES})",
     )
     b.add_argument(
         "--indirect-paths",
-        type=int,
+        type=bounded_int(0, MAX_INDIRECT_PATHS),
         default=_INDIRECT_PATHS,
         help="paths per vertex and view for indirect glossy, the light glossy surfaces reflect "
-        "off the object (0: direct glossy only)",
+        f"off the object (0: direct glossy only; at most {MAX_INDIRECT_PATHS})",
     )
     b.add_argument("--float16", action="store_true", help="store half floats (half the size)")
-    b.add_argument("--seed", type=int, default=0, help="seed of the fit's random starts")
+    b.add_argument(
+        "--seed",
+        type=bounded_int(0, MAX_SEED),
+        default=0,
+        help="seed of the fit's random starts (0..2^63-1)",
+    )
     b.add_argument(
         "--checkpoint-every",
-        type=float,
+        type=bounded_float(0.0, math.inf),
         default=30.0,
         metavar="SECONDS",
         help="save the bake's state at most this often (and after each stage) to "
-        "MODEL.ckpt, from which an interrupted bake resumes; 0 after every chunk",
+        "MODEL.ckpt, from which an interrupted bake resumes; 0 after every chunk, inf after "
+        "each stage only",
     )
 
 
@@ -303,7 +353,11 @@ def _add_render(sub) -> None:
         help="draw the environment behind the object",
     )
     _sun(r)
-    r.add_argument("--exposure", default="auto", help="stops, or 'auto' (the object's pixels)")
+    r.add_argument(
+        "--exposure",
+        default="auto",
+        help=f"stops (-{MAX_EXPOSURE:g}..{MAX_EXPOSURE:g}), or 'auto' (the object's pixels)",
+    )
     r.add_argument(
         "--tonemap",
         choices=["neutral", "srgb", "aces"],
@@ -316,10 +370,11 @@ def _add_render(sub) -> None:
     _samples(r, 4)
     r.add_argument(
         "--turntable",
-        type=int,
+        type=bounded_int(1, MAX_FRAMES),
         metavar="N",
         help="render N frames around the object into the folder -o, and an animated GIF "
-        "(default: one still image)",
+        f"(default: one still image; at most {MAX_FRAMES}, and their images together within "
+        "half of this machine's memory)",
     )
     r.add_argument(
         "--spin",
@@ -442,7 +497,12 @@ def _add_lobes_demo(sub) -> None:
         "cosine lobes: a moving light and occluder with soft shadows, to PNGs and a GIF",
     )
     _output(ld, "lobelight-lobes", "output folder")
-    ld.add_argument("--frames", type=int, default=24, help="frames of the animation")
+    ld.add_argument(
+        "--frames",
+        type=bounded_int(1, MAX_FRAMES),
+        default=24,
+        help=f"frames of the animation (at most {MAX_FRAMES})",
+    )
     _square(ld, 256)
     ld.add_argument(
         "--fused",
@@ -472,7 +532,7 @@ def _add_bench(sub) -> None:
             "(default: none, the summary on stdout only)")  # fmt: skip
     be.add_argument(
         "--budget",
-        type=float,
+        type=bounded_float(0.0, math.inf, lo_open=True),
         default=None,
         help="bench all: seconds after which benchmarks not yet started are skipped (default: "
         "none, every benchmark runs)",
@@ -492,10 +552,10 @@ def _add_bench(sub) -> None:
     _backend(be)
     be.add_argument(
         "--repeats",
-        type=int,
+        type=bounded_int(1, MAX_REPEATS),
         default=None,
         help="timed repeats (default: prefilter 3 builds, lobes 20 frames: on a shared "
-        "machine the best of a few frames is mostly noise)",
+        f"machine the best of a few frames is mostly noise; at most {MAX_REPEATS})",
     )
     _sun(be, default=False)
     _samples(be, 1)

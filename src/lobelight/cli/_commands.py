@@ -19,13 +19,14 @@ from pathlib import Path
 import torch
 
 from .. import bench
+from .._io import IMAGE_LIMIT, check_input, check_outputs, note_input
 from .._tol import DIVISOR_F64
 from ..bench import bench_all, bench_brdf_fit, bench_lobes, bench_rays, bench_tables
 from ..brdf import sharp_lobe
 from ..data import envmap_names, resolve_envmap
 from ..envmap import builtin
 from ..envmap import load as load_env
-from ..errors import InputError
+from ..errors import InputError, one_line
 from ..fit import fit_model
 from ..geometry import raycast
 from ..geometry.camera import Camera
@@ -49,7 +50,8 @@ from ..studies.demo import demo
 from ..studies.figure5 import figure5
 from ..studies.lobes_demo import lobes_demo
 from ._gallery import gallery_main
-from ._size import check_pixels, parse_size
+from ._limits import MAX_EXPOSURE
+from ._size import check_frames, check_image, parse_size
 
 __all__ = [
     "check_device",
@@ -77,8 +79,10 @@ def _progress(args) -> Reporter | None:
 
 
 def _note(args, text: str) -> None:
+    """One line of context on stderr (not under ``--quiet``); names from files (a scene's) are
+    escaped."""
     if not args.quiet:
-        print(f"lobelight: {text}", file=sys.stderr, flush=True)
+        print(f"lobelight: {one_line(text)}", file=sys.stderr, flush=True)
 
 
 def _load_scene(args, scene: str, *, material=None):
@@ -158,7 +162,10 @@ def _env_source(path: str | None, provenance: dict | None = None) -> str:
 
 def _env_file(source: str) -> str:
     """``source`` as a file path (a bundled map's name resolves to its file), or an InputError
-    naming the bundled maps where ``source`` is neither a file nor one of them."""
+    naming the bundled maps where ``source`` is neither a file nor one of them; a path that is
+    there but is no regular file (a FIFO, a device) is said to be what it is."""
+    if os.path.lexists(source) and not os.path.isdir(source):
+        check_input(source, limit=IMAGE_LIMIT)  # a FIFO or a dangling link: what it is
     resolved = resolve_envmap(source)
     if resolved is None:
         names = ", ".join(envmap_names())
@@ -193,16 +200,28 @@ def _check_output(path: str | os.PathLike) -> Path:
 
 
 def _size(args) -> tuple[int, int]:
-    """``--width``/``--height``, or ``--size N`` / ``--size WxH`` (both checked)."""
-    w, h = args.width, args.height
+    """``--width``/``--height``, or ``--size N`` / ``--size WxH``, checked against this machine's
+    memory (:func:`lobelight.cli._size.check_image`)."""
     if getattr(args, "size", None):
-        w, h = parse_size(args.size)
-    return check_pixels("--width", w), check_pixels("--height", h)
+        return check_image("--size", *parse_size(args.size))
+    return check_image("--width/--height", args.width, args.height)
+
+
+def _check_base_res(args) -> int:
+    """``--base-res``: a power of two (its range is the parser's)."""
+    n = args.base_res
+    if n & (n - 1):
+        raise InputError("--base-res", f"must be a power of two, got {n}")
+    return n
 
 
 def _model_path(scene: str, output: str | None) -> Path:
-    out = Path(output) if output else Path(f"{Path(str(scene)).stem}.lobelight.npz")
-    return _writable_file(Path(str(out).replace(":", "-")))
+    """``-o`` exactly as given, else ``NAME.lobelight.npz`` in the working folder (a built-in
+    name's ``:`` as ``-``: ``knot:2`` bakes to ``knot-2.lobelight.npz``)."""
+    if output:
+        return _writable_file(Path(output))
+    stem = Path(str(scene)).stem.replace(":", "-")
+    return _writable_file(Path(f"{stem}.lobelight.npz"))
 
 
 def _writable_file(out: Path) -> Path:
@@ -234,7 +253,11 @@ def run_bake(args) -> dict:
             load_env(env_file)  # checked at the door: missing, unreadable, NaN/Inf, bad shape
             env_file = str(Path(env_file).resolve())
         sc = dataclasses.replace(sc, environment=env_file)
+    if sc.environment != "builtin":
+        note_input(sc.environment)  # named by the model, read by render: an input too
     ckpt = out.with_name(out.name + ".ckpt")
+    # every file the scene brought was read: none of them may be written over
+    check_outputs(out, ckpt)
     if ckpt.exists():
         _note(args, f"resuming from {ckpt}")
     _note(
@@ -353,37 +376,47 @@ def _glossy_summary(m, n_gaussians, choice) -> dict:
 
 
 def _exposure(text: str) -> float | None:
-    """``--exposure``: stops, or None for ``auto``."""
+    """``--exposure``: stops within +-:data:`lobelight.cli._limits.MAX_EXPOSURE`, or None for
+    ``auto``."""
     if text == "auto":
         return None
     try:
         v = float(text)
     except ValueError:
         v = math.nan
-    if not math.isfinite(v):
-        raise InputError("--exposure", f"expected stops (a finite number) or 'auto', got {text!r}")
+    if not abs(v) <= MAX_EXPOSURE:  # NaN too
+        raise InputError(
+            "--exposure",
+            f"expected stops (-{MAX_EXPOSURE:g}..{MAX_EXPOSURE:g}) or 'auto', got {text[:40]!r}",
+        )
     return v
+
+
+def _render_outputs(args, width: int, height: int) -> list[Path]:
+    """The files ``render`` writes, checked before any work: the image, or with
+    ``--turntable`` the frames and the animation in the folder ``-o``."""
+    if args.turntable is None:
+        return [_check_output(args.output)]
+    check_frames("--turntable", args.turntable, width, height)
+    out_dir = Path(args.output)
+    if out_dir.suffix and not out_dir.is_dir():
+        raise InputError(str(out_dir), "--turntable writes frames into a folder: -o DIR")
+    if not out_dir.parent.is_dir():
+        raise InputError(str(out_dir), f"the directory {str(out_dir.parent)!r} does not exist")
+    frames = [out_dir / f"frame_{i:03d}.png" for i in range(args.turntable)]
+    return [out_dir, *frames, out_dir / "frames.gif"]
 
 
 def run_render(args) -> dict:
     width, height = _size(args)
     exposure = _exposure(args.exposure)
-    if not 1 <= args.samples <= 256:
-        raise InputError("--samples", f"must be 1..256 samples per pixel, got {args.samples}")
-    if args.rotate is not None and not math.isfinite(args.rotate):
-        raise InputError("--rotate", f"must be a finite angle in degrees, got {args.rotate}")
-    if args.turntable is not None:
-        if args.turntable < 1:
-            raise InputError("--turntable", f"must be >= 1 frames, got {args.turntable}")
-        out_dir = Path(args.output)
-        if out_dir.suffix and not out_dir.is_dir():
-            raise InputError(str(out_dir), "--turntable writes frames into a folder: -o DIR")
-        if not out_dir.parent.is_dir():
-            raise InputError(str(out_dir), f"the directory {str(out_dir.parent)!r} does not exist")
-    else:
-        _check_output(args.output)
+    _check_base_res(args)
+    if args.rotate is not None:
+        args.rotate = math.remainder(args.rotate, 360.0)  # the same turn, in -180..180
+    outputs = _render_outputs(args, width, height)
     m = load_model(args.model, device=args.device)
     env = _env(args.env, m.provenance)
+    check_outputs(*outputs)  # the model and the map were read: neither is written over
     cam = _camera_from(args.camera, m.provenance, m.mesh)
     backend = _backend(args.backend)
     t0 = time.perf_counter()
@@ -468,10 +501,13 @@ _SAME_MESH_RTOL = 1e-3
 
 def run_compare(args) -> dict:
     width, height = _size(args)
+    _check_base_res(args)
     if args.scene is None and args.model is None:
         raise InputError("scene", "give a scene, or --model MODEL to score a model's own scene")
     model = load_model(args.model, device=args.device) if args.model else None
     sc = _compare_scene(args, model)
+    env = _env(args.env) if args.env else None
+    check_outputs(args.output)
     return {
         "command": "compare",
         # what is scored: the model's (or the scene's) map unless --env, and material
@@ -481,7 +517,7 @@ def run_compare(args) -> dict:
             sc,
             model=model,
             n_gaussians=args.gaussians,
-            env=_env(args.env) if args.env else None,
+            env=env,
             width=width,
             height=height,
             spp=args.spp,
@@ -637,6 +673,8 @@ def run_figure5(args) -> dict:
 
 
 def run_gallery(args) -> dict:
+    check_image("--size", *parse_size(args.size))  # the references' size, at the door
+    _check_base_res(args)
     return {"command": "gallery", "action": args.action, **gallery_main(args)}
 
 
@@ -662,7 +700,7 @@ def run_bench(args) -> dict:
         if args.budget is not None and not (math.isfinite(args.budget) and args.budget > 0):
             raise InputError("--budget", f"must be a positive number of seconds, got {args.budget}")
         if args.output is not None:
-            _writable_file(Path(args.output))
+            check_outputs(_writable_file(Path(args.output)))
         return bench_all(
             device=args.device,
             output=args.output,
@@ -672,6 +710,7 @@ def run_bench(args) -> dict:
     if w == "rays":
         return bench_rays(device=args.device)
     if w == "prefilter":
+        _check_base_res(args)
         return bench.bench_prefilter(base_res=args.base_res, device=args.device, **reps)
     if w == "transport":
         return bench.bench_transport(scene=args.scene, device=args.device)

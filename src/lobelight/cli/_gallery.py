@@ -16,12 +16,21 @@ from typing import Any
 from ..data import DATA_ENV
 from ..errors import InputError
 from ..studies import gallery
-from ._size import check_pixels, parse_size
+from ._limits import (
+    MAX_BASE_RES,
+    MAX_DEPTH,
+    MAX_SAMPLES,
+    MAX_SPP,
+    bounded_int,
+)
+from ._size import check_image, parse_size
 
 __all__ = ["ACTIONS", "DEFAULT_REFS", "REFS_ENV", "add_arguments", "gallery_main"]
 
 #: The environment variable that names the references folder when ``--refs`` is not given.
 REFS_ENV = "LOBELIGHT_GALLERY_REFS"
+#: The largest base seed: the passes' seeds (base x passes + pass) stay within 32 bits.
+MAX_MITSUBA_SEED = 2**24
 #: The references folder when neither ``--refs`` nor ``$LOBELIGHT_GALLERY_REFS`` is given.
 DEFAULT_REFS = "gallery-refs"
 ACTIONS = ("list", "references", "run")
@@ -57,11 +66,24 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def _add_reference_settings(r) -> None:
     d = gallery.ReferenceSettings()
-    r.add_argument("--spp", type=int, default=d.spp, help="samples per pixel")
-    r.add_argument("--pass-spp", type=int, default=d.pass_spp, help="samples per render pass")
-    r.add_argument("--max-depth", type=int, default=d.max_depth, help="Mitsuba's path depth")
-    r.add_argument("--size", default=f"{d.width}", help="image size: N or WxH")
-    r.add_argument("--seed", type=int, default=d.seed, help="the passes' base seed")
+    spp = bounded_int(1, MAX_SPP)
+    r.add_argument("--spp", type=spp, default=d.spp, help=f"samples per pixel (1..{MAX_SPP})")
+    r.add_argument(
+        "--pass-spp", type=spp, default=d.pass_spp, help=f"samples per render pass (1..{MAX_SPP})"
+    )
+    r.add_argument(
+        "--max-depth",
+        type=bounded_int(-1, MAX_DEPTH),
+        default=d.max_depth,
+        help=f"Mitsuba's path depth (-1: unbounded; at most {MAX_DEPTH})",
+    )
+    r.add_argument("--size", default=f"{d.width}", help="image size: N or WxH (as render's --size)")
+    r.add_argument(
+        "--seed",
+        type=bounded_int(0, MAX_MITSUBA_SEED),
+        default=d.seed,
+        help=f"the passes' base seed (0..{MAX_MITSUBA_SEED}, Mitsuba's seeds are 32-bit)",
+    )
     r.add_argument(
         "--variant",
         default=None,
@@ -86,16 +108,20 @@ def _add_run_settings(g) -> None:
         "default, auto: chosen from the material)",
     )
     g.add_argument(
-        "--samples", type=int, default=16, help="our samples per pixel (box filter, 1..256)"
+        "--samples",
+        type=bounded_int(1, MAX_SAMPLES),
+        default=16,
+        help=f"our samples per pixel (box filter, 1..{MAX_SAMPLES})",
     )
     g.add_argument(
         "--backend", choices=["auto", "gl", "torch"], default="auto", help="our renderer"
     )
     g.add_argument(
         "--base-res",
-        type=int,
+        type=bounded_int(1, MAX_BASE_RES),
         default=256,
-        help="face resolution of the sharpest prefiltered level",
+        help=f"face resolution of the sharpest prefiltered level (a power of two, at most "
+        f"{MAX_BASE_RES}: the largest whose chain fits half of this machine's memory)",
     )
     g.add_argument(
         "--sun",
@@ -111,7 +137,7 @@ def _add_run_settings(g) -> None:
     )
     g.add_argument(
         "--sweep-max-spp",
-        type=int,
+        type=bounded_int(1, MAX_SPP),
         default=gallery.SWEEP_MAX_SPP,
         help="the sweep's largest samples per pixel (1, 2, 4, ... up to it)",
     )
@@ -151,9 +177,12 @@ def _fit_options(items: list[str]) -> dict[str, Any]:
 _LIST_COLUMNS = ("name", "mesh", "envmap", "material")
 
 
-def _short(value) -> str:
-    """A table cell: a map file's stem, ``-`` for nothing."""
+def _short(key: str, value) -> str:
+    """A table cell: a mesh's file name without its folder, a map file's stem, ``-`` for
+    nothing."""
     text = "-" if value is None else str(value)
+    if key == "mesh":
+        return text.rsplit("/", 1)[-1]
     return text.removesuffix(".hdr").removesuffix(".exr")
 
 
@@ -166,10 +195,10 @@ def gallery_main(args: argparse.Namespace) -> dict[str, Any]:
     if args.action == "list":
         scenes = [s.to_dict() for s in gallery.select(args.scenes)]
         if not getattr(args, "json", False):  # a table that fits a terminal; --json: every field
-            scenes = [{k: _short(s.get(k)) for k in _LIST_COLUMNS} for s in scenes]
+            scenes = [{k: _short(k, s.get(k)) for k in _LIST_COLUMNS} for s in scenes]
         return {"scenes": scenes}
     if args.action == "references":
-        w, h = (check_pixels("--size", v) for v in parse_size(args.size))
+        w, h = check_image("--size", *parse_size(args.size))
         settings = gallery.ReferenceSettings(
             spp=args.spp,
             max_depth=args.max_depth,

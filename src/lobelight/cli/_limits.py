@@ -1,0 +1,138 @@
+"""The ranges of the command line's numeric flags: each flag's type checks its value at parse
+time (one line, exit 2, before any work) and its help states the range.
+
+Sizes that cost memory have a maximum derived from this machine's memory
+(:func:`memory_bytes`): a command plans for at most :data:`MEMORY_SHARE` of it, at the bytes per
+pixel (:data:`RENDER_BYTES_PER_PIXEL`) and per texel of the sharpest prefiltered level
+(:data:`PREFILTER_BYTES_PER_TEXEL`) the renderers take at their peak (the torch renderer, the
+larger of the two; ``docs/benchmarks.md``). The other counts are bounded by what their types
+hold or by what can finish: a seed within 63 bits, exposures within float32's range.
+
+Building these imports no torch (the parser's rule).
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import os
+from collections.abc import Callable
+
+__all__ = [
+    "MAX_BASE_RES",
+    "MAX_BOUNCES",
+    "MAX_DEPTH",
+    "MAX_EXPOSURE",
+    "MAX_FRAMES",
+    "MAX_INDIRECT_PATHS",
+    "MAX_RENDER_PIXELS",
+    "MAX_REPEATS",
+    "MAX_SAMPLES",
+    "MAX_SEED",
+    "MAX_SIDE",
+    "MAX_SPP",
+    "MEMORY_SHARE",
+    "PREFILTER_BYTES_PER_TEXEL",
+    "RENDER_BYTES_PER_PIXEL",
+    "bounded_float",
+    "bounded_int",
+    "memory_bytes",
+    "pixels_help",
+]
+
+#: The share of the machine's memory a command plans for.
+MEMORY_SHARE = 0.5
+#: Bytes a rendered pixel takes at the renderers' peak (4 samples per pixel, the default).
+RENDER_BYTES_PER_PIXEL = 400
+#: Bytes a texel of the sharpest prefiltered level takes while the chain is built (its six
+#: faces counted one by one; the coarser levels and the working buffers included).
+PREFILTER_BYTES_PER_TEXEL = 400
+#: The memory assumed where the platform does not say (bytes).
+FALLBACK_MEMORY = 8 << 30
+
+
+def memory_bytes() -> int:
+    """This machine's physical memory in bytes (``sysconf``), else :data:`FALLBACK_MEMORY`."""
+    try:
+        n = os.sysconf("SC_PHYS_PAGES") * os.sysconf("SC_PAGE_SIZE")
+    except (AttributeError, ValueError, OSError):
+        return FALLBACK_MEMORY
+    return n if n > 0 else FALLBACK_MEMORY
+
+
+def _budget() -> float:
+    return MEMORY_SHARE * memory_bytes()
+
+
+#: The largest width or height (GL's usual maximum texture size).
+MAX_SIDE = 16384
+#: The most pixels one image may have (width x height) on this machine: its memory share at
+#: :data:`RENDER_BYTES_PER_PIXEL`, and no more than a MAX_SIDE square.
+MAX_RENDER_PIXELS = int(min(MAX_SIDE**2, _budget() // RENDER_BYTES_PER_PIXEL))
+#: The largest ``--base-res`` (a power of two) whose chain fits this machine's memory share.
+MAX_BASE_RES = 1 << max(int(math.log2(math.sqrt(_budget() / (6 * PREFILTER_BYTES_PER_TEXEL)))), 1)
+#: The most stops of ``--exposure`` either way: 2**64 times the brightest radiance a map may
+#: hold stays within float32, and beyond it every pixel is black or white.
+MAX_EXPOSURE = 64.0
+#: Counts bounded by what can finish or what their types hold: bounces and indirect paths of a
+#: bake (each multiplies its time), seeds (63 bits), samples per pixel (a float32 mean of more
+#: adds nothing), timed repeats, a Mitsuba path's depth.
+MAX_BOUNCES = 64
+MAX_INDIRECT_PATHS = 4096
+MAX_SEED = 2**63 - 1
+MAX_SPP = 1 << 20
+MAX_SAMPLES = 256
+MAX_REPEATS = 10_000
+MAX_DEPTH = 1024
+#: The most frames of an animation (a turntable, the lobes demo); their images are also
+#: bounded together by the memory share.
+MAX_FRAMES = 3600
+
+
+def pixels_help() -> str:
+    """The sentence the size flags' help ends with."""
+    gb = memory_bytes() / 2**30
+    return (
+        f"1..{MAX_SIDE} each, width x height at most {MAX_RENDER_PIXELS / 1e6:.1f} megapixels "
+        f"(about {RENDER_BYTES_PER_PIXEL} bytes a pixel within {MEMORY_SHARE:.0%} of this "
+        f"machine's {gb:.0f} GB)"
+    )
+
+
+def bounded_int(lo: int, hi: int) -> Callable[[str], int]:
+    """An argparse type: a whole number in ``lo..hi``, else one line naming the range."""
+
+    def parse(text: str) -> int:
+        try:
+            value = int(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(
+                f"expected a whole number {lo}..{hi}, got {text[:40]!r}"
+            ) from None
+        if not lo <= value <= hi:
+            raise argparse.ArgumentTypeError(f"must be {lo}..{hi}, got {text[:40]}")
+        return value
+
+    parse.__name__ = "whole number"
+    return parse
+
+
+def bounded_float(lo: float, hi: float, *, lo_open: bool = False) -> Callable[[str], float]:
+    """An argparse type: a number in ``[lo, hi]`` (``(lo, hi]`` with ``lo_open``); ``hi`` may
+    be ``inf``, NaN never passes."""
+
+    def parse(text: str) -> float:
+        try:
+            value = float(text)
+        except ValueError:
+            value = math.nan
+        ok = (lo < value if lo_open else lo <= value) and value <= hi
+        if not ok:  # NaN too
+            left = "(" if lo_open else "["
+            raise argparse.ArgumentTypeError(
+                f"must be a number in {left}{lo:g}, {hi:g}], got {text[:40]!r}"
+            )
+        return value
+
+    parse.__name__ = "number"
+    return parse
