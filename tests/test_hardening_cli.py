@@ -175,6 +175,16 @@ def test_render_turntable_frame_onto_an_input_is_refused(files, capsys, no_work)
             problem="is the input", inputs=[files / "m.npz"])  # fmt: skip
 
 
+def test_compare_brdf_output_folder_onto_its_map_is_refused(files, capsys, no_work):
+    refused(capsys, ["compare-brdf", "--env", "env.hdr", "-o", "env.hdr"], names="env.hdr",
+            problem="is the input", inputs=[files / "env.hdr"])  # fmt: skip
+
+
+def test_a_folder_output_onto_a_file_is_refused(files, capsys, no_work):
+    refused(capsys, ["lobes-demo", "-o", "in.obj"], names="in.obj", problem="not a folder",
+            inputs=[files / "in.obj"])  # fmt: skip
+
+
 def test_an_output_beside_its_inputs_reaches_the_work(files, capsys, no_work):
     with pytest.raises(WorkStarted):
         cli.main(["bake", "sc.toml", "-o", "model.npz", "-q"])

@@ -207,6 +207,16 @@ def _size(args) -> tuple[int, int]:
     return check_image("--width/--height", args.width, args.height)
 
 
+def _output_folder(path) -> Path:
+    """``-o`` of a command that writes a folder, checked before any work: a folder or nothing
+    yet (then made by the command), never a file (an input least of all)."""
+    out = Path(path)
+    check_outputs(out)
+    if out.exists() and not out.is_dir():
+        raise InputError(str(out), "is a file, not a folder: name a folder for the outputs")
+    return out
+
+
 def _check_base_res(args) -> int:
     """``--base-res``: a power of two (its range is the parser's)."""
     n = args.base_res
@@ -507,7 +517,7 @@ def run_compare(args) -> dict:
     model = load_model(args.model, device=args.device) if args.model else None
     sc = _compare_scene(args, model)
     env = _env(args.env) if args.env else None
-    check_outputs(args.output)
+    _output_folder(args.output)
     return {
         "command": "compare",
         # what is scored: the model's (or the scene's) map unless --env, and material
@@ -645,6 +655,9 @@ def _same_map(a: str, b: str) -> bool:
 
 def run_compare_brdf(args) -> dict:
     size = _square(args, "compare-brdf")
+    if args.env:
+        note_input(_env_file(args.env))
+    _output_folder(args.output)
     backend = {"torch": "torch", "gl": "both", "both": "both"}.get(args.backend)
     if backend is None:  # auto
         backend = "both" if gl_available() else "torch"
@@ -669,16 +682,20 @@ def _square(args, command: str) -> int:
 
 
 def run_figure5(args) -> dict:
+    _output_folder(args.output)
     return {"command": "figure5", **figure5(args.output, device=args.device)}
 
 
 def run_gallery(args) -> dict:
     check_image("--size", *parse_size(args.size))  # the references' size, at the door
     _check_base_res(args)
+    if args.action == "run":
+        _output_folder(args.output)
     return {"command": "gallery", "action": args.action, **gallery_main(args)}
 
 
 def run_lobes_demo(args) -> dict:
+    _output_folder(args.output)
     return {
         "command": "lobes-demo",
         **lobes_demo(
@@ -742,6 +759,7 @@ def run_bench(args) -> dict:
 
 def run_demo(args) -> dict:
     width, height = _size(args)
+    _output_folder(args.output)
     return {
         "command": "demo",
         **demo(
