@@ -170,7 +170,7 @@ def test_scene_names_the_mesh_file_it_cannot_read(tmp_path):
         ("v 0 0 0\nv 1e39 0 0\nv 0 1 0\nf 1 2 3\n", "beyond"),
         ("v 0 0 0\nv 1e300 0 0\nv 0 1 0\nf 1 2 3\n", "beyond"),
         # extents float32 cannot hold
-        ("v 0 0 0\nv 1e-30 0 0\nv 0 1e-30 0\nf 1 2 3\n", "no extent"),
+        ("v 0 0 0\nv 1e-30 0 0\nv 0 1e-30 0\nf 1 2 3\n", "its size (bounding-box diagonal)"),
         ("v 0 0 0\nv nan 0 0\nv 0 1 0\nf 1 2 3\n", "NaN"),
         ("v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 9\n", None),
     ],
@@ -465,9 +465,15 @@ def test_a_ply_cut_short_is_refused_not_loaded_in_part(tmp_path):
 
 
 def test_a_ply_header_that_declares_more_faces_than_it_holds_is_refused(tmp_path):
+    # within the size limit: the faces it lacks are found once it is parsed
+    text = _ascii_ply(tmp_path).replace("element face 320", "element face 1000000")
+    (tmp_path / "lies.ply").write_text(text)
+    with pytest.raises(InputError, match=r"lies\.ply: declares 1,000,000 faces"):
+        scene.load_mesh(tmp_path / "lies.ply")
+    # beyond it: refused from the header, before it is parsed
     text = _ascii_ply(tmp_path).replace("element face 320", "element face 1000000000")
     (tmp_path / "lies.ply").write_text(text)
-    with pytest.raises(InputError, match=r"lies\.ply: declares 1,000,000,000 faces"):
+    with pytest.raises(InputError, match=r"lies\.ply: 162 vertices and 1,000,000,000 triangles"):
         scene.load_mesh(tmp_path / "lies.ply")
 
 

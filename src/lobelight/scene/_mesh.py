@@ -4,6 +4,7 @@ per-vertex material parameters."""
 
 from __future__ import annotations
 
+import warnings
 from dataclasses import dataclass
 from functools import cached_property
 from pathlib import Path
@@ -18,10 +19,16 @@ from ..errors import InputError
 from ._gltf import GLTF_SUFFIXES, GltfMaterial, read_gltf, sample_texture
 
 __all__ = [
+    "MAX_EXTENT",
+    "MAX_FACES",
     "MAX_MESH_BYTES",
+    "MAX_OFFSET",
+    "MAX_WELD_LOSS",
+    "MIN_EXTENT",
     "GltfAsset",
     "Mesh",
     "VertexFactors",
+    "check_mesh_size",
     "load_gltf",
     "load_mesh",
     "mesh_from_arrays",
@@ -35,6 +42,24 @@ MAX_MESH_BYTES = 2 * 1024**3
 #: Largest coordinate magnitude accepted: products of two coordinates (cross products for
 #: normals and areas, in float32 on the GPU) stay far below float32's 3.4e38.
 MAX_COORDINATE = 1e18
+#: The most triangles a mesh may have (2,097,152: a closed mesh of about a million vertices),
+#: and three vertices per triangle before welding (a triangle soup): loading one at the limit
+#: takes about 2 GB; a bake of it, about 30 GB (lobelight.fit.plan_memory).
+MAX_FACES = 1 << 21
+#: The sizes (bounding-box diagonal of the vertices the faces use) a mesh may have: a bake and
+#: the renderers give the same light at every size in this range (a bake's tolerances are
+#: relative to the size; the renderers' camera planes and depths are float32).
+MIN_EXTENT = 1e-6
+MAX_EXTENT = 1e9
+#: How far from the origin a mesh may lie, in multiples of its size. Rays leave a surface 1e-4
+#: of the size along its normal (:class:`lobelight.geometry.RayCaster`), in float32: 100 sizes
+#: away float32 positions are 2^-23 x 100 = 1.2e-5 sizes apart, so that step spans 8 of them.
+#: Where it spans less than one (3,000 sizes away) rays hit the surface they leave and the
+#: diffuse light is lost.
+MAX_OFFSET = 100.0
+#: The share of the surface area a weld may collapse (faces that become points or lines): a
+#: weld at 1e-6 of the mesh's size takes only slivers' area, far under this.
+MAX_WELD_LOSS = 0.01
 #: Formats trimesh reads for us (by suffix).
 MESH_SUFFIXES = (".obj", ".ply", ".stl", ".glb", ".gltf", ".off")
 #: Floor of an area-weighted normal's length (float64) before it is normalised: a vertex whose
@@ -160,6 +185,7 @@ def _check_arrays(v: np.ndarray, f: np.ndarray, name: str) -> None:
         raise InputError(name, f"needs at least one triangle, got faces of shape {f.shape}")
     if not np.issubdtype(f.dtype, np.integer):
         raise InputError(name, "face indices must be integers")
+    check_mesh_size(len(v), len(f), name)
     if not np.isfinite(v).all():
         raise InputError(name, f"{int((~np.isfinite(v)).any(1).sum())} vertices are NaN or Inf")
     if np.abs(v).max(initial=0.0) > MAX_COORDINATE:
@@ -168,17 +194,136 @@ def _check_arrays(v: np.ndarray, f: np.ndarray, name: str) -> None:
         raise InputError(name, f"face index out of range [0, {len(v)})")
 
 
+def check_mesh_size(n_vertices: int, n_faces: int, name: str) -> None:
+    """Refuse a mesh of more than :data:`MAX_FACES` triangles or more than three vertices per
+    triangle allowed (a triangle soup): loading one takes memory in proportion.
+
+    Raises
+    ------
+    InputError
+        naming ``name``, its counts and the limit.
+    """
+    if n_faces > MAX_FACES or n_vertices > 3 * MAX_FACES:
+        raise InputError(
+            name,
+            f"{n_vertices:,} vertices and {n_faces:,} triangles: over lobelight's limit of "
+            f"{MAX_FACES:,} triangles ({3 * MAX_FACES:,} vertices before welding); decimate it "
+            f"(a bake of a million vertices needs about 30 GB: docs/benchmarks.md)",
+        )
+
+
+def _compact(v, f, nrm, attrs):
+    """The vertices ``f`` references, and ``f`` renumbered to them."""
+    used = np.zeros(len(v), dtype=bool)
+    used[f.reshape(-1)] = True
+    if used.all():
+        return v, f, nrm, attrs
+    remap = np.cumsum(used) - 1
+    nrm = None if nrm is None else nrm[used]
+    return v[used], remap[f], nrm, {k: a[used] for k, a in attrs.items()}
+
+
+def _double_areas(v: np.ndarray, f: np.ndarray) -> np.ndarray:
+    """(F,) twice each triangle's area (float64)."""
+    return np.linalg.norm(np.cross(v[f[:, 1]] - v[f[:, 0]], v[f[:, 2]] - v[f[:, 0]]), axis=1)
+
+
+def _check_precision(v: np.ndarray, diag: float, name: str) -> None:
+    """Refuse a mesh whose float32 positions cannot keep its shape: one far from the origin
+    against its size (beyond :data:`MAX_OFFSET` sizes away), or of a size outside
+    ``MIN_EXTENT..MAX_EXTENT``; the message says the translation or scale that fixes it."""
+    lo, hi = v.min(0), v.max(0)
+    if not MIN_EXTENT <= diag <= MAX_EXTENT:
+        scale = 1.0 / diag
+        raise InputError(
+            name,
+            f"its size (bounding-box diagonal) is {diag:.3g}, outside {MIN_EXTENT:g}.."
+            f"{MAX_EXTENT:g}, where lobelight's float32 geometry keeps its shape; scale it by "
+            f"{scale:.3g} (to a size of 1) and light and render it at that scale",
+        )
+    far = float(np.abs(np.stack([lo, hi])).max())
+    if far > MAX_OFFSET * diag:
+        c = (lo + hi) / 2
+        raise InputError(
+            name,
+            f"it lies {far:.3g} from the origin, {far / diag:.3g} times its size ({diag:.3g}): "
+            f"float32 positions there are {far * 2**-24:.2g} apart, too coarse for its shape "
+            f"(the most is {MAX_OFFSET:g} times its size); translate it by "
+            f"({-c[0]:.9g}, {-c[1]:.9g}, {-c[2]:.9g}) to the origin",
+        )
+
+
+def _weld_loss(area_before: float, v: np.ndarray, f: np.ndarray, diag: float, name: str):
+    """Refuse a weld that took more than :data:`MAX_WELD_LOSS` of the surface area (faces
+    collapsed to points or lines): the mesh holds parts far smaller than its bounding box."""
+    after = float(_double_areas(v, f).sum()) if len(f) else 0.0
+    lost = 1.0 - after / area_before if area_before > 0 else 0.0
+    if lost > MAX_WELD_LOSS:
+        raise InputError(
+            name,
+            f"welding its vertices to {1e-6 * diag:.3g} (1e-6 of its size, {diag:.3g}) would "
+            f"collapse {lost:.0%} of its surface area (at most {MAX_WELD_LOSS:.0%}): it holds "
+            f"parts far smaller than its extent or far from each other; remove the stray parts",
+        )
+
+
+def _orient_outward(v, f, nrm, name: str):
+    """A closed, consistently wound mesh (each edge in two faces, once each way) of negative
+    signed volume is inside out: its faces are turned (and the file's normals too where they
+    point inward with them), with a warning. Open meshes are left as they are."""
+    if not _closed(f, len(v)):
+        return f, nrm
+    c = v.mean(0)
+    a, b, d = v[f[:, 0]] - c, v[f[:, 1]] - c, v[f[:, 2]] - c
+    volume = float(np.einsum("ij,ij->i", a, np.cross(b, d)).sum()) / 6.0
+    if volume >= 0:
+        return f, nrm
+    f = f[:, ::-1].copy()
+    if nrm is not None:
+        outward = _area_weighted_normals(v, f)
+        ok = np.isfinite(nrm).all(1)
+        if ok.any() and float(np.einsum("ij,ij->i", nrm[ok], outward[ok]).sum()) < 0:
+            nrm = -nrm
+    warnings.warn(
+        f"lobelight: {name}: the mesh is closed and inside out (signed volume {volume:.3g}): "
+        f"its faces are turned to face outward",
+        UserWarning,
+        stacklevel=4,
+    )
+    return f, nrm
+
+
+def _closed(f: np.ndarray, n: int) -> bool:
+    """Whether every directed edge of ``f`` (F, 3) appears once and its reverse once: a closed
+    mesh wound consistently."""
+    a = f.reshape(-1)
+    b = f[:, [1, 2, 0]].reshape(-1)
+    fwd = np.sort(a * n + b)  # (3F,) directed edge keys
+    if len(fwd) > 1 and bool((fwd[1:] == fwd[:-1]).any()):
+        return False  # an edge twice the same way
+    rev = b * n + a
+    return bool(np.isin(rev, fwd, assume_unique=True).all())
+
+
 def weld_arrays(
     vertices, faces, *, normals=None, attributes=None, keyed=(), name="mesh", weld=True
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, dict[str, np.ndarray]]:
     """Check, weld and clean raw arrays (the work of :func:`mesh_from_arrays`), carrying
     per-vertex attributes along.
 
-    Weld policy: vertices merge where their positions agree (to 1e-6 of the bounding-box
-    diagonal), their ``normals`` agree when normals are given (so a hard edge stored as split
-    vertices with different normals stays hard), and every attribute named in ``keyed``
-    agrees (a UV seam, a material boundary). Then faces that became degenerate (repeated
-    index or zero area) and duplicate faces are dropped, and unreferenced vertices removed.
+    Checks: at most :data:`MAX_FACES` triangles; finite positions; of the vertices the faces
+    use (a vertex no face uses is dropped first, so a stray one changes nothing), a size
+    within ``MIN_EXTENT..MAX_EXTENT`` and at most ``MAX_OFFSET`` sizes from the origin, where
+    float32 positions keep the shape.
+
+    Weld policy: vertices merge where their positions agree (to 1e-6 of the used vertices'
+    bounding-box diagonal), their ``normals`` agree when normals are given (so a hard edge
+    stored as split vertices with different normals stays hard), and every attribute named in
+    ``keyed`` agrees (a UV seam, a material boundary); a weld that would collapse more than
+    :data:`MAX_WELD_LOSS` of the surface area is refused. Then faces that became degenerate
+    (repeated index or zero area) and duplicate faces are dropped, and unreferenced vertices
+    removed. Last, a closed mesh that is inside out (negative signed volume) is turned
+    outward, with a warning. ``weld=False`` takes the arrays as given: no weld, no turning.
 
     Parameters
     ----------
@@ -203,35 +348,38 @@ def weld_arrays(
         length = np.linalg.norm(np.nan_to_num(nrm, nan=0.0), axis=1, keepdims=True)
         ok = np.isfinite(nrm).all(1, keepdims=True) & (length > 0)
         nrm = np.where(ok, nrm / np.where(ok, length, 1.0), np.nan)
-    f = f.astype(np.int64)
+    # a vertex no face uses neither sets the weld's tolerance nor the extent
+    v, f, nrm, attrs = _compact(v, f.astype(np.int64), nrm, attrs)
     diag = float(np.linalg.norm(v.max(0) - v.min(0)))
-    if not diag > 1 / MAX_COORDINATE:  # also: an extent that float32 vertices would lose
+    if not diag > 0:
         raise InputError(name, "all vertices coincide: the mesh has no extent")
+    _check_precision(v, diag, name)
+    area_before = 0.0
     if weld:
+        area_before = float(_double_areas(v, f).sum())
         key = _weld_keys(v, diag, nrm, attrs, keyed)  # (N, k)
         _, first, inv = np.unique(key, axis=0, return_index=True, return_inverse=True)
         v, f = v[first], inv.reshape(-1)[f]
         nrm = None if nrm is None else nrm[first]
         attrs = {k: a[first] for k, a in attrs.items()}
     # degenerate faces: repeated vertex, or area below (1e-9 diag)^2 ~ rounding noise
-    area2 = np.linalg.norm(np.cross(v[f[:, 1]] - v[f[:, 0]], v[f[:, 2]] - v[f[:, 0]]), axis=1)
     keep = (f[:, 0] != f[:, 1]) & (f[:, 1] != f[:, 2]) & (f[:, 0] != f[:, 2])
-    keep &= area2 > (1e-9 * diag) ** 2
+    keep &= _double_areas(v, f) > (1e-9 * diag) ** 2
     f = f[keep]
+    if weld:
+        _weld_loss(area_before, v, f, diag, name)
     if len(f):  # duplicate faces (same vertex set) double-count area and hits
         _, uniq = np.unique(np.sort(f, axis=1), axis=0, return_index=True)
         f = f[np.sort(uniq)]
     if len(f) == 0:
         raise InputError(name, "no triangle with non-zero area")
-    used = np.zeros(len(v), dtype=bool)
-    used[f.reshape(-1)] = True
-    remap = np.cumsum(used) - 1
-    v, f = v[used], remap[f]
+    v, f, nrm, attrs = _compact(v, f, nrm, attrs)
+    if weld:
+        f, nrm = _orient_outward(v, f, nrm, name)
     n = _area_weighted_normals(v, f)
     if nrm is not None:
-        nrm = nrm[used]
         n = np.where(np.isfinite(nrm).all(1, keepdims=True), nrm, n)
-    return v, f, n, {k: a[used] for k, a in attrs.items()}
+    return v, f, n, attrs
 
 
 def mesh_from_arrays(
@@ -344,6 +492,7 @@ def load_mesh(path, *, device=None) -> Mesh:
     suffix = p.suffix.lower()
     if suffix not in MESH_SUFFIXES:
         raise InputError(str(p), f"unknown mesh format {suffix!r} (use one of {MESH_SUFFIXES})")
+    _check_declared_size(p, suffix)  # before the file is parsed
     if suffix in GLTF_SUFFIXES:
         geom, _ = read_gltf(p, textures=False, warn=False)
         v, f, n = geom.positions, geom.faces, geom.normals
@@ -517,20 +666,77 @@ def vertex_factors(
     return VertexFactors(out[:, :3], out[:, 3], out[:, 4])
 
 
+def _ply_declared(p: Path) -> dict[str, int]:
+    """The element counts a PLY header declares (``vertex``, ``face``, ...; none where the
+    file has no header)."""
+    with p.open("rb") as fh:
+        head = fh.read(1 << 16)
+    end = head.find(b"end_header")
+    declared: dict[str, int] = {}
+    for line in head[: max(end, 0)].decode("ascii", errors="replace").splitlines():
+        parts = line.split()
+        if len(parts) == 3 and parts[0] == "element" and parts[2].isdigit():
+            declared[parts[1]] = int(parts[2])
+    return declared
+
+
+def _count(p: Path, patterns: tuple[bytes, ...]) -> list[int]:
+    """How often each of ``patterns`` occurs in the file, as if it began with a line break
+    (so that ``b"\\nv "`` counts the lines starting ``v ``), read in blocks: bounded memory."""
+    counts = [0] * len(patterns)
+    keep = max(map(len, patterns)) - 1  # a match across two blocks starts in the last bytes
+    with p.open("rb") as fh:
+        tail = b"\n"
+        while block := fh.read(1 << 24):
+            text = tail + block
+            for i, pattern in enumerate(patterns):
+                counts[i] += text.count(pattern)  # tail is shorter than any pattern
+            tail = text[-keep:] if keep else b""
+    return counts
+
+
+def _off_declared(p: Path) -> tuple[int, int]:
+    """The vertex and face counts an OFF header declares (0, 0 where it has none)."""
+    with p.open("rb") as fh:
+        head = fh.read(1 << 12).decode("ascii", errors="replace")
+    words = [w for line in head.splitlines() for w in line.split("#")[0].split()]
+    if words and words[0].upper().endswith("OFF"):
+        words[0] = words[0][: -len("OFF")]
+        words = [w for w in words if w]
+    nums = [int(w) for w in words[:2] if w.isdigit()]
+    return (nums[0], nums[1]) if len(nums) == 2 else (0, 0)
+
+
+def _check_declared_size(p: Path, suffix: str) -> None:
+    """Refuse a mesh file whose vertex or triangle counts, as it declares them (PLY and OFF
+    headers, STL's binary count) or as its lines give them (OBJ ``v`` and ``f`` lines, ASCII
+    STL facets), are over :func:`check_mesh_size`'s limit, before it is parsed: the parser
+    allocates in proportion. A polygon of OBJ, PLY or OFF is several triangles: what the
+    parsed file holds is checked again."""
+    name = str(p)
+    if suffix == ".ply":
+        d = _ply_declared(p)
+        check_mesh_size(d.get("vertex", 0), d.get("face", 0), name)
+    elif suffix == ".off":
+        check_mesh_size(*_off_declared(p), name)
+    elif suffix == ".obj":
+        nv, nf = _count(p, (b"\nv ", b"\nf "))
+        check_mesh_size(nv, nf, name)
+    elif suffix == ".stl":
+        size = p.stat().st_size
+        with p.open("rb") as fh:
+            head = fh.read(84)
+        n = int.from_bytes(head[80:84], "little") if len(head) == 84 else 0
+        if size != 84 + 50 * n:  # not binary STL: ASCII facets
+            n = _count(p, (b"endfacet",))[0]
+        check_mesh_size(3 * n, n, name)
+
+
 def _check_ply_counts(p: Path, n_vertices: int, n_triangles: int) -> None:
     """Refuse a PLY file that holds fewer vertices or faces than its header declares (cut
     short, or a header that lies): trimesh reads what is there and says nothing. Each declared
     face gives one triangle or more (polygons are fanned), so triangles may outnumber faces."""
-    with p.open("rb") as fh:
-        head = fh.read(1 << 16)
-    end = head.find(b"end_header")
-    if end < 0:
-        return  # trimesh parsed it: nothing declared to check against
-    declared = {}
-    for line in head[:end].decode("ascii", errors="replace").splitlines():
-        parts = line.split()
-        if len(parts) == 3 and parts[0] == "element" and parts[2].isdigit():
-            declared[parts[1]] = int(parts[2])
+    declared = _ply_declared(p)
     nv, nf = declared.get("vertex"), declared.get("face")
     if nv is not None and n_vertices != nv:
         raise InputError(str(p), f"declares {nv:,} vertices and holds {n_vertices:,} (cut short?)")
