@@ -43,8 +43,10 @@ MAX_MESH_BYTES = 2 * 1024**3
 #: normals and areas, in float32 on the GPU) stay far below float32's 3.4e38.
 MAX_COORDINATE = 1e18
 #: The most triangles a mesh may have (2,097,152: a closed mesh of about a million vertices),
-#: and three vertices per triangle before welding (a triangle soup): loading one at the limit
-#: takes about 2 GB; a bake of it, about 30 GB (lobelight.fit.plan_memory).
+#: and three vertices per triangle before welding (a triangle soup): what loading one holds
+#: grows with these counts, and a bake's state by tens of kilobytes per vertex
+#: (lobelight.fit._memory.state_bytes), so that a mesh at the limit is already more than a
+#: bake's largest budget holds.
 MAX_FACES = 1 << 21
 #: The sizes (bounding-box diagonal of the vertices the faces use) a mesh may have: a bake and
 #: the renderers give the same light at every size in this range (a bake's tolerances are
@@ -52,10 +54,9 @@ MAX_FACES = 1 << 21
 MIN_EXTENT = 1e-6
 MAX_EXTENT = 1e9
 #: How far from the origin a mesh may lie, in multiples of its size. Rays leave a surface 1e-4
-#: of the size along its normal (:class:`lobelight.geometry.RayCaster`), in float32: 100 sizes
-#: away float32 positions are 2^-23 x 100 = 1.2e-5 sizes apart, so that step spans 8 of them.
-#: Where it spans less than one (3,000 sizes away) rays hit the surface they leave and the
-#: diffuse light is lost.
+#: of the size along its normal (:class:`lobelight.geometry.raycast.RayCaster`), in float32:
+#: 100 sizes away float32 positions are 2^-23 x 100 = 1.2e-5 sizes apart, so that step spans 8
+#: of them. Where it spans less than one (1,200 sizes away) rays hit the surface they leave.
 MAX_OFFSET = 100.0
 #: The share of the surface area a weld may collapse (faces that become points or lines): a
 #: weld at 1e-6 of the mesh's size takes only slivers' area, far under this.
@@ -207,8 +208,7 @@ def check_mesh_size(n_vertices: int, n_faces: int, name: str) -> None:
         raise InputError(
             name,
             f"{n_vertices:,} vertices and {n_faces:,} triangles: over lobelight's limit of "
-            f"{MAX_FACES:,} triangles ({3 * MAX_FACES:,} vertices before welding); decimate it "
-            f"(a bake of a million vertices needs about 30 GB: docs/benchmarks.md)",
+            f"{MAX_FACES:,} triangles ({3 * MAX_FACES:,} vertices before welding); decimate it",
         )
 
 
