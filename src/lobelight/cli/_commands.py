@@ -95,7 +95,7 @@ def _load_scene(args, scene: str, *, material=None):
     for w in caught:
         text = str(w.message)
         if issubclass(w.category, UserWarning) and text.startswith("lobelight: "):
-            print(text, file=sys.stderr, flush=True)
+            print(one_line(text), file=sys.stderr, flush=True)  # it may quote the file's names
         else:  # someone else's: shown as Python would have
             warnings.showwarning(w.message, w.category, w.filename, w.lineno)
     if material is not None and sc.material_records:
