@@ -308,6 +308,24 @@ def test_a_gltf_asset_is_looked_for_in_the_folders_in_order(data_dir, tmp_path, 
         assert str(place) in str(err.value)
 
 
+def test_a_gltf_scene_reference_renders_with_its_textures(data_dir, tmp_path, monkeypatch):
+    """The references step renders a glTF scene through the textured Mitsuba export (tiny
+    settings, the scalar variant) into a fresh manifest entry with the asset's vertices."""
+    pytest.importorskip("mitsuba", reason="Mitsuba 3 renders the references")
+    monkeypatch.setenv(GLTF_ENV, str(tmp_path / "assets"))
+    _tiny_glb(tmp_path / "assets" / "Tiny" / "Tiny.glb")
+    settings = ReferenceSettings(spp=4, pass_spp=2, width=16, height=16, max_depth=2)
+    refs = tmp_path / "refs"
+    out = render_references([TINY], data=data_dir, refs=refs, settings=settings,
+                            variant="scalar_rgb", progress=False)  # fmt: skip
+    assert out["rendered"] == ["tiny-sky"]
+    assert reference_status(refs, TINY, data_dir, settings) == ("ok", "")
+    ref = load_reference(refs, TINY, data_dir)
+    assert int(ref.mask.sum()) > 10 and bool(torch.isfinite(ref.image).all())
+    assert float(ref.image[ref.mask].mean()) > 0
+    assert ref.entry["vertices"] == prepare_mesh(TINY, data_dir).n_vertices
+
+
 @pytest.mark.skipif(
     not any(REPO_GLTF.glob("*/*.glb")), reason="the glTF assets are not beside the repository"
 )

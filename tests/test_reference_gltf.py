@@ -192,6 +192,14 @@ def test_one_texture_is_exact_anywhere(which):
     _compare(mat, uv)
 
 
+def test_a_texture_of_one_value_is_a_factor_whatever_its_sampler():
+    """A uniform metallic-roughness texture with another sampler than the base colour's (which
+    could not be composed with it) reads as its value: ours anywhere."""
+    mr = Texture(torch.tensor([0.0, 0.6, 0.3]).expand(4, 4, 3), Sampler("mirror", "clamp"), "mr")
+    mat = _material(Texture(_blocks(15, 4), Sampler(), "base"), mr)
+    _compare(mat, np.random.default_rng(16).uniform(0.02, 0.98, size=(12, 2)))
+
+
 def test_clamp_nearest_and_uvs_beyond_the_texture():
     """Nearest filtering with clamped wrapping, the quad's UVs spanning [-0.25, 1.25]: points
     beyond the texture read its edge texels, as sample_texture does."""
@@ -201,6 +209,18 @@ def test_clamp_nearest_and_uvs_beyond_the_texture():
     uv = np.random.default_rng(8).uniform(-0.24, 1.24, size=(16, 2))
     # nearest: exact wherever the point is not on a texel edge (random points are not)
     _compare(mat, uv, a=a)
+
+
+@pytest.mark.parametrize("filt", ["linear", "nearest"])
+def test_u_and_v_wrapped_differently(filt):
+    """Clamped along U and mirrored along V (Mitsuba's bitmap has one wrap mode: the export
+    lays the image out over the texels the quad's UVs, in [-0.25, 1.25], reach), with a
+    texture transform: ours anywhere, one texture given."""
+    transform = ((1.2, 0.0, 0.1), (0.0, 0.9, -0.05))
+    s = Sampler("clamp", "mirror", filt, filt)
+    mat = _material(Texture(_blocks(17, 4), s, "base", 0, transform), None)
+    a = np.array([[0.75, 0.0], [0.0, -0.75]])
+    _compare(mat, np.random.default_rng(18).uniform(-0.24, 1.24, size=(16, 2)), a=a)
 
 
 def test_texture_transform_and_mirrored_wrapping():
@@ -256,6 +276,16 @@ def test_what_mitsuba_cannot_express_is_refused(samplers, colors, what):
     with pytest.raises(InputError, match=what) as info:
         gltf_bsdf(_material(base, mr), colors)
     assert "'test'" in str(info.value)
+
+
+def test_wraps_laid_out_over_too_many_texels_are_refused():
+    from lobelight.reference.mitsuba import gltf_bsdf
+
+    _mitsuba()
+    base = Texture(_blocks(19, 4), Sampler("repeat", "clamp"), "base")
+    uvs = torch.tensor([[-10.0, 0.0], [10.0, 1.0]])  # 20 repeats along U: 20 times the texels
+    with pytest.raises(InputError, match="too many to lay out"):
+        gltf_bsdf(_material(base, None), None, uvs)
 
 
 def _llvm():

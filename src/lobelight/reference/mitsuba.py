@@ -28,17 +28,22 @@ A scene with a glTF asset (:attr:`lobelight.scene.Scene.gltf`) is exported with 
 textured materials, not the per-vertex values the transport bakes (:func:`gltf_bsdf`): one PLY
 shape per glTF material, with the asset's normals and ``TEXCOORD_0``; its diffuse part
 ``baseColor (1 - metallic)`` and the lobe's ``F0 = mix(0.04, baseColor, metallic)`` and
-roughness as ``bitmap`` textures of linear data (``raw``), with the sampler's filter and wrap
-mode and the ``KHR_texture_transform`` as the bitmap's ``to_uv``. Mitsuba multiplies no
+roughness as ``bitmap`` textures of linear data (``raw``), with the sampler's magnification
+filter (no mipmaps: the base level, as :func:`lobelight.scene.sample_texture` reads it), its
+wrap mode and the ``KHR_texture_transform`` as the bitmap's ``to_uv``. Mitsuba multiplies no
 textures, so each slot is one image composed texel by texel from the base colour texture
 (times its factor and the material's constant ``COLOR_0``) and the metallic-roughness texture
 (B metal and G rough, times their factors): exact where one of the two is untextured (the
 slot is then linear in the other texture, which bilinear filtering keeps), and where both are,
 wherever the textures are constant across the bilinear footprint (a product of
-interpolations is not the interpolation of the product between differing texels). Refused
-with an :class:`~lobelight.errors.InputError` naming the material: two textures of one
-material with different UV transforms, wrap modes or filters, a wrap mode that differs
-between U and V, and vertex colours that vary within a material. A ``doubleSided`` material
+interpolations is not the interpolation of the product between differing texels). A texture
+whose texels are all equal is read as a factor (its value, whatever its sampler). Refused with
+an :class:`~lobelight.errors.InputError` naming the material: two textures of one material
+with different UV transforms, wrap modes or filters, and vertex colours that vary within a
+material. A sampler that wraps U and V differently (Mitsuba's bitmap has one wrap mode) is
+expressed by laying the image out over every texel the material's UVs reach, each wrapped by
+its own axis, read with clamping (refused where that would take more than four times the
+image's texels). A ``doubleSided`` material
 is wrapped in ``twosided``. Normal, occlusion and emissive textures are not exported (as
 lobelight's renderers, which do not read them).
 
@@ -198,7 +203,8 @@ def _gltf_groups(asset: GltfAsset) -> list[tuple[np.ndarray, dict]]:
     for m in torch.unique(fmat).tolist():
         fid = (fmat == m).nonzero().squeeze(-1).numpy()
         used = torch.unique(faces[torch.from_numpy(fid)])
-        out.append((fid, gltf_bsdf(asset.materials[m], asset.colors[used].cpu())))
+        mat, colors, uvs = asset.materials[m], asset.colors[used].cpu(), asset.uvs[used].cpu()
+        out.append((fid, gltf_bsdf(mat, colors, uvs)))
     return out
 
 
@@ -216,12 +222,6 @@ def _grid(textures: list[Texture], where: str) -> tuple[int, int]:
             where,
             "its base colour and metallic-roughness textures differ in UV transform, wrap "
             f"modes or filter ({sorted(map(str, keys))}): Mitsuba cannot compose them",
-        )
-    s = textures[0].sampler
-    if s.wrap_s != s.wrap_t:
-        raise InputError(
-            where,
-            f"wraps U by {s.wrap_s!r} and V by {s.wrap_t!r}: Mitsuba's bitmap has one wrap mode",
         )
     return max(t.image.shape[0] for t in textures), max(t.image.shape[1] for t in textures)
 
@@ -241,20 +241,69 @@ def _on_grid(tex: Texture, h: int, w: int) -> torch.Tensor:
     return sample_texture(plain, torch.stack([u, v], -1))  # (h, w, C)
 
 
-def _bitmap(mi, data: torch.Tensor, tex: Texture) -> dict:
-    """A ``bitmap`` texture of linear ``data`` (H, W, C) read as ``tex``'s sampler says."""
+def _bitmap(mi, data: torch.Tensor, tex: Texture, uvs, where: str) -> dict:
+    """A ``bitmap`` texture of linear ``data`` (H, W, C) read as ``tex``'s sampler says (the
+    material's ``uvs`` (k, 2) for :func:`_unwrapped`, where the sampler wraps U and V
+    differently)."""
     s = tex.sampler
+    rows = np.eye(3)
+    if tex.uv_transform is not None:
+        rows[:2] = np.asarray(tex.uv_transform, dtype=np.float64)
+    wrap = s.wrap_s
+    if s.wrap_s != s.wrap_t:
+        data, rows, wrap = *_unwrapped(data, tex, rows, uvs, where), "clamp"
     d = {
         "type": "bitmap",
         "data": mi.TensorXf(np.ascontiguousarray(data.float().numpy())),
         "raw": True,
         "filter_type": "nearest" if s.mag_filter == "nearest" else "bilinear",
-        "wrap_mode": s.wrap_s,
+        "wrap_mode": wrap,
     }
-    if tex.uv_transform is not None:
-        rows = [list(r) for r in tex.uv_transform] + [[0.0, 0.0, 1.0]]
-        d["to_uv"] = mi.ScalarTransform3f(mi.ScalarMatrix3f(rows))
+    if not np.array_equal(rows, np.eye(3)):
+        d["to_uv"] = mi.ScalarTransform3f(mi.ScalarMatrix3f(rows.tolist()))
     return d
+
+
+#: Most texels an image unwrapped by :func:`_unwrapped` may have, in units of its own texels.
+_UNWRAP_GROWTH = 4
+
+
+def _wrapped(i: torch.Tensor, n: int, mode: str) -> torch.Tensor:
+    """Texel indices ``i`` wrapped into [0, n) by the glTF wrap ``mode``."""
+    if mode == "clamp":
+        return i.clamp(0, n - 1)
+    if mode == "mirror":
+        j = torch.remainder(i, 2 * n)
+        return torch.where(j >= n, 2 * n - 1 - j, j)
+    return torch.remainder(i, n)
+
+
+def _unwrapped(data: torch.Tensor, tex: Texture, rows: np.ndarray, uvs, where: str):
+    """``data`` (H, W, C) laid out over every texel the material's ``uvs`` (k, 2) reach
+    (after the UV transform ``rows`` (3, 3)), each wrapped by its own axis's mode, and the UV
+    transform that reads it there: the same texels with the same bilinear or nearest weights,
+    so that one clamped wrap mode expresses a sampler that wraps U and V differently."""
+    s = tex.sampler
+    if uvs is None or len(uvs) == 0:
+        raise InputError(
+            where,
+            f"wraps U by {s.wrap_s!r} and V by {s.wrap_t!r}: Mitsuba's bitmap has one wrap mode",
+        )
+    h, w = data.shape[:2]
+    t = np.asarray(uvs, dtype=np.float64) @ rows[:2, :2].T + rows[:2, 2]  # (k, 2) texture UVs
+    lo = np.floor(t.min(0) * (w, h) - 0.5).astype(np.int64)  # first texel read, (x, y)
+    hi = np.floor(t.max(0) * (w, h) - 0.5).astype(np.int64) + 1  # last texel read
+    nw, nh = (hi - lo + 1).tolist()
+    if nw * nh > _UNWRAP_GROWTH * w * h:
+        raise InputError(
+            where,
+            f"wraps U by {s.wrap_s!r} and V by {s.wrap_t!r} and its UVs span {nw} x {nh} "
+            f"texels: too many to lay out for Mitsuba's one wrap mode",
+        )
+    xs = _wrapped(torch.arange(int(lo[0]), int(hi[0]) + 1), w, s.wrap_s)  # (nw,)
+    ys = _wrapped(torch.arange(int(lo[1]), int(hi[1]) + 1), h, s.wrap_t)  # (nh,)
+    shift = np.array([[w / nw, 0, -lo[0] / nw], [0, h / nh, -lo[1] / nh], [0, 0, 1]])
+    return data[ys][:, xs], shift @ rows
 
 
 def _vertex_colour(mat: GltfMaterial, colors: torch.Tensor) -> torch.Tensor:
@@ -270,7 +319,7 @@ def _vertex_colour(mat: GltfMaterial, colors: torch.Tensor) -> torch.Tensor:
     return rgb[0] if len(rgb) else torch.ones(3, dtype=torch.float64)
 
 
-def gltf_bsdf(material: GltfMaterial, colors=None) -> dict:
+def gltf_bsdf(material: GltfMaterial, colors=None, uvs=None) -> dict:
     """The Mitsuba BSDF (a ``mi.load_dict`` entry) of one glTF metallic-roughness material
     with its textures (module docstring): Lambert ``baseColor (1 - metallic)`` plus the
     :class:`lobelight.brdf.GGXSchlick` lobe (``principled`` with ``metallic = 1``), summed by
@@ -281,6 +330,8 @@ def gltf_bsdf(material: GltfMaterial, colors=None) -> dict:
     ----------
     material : the glTF material (:class:`lobelight.scene.GltfMaterial`)
     colors : (k, 4) linear ``COLOR_0`` of the material's vertices (None: white)
+    uvs : (k, 2) ``TEXCOORD_0`` of the material's vertices, needed only where a sampler wraps
+        U and V differently (the texture is then laid out over the texels they reach)
 
     Raises
     ------
@@ -294,11 +345,20 @@ def gltf_bsdf(material: GltfMaterial, colors=None) -> dict:
     if colors is not None:
         colour = _vertex_colour(material, torch.as_tensor(colors))
     base_factor = torch.tensor(material.base_color[:3], dtype=torch.float64) * colour  # (3,)
+    metal_factor, rough_factor = material.metallic, material.roughness
     bt, mt = material.base_color_texture, material.metallic_roughness_texture
+    # a texture of one value everywhere reads that value whatever its sampler: a factor
+    one = None if bt is None else _uniform(bt)
+    if one is not None:
+        base_factor, bt = base_factor * one[:3], None
+    one = None if mt is None else _uniform(mt)
+    if one is not None:
+        metal_factor, rough_factor = metal_factor * float(one[2]), rough_factor * float(one[1])
+        mt = None
     textures = [t for t in (bt, mt) if t is not None]
     if not textures:
         diffuse, spec = _brdf.metallic_roughness(
-            base_factor.clamp(0, 1), material.metallic, material.roughness
+            base_factor.clamp(0, 1), min(metal_factor, 1.0), min(rough_factor, 1.0)
         )
         d = _sum(diffuse.double(), spec.mitsuba_dict())
         return _sided(d, material)
@@ -306,8 +366,8 @@ def gltf_bsdf(material: GltfMaterial, colors=None) -> dict:
     base = base_factor.expand(h, w, 3)
     if bt is not None:
         base = base * _on_grid(bt, h, w)[..., :3]
-    metal = torch.full((h, w, 1), material.metallic, dtype=torch.float64)
-    rough = torch.full((h, w, 1), material.roughness, dtype=torch.float64)
+    metal = torch.full((h, w, 1), metal_factor, dtype=torch.float64)
+    rough = torch.full((h, w, 1), rough_factor, dtype=torch.float64)
     if mt is not None:
         mr = _on_grid(mt, h, w)
         metal, rough = metal * mr[..., 2:3], rough * mr[..., 1:2]
@@ -317,13 +377,22 @@ def gltf_bsdf(material: GltfMaterial, colors=None) -> dict:
     lead = textures[0]
     lobe = {
         "type": "principled",
-        "base_color": _bitmap(mi, f0, lead),
+        "base_color": _bitmap(mi, f0, lead, uvs, where),
         "metallic": 1.0,
-        "roughness": _bitmap(mi, rough, lead) if mt is not None else material.roughness,
+        "roughness": (
+            _bitmap(mi, rough, lead, uvs, where) if mt is not None else min(rough_factor, 1.0)
+        ),
     }
     d = _sum(diffuse.mean((0, 1)), lobe, f0=f0.mean((0, 1)).tolist())
-    d["bsdf_0"]["reflectance"] = _bitmap(mi, diffuse, lead)
+    d["bsdf_0"]["reflectance"] = _bitmap(mi, diffuse, lead, uvs, where)
     return _sided(d, material)
+
+
+def _uniform(tex: Texture) -> torch.Tensor | None:
+    """The one texel value (C,) float64 of a texture whose texels are all equal, else None."""
+    img = tex.image.detach().cpu().double()
+    first = img[0, 0]
+    return first if bool((img == first).all()) else None
 
 
 def _sided(d: dict, material: GltfMaterial) -> dict:
