@@ -48,8 +48,9 @@ _TEXELS, _BLOCK = 8, 2
 #: The quad's default UV map: ``uv = xy @ A.T + b`` takes [-1, 1]^2 to [0, 1]^2, V down.
 _A = np.array([[0.5, 0.0], [0.0, -0.5]])
 _B = np.array([0.5, 0.5])
-#: Where the uniform maps are written (one folder for the session).
-_ENV_DIR = Path(tempfile.mkdtemp(prefix="lobelight-test-env-"))
+#: Where the uniform maps are written (one folder for the session, removed at its end).
+_ENV_TMP = tempfile.TemporaryDirectory(prefix="lobelight-test-env-")
+_ENV_DIR = Path(_ENV_TMP.name)
 
 
 def _mitsuba(variant: str = "scalar_rgb"):
