@@ -148,7 +148,17 @@ Registry
 
 from __future__ import annotations
 
-from ._base import BRDF, REGISTRY, CosineLobe, Sum, from_dict, register
+from ._base import (
+    BRDF,
+    MAX_EXPONENT,
+    MAX_HALF_VECTOR_EXPONENT,
+    MIN_ROUGHNESS,
+    REGISTRY,
+    CosineLobe,
+    Sum,
+    from_dict,
+    register,
+)
 from ._sharp import ALBEDO_SAMPLES, ALBEDO_STEPS, MIXTURE, SHARP_LAM, SharpLobe, sharp_lobe
 from .gltf import DIELECTRIC_F0, GGXSchlick, metallic_roughness
 from .lafortune import Lafortune
@@ -163,6 +173,9 @@ __all__ = [
     "BRDF",
     "DIELECTRIC_F0",
     "GGX",
+    "MAX_EXPONENT",
+    "MAX_HALF_VECTOR_EXPONENT",
+    "MIN_ROUGHNESS",
     "MIXTURE",
     "REGISTRY",
     "SHARP_LAM",

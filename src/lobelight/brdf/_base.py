@@ -14,6 +14,7 @@ import copy
 import inspect
 import math
 import types
+import warnings
 from collections.abc import Callable, Mapping, Sequence
 from typing import Any, ClassVar, NamedTuple
 
@@ -32,6 +33,19 @@ _SCALAR, _COLOR = 0, 1  # number of trailing (event) dimensions of a parameter k
 #: What a key of a scene file's material takes (:attr:`BRDF.scene_params`): one number, one
 #: number (grey) or an RGB triple, a list of lobe tables.
 _NUMBER, _COLOUR, _LOBES = "number", "colour", "lobes"
+
+#: The sharpest lobe lobelight models, as a roughness: a Ward (or Beckmann, GGX) ``alpha`` of
+#: 1e-4, a lobe about 1e-4 radians wide, a mirror at any image size (a pixel of an image 4,096
+#: pixels and 40 degrees wide spans 1.7e-4 radians). Mitsuba clamps its microfacet roughness
+#: there; sharper lobes' fits are not finite in float32.
+MIN_ROUGHNESS = 1e-4
+#: The largest Blinn-Phong exponent: ``2 / alpha^2 - 2`` at :data:`MIN_ROUGHNESS` (its Beckmann
+#: equivalent, the same sharpness of the half vector's lobe).
+MAX_HALF_VECTOR_EXPONENT = 2 / MIN_ROUGHNESS**2 - 2
+#: The largest Phong and Lafortune exponent: ``1 / (2 alpha^2)`` at :data:`MIN_ROUGHNESS`, the
+#: sharpness of a Beckmann lobe's reflected directions (``cos^e`` is ``exp(-e theta^2 / 2)``
+#: near its axis; the half vector turns by half the reflected direction's angle).
+MAX_EXPONENT = 1 / (2 * MIN_ROUGHNESS**2)
 
 
 # --------------------------------------------------------------------------------------------
@@ -310,6 +324,27 @@ class BRDF(abc.ABC):
         self._p[name] = t
         self._kind[name] = kind
         return t
+
+    def _clamp(self, name: str, *, lo: float | None = None, hi: float | None = None) -> None:
+        """Parameter ``name`` clamped into ``[lo, hi]`` (the model's documented range), with one
+        ``UserWarning`` naming the value given and the one taken where it was outside."""
+        t = self._p[name]
+        # the bounds as the parameter's dtype holds them: a float32 1e-4 is a little below it
+        lo, hi = (None if b is None else float(torch.tensor(b, dtype=t.dtype)) for b in (lo, hi))
+        with torch.no_grad():
+            below = lo is not None and float(t.min()) < lo
+            above = hi is not None and float(t.max()) > hi
+        if not (below or above):
+            return
+        given, bound = (float(t.min()), lo) if below else (float(t.max()), hi)
+        side = "below" if below else "above"
+        warnings.warn(
+            f"lobelight: {self.type_name} {name} {given:g} is {side} {bound:g}, the sharpest "
+            f"lobe lobelight models (a mirror at any image size): taken as {bound:g}",
+            UserWarning,
+            stacklevel=3,
+        )
+        self._p[name] = t.clamp(min=lo, max=hi)
 
     def _batch_shapes(self) -> list[tuple[str, tuple[int, ...]]]:
         """(name, per-element shape) of every parameter."""
@@ -673,6 +708,27 @@ class Sum(BRDF):
         self.components: tuple[BRDF, ...] = tuple(flat)
         # per-element parameters of all components must broadcast together
         self._check_shapes()
+
+    def _clamp(self, name: str, *, lo: float | None = None, hi: float | None = None) -> None:
+        """Parameter ``name`` clamped into ``[lo, hi]`` (the model's documented range), with one
+        ``UserWarning`` naming the value given and the one taken where it was outside."""
+        t = self._p[name]
+        # the bounds as the parameter's dtype holds them: a float32 1e-4 is a little below it
+        lo, hi = (None if b is None else float(torch.tensor(b, dtype=t.dtype)) for b in (lo, hi))
+        with torch.no_grad():
+            below = lo is not None and float(t.min()) < lo
+            above = hi is not None and float(t.max()) > hi
+        if not (below or above):
+            return
+        given, bound = (float(t.min()), lo) if below else (float(t.max()), hi)
+        side = "below" if below else "above"
+        warnings.warn(
+            f"lobelight: {self.type_name} {name} {given:g} is {side} {bound:g}, the sharpest "
+            f"lobe lobelight models (a mirror at any image size): taken as {bound:g}",
+            UserWarning,
+            stacklevel=3,
+        )
+        self._p[name] = t.clamp(min=lo, max=hi)
 
     def _batch_shapes(self) -> list[tuple[str, tuple[int, ...]]]:
         return [

@@ -14,6 +14,7 @@ from ._base import (
     _PI,
     _SCALAR,
     BRDF,
+    MAX_EXPONENT,
     CosineLobe,
     _choose,
     _color_as,
@@ -24,9 +25,13 @@ from ._base import (
     _select,
 )
 
-__all__ = ["Lafortune"]
+__all__ = ["MAX_ALBEDO_BOUND", "Lafortune"]
 
 _LOBE_KEYS = ("cx", "cy", "cz", "exponent", "rho")
+#: The largest albedo bound (:meth:`Lafortune.albedo_bound`) of a Lafortune model: a physical
+#: material reflects at most the light it receives, and a model file holds Gaussians carrying
+#: at most 1e4 (lobelight.model.MAX_LIGHT); lobes with more overflow float32 soon after.
+MAX_ALBEDO_BOUND = 1e4
 
 
 class Lafortune(BRDF):
@@ -41,6 +46,12 @@ class Lafortune(BRDF):
         factor: not normalised). E.g. ``cx = cy = -1, cz = 1`` is the Phong lobe about the
         mirror direction, ``cx = cy = 0`` a lobe about the normal, ``cx = cy > cz`` retro- and
         off-specular effects.
+
+    An exponent above :data:`lobelight.brdf.MAX_EXPONENT` (5e7, the sharpness of a Beckmann
+    lobe of roughness 1e-4) is taken as that, with a warning: sharper lobes are mirrors at any
+    image size, and their fits are not finite. Lobes whose :meth:`albedo_bound` exceeds
+    :data:`MAX_ALBEDO_BOUND` are refused: their values overflow float32, or carry more light
+    than a model file holds.
     """
 
     type_name = "lafortune"
@@ -66,9 +77,23 @@ class Lafortune(BRDF):
             for c in ("cx", "cy", "cz"):
                 self._set(f"lobes[{j}].{c}", lobe[c], _SCALAR)
             self._set(f"lobes[{j}].exponent", lobe["exponent"], _SCALAR, lo=0.0)
+            self._clamp(f"lobes[{j}].exponent", hi=MAX_EXPONENT)
             self._set(f"lobes[{j}].rho", lobe["rho"], _COLOR, lo=0.0)
         self.n_lobes = len(lobes)
         self._check_shapes()
+        self._check_bound()
+
+    def _check_bound(self) -> None:
+        """Refuse lobes whose albedo bound (float64) exceeds :data:`MAX_ALBEDO_BOUND`."""
+        with torch.no_grad():
+            bound = float(self.to(dtype=torch.float64).albedo_bound().max())
+        if not bound <= MAX_ALBEDO_BOUND:  # NaN too
+            raise InputError(
+                "lobes",
+                f"reflect up to {bound:.3g} times the light they receive (the albedo bound "
+                f"sum_j 2 pi rho_j max|c_j|^e_j / (e_j + 1)), over {MAX_ALBEDO_BOUND:g}: "
+                f"lower rho, the exponents, or the coefficients |cx|, |cy|, |cz| above 1",
+            )
 
     def _lobe(self, j: int, like: torch.Tensor):
         """Lobe ``j``'s (cx, cy, cz, exponent, rho) in the dtype/device of ``like``."""

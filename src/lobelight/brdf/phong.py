@@ -15,6 +15,8 @@ from ._base import (
     _PI,
     _SCALAR,
     BRDF,
+    MAX_EXPONENT,
+    MAX_HALF_VECTOR_EXPONENT,
     CosineLobe,
     _color_as,
     _cospow,
@@ -32,11 +34,14 @@ class _ExponentLobe(BRDF):
 
     scene_params: ClassVar[Mapping[str, str]] = {"specular": _COLOUR, "exponent": _NUMBER}
     sun_param = "exponent"
+    #: The largest exponent, the sharpest lobe lobelight models (:mod:`lobelight.brdf`)
+    max_exponent: ClassVar[float] = MAX_EXPONENT
 
     def __init__(self, specular: Any, exponent: Any):
         super().__init__()
         self._set("specular", specular, _COLOR, lo=0.0, hi=1.0)
         self._set("exponent", exponent, _SCALAR, lo=0.0)
+        self._clamp("exponent", hi=self.max_exponent)
         self._check_shapes()
 
     def _albedo_guess(self, wo):
@@ -53,7 +58,9 @@ class Phong(_ExponentLobe):
     Parameters
     ----------
     specular : () or (..., 3) ``ks`` in [0, 1] (the albedo at normal incidence)
-    exponent : () or (...) ``e >= 0``
+    exponent : () or (...) ``e >= 0``; above :data:`lobelight.brdf.MAX_EXPONENT` (5e7, the
+        sharpness of a Beckmann lobe of roughness 1e-4) it is taken as that, with a warning:
+        sharper lobes are mirrors at any image size, and their fits are not finite
     """
 
     type_name = "phong"
@@ -115,11 +122,14 @@ class BlinnPhong(_ExponentLobe):
     Parameters
     ----------
     specular : () or (..., 3) ``ks`` in [0, 1]
-    exponent : () or (...) ``e >= 0``
+    exponent : () or (...) ``e >= 0``; above :data:`lobelight.brdf.MAX_HALF_VECTOR_EXPONENT`
+        (2e8, a Beckmann lobe of roughness 1e-4) it is taken as that, with a warning: sharper
+        lobes are mirrors at any image size, and their fits are not finite
     """
 
     type_name = "blinn_phong"
     half_vector_lobe = True
+    max_exponent: ClassVar[float] = MAX_HALF_VECTOR_EXPONENT
 
     @staticmethod
     def _zhat(like: torch.Tensor) -> torch.Tensor:

@@ -14,6 +14,7 @@ from ._base import (
     _PI,
     _SCALAR,
     BRDF,
+    MIN_ROUGHNESS,
     _dot,
     _mean_color,
     _normalize,
@@ -33,6 +34,9 @@ class Ward(BRDF):
     specular : () or (..., 3) ``ks`` in [0, 1]
     alpha_x : () or (...) roughness along the tangent, > 0
     alpha_y : () or (...) roughness along the bitangent, > 0 (default ``alpha_x``: isotropic)
+
+    A roughness below :data:`lobelight.brdf.MIN_ROUGHNESS` (1e-4) is taken as 1e-4, with a
+    warning: sharper lobes are mirrors at any image size, and their fits are not finite.
     """
 
     type_name = "ward"
@@ -47,7 +51,11 @@ class Ward(BRDF):
         super().__init__()
         self._set("specular", specular, _COLOR, lo=0.0, hi=1.0)
         self._set("alpha_x", alpha_x, _SCALAR, lo=0.0, lo_open=True)
-        self._set("alpha_y", alpha_x if alpha_y is None else alpha_y, _SCALAR, lo=0.0, lo_open=True)
+        self._clamp("alpha_x", lo=MIN_ROUGHNESS)
+        if alpha_y is None:  # isotropic: alpha_x as taken (one warning)
+            alpha_y = self._p["alpha_x"]
+        self._set("alpha_y", alpha_y, _SCALAR, lo=0.0, lo_open=True)
+        self._clamp("alpha_y", lo=MIN_ROUGHNESS)
         self._check_shapes()
 
     def _eval(self, wi, wo):
