@@ -16,6 +16,7 @@ from ._base import (
     _PI,
     _SCALAR,
     BRDF,
+    MIN_ROUGHNESS,
     _dot,
     _normalize,
     _reflect,
@@ -52,7 +53,8 @@ def _fresnel_conductor(cos_i: torch.Tensor, eta: torch.Tensor, k: torch.Tensor) 
     return 0.5 * (rs + rp)
 
 
-_ALPHA_MIN = 1e-4  # Mitsuba's MicrofacetDistribution::configure() clamp
+# Mitsuba's MicrofacetDistribution::configure() clamp, lobelight's sharpest lobe
+_ALPHA_MIN = MIN_ROUGHNESS
 #: ``D(m) cos(theta_m)`` at or below this is 0, as Mitsuba's ``MicrofacetDistribution::eval``
 #: sets it against numerical trouble in the later stages (``pdf``, the sampling weights).
 _D_CUTOFF = 1e-20
@@ -65,7 +67,9 @@ class _Microfacet(BRDF):
     """Mitsuba 3 ``roughconductor`` with visible-normal sampling (:mod:`lobelight.brdf`).
 
     ``single_alpha`` is True when the model was built with one ``alpha`` (its parameter then;
-    else ``alpha_u`` and ``alpha_v``), ``fresnel`` when with ``eta`` or ``k``.
+    else ``alpha_u`` and ``alpha_v``), ``fresnel`` when with ``eta`` or ``k``. A roughness
+    below :data:`lobelight.brdf.MIN_ROUGHNESS` (1e-4; 0 included, a mirror) is kept as given
+    and evaluated at 1e-4, as Mitsuba does, without a warning.
     """
 
     beckmann: ClassVar[bool] = False
