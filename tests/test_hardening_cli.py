@@ -428,6 +428,16 @@ def test_cache_max_mb_that_is_no_size_is_refused_at_the_door(files, capsys, monk
             problem="inf for no cap")  # fmt: skip
 
 
+def test_cache_max_mb_inf_renders_without_a_cap(files, capsys, monkeypatch):
+    # it used to crash after the work, when the prefilter cache trimmed its folder
+    monkeypatch.setenv("LOBELIGHT_CACHE", str(files / "cache"))
+    monkeypatch.setenv("LOBELIGHT_CACHE_MAX_MB", "inf")
+    argv = ["render", "m.npz", "-o", "x.png", "--size", "16", "-q", "--backend", "torch"]
+    code, _, err = run(capsys, [*argv, "--base-res", "32", "--samples", "1"])
+    assert code == 0, err
+    assert list((files / "cache").rglob("*.npz")), "the chain was cached"
+
+
 def test_cache_max_mb_inf_means_no_cap(monkeypatch):
     monkeypatch.setenv("LOBELIGHT_CACHE_MAX_MB", "inf")
     assert _cache.cache_max_bytes(2048) == sys.maxsize

@@ -38,7 +38,7 @@ import traceback
 from pathlib import Path
 
 from .. import __version__
-from .._cache import cache_dir, check_environment
+from .._cache import MAX_MB_ENV, cache_dir, cache_max_bytes, check_environment
 from .._io import protect_inputs
 from ..errors import MAX_QUOTED, InputError, Terminated, one_line, shorten
 from ._arguments import _parser, _UsageError
@@ -164,6 +164,7 @@ def _run(args) -> dict:
     settings, the device, the ray engine), with its outputs kept off its inputs
     (:func:`lobelight._io.protect_inputs`)."""
     check_environment()
+    _no_cap_as_a_number()
     # the commands (and torch) load once the line is parsed: --help and a mistyped
     # command answer at once
     commands = importlib.import_module("lobelight.cli._commands")
@@ -174,6 +175,13 @@ def _run(args) -> dict:
     commands.use_rays(args.rays)
     with protect_inputs():
         return getattr(commands, args.run)(args)
+
+
+def _no_cap_as_a_number() -> None:
+    """``LOBELIGHT_CACHE_MAX_MB=inf`` (no cap, :func:`lobelight._cache.cache_max_bytes`) as the
+    largest whole number of megabytes, for every reader of the variable in this process."""
+    if cache_max_bytes(0) == sys.maxsize:
+        os.environ[MAX_MB_ENV] = str(sys.maxsize >> 20)
 
 
 def _stopped(args, e: BaseException) -> int:
