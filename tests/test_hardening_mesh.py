@@ -133,6 +133,22 @@ def test_inside_out_mesh_is_flipped_with_a_warning(tmp_path):
     assert float((flipped.normals * flipped.vertices).sum(-1).min()) > 0.9
 
 
+def test_inside_out_mesh_bakes_the_light_of_the_right_one(tmp_path, capsys):
+    # the reproducer: a flipped sphere baked with exit 0 and a diffuse of 0.009 against 0.113
+    v, f = _ico(2)
+    dc = {}
+    for name, faces in (("right", f), ("flipped", f[:, ::-1])):
+        path = _obj(tmp_path / f"{name}.obj", v, faces)
+        out = tmp_path / f"{name}.npz"
+        argv = ["bake", str(path), "-o", str(out), "--bounces", "0", "--indirect-paths", "0"]
+        assert main([*argv, "--material", "diffuse:color=0.7", "-q"]) == 0
+        dc[name] = np.load(out)["diffuse"][:, 0].astype(np.float64)
+    err = capsys.readouterr().err
+    assert "lobelight: flipped.obj: the mesh is closed and inside out" in err, err
+    # the same mesh once turned: the same rays, the same transfer (float32 round-off only)
+    np.testing.assert_allclose(dc["flipped"], dc["right"], rtol=1e-5, atol=1e-7)
+
+
 def test_inside_out_mesh_with_inward_normals_gets_outward_normals(tmp_path):
     # the file's own normals follow its winding inward: both turned
     v, f = _ico(2)
