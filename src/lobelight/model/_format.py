@@ -269,8 +269,8 @@ def _check_sizes(archive: zipfile.ZipFile, file_bytes: int, name: str) -> None:
         f"its members would decompress to {total:,} bytes, over {limit:,} for a file of "
         f"{file_bytes:,} bytes: not a model file",
     )
-    meta, vertices = archive.getinfo("meta.npy"), archive.getinfo("vertices.npy")
-    _check_meta_size(meta.file_size, vertices.file_size, name)
+    sizes = {i.filename.removesuffix(".npy"): i.file_size for i in archive.infolist()}
+    _check_meta_size(sizes.get("meta", 0), sizes.get("vertices", 0), name)
 
 
 def _check_meta_size(meta_bytes: int, vertex_bytes: int, name: str) -> None:
