@@ -38,7 +38,7 @@ from ..lobes import sg
 from ..model import VISIBILITY_RES
 from ._gl_albedo import albedo_array, albedo_uniforms
 from ._lighting import Lighting
-from ._reflection import INDIRECT_SCALE_MAX, OCCLUDED_FLOOR
+from ._reflection import INDIRECT_SCALE_MAX, OCCLUDED_FLOOR, SHARP_NV_MIN
 from ._sun_glossy import (
     sun_glossy_supported,
     sun_glossy_uniforms,
@@ -611,6 +611,7 @@ class GLRenderer:
             "MIXTURE": MIXTURE,
             "ALBEDO_STEPS": ALBEDO_STEPS,
             "OCCLUDED_FLOOR": f"{OCCLUDED_FLOOR:.6e}",
+            "SHARP_NV_MIN": f"{SHARP_NV_MIN:.6e}",
             "INDIRECT_SCALE_MAX": f"{INDIRECT_SCALE_MAX:.6e}",
             "SHADOW_SAMPLES": SHADOW_SAMPLES,
             "BLOCKER_SAMPLES": BLOCKER_SAMPLES,

@@ -12,9 +12,15 @@ instead:
 
 ``R`` the pixel's view reflected about its interpolated normal; ``E(n.v)`` the lobe's
 directional albedo (RGB, Fresnel included; a table over ``n.v`` integrated once from the BRDF);
-``a_i, lam_i`` a mixture of four Gaussians fitted once to the lobe's shape at normal incidence
-and widened with ``1 / n.v`` as a microfacet lobe widens towards grazing angles (Wang et al.
-2009's warp; a Phong lobe keeps its width); ``L(R; lam)`` the prefiltered lookup; ``V(R)`` the
+``a_i, lam_i`` a mixture of four Gaussians fitted once to the lobe's shape at normal incidence;
+``L(R; lam)`` the prefiltered lookup (a Phong lobe keeps its width at every view). A microfacet
+lobe reflected about the normal is anisotropic: a tilt of the microfacet normal by ``d`` turns
+``R`` by ``2 d`` within the plane of incidence and by ``2 (n.v) d`` across it, so the lobe keeps
+its width along the plane and narrows by ``n.v`` across it (Wang et al. 2009's warp,
+``lam_i / n.v``, is the isotropic lobe of the same solid angle). It is read as two lookups of
+the narrow sharpness ``lam_i / (n.v)^2`` at ``R +- s_i t``, ``t`` the plane of incidence's
+direction across ``R`` and ``s_i^2 = (1 - (n.v)^2) / lam_i`` the variance the plane's width
+adds: the two points carry that variance exactly. ``V(R)`` the
 visible fraction of the environment in direction ``R``, read bilinearly from each corner's
 octahedral visibility tile (:meth:`lobelight.model.Model.visibility`) and blended with the
 barycentrics. What the lobe does not see is the object itself: the model's indirect Gaussians
@@ -56,6 +62,7 @@ from ._sun_shadow import disc_radius, disc_visibility
 __all__ = [
     "INDIRECT_SCALE_MAX",
     "OCCLUDED_FLOOR",
+    "SHARP_NV_MIN",
     "indirect_light",
     "indirect_scale",
     "object_light",
@@ -67,6 +74,9 @@ __all__ = [
 #: at most this: where the stored views saw no occlusion the indirect Gaussians hold no light
 #: to rescale, and a small ``1 - v_fit`` amplifies their noise.
 INDIRECT_SCALE_MAX = 4.0
+#: The smallest ``n.v`` a microfacet lobe's widths are taken at (a grazing view's lobe does not
+#: become a line; :meth:`lobelight.brdf.SharpLobe.sharpness`'s floor).
+SHARP_NV_MIN = 0.02
 #: ``1 - v_fit`` floor of the rescaling's divisor.
 OCCLUDED_FLOOR = 0.05
 #: Shadow rays from a hit point are lifted off its triangle by this fraction of the mesh's
@@ -74,14 +84,27 @@ OCCLUDED_FLOOR = 0.05
 HIT_SHADOW_OFFSET = 1e-4
 
 
-def shade(sharp: SharpLobe, lighting, r: torch.Tensor, nv: torch.Tensor, vis: torch.Tensor,
-          rot, *, rest: bool) -> torch.Tensor:  # fmt: skip
-    """``E(n.v) sum_i a_i L(R; lam_i) V``: (P, 3) for reflected directions ``r (P, 3)``,
-    ``nv (P,)``, visible fractions ``vis (P,)``; ``rest``: the map without its sun."""
-    lam = sharp.sharpness(nv)  # (P, M)
-    m = lam.shape[-1]
-    look = lighting.lookup(r[:, None].expand(-1, m, 3), lam, rot, rest=rest)  # (P, M, 3)
-    mixed = (look * sharp.weights.to(r.device)[:, None]).sum(1)
+def shade(sharp: SharpLobe, lighting, r: torch.Tensor, n: torch.Tensor, nv: torch.Tensor,
+          vis: torch.Tensor, rot, *, rest: bool) -> torch.Tensor:  # fmt: skip
+    """``E(n.v) sum_i a_i L(R; lam_i) V`` (module docstring: two lookups across the plane of
+    incidence for a microfacet lobe): (P, 3) for reflected directions ``r (P, 3)`` about
+    shading normals ``n (P, 3)``, ``nv (P,)``, visible fractions ``vis (P,)``; ``rest``: the
+    map without its sun."""
+    w = sharp.weights.to(r.device)[:, None]  # (M, 1)
+    if not sharp.warp:
+        lam = sharp.sharpness(nv)  # (P, M)
+        m = lam.shape[-1]
+        look = lighting.lookup(r[:, None].expand(-1, m, 3), lam, rot, rest=rest)  # (P, M, 3)
+        return sharp.directional_albedo(nv) * (look * w).sum(1) * vis[:, None]
+    lam0 = sharp.lam.to(r.device)  # (M,)
+    c = nv.clamp_min(SHARP_NV_MIN)[:, None]  # (P, 1)
+    lam = lam0 / c**2  # (P, M) the width across the plane of incidence
+    s = ((1 - c**2).clamp_min(0) / lam0).sqrt()  # (P, M)
+    t = torch.nn.functional.normalize(n - (n * r).sum(-1, keepdim=True) * r, dim=-1)  # (P, 3)
+    step = s[..., None] * t[:, None]  # (P, M, 3)
+    d = torch.nn.functional.normalize(torch.stack([r[:, None] + step, r[:, None] - step]), dim=-1)
+    look = lighting.lookup(d, lam.expand(2, -1, -1), rot, rest=rest)  # (2, P, M, 3)
+    mixed = (0.5 * look.sum(0) * w).sum(1)
     return sharp.directional_albedo(nv) * mixed * vis[:, None]
 
 
@@ -142,7 +165,7 @@ def _hit_light(model, lighting, vd, sharp, tri, q, r, rot, *, sun_gl, caster):
     nv = nv.clamp_min(0)
     vis = visible_fraction(model.visibility(), c, b, rh)
     albedo = sharp.directional_albedo(nv)
-    out = shade(sharp, lighting, rh, nv, vis, rot, rest=sun_gl)
+    out = shade(sharp, lighting, rh, n, nv, vis, rot, rest=sun_gl)
     out += hit_diffuse_light(model, vd.diffuse, c, b)
     e, mu, sigma = blend_lobes(vd.e[c], vd.mu[c], vd.sigma[c], b, frame=(vd.mirror[c], rh))
     k = slice(model.n_gaussians - model.indirect_gaussians, None)

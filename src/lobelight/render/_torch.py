@@ -169,7 +169,7 @@ def _glossy(
     nv = (nrm * view).sum(-1).clamp_min(0)
     vis = visible_fraction(model.visibility().to(dev), c, b, r)
     albedo = sharp.directional_albedo(nv)
-    acc = shade(sharp, lighting, r, nv, vis, rot, rest=sun_gl).to(dev)
+    acc = shade(sharp, lighting, r, nrm, nv, vis, rot, rest=sun_gl).to(dev)
     # the object seen in the lobe, where a corner's hit tile finds it; elsewhere the indirect
     # Gaussians fill what the pixel's lobe does not see
     seen, found = object_light(

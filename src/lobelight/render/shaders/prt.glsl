@@ -426,7 +426,7 @@ void main() {
         corners(v_pos, cc, cb);
         float vis = visible_fraction(cc, cb, mirror);
         vec3 albedo = directional_albedo(nv);
-        c += albedo * sharp_lighting(rot_t * mirror, nv) * vis;
+        c += albedo * sharp_lighting(rot_t * mirror, rot_t * across(n, mirror), nv) * vis;
         first = N_GAUSSIANS - N_INDIRECT;
         // the object seen in the lobe, shaded where it is seen; the indirect Gaussians light
         // only pixels whose corners' hit tiles find none

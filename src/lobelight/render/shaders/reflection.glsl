@@ -105,12 +105,29 @@ vec3 directional_albedo(float nv) {
     return mix(sharp_albedo[i], sharp_albedo[i + 1], x - float(i));
 }
 
-// sum_i a_i L(R; lam_i (/ n.v)): the lighting under the lobe's mixture, at R (rotated)
-vec3 sharp_lighting(vec3 r, float nv) {
+// the unit direction across r within the plane of r and n (zero where they are parallel)
+vec3 across(vec3 n, vec3 r) {
+    vec3 t = n - dot(n, r) * r;
+    return t * inversesqrt(max(dot(t, t), 1e-30));
+}
+
+// sum_i a_i L(R; lam_i): the lighting under the lobe's mixture at R, t the plane of incidence's
+// direction across R (both rotated); a microfacet lobe as two lookups of sharpness
+// lam_i / (n.v)^2 at R +- s_i t, s_i^2 = (1 - (n.v)^2) / lam_i (render/_reflection.py shade)
+vec3 sharp_lighting(vec3 r, vec3 t, float nv) {
     vec3 acc = vec3(0.0);
-    float scale = sharp_warp > 0.0 ? 1.0 / max(nv, 0.02) : 1.0;
+    if (sharp_warp > 0.0) {
+        float c = max(nv, SHARP_NV_MIN);
+        for (int i = 0; i < MIXTURE; ++i) {
+            float lam = sharp_lam[i] / (c * c);
+            vec3 step = sqrt(max(1.0 - c * c, 0.0) / sharp_lam[i]) * t;
+            acc += (0.5 * sharp_weight[i]) * (prefiltered_lookup(normalize(r + step), lam)
+                                              + prefiltered_lookup(normalize(r - step), lam));
+        }
+        return acc;
+    }
     for (int i = 0; i < MIXTURE; ++i) {
-        acc += sharp_weight[i] * prefiltered_lookup(r, sharp_lam[i] * scale);
+        acc += sharp_weight[i] * prefiltered_lookup(r, sharp_lam[i]);
     }
     return acc;
 }
@@ -150,7 +167,7 @@ vec3 hit_light(int f, vec3 q, vec3 r) {
     float nv = max(nvs, 0.0);
     float vis = visible_fraction(c, b, rh);
     vec3 albedo = directional_albedo(nv);
-    vec3 light = albedo * sharp_lighting(rot_t * rh, nv) * vis;
+    vec3 light = albedo * sharp_lighting(rot_t * rh, rot_t * across(n, rh), nv) * vis;
 #if ALBEDO_TEX
     // the transfer is per unit albedo: the hit's vertices' own albedos (render/_albedo.py
     // hit_diffuse_light)
