@@ -203,3 +203,13 @@ def test_albedo_textures_survive_the_model_file(checker_model, tmp_path):
     del arrays["albedo_wrap"]
     with pytest.raises(InputError, match="come together"):
         check_albedo(arrays, a.n_vertices, "m.npz")
+
+
+def test_a_material_override_drops_the_files_textures(tmp_path):
+    """``--material`` replaces every material of a glTF file, its textures too: the scene then
+    has no asset materials to export and no albedo to read per pixel."""
+    p = tmp_path / "two.glb"
+    two_material_glb(p)
+    sc = scene.load(str(p), material="diffuse:color=0.5")
+    assert sc.gltf is None and sc.albedo is None
+    assert scene.load(str(p)).albedo is not None

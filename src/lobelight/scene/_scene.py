@@ -382,6 +382,8 @@ def load(path_or_name, *, device=None, material=None) -> Scene:
             sc,
             materials=override.take(torch.zeros(n, dtype=torch.int64)),
             material_records=records,
+            gltf=None,  # the file's materials, textures included, are all replaced
+            albedo=None,
         )
     return sc.to(device) if device is not None else sc
 
