@@ -9,9 +9,14 @@
   lobelight.model.Model`` does it all, with :func:`choose_gaussians` choosing the Gaussians per
   view from the material, and the batch sizes derived from the memory budget
   (:data:`MEMORY_GB`).
+- ``fit_model(..., client=)`` runs the chunks of the bake on a Dask cluster (a
+  ``distributed.Client``, or a scheduler's address; the optional ``[cluster]`` extra), and
+  :func:`cluster` connects to one or starts one on this machine (:mod:`lobelight.fit._cluster`
+  says how the work is split and what crosses).
 """
 
 from ._auto import choose_gaussians, lobe_shape
+from ._cluster import CONNECT_TIMEOUT, cluster
 from ._data import FitData, gather, half_vector_lobes, lobe_estimate
 from ._floodfill import MeshFit, count_flips, fit_mesh, wavefronts
 from ._memory import MEMORY_GB
@@ -20,6 +25,7 @@ from ._objective import Weights, flip_count
 from ._optimize import LAM_RANGE, Gaussians, fit_batch, initial_guess
 
 __all__ = [
+    "CONNECT_TIMEOUT",
     "LAM_RANGE",
     "MEMORY_GB",
     "FitData",
@@ -27,6 +33,7 @@ __all__ = [
     "MeshFit",
     "Weights",
     "choose_gaussians",
+    "cluster",
     "count_flips",
     "fit_batch",
     "fit_mesh",

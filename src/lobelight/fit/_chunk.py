@@ -13,6 +13,14 @@ its own vertices, and reads them at their neighbours:
   earlier ones).
 - The relaxation refits each chunk against all neighbours' current Gaussians, in order.
 
+A chunk's work is split in three, so that it may run in another process
+(:mod:`lobelight.fit._cluster`): what it reads of the bake's state is gathered first
+(:func:`fit_inputs`, :func:`refit_inputs`: its processed neighbours' Gaussians, tensors of the
+chunk's size), the work itself reads nothing else of the state and returns a
+:class:`ChunkResult` (:func:`compute_fit`, :func:`compute_refit`), which is then written into
+the state (:meth:`ChunkResult.apply`). :func:`fit_chunk` and :func:`refit_chunk` do the three in
+one process.
+
 A chunk's indirect glossy paths are seeded by its index, not by when it runs, so a resumed bake
 draws the paths an uninterrupted one does.
 """
@@ -39,9 +47,16 @@ __all__ = [
     "Bake",
     "BakeState",
     "Chunk",
+    "ChunkResult",
+    "Neighbours",
+    "RefitInputs",
+    "compute_fit",
+    "compute_refit",
     "fit_chunk",
+    "fit_inputs",
     "plan_chunks",
     "refit_chunk",
+    "refit_inputs",
 ]
 
 #: Processed neighbours a vertex's S term reads (the rest of a high-valence fan is dropped).
@@ -63,10 +78,13 @@ class Chunk:
     ----------
     index : its place in its pass, ``0..K-1``; seeds its indirect glossy paths
     vertices : (B,) int64 vertex ids, on the bake's device
+    front : the flood fill's wavefront its vertices belong to (two or more Gaussians per
+        view); 0 where chunks run across wavefronts (one Gaussian)
     """
 
     index: int
     vertices: torch.Tensor
+    front: int = 0
 
     def generator(self, seed: int) -> torch.Generator:
         """The random generator of the chunk's indirect glossy paths in a bake of ``seed``."""
@@ -80,10 +98,12 @@ def plan_chunks(layers: list[torch.Tensor], *, n: int, batch: int, device) -> li
     with ``n >= 2`` a chunk stays inside one wavefront."""
     if n == 1:  # no spatial term: any vertices may share a chunk
         order = torch.cat(layers)
-        parts = [order[s : s + batch] for s in range(0, order.numel(), batch)]
+        parts = [(order[s : s + batch], 0) for s in range(0, order.numel(), batch)]
     else:
-        parts = [f[s : s + batch] for f in layers for s in range(0, f.numel(), batch)]
-    return [Chunk(i, p.to(device)) for i, p in enumerate(parts)]
+        parts = [
+            (f[s : s + batch], k) for k, f in enumerate(layers) for s in range(0, f.numel(), batch)
+        ]
+    return [Chunk(i, p.to(device), k) for i, (p, k) in enumerate(parts)]
 
 
 @dataclass(eq=False)
@@ -153,7 +173,8 @@ class Bake:
     ----------
     transport : Transport of the scene;  views : (J, 3);  nbr_views : (J, 6) geodesic table
     n : Gaussians per view;  weights : the objective's;  indirect_paths : per vertex and view
-    seed : the bake's;  state : BakeState
+    seed : the bake's;  state : BakeState, or None in a process that only computes chunks
+        (a worker of :mod:`lobelight.fit._cluster`)
     diffuse_dirs, diffuse_weights : (D, 3) directions and (D,) solid angles of the diffuse sum
     flips_before, flips_after : flipped pairs (all, separated) after the flood fill and after
         the relaxation (:func:`lobelight.fit.count_flips`)
@@ -167,7 +188,7 @@ class Bake:
     weights: Weights
     indirect_paths: int
     seed: int
-    state: BakeState
+    state: BakeState | None
     diffuse_dirs: torch.Tensor
     diffuse_weights: torch.Tensor
     flips_before: tuple[int, int] = (0, 0)
@@ -176,10 +197,20 @@ class Bake:
 
     @classmethod
     def start(
-        cls, tr: Transport, views: torch.Tensor, *, n: int, weights: Weights, indirect_paths, seed
+        cls,
+        tr: Transport,
+        views: torch.Tensor,
+        *,
+        n: int,
+        weights: Weights,
+        indirect_paths,
+        seed,
+        state: bool = True,
     ) -> Bake:
-        """A bake of ``tr``'s mesh at ``views`` (on ``tr``'s device), before any chunk."""
+        """A bake of ``tr``'s mesh at ``views`` (on ``tr``'s device), before any chunk; without
+        a state where ``state`` is False."""
         dev = tr.device
+        v, j = tr.mesh.n_vertices, views.shape[0]
         return cls(
             transport=tr,
             views=views,
@@ -188,7 +219,7 @@ class Bake:
             weights=weights,
             indirect_paths=indirect_paths,
             seed=seed,
-            state=BakeState.empty(tr.mesh.n_vertices, views.shape[0], n, device=dev),
+            state=BakeState.empty(v, j, n, device=dev) if state else None,
             diffuse_dirs=cubemap.texel_directions(DIFFUSE_RES, device=dev).reshape(-1, 3),
             diffuse_weights=cubemap.texel_solid_angles(DIFFUSE_RES, device=dev).reshape(-1),
         )
@@ -198,106 +229,236 @@ class Bake:
         return self.transport.mesh
 
 
+@dataclass(eq=False)
+class Neighbours:
+    """The processed neighbours a chunk's vertices read (the spatial term, a start): up to
+    :data:`MAX_NEIGHBOURS` per vertex, with their Gaussians as the state held them.
+
+    Attributes
+    ----------
+    ids : (B, Q) int64 vertex ids;  mask : (B, Q) bool, slots that hold a processed neighbour
+    w, mu : (B, Q, J, N, 3) and lam : (B, Q, J, N), their Gaussians
+    """
+
+    ids: torch.Tensor
+    mask: torch.Tensor
+    w: torch.Tensor
+    mu: torch.Tensor
+    lam: torch.Tensor
+
+    @classmethod
+    def read(cls, bake: Bake, vidx: torch.Tensor, readable: torch.Tensor) -> Neighbours:
+        """The neighbours of vertices ``vidx`` (B,) among ``readable`` (V,) bool."""
+        ids, mask = _processed_neighbours(bake.mesh, vidx, readable)
+        st = bake.state
+        return cls(ids, mask, st.w[ids], st.mu[ids], st.lam[ids])
+
+    def rows(self, keep: torch.Tensor) -> Neighbours:
+        """The neighbours of the vertices ``keep`` (a (B,) bool or an index) selects."""
+        return Neighbours(*(getattr(self, f.name)[keep] for f in fields(self)))
+
+    def first(self) -> Gaussians:
+        """Each vertex's first neighbour's Gaussians (w (B, J, N, 3), ...)."""
+        return Gaussians(self.w[:, 0], self.mu[:, 0], self.lam[:, 0])
+
+    def to(self, device) -> Neighbours:
+        return Neighbours(*(getattr(self, f.name).to(device) for f in fields(self)))
+
+
+@dataclass(eq=False)
+class RefitInputs:
+    """What the relaxation's refit of a chunk reads of the state: its glossy vertices (B,),
+    their Gaussians (w (B, J, N, 3), ...) and data error (B,), and their neighbours."""
+
+    vertices: torch.Tensor
+    old: Gaussians
+    derr: torch.Tensor
+    neighbours: Neighbours
+
+    def to(self, device) -> RefitInputs:
+        o = self.old
+        return RefitInputs(
+            self.vertices.to(device),
+            Gaussians(o.w.to(device), o.mu.to(device), o.lam.to(device)),
+            self.derr.to(device),
+            self.neighbours.to(device),
+        )
+
+
+@dataclass(eq=False)
+class ChunkResult:
+    """What a chunk's work computed: new values of some of :class:`BakeState`'s arrays at its
+    vertices.
+
+    Attributes
+    ----------
+    index : the chunk's;  vertices : (B,) int64 the vertices written
+    arrays : :class:`BakeState` field name -> (B, ...) values at ``vertices``
+    indirect_seconds : time spent tracing indirect glossy paths
+    """
+
+    index: int
+    vertices: torch.Tensor
+    arrays: dict[str, torch.Tensor]
+    indirect_seconds: float = 0.0
+
+    def to(self, device) -> ChunkResult:
+        arrays = {k: v.to(device) for k, v in self.arrays.items()}
+        return ChunkResult(self.index, self.vertices.to(device), arrays, self.indirect_seconds)
+
+    def nonfinite(self) -> torch.Tensor:
+        """(k,) the vertices where any value is NaN or infinite."""
+        bad = torch.zeros(self.vertices.shape, dtype=torch.bool, device=self.vertices.device)
+        for v in self.arrays.values():
+            if v.is_floating_point():
+                bad |= ~v.isfinite().reshape(v.shape[0], -1).all(1)
+        return self.vertices[bad]
+
+    def apply(self, bake: Bake) -> None:
+        """Write the values into ``bake``'s state."""
+        state = bake.state.arrays()
+        for k, v in self.arrays.items():
+            state[k][self.vertices] = v
+        bake.indirect_seconds += self.indirect_seconds
+
+
 def fit_chunk(bake: Bake, chunk: Chunk) -> None:
-    """The flood fill's work on a chunk: its vertices' self-shadowed diffuse transfer, their
-    indirect glossy Gaussian, and their direct glossy Gaussians fitted against the processed
-    neighbours (from the start that suits each one's data best, :func:`_better_start`)."""
-    st, n = bake.state, bake.n
-    lobe, vidx = _first_visit(bake, chunk.vertices)
-    if vidx.numel() == 0:
-        return
-    if bake.indirect_paths > 0:
-        _indirect(bake, chunk, vidx)
+    """The flood fill's work on a chunk, in this process: :func:`compute_fit` against the
+    neighbours processed before it (:func:`fit_inputs`), written into the state."""
+    compute_fit(bake, chunk, fit_inputs(bake, chunk)).apply(bake)
+
+
+def fit_inputs(bake: Bake, chunk: Chunk, readable: torch.Tensor | None = None):
+    """What the flood fill of ``chunk`` reads of the state: the processed neighbours of its
+    vertices (with two or more Gaussians per view; None with one). A neighbour is processed
+    where the flood fill has reached it, it is glossy, it is not in the chunk, and it is in
+    ``readable`` (V,) bool where given."""
+    if bake.n == 1:
+        return None
+    st = bake.state
+    avail = st.done & st.glossy
+    avail[chunk.vertices] = False  # none may read another's unfitted state (zero means)
+    if readable is not None:
+        avail &= readable
+    return Neighbours.read(bake, chunk.vertices, avail)
+
+
+def compute_fit(bake: Bake, chunk: Chunk, nbrs: Neighbours | None) -> ChunkResult:
+    """The flood fill's work on a chunk, reading nothing of the state but ``nbrs``
+    (:func:`fit_inputs`): its vertices' self-shadowed diffuse transfer, their indirect glossy
+    Gaussian, and their direct glossy Gaussians fitted against the processed neighbours (from
+    the start that suits each one's data best, :func:`_better_start`)."""
+    vidx, n = chunk.vertices, bake.n
+    out = _first_visit(bake, vidx)
+    lobe, gl = out.pop("_lobe"), out["glossy"]
+    if not bool(gl.any()):
+        return ChunkResult(chunk.index, vidx, out)
+    lobe = tuple(x[gl] for x in lobe)
+    seconds = _indirect(bake, chunk, vidx[gl], out, gl) if bake.indirect_paths > 0 else 0.0
     # the relaxation samples the transport again rather than keeping it: all of it
     # (V x J x ~700 samples x 7 floats) would not fit in memory on a large mesh
-    data = gather(bake.transport, vidx, bake.views, lobe=lobe).compact()
-    # the chunk's own vertices are fitted together, now: none may read another's unfitted
-    # state (zero means) as a processed neighbour, for S or as a start
-    avail = st.done & st.glossy
-    avail[vidx] = False
-    ids, mask = _processed_neighbours(bake.mesh, vidx, avail)
-    init = None
-    if n > 1 and bool(mask[:, 0].all()):
-        # start from a processed neighbour's Gaussians (the same correspondence of lobes)
-        # where they fit this vertex's data, from the data's own guess where they do not
-        init = _better_start(data, n, bake.nbr_views, st.gaussians(ids[:, 0]))
-    g, terms = _fit(bake, data, ids, mask, init, iters=FILL_ITERATIONS)
-    st.mu[vidx], st.lam[vidx], st.w[vidx] = g.mu, g.lam, g.w
-    st.derr[vidx] = terms["D"]
+    data = gather(bake.transport, vidx[gl], bake.views, lobe=lobe).compact()
+    init, nb = None, None
+    if nbrs is not None:
+        nb = nbrs.rows(gl)
+        if bool(nb.mask[:, 0].all()):
+            # start from a processed neighbour's Gaussians (the same correspondence of lobes)
+            # where they fit this vertex's data, from the data's own guess where they do not
+            init = _better_start(data, n, bake.nbr_views, nb.first())
+    g, terms = _fit(bake, data, nb, init, iters=FILL_ITERATIONS)
+    out["mu"][gl], out["lam"][gl], out["w"][gl] = g.mu, g.lam, g.w
+    out["derr"][gl] = terms["D"]
+    return ChunkResult(chunk.index, vidx, out, seconds)
 
 
 def refit_chunk(bake: Bake, chunk: Chunk) -> None:
-    """The relaxation's work on a chunk: its glossy vertices refitted from their Gaussians with
-    ``S`` against all their neighbours, keeping the new lobes only where they add no flipped
-    pair."""
+    """The relaxation's work on a chunk, in this process: :func:`compute_refit` against all
+    neighbours' current Gaussians (:func:`refit_inputs`), written into the state."""
+    compute_refit(bake, chunk, refit_inputs(bake, chunk)).apply(bake)
+
+
+def refit_inputs(bake: Bake, chunk: Chunk) -> RefitInputs:
+    """What the relaxation's refit of ``chunk`` reads of the state: its glossy vertices, their
+    Gaussians and data error, and their glossy neighbours."""
     st = bake.state
     vidx = chunk.vertices
     vidx = vidx[st.glossy[vidx]]
+    return RefitInputs(
+        vidx, st.gaussians(vidx), st.derr[vidx], Neighbours.read(bake, vidx, st.glossy)
+    )
+
+
+def compute_refit(bake: Bake, chunk: Chunk, inputs: RefitInputs) -> ChunkResult:
+    """The relaxation's work on a chunk, reading nothing of the state but ``inputs``: its
+    glossy vertices refitted from their Gaussians with ``S`` against all their neighbours,
+    keeping the new lobes only where they add no flipped pair."""
+    vidx, old, nb = inputs.vertices, inputs.old, inputs.neighbours
     if vidx.numel() == 0:
-        return
+        return ChunkResult(chunk.index, vidx, {})
     data = gather(bake.transport, vidx, bake.views, lobe=None).compact()
-    ids, mask = _processed_neighbours(bake.mesh, vidx, st.glossy)
-    g, terms = _fit(bake, data, ids, mask, st.gaussians(vidx), iters=REFIT_ITERATIONS)
+    g, terms = _fit(bake, data, nb, old, iters=REFIT_ITERATIONS)
     # The refit keeps a vertex's new lobes only where they add no flipped pair against its
     # neighbours, counting all pairs and separated ones: S alone does not hold the lobes (its
     # cubic penalty vanishes for lobes a few tenths of a radian apart), and unguarded the pass
     # adds flips and knots the lobes into arrangements no reordering can undo (docs/method.md)
-    old, nbr = st.gaussians(vidx), st.gaussians(ids)
+    nbr = Gaussians(nb.w, nb.mu, nb.lam)
     keep = torch.ones(vidx.numel(), dtype=torch.bool, device=vidx.device)
     for sep in (0.0, SEPARATED):
-        keep &= vertex_flips(g, nbr, mask, min_separation=sep) <= vertex_flips(
-            old, nbr, mask, min_separation=sep
+        keep &= vertex_flips(g, nbr, nb.mask, min_separation=sep) <= vertex_flips(
+            old, nbr, nb.mask, min_separation=sep
         )
-    g = Gaussians(
-        torch.where(keep[:, None, None, None], g.w, old.w),
-        torch.where(keep[:, None, None, None], g.mu, old.mu),
-        torch.where(keep[:, None, None], g.lam, old.lam),
-    )
-    st.mu[vidx], st.lam[vidx], st.w[vidx] = g.mu, g.lam, g.w
-    st.derr[vidx] = torch.where(keep, terms["D"], st.derr[vidx])
+    out = {
+        "w": torch.where(keep[:, None, None, None], g.w, old.w),
+        "mu": torch.where(keep[:, None, None, None], g.mu, old.mu),
+        "lam": torch.where(keep[:, None, None], g.lam, old.lam),
+        "derr": torch.where(keep, terms["D"], inputs.derr),
+    }
+    return ChunkResult(chunk.index, vidx, out)
 
 
-def _first_visit(bake: Bake, vidx: torch.Tensor):
-    """A chunk's vertices reached by the flood fill: their diffuse transfer, which of them are
-    glossy, and zero weights for the others. Returns the glossy ones' lobe estimate
-    (:func:`lobelight.fit.lobe_estimate`) and ids."""
-    st, tr = bake.state, bake.transport
-    st.diffuse[vidx] = tr.diffuse(vidx, bake.diffuse_dirs, bake.diffuse_weights)
-    st.done[vidx] = True
+def _first_visit(bake: Bake, vidx: torch.Tensor) -> dict[str, torch.Tensor]:
+    """A chunk's vertices reached by the flood fill: the state's arrays at them as a chunk's
+    result starts them (:meth:`BakeState.empty`'s values), with their diffuse transfer, which
+    of them are glossy, and zero weights for the others; under ``"_lobe"`` the lobe estimate
+    of all of them (:func:`lobelight.fit.lobe_estimate`)."""
+    tr = bake.transport
+    out = BakeState.empty(vidx.numel(), bake.views.shape[0], bake.n, device=vidx.device).arrays()
+    del out["bounce"]  # the interreflection's, later
+    out["diffuse"] = tr.diffuse(vidx, bake.diffuse_dirs, bake.diffuse_weights)
+    out["done"][:] = True
     axis, lam_est, scale = lobe_estimate(tr, vidx, bake.views)
     gl = (lam_est > 0).any(1)
-    st.glossy[vidx] = gl
-    rest = ~gl
-    if bool(rest.any()):  # no glossy transport: zero weights, means at the lobe axis
-        st.mu[vidx[rest]] = axis[rest][:, :, None].expand(-1, -1, bake.n, -1)
-        st.lam[vidx[rest]], st.w[vidx[rest]], st.derr[vidx[rest]] = 1.0, 0.0, 0.0
-    return (axis[gl], lam_est[gl], scale[gl]), vidx[gl]
+    out["glossy"] = gl
+    # no glossy transport: zero weights (as started), means at the lobe axis
+    out["mu"][~gl] = axis[~gl][:, :, None].expand(-1, -1, bake.n, -1)
+    out["_lobe"] = (axis, lam_est, scale)
+    return out
 
 
-def _indirect(bake: Bake, chunk: Chunk, vidx: torch.Tensor) -> None:
-    """The indirect glossy Gaussian of the chunk's glossy vertices ``vidx``."""
-    st = bake.state
+def _indirect(bake: Bake, chunk: Chunk, vidx: torch.Tensor, out, gl) -> float:
+    """The indirect glossy Gaussian of the chunk's glossy vertices ``vidx`` (rows ``gl`` of
+    ``out``); returns the seconds it took."""
     t = time.perf_counter()
     ig = bake.transport.indirect_lobes(
         vidx, bake.views, paths=bake.indirect_paths, generator=chunk.generator(bake.seed)
     )
-    st.ind_w[vidx], st.ind_mu[vidx], st.ind_lam[vidx] = ig.w, ig.mu, ig.lam
-    bake.indirect_seconds += time.perf_counter() - t
+    out["ind_w"][gl], out["ind_mu"][gl], out["ind_lam"][gl] = ig.w, ig.mu, ig.lam
+    return time.perf_counter() - t
 
 
-def _fit(bake: Bake, data, ids, mask, init: Gaussians | None, *, iters: int):
+def _fit(bake: Bake, data, nbrs: Neighbours | None, init: Gaussians | None, *, iters: int):
     """:func:`lobelight.fit.fit_batch` of a chunk's data in ``iters`` iterations, ``S`` against
-    neighbours ``ids`` (B, Q) where ``mask`` (with two or more Gaussians per view)."""
-    n = bake.n
+    the neighbours ``nbrs`` (with two or more Gaussians per view)."""
+    spatial = bake.n > 1 and nbrs is not None
     return fit_batch(
         data,
-        n,
+        bake.n,
         bake.nbr_views,
         weights=bake.weights,
         init=init,
         iters=iters,
-        nbr_mu=bake.state.mu[ids] if n > 1 else None,  # (B, Q, J, N, 3)
-        nbr_mask=mask if n > 1 else None,
+        nbr_mu=nbrs.mu if spatial else None,  # (B, Q, J, N, 3)
+        nbr_mask=nbrs.mask if spatial else None,
     )
 
 

@@ -29,7 +29,16 @@ from ..geometry import sphere
 from ..scene import Mesh, Scene
 from ..transport import BOUNCES, INDIRECT_PATHS, Transport, diffuse_interreflection
 from ._checkpoint import Checkpoint, Position, settings_key
-from ._chunk import Bake, Chunk, fit_chunk, plan_chunks, refit_chunk
+from ._chunk import (
+    Bake,
+    Chunk,
+    compute_fit,
+    compute_refit,
+    fit_inputs,
+    plan_chunks,
+    refit_inputs,
+)
+from ._cluster import ClusterRun, checked
 from ._memory import MEMORY_GB, PeakMeter, plan_memory
 from ._objective import Weights, flip_count
 from ._optimize import Gaussians
@@ -177,6 +186,7 @@ def fit_mesh(
     checkpoint_every: float = 30.0,
     shadows: bool = True,
     memory_gb: float = MEMORY_GB,
+    client=None,
 ) -> MeshFit:
     """Fit N Gaussians per view to every vertex's direct glossy transport, one more to its
     indirect glossy transport, and its SH diffuse transfer with interreflection.
@@ -218,6 +228,13 @@ def fit_mesh(
         batch sizes of every stage are derived from it before anything is allocated, so that
         the peak does not grow with the mesh beyond its state (a few tens of KB per vertex);
         an error where even one vertex per batch would not fit
+    client : a ``distributed.Client`` (the optional ``[cluster]`` extra; :func:`cluster`
+        makes one): the chunks of the flood fill and the relaxation run on its workers
+        (:mod:`lobelight.fit._cluster`, which says what crosses and where each stage runs),
+        each worker computing on ``device`` (None: its CUDA device where it has one); with
+        one Gaussian per view the result is the single-process bake's, bit for bit, and the
+        two resume each other's checkpoints; with two or more, the chunks of a wavefront run
+        at once and read the wavefronts before their own only
 
     Returns
     -------
@@ -238,21 +255,31 @@ def fit_mesh(
         indirect_paths, bounces = _counts(plan.batch, indirect_paths, bounces)
         bake = Bake.start(tr, views, n=n, weights=weights, indirect_paths=indirect_paths, seed=seed)
         chunks = plan_chunks(wavefronts(tr.mesh), n=n, batch=plan.batch, device=dev)
+        # two or more Gaussians on a cluster run a wavefront's chunks at once: another result
+        order = ("wavefronts at once",) if client is not None and n > 1 else ()
         key = settings_key(
             scene,
             n,
             views,
             weights,
             plan.batch,
-            (indirect_paths, "indirect-gaussian", bounces, shadows),
+            (indirect_paths, "indirect-gaussian", bounces, shadows, *order),
             relax,
             seed,
         )
         ckpt = Checkpoint(checkpoint, key, every=checkpoint_every)
         start = ckpt.resume(bake.state.arrays())
         bake.flips_before, bake.flips_after = start.flips_before, start.flips_after
-        seconds = _stages(bake, chunks, start, ckpt, progress, meter, relax=relax, bounces=bounces,
-                          memory=plan.interreflection)  # fmt: skip
+        remote = (
+            None if client is None else _cluster_run(client, scene, bake, device, shadows, progress)
+        )
+        try:
+            seconds = _stages(bake, chunks, start, ckpt, progress, meter, relax=relax,
+                              bounces=bounces, memory=plan.interreflection,
+                              run=_run_chunks if remote is None else remote.run)  # fmt: skip
+        finally:
+            if remote is not None:
+                remote.close()
     finally:
         peaks = meter.stop()
     out = _result(bake, bounces, seconds)
@@ -260,20 +287,49 @@ def fit_mesh(
     return out
 
 
-def _stages(bake: Bake, chunks, start, ckpt, progress, meter, *, relax, bounces, memory):
-    """The bake's stages from ``start``: flood fill, relaxation, interreflection. Returns the
-    seconds of each."""
+def _cluster_run(client, scene: Scene, bake: Bake, device, shadows: bool, progress) -> ClusterRun:
+    """The :class:`lobelight.fit._cluster.ClusterRun` of ``bake`` on ``client``'s workers."""
+    spec = _spec(scene, bake, device, shadows)
+    run = ClusterRun(client, spec)
+    note = getattr(progress, "note", None)
+    if note is not None:
+        note(
+            f"the chunks run on the Dask cluster at {client.scheduler.address} "
+            f"({run.workers()} workers now); the interreflection here"
+        )
+    return run
+
+
+def _spec(scene: Scene, bake: Bake, device, shadows: bool):
+    """The :class:`lobelight.fit._worker.BakeSpec` of ``bake``."""
+    from ._worker import BakeSpec  # optional: needs distributed (the [cluster] extra)
+
+    return BakeSpec(
+        scene=scene,
+        views=bake.views.cpu(),
+        n=bake.n,
+        weights=bake.weights,
+        indirect_paths=bake.indirect_paths,
+        seed=bake.seed,
+        shadows=shadows,
+        device=None if device is None else str(device),
+    )
+
+
+def _stages(bake: Bake, chunks, start, ckpt, progress, meter, *, relax, bounces, memory, run):
+    """The bake's stages from ``start``: flood fill, relaxation, interreflection, the chunks
+    run by ``run`` (:func:`_run_chunks`'s signature). Returns the seconds of each."""
     t0 = time.perf_counter()
     meter.stage("fit")
     if start.todo("fit"):
-        _flood_fill(bake, chunks, start, ckpt, progress)
+        run("fit", bake, chunks, start, ckpt, progress, force_last=True)
     t1 = time.perf_counter()
     meter.stage("relax")
     if start.todo("fit"):  # counted on the relaxation's clock, which compares against it
         bake.flips_before = bake.flips_after = _flips(bake.mesh, bake.state.gaussians())
     if start.todo("relax"):
         if relax and bake.n > 1:
-            _relaxation(bake, chunks, start, ckpt, progress)
+            _relaxation(bake, chunks, start, ckpt, progress, run)
         ckpt.save(_at(bake, "interreflection", 0), bake.state.arrays(), force=True)
     t2 = time.perf_counter()
     meter.stage("interreflection")
@@ -304,28 +360,32 @@ def _at(bake: Bake, stage: str, next_chunk: int) -> Position:
     return Position(stage, next_chunk, bake.flips_before, bake.flips_after)
 
 
-def _run_chunks(stage, work, bake, chunks, start, ckpt, progress, *, force_last: bool) -> None:
-    """Run ``work(bake, chunk)`` on the chunks of ``stage`` not yet done, saving the state and
-    reporting progress after each (a save forced after the last one where ``force_last``)."""
+def _run_chunks(stage, bake, chunks, start, ckpt, progress, *, force_last: bool) -> None:
+    """Run the chunks of ``stage`` (``"fit"``: :func:`lobelight.fit._chunk.compute_fit`,
+    ``"relax"``: :func:`lobelight.fit._chunk.compute_refit`) not yet done, in this process and
+    in order, saving the state and reporting progress after each (a save forced after the last
+    one where ``force_last``). In the flood fill a chunk whose vertices are all reached is
+    done (a cluster's checkpoint may hold chunks done out of order)."""
     total = len(chunks)
     for chunk in chunks[start.first_chunk(stage) :]:
-        work(bake, chunk)
+        if stage == "fit":
+            if bool(bake.state.done[chunk.vertices].all()):
+                continue
+            result = compute_fit(bake, chunk, fit_inputs(bake, chunk))
+        else:
+            result = compute_refit(bake, chunk, refit_inputs(bake, chunk))
+        checked(result, stage).apply(bake)
         done = chunk.index + 1
         ckpt.save(_at(bake, stage, done), bake.state.arrays(), force=force_last and done == total)
         if progress is not None:
             progress(stage, done, total)
 
 
-def _flood_fill(bake: Bake, chunks: list[Chunk], start, ckpt, progress) -> None:
-    """The flood fill ("fit"): every chunk fitted in wavefront order."""
-    _run_chunks("fit", fit_chunk, bake, chunks, start, ckpt, progress, force_last=True)
-
-
-def _relaxation(bake: Bake, chunks: list[Chunk], start, ckpt, progress) -> None:
-    """The relaxation ("relax"): every chunk refitted against all its neighbours, then the
-    order of each vertex's Gaussians over the whole mesh, now that every neighbour is final
-    (the refit moves lobes, and adds flips on its own)."""
-    _run_chunks("relax", refit_chunk, bake, chunks, start, ckpt, progress, force_last=False)
+def _relaxation(bake: Bake, chunks: list[Chunk], start, ckpt, progress, run) -> None:
+    """The relaxation ("relax"): every chunk refitted against all its neighbours (by
+    ``run``), then the order of each vertex's Gaussians over the whole mesh, now that every
+    neighbour is final (the refit moves lobes, and adds flips on its own)."""
+    run("relax", bake, chunks, start, ckpt, progress, force_last=False)
     st = bake.state
     g = reorder_mesh(bake.mesh, st.gaussians(), bake.nbr_views, weights=bake.weights)
     st.w.copy_(g.w), st.mu.copy_(g.mu), st.lam.copy_(g.lam)

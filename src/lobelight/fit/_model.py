@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import contextlib
 import os
 import platform
 import time
@@ -15,6 +16,7 @@ from ..progress import resolve
 from ..scene import Scene
 from ..transport import BOUNCES, INDIRECT_PATHS
 from ._auto import choose_gaussians
+from ._cluster import cluster
 from ._floodfill import fit_mesh
 from ._memory import MEMORY_GB
 from ._objective import Weights
@@ -39,6 +41,7 @@ def fit_model(
     checkpoint_every: float = 30.0,
     shadows: bool = True,
     memory_gb: float = MEMORY_GB,
+    client=None,
 ):
     """Fit the glossy transport of every vertex with ``n_gaussians`` Gaussians per view, and its
     SH diffuse transfer (:func:`fit_mesh`), and wrap the result as a model.
@@ -61,6 +64,12 @@ def fit_model(
     seconds and after each stage; a bake that finds one of the same scene and settings resumes
     from it to the same model (:func:`fit_mesh`).
 
+    ``client``: a ``distributed.Client``, or the address of a Dask scheduler
+    (``tcp://HOST:8786``; :func:`lobelight.fit.cluster`): the chunks of the bake run on the
+    cluster's workers, the result streaming back into this process's state and checkpoint
+    (:func:`fit_mesh`); with one Gaussian per view the model is the single-process bake's, bit
+    for bit.
+
     ``progress``: True reports each stage on stderr (bars on a terminal, plain lines
     elsewhere: :mod:`lobelight.progress`), None or False is silent, a callable
     ``progress(stage, done, total)`` is called after each chunk.
@@ -78,23 +87,27 @@ def fit_model(
     else:
         reason = f"asked for {n_gaussians}"
     t0 = time.perf_counter()
-    mf = fit_mesh(
-        scene,
-        n=n_gaussians,
-        views=views,
-        weights=weights,
-        batch=batch,
-        indirect_paths=indirect_paths,
-        bounces=bounces,
-        relax=relax,
-        device=device,
-        progress=resolve(progress),
-        seed=seed,
-        checkpoint=checkpoint,
-        checkpoint_every=checkpoint_every,
-        shadows=shadows,
-        memory_gb=memory_gb,
-    )
+    with contextlib.ExitStack() as stack:
+        if isinstance(client, str):
+            client = stack.enter_context(cluster(client))
+        mf = fit_mesh(
+            scene,
+            n=n_gaussians,
+            views=views,
+            weights=weights,
+            batch=batch,
+            indirect_paths=indirect_paths,
+            bounces=bounces,
+            relax=relax,
+            device=device,
+            progress=resolve(progress),
+            seed=seed,
+            checkpoint=checkpoint,
+            checkpoint_every=checkpoint_every,
+            shadows=shadows,
+            memory_gb=memory_gb,
+            client=client,
+        )
     seconds = {**mf.seconds, "total": time.perf_counter() - t0}
     live = mf.gaussians.w.amax((-1, -2, -3)) > 0  # vertices with any glossy weight
     err = mf.data_error[live] if bool(live.any()) else mf.data_error
@@ -111,6 +124,7 @@ def fit_model(
         "relax": relax,
         "shadows": shadows,
         "seed": seed,
+        **({} if client is None else {"cluster": _order(n_gaussians)}),
         "relative_l2_error_mean": float(err.clamp_min(0).sqrt().mean()) if err.numel() else 0.0,
         "flips_before": mf.flips_before,
         "flips_after": mf.flips_after,
@@ -145,3 +159,10 @@ def fit_model(
         indirect_gaussians=mf.indirect_gaussians,
         albedo=albedo,
     )
+
+
+def _order(n: int) -> dict[str, str]:
+    """How a bake on a cluster ordered its chunks (:mod:`lobelight.fit._cluster`)."""
+    if n == 1:
+        return {"chunks": "on Dask workers, in any order: independent, as in one process"}
+    return {"chunks": "on Dask workers, a wavefront's at once, reading earlier wavefronts only"}
