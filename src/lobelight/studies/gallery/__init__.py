@@ -5,11 +5,16 @@ Spot, the teapot, Suzanne (Loop-subdivided) and a scorpion (decimated; thin legs
 tail over deep gaps); sharp and rough gold-coloured GGX metals, a plain diffuse and a glossy
 plastic — each rendered under three of six maps (a park with an unclipped sun, a studio, an
 overcast square, the Grace Cathedral probe, a dawn sky with a soft sun on the horizon and a
-lobby lit by ceiling lights and a bright glazed stairwell), 30 scenes in all. Meshes are
-centred and scaled to a bounding-box diagonal of 2 (:func:`prepare_mesh`). A scene's files
-are read from the data folder (``--data DIR`` or ``$LOBELIGHT_DATA``; ``meshes/`` and
-``envmaps/`` in it), else from the repository's ``gallery-data/`` (:data:`GALLERY_DATA`, with
-the sources and licences of its files).
+lobby lit by ceiling lights and a bright glazed stairwell), 30 scenes; and four textured glTF
+assets with their own materials (:data:`GLTF_MATERIAL`; the Khronos sample models
+DamagedHelmet, CesiumMilkTruck, WaterBottle and Avocado), each under two maps: 38 scenes in
+all. Meshes are centred and scaled to a bounding-box diagonal of 2 (:func:`prepare_mesh`). A
+scene's files are read from the data folder (``--data DIR`` or ``$LOBELIGHT_DATA``; ``meshes/``
+and ``envmaps/`` in it), else from the repository's ``gallery-data/`` (:data:`GALLERY_DATA`,
+with the sources and licences of its files); a glTF asset ``NAME/NAME.glb`` from
+``$LOBELIGHT_GLTF`` (:data:`GLTF_ENV`), else the data folder's ``gltf/``, else the repository's
+``assets/gltf/`` (:data:`GLTF_ASSETS`, whose ``LICENSES.md`` names each file's source, licence
+and checksum; the ``.glb`` files are fetched data, not kept in git).
 
 - :func:`render_references` renders each scene's reference with Mitsuba 3's ``path``
   integrator (:func:`lobelight.reference.mitsuba.scene_dict`: ``max_depth`` 8, 1024 spp, 512²,
@@ -40,6 +45,9 @@ import importlib
 _HOMES = {
     "FRAME_REPEATS": "._run",
     "GALLERY_DATA": "._scenes",
+    "GLTF_ASSETS": "._scenes",
+    "GLTF_ENV": "._scenes",
+    "GLTF_MATERIAL": "._scenes",
     "GalleryScene": "._scenes",
     "LEGEND": "._score",
     "GAUSSIANS": "._scenes",
