@@ -146,7 +146,9 @@ def _cube_nan(path):
     np.savez(path, header=header, cube=cube)
 
 
-@pytest.mark.parametrize("damage", [_damage_truncate, _damage_garbage, _cube_wrong_shape, _cube_nan])
+@pytest.mark.parametrize(
+    "damage", [_damage_truncate, _damage_garbage, _cube_wrong_shape, _cube_nan]
+)
 def test_a_damaged_cube_entry_is_rebuilt(tmp_path, damage):
     env = _map(4)
     fresh = env.to_cubemap(8)
@@ -218,3 +220,23 @@ def test_render_modules_import_without_trimesh_or_scipy():
     )
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
     assert out.stdout.strip() == "[]"
+
+
+@pytest.mark.slow  # five renders in new processes: about a minute on a busy 2-core machine
+def test_bench_start_runs_the_command_and_accounts_for_each_run(tmp_path):
+    from lobelight.render import gl_available
+
+    if not gl_available():
+        pytest.skip("no headless OpenGL context (EGL)")
+    from lobelight.bench import bench_start
+
+    rec = bench_start(vertices=300, runs=2, size=32, env="builtin", folder=tmp_path)
+    assert rec["benchmark"] == "start" and rec["model"]["vertices"] > 200
+    for run in (rec["cold"], *rec["warm"]):
+        assert tuple(run["phases"]) == PHASES
+        assert math.isclose(sum(run["phases"].values()), run["wall"], rel_tol=1e-9)
+        assert run["phases"]["model_read"] > 0 and run["phases"]["frame"] > 0
+    assert len(rec["warm"]) == 2 and rec["plain_wall"] > 0
+    # the cold run wrote what the warm ones read: the candidate table and the chain
+    assert list((tmp_path / "cache" / "geometry").glob("triangle-candidates-*.npz"))
+    assert list((tmp_path / "cache" / "prefilter").glob("*.npz"))
