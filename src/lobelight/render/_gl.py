@@ -823,7 +823,7 @@ class GLRenderer:
         self.nbo = ctx.buffer(normals.tobytes())
         content = [(self.vbo, "3f", "in_pos"), (self.nbo, "3f", "in_normal")]
         self.abo = self.sbo = None  # per-vertex inputs of the sun's shading, when it has one
-        if self.has_sun:
+        if self.has_sun and model.albedo is None:  # else the sun reads the textures' albedo
             albedo = model.materials.diffuse.detach().cpu().numpy().astype(np.float32)
             self.abo = ctx.buffer(albedo.tobytes())
             content.append((self.abo, "3f", "in_albedo"))

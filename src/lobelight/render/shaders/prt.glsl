@@ -21,7 +21,7 @@
 
 in vec3 in_pos;
 in vec3 in_normal;
-#if HAS_SUN
+#if HAS_SUN && !ALBEDO_TEX
 in vec3 in_albedo;
 #endif
 #if ALBEDO_TEX
@@ -47,7 +47,7 @@ out vec4 v_lobe[2 * N_GAUSSIANS];
 out vec3 v_diffuse;
 out vec3 v_pos;
 out vec3 v_normal;
-#if HAS_SUN
+#if HAS_SUN && !ALBEDO_TEX
 out vec3 v_albedo;
 #endif
 #if ALBEDO_TEX
@@ -131,7 +131,7 @@ void main() {
     v_diffuse = diffuse;
     v_pos = in_pos;
     v_normal = in_normal;
-#if HAS_SUN
+#if HAS_SUN && !ALBEDO_TEX
     v_albedo = in_albedo;
 #endif
 #if ALBEDO_TEX
@@ -195,7 +195,9 @@ flat in int v_layer;
 in vec3 v_factor;
 #endif
 #if HAS_SUN
+#if !ALBEDO_TEX
 in vec3 v_albedo;
+#endif
 
 // the sun taken out of the diffuse lighting (render/_lighting.py), with its shadow map; its
 // direction, irradiance and the map's frame are frame.glsl's
