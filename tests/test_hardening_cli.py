@@ -238,6 +238,8 @@ _TOO_LARGE = [
     (["render", "m.npz", "--exposure", "-inf"], "--exposure"),
     (["render", "m.npz", "--samples", "1e9"], "--samples"),
     (["render", "m.npz", "--rotate", "1e308"], "--rotate"),
+    (["render", "m.npz", "--camera", "0,0,1e308:0,0,0"], "--camera"),
+    (["render", "m.npz", "--camera", "0,0,4:0,0,0:0"], "--camera"),
     (["render", "m.npz", "--turntable", "100000", "-o", "spin"], "--turntable"),
     (["render", "m.npz", "--turntable", "3000", "--size", "4096", "-o", "spin"], "--turntable"),
     (["bake", "in.obj", "--bounces", str(2**62)], "--bounces"),

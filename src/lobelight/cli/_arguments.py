@@ -341,7 +341,11 @@ def _add_render(sub) -> None:
     _output(r, "render.png", "image (.png/.jpg tone-mapped, .exr/.hdr linear), or a folder "
             "with --turntable")  # fmt: skip
     _env(r, "default: the model's, else the built-in sky")
-    r.add_argument("--camera", help="'ox,oy,oz:tx,ty,tz[:fov]' (default: the scene's)")
+    r.add_argument(
+        "--camera",
+        help="'ox,oy,oz:tx,ty,tz[:fov]', coordinates within +-1e15, fov in (0, 180) degrees "
+        "(default: the scene's)",
+    )
     _rotate(r)
     r.add_argument(
         "--parts", choices=["both", "diffuse", "glossy"], default="both", help="what to shade"

@@ -126,6 +126,11 @@ def _material_rows(records) -> list[dict]:
     return rows
 
 
+#: The largest ``--camera`` coordinate: float32 squares of it stay finite (and a mesh's
+#: coordinates are bounded alike).
+_MAX_COORDINATE = 1e15
+
+
 def _camera_from(text: str | None, provenance: dict, mesh):
     if text:
         try:
@@ -133,12 +138,19 @@ def _camera_from(text: str | None, provenance: dict, mesh):
             origin, target = parts[0], parts[1]
             fov = parts[2][0] if len(parts) > 2 else 40.0
             ok = len(origin) == 3 and len(target) == 3 and len(parts) <= 3
-            ok = ok and all(math.isfinite(v) for v in (*origin, *target, fov))
+            ok = ok and all(abs(v) <= _MAX_COORDINATE for v in (*origin, *target, fov))
         except (ValueError, IndexError):
             ok = False
         if not ok:
-            raise InputError("--camera", f"expected 'ox,oy,oz:tx,ty,tz[:fov]', got {text!r}")
-        return Camera.look_at(origin, target, fov=fov)
+            raise InputError(
+                "--camera",
+                f"expected 'ox,oy,oz:tx,ty,tz[:fov]' with coordinates within "
+                f"+-{_MAX_COORDINATE:g}, got {text!r}",
+            )
+        try:
+            return Camera.look_at(origin, target, fov=fov)
+        except InputError as e:  # the camera's own checks: said of the flag
+            raise InputError("--camera", f"{e.what}: {e.problem}") from None
     cam = provenance.get("camera")
     if isinstance(cam, dict):
         try:
