@@ -70,8 +70,9 @@ def _parser() -> argparse.ArgumentParser:
     p = _Parser(
         prog="lobelight",
         description="Relight 3D objects under HDR environment lighting with spherical lobes.",
-        epilog="Exit codes: 0 ok, 1 unexpected error, 2 bad input, 130 interrupted (Ctrl-C), "
-        "143 terminated (SIGTERM).",
+        epilog="Exit codes: 0 ok, 1 unexpected error (its traceback in a log file the error line "
+        "names; --debug prints it), 2 bad input, 130 interrupted (Ctrl-C), 143 terminated "
+        "(SIGTERM).",
     )
     p.add_argument("--version", action="version", version=f"lobelight {__version__}")
     sub = p.add_subparsers(dest="command", required=True, metavar="COMMAND", parser_class=_Parser)
