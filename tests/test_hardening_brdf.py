@@ -95,3 +95,13 @@ def test_a_bake_of_a_too_sharp_material_writes_a_model_the_reader_accepts(
     assert math.isfinite(m.provenance["relative_l2_error_mean"])
     assert bool(torch.isfinite(m.gaussians.w).all()) and bool(torch.isfinite(m.gaussians.lam).all())
     assert np.isfinite(m.diffuse.numpy()).all()
+
+
+def test_a_parameter_blended_at_its_bound_is_accepted():
+    """White vertices blended with barycentrics that sum to 1 within an ulp land an ulp above 1:
+    accepted (float32 rounding); a real excess is still refused."""
+    b = torch.tensor([0.2, 0.3, 0.5], dtype=torch.float32)
+    white = (torch.ones(3, 3) * b[:, None]).sum(0) * (1 + 2.0**-23)
+    brdf.Lambert(white)
+    with pytest.raises(InputError, match="must be <= 1"):
+        brdf.Lambert(torch.tensor([1.001, 0.5, 0.5]))

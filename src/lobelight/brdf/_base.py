@@ -65,6 +65,10 @@ def _as_param(value: Any, name: str) -> torch.Tensor:
     return torch.from_numpy(arr).to(torch.float32)
 
 
+#: Relative slack of a parameter's upper bound: four float32 ulps.
+_BOUND_ROUNDING = 4 * 2.0**-23
+
+
 def _check_param(
     t: torch.Tensor,
     name: str,
@@ -87,8 +91,10 @@ def _check_param(
     if lo is not None and (vmin <= lo if lo_open else vmin < lo):
         rel = ">" if lo_open else ">="
         raise InputError(name, f"must be {rel} {lo:g}, got {vmin:g}")
-    if hi is not None and vmax > hi:
-        raise InputError(name, f"must be <= {hi:g}, got {vmax:g}")
+    # an upper bound holds up to float32 rounding: a parameter blended from values at the bound
+    # (barycentric weights summing to 1 within an ulp) lands a few ulps above it
+    if hi is not None and vmax > hi + _BOUND_ROUNDING * max(abs(hi), 1.0):
+        raise InputError(name, f"must be <= {hi:g}, got {vmax:.9g}")
 
 
 def _broadcasts(a: tuple[int, ...], b: tuple[int, ...]) -> bool:
