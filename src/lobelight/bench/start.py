@@ -37,6 +37,7 @@ compilation), and ``rest`` (uploads and everything else); and, inside those, ``s
 from __future__ import annotations
 
 import json
+import math
 import os
 import shutil
 import statistics
@@ -46,6 +47,11 @@ import time
 from pathlib import Path
 
 import numpy as np
+
+try:
+    import resource
+except ImportError:  # not on Windows: the runs' CPU seconds are then not measured
+    resource = None
 
 from .._cache import cache_dir
 from ._machine import machine
@@ -138,12 +144,22 @@ def phases(record: dict, wall: float) -> tuple[dict, dict]:
     return out, parts
 
 
+def _children_cpu() -> float:
+    """User and system seconds of this process's finished children (NaN where unknown)."""
+    if resource is None:
+        return math.nan
+    use = resource.getrusage(resource.RUSAGE_CHILDREN)
+    return use.ru_utime + use.ru_stime
+
+
 def _run(python: str, args: list[str], env: dict, work: Path, *, timed: bool) -> dict:
-    """One ``lobelight render`` in a new process: its wall seconds, and with ``timed`` its
-    phases (through the child script) rather than the plain command line."""
+    """One ``lobelight render`` in a new process: its wall seconds, the CPU seconds it used
+    (user and system, all its threads), the 1-minute load average before it, and with
+    ``timed`` its phases (through the child script) rather than the plain command line."""
     times = work / "times.json"
     times.unlink(missing_ok=True)
     load = os.getloadavg()[0]
+    before = _children_cpu()
     t0 = time.time()
     p0 = time.perf_counter()
     if timed:
@@ -152,9 +168,10 @@ def _run(python: str, args: list[str], env: dict, work: Path, *, timed: bool) ->
         cmd = [python, "-m", "lobelight.cli", *args]
     proc = subprocess.run(cmd, env=env, capture_output=True, text=True)
     wall = time.perf_counter() - p0
+    after = _children_cpu()
     if proc.returncode != 0:
         raise RuntimeError(f"the render failed ({proc.returncode}): {proc.stderr.strip()[-800:]}")
-    out = {"wall": wall, "load_1min_before": load}
+    out = {"wall": wall, "cpu": after - before, "load_1min_before": load}
     if timed:
         record = json.loads(times.read_text())
         out["phases"], out["setup_parts"] = phases(record, wall)
@@ -191,7 +208,9 @@ def bench_start(
 
     Returns
     -------
-    dict: ``cold`` and ``warm`` (a list) runs, each ``wall``, ``phases`` and ``setup_parts``;
+    dict: ``cold`` and ``warm`` (a list) runs, each ``wall``, ``cpu`` (the process's user and
+    system seconds: on a busy machine the wall time grows with the load, this much less),
+    ``load_1min_before``, ``phases`` and ``setup_parts``;
     ``warm_median`` the warm runs' median per phase, ``warm_wall_median``; ``plain_wall``
     the plain command line's wall time (no timers, warm), to show the timers cost nothing;
     the model, the goal and the machine.
@@ -224,6 +243,7 @@ def bench_start(
         "cold": cold,
         "warm": warm,
         "warm_wall_median": statistics.median(r["wall"] for r in warm),
+        "warm_cpu_median": statistics.median(r["cpu"] for r in warm),
         "warm_median": _median(warm, "phases"),
         "warm_setup_median": _median(warm, "setup_parts"),
         "plain_wall": plain["wall"],
