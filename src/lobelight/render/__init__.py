@@ -23,6 +23,10 @@
   both OpenGL renderers use.
 - :func:`gl_available` whether OpenGL works here; :func:`view` an interactive window
   (:func:`require_display` checks for a display first).
+- :func:`export_gltf` a model as a glTF 2.0 binary (mesh, fallback material, the lobe data as
+  application-specific accessors of the ``LOBELIGHT_prt`` extension, a map as an
+  ``EXT_lights_image_based`` light), :func:`import_gltf` such a file back as a model
+  (``_gltf_out.py``, ``docs/gltf-export.md``).
 - :class:`Camera` Mitsuba 3's perspective sensor (re-exported from
   :mod:`lobelight.geometry.camera`).
 """
@@ -30,6 +34,7 @@
 from ..geometry.camera import Camera
 from ._gl import create_context, gl_available
 from ._gl_sgbrdf import GLSGBRDFRenderer
+from ._gltf_out import GLTF_EXTENSION, export_gltf, fallback_material, import_gltf
 from ._lighting import Lighting, as_rotation
 from ._renderer import Renderer, sample_offsets
 from ._tonemap import (
@@ -47,6 +52,7 @@ from ._window import Orbit, model_camera, require_display, view
 __all__ = [
     "CURVES",
     "DEFAULT_CURVE",
+    "GLTF_EXTENSION",
     "Camera",
     "GLSGBRDFRenderer",
     "Lighting",
@@ -56,7 +62,10 @@ __all__ = [
     "auto_exposure",
     "check_output_path",
     "create_context",
+    "export_gltf",
+    "fallback_material",
     "gl_available",
+    "import_gltf",
     "model_camera",
     "neutral",
     "orbit",
