@@ -16,8 +16,21 @@ from lobelight.model import per_unit_albedo
 from lobelight.model._albedo_file import albedo_arrays, check_albedo
 from lobelight.render import Renderer
 from lobelight.render._gl import gl_available
-from lobelight.scene import AlbedoTexture, Sampler, Texture, sample_texture, srgb_decode
-from test_gltf_scene import _png, _quad, two_material_glb, write_glb
+from lobelight.scene import (
+    AlbedoTexture,
+    Sampler,
+    Texture,
+    sample_texture,
+    srgb_decode,
+)
+from test_gltf_scene import (
+    PAINTED_FACTOR,
+    PAINTED_SRGB,
+    _png,
+    _quad,
+    two_material_glb,
+    write_glb,
+)
 
 needs_gl = pytest.mark.skipif(not gl_available(), reason="no headless OpenGL context (EGL)")
 
@@ -235,3 +248,33 @@ def test_the_sun_lights_the_textures_albedo(checker_model):
         d = np.abs(imgs[0] - imgs[1])[inner]
         # the sun's shadow (none on a lone quad) and its SH differ only by rounding: 1 %
         assert d.max() < 0.01 * imgs[0][inner].max()
+
+
+def test_a_metallic_texture_shows_in_the_diffuse_albedo_per_pixel(tmp_path):
+    """A quad whose metallic-roughness texture is metal on its right half only (nearest
+    texels) has glTF's diffuse albedo ``baseColorFactor x base x (1 - metallicFactor x B)`` at
+    each pixel: its base colour on the left, none of it where the metal is; a per-vertex
+    average of the metallic part would give both halves the same."""
+    mr = np.zeros((2, 2, 3), np.uint8)
+    mr[:, 1, 2] = 255  # B = 1 (metal) in the right column
+    mats = [
+        {"name": "logo", "pbrMetallicRoughness": {
+            "baseColorFactor": [*PAINTED_FACTOR, 1.0], "baseColorTexture": {"index": 0},
+            "metallicFactor": 1.0, "roughnessFactor": 0.5,
+            "metallicRoughnessTexture": {"index": 1}}},
+    ]  # fmt: skip
+    base = np.broadcast_to(np.uint8(PAINTED_SRGB), (2, 2, 3))
+    nearest = {"magFilter": 9728, "minFilter": 9728}
+    p = tmp_path / "logo.glb"
+    write_glb(p, [_quad(0.0, material=0)], mats, [_png(base), _png(mr)], [nearest, nearest])
+    a = scene.load(str(p)).albedo
+    # the quad's corners 0, 1, 2 have UVs (0, 1), (1, 1), (1, 0): near corner 0 is the left
+    # column, near corner 2 the right one
+    c = torch.tensor([[0, 1, 2], [0, 1, 2]])
+    b = torch.tensor([[0.8, 0.1, 0.1], [0.1, 0.1, 0.8]])
+    got = a.at(c, b).double()
+    lin = srgb_decode(torch.tensor(PAINTED_SRGB, dtype=torch.float64) / 255)
+    want_left = torch.tensor(PAINTED_FACTOR, dtype=torch.float64) * lin
+    # the left texel is the base colour's own 8-bit codes, decoded: float32 rounding
+    torch.testing.assert_close(got[0], want_left, rtol=1e-5, atol=0)
+    assert torch.equal(got[1], torch.zeros(3, dtype=torch.float64))

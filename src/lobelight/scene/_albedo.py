@@ -7,11 +7,13 @@ that the diffuse albedo at a surface point of barycentrics ``b`` on corners ``c`
 
     albedo = (sum_i b_i factor[c_i]) * image[layer](sum_i b_i uv[c_i])
 
-For a textured material (its base colour texture on ``TEXCOORD_0``) the factor is the glTF
-``baseColorFactor x COLOR_0 x (1 - metallic)``, with the vertex's metallic (averaged over its
-one-ring as the bake's materials are: a metallic texture varies the diffuse part per vertex,
-not per pixel). Every other vertex reads layer 0, one white texel, with the bake's own
-per-vertex diffuse albedo as its factor: such a vertex renders as it would without textures.
+For a textured material (its base colour or metallic-roughness texture on ``TEXCOORD_0``) the
+image is the diffuse part of glTF's model, ``base colour texture x (1 - metallicFactor x B)``
+with ``B`` the metallic-roughness texture's blue channel, composed texel by texel, and the
+factor is ``baseColorFactor x COLOR_0``: a metallic pattern (a painted logo on a metal) shows
+per pixel as the colour does. Every other vertex reads layer 0, one white texel, with the
+bake's own per-vertex diffuse albedo as its factor: such a vertex renders as it would without
+textures. The specular part stays per vertex (the bake's one-ring averages).
 
 The images are kept as the textures are stored, 8-bit sRGB-encoded RGB, and decoded to linear
 values when they are read (the bilinear filter runs on linear values, as a GPU's sRGB textures
@@ -26,7 +28,7 @@ import numpy as np
 import torch
 
 from ..errors import InputError
-from ._gltf import Texture
+from ._gltf import Texture, sample_texture
 
 __all__ = ["WRAP_MODES", "AlbedoTexture", "albedo_texture", "srgb_decode", "srgb_encode"]
 
@@ -183,16 +185,52 @@ def _wrap(i: torch.Tensor, n: int, mode: str) -> torch.Tensor:
     return torch.remainder(i, n)
 
 
-def _layer_of(tex: Texture) -> tuple[torch.Tensor, tuple[int, int], np.ndarray, bool]:
-    """A base colour texture as a layer: its RGB re-encoded to 8-bit sRGB (the loader decoded
-    it to linear float32; an 8-bit image comes back to its own codes), its wrap codes, its
-    transform and its filter."""
-    rgb = tex.image[..., :3].detach().cpu().double()
+def _texel_uvs(tex: Texture) -> torch.Tensor | None:
+    """(H, W, 2) the UVs that ``tex``'s transform takes to the centres of its texels (None
+    where the transform is singular)."""
+    h, w = int(tex.image.shape[0]), int(tex.image.shape[1])
+    y, x = torch.meshgrid(torch.arange(h), torch.arange(w), indexing="ij")
+    c = torch.stack([(x + 0.5) / w, (y + 0.5) / h], -1).double()
+    if tex.uv_transform is None:
+        return c
+    a = torch.tensor(tex.uv_transform, dtype=torch.float64)
+    if abs(float(torch.linalg.det(a[:, :2]))) < 1e-12:
+        return None
+    return (c - a[:, 2]) @ torch.linalg.inv(a[:, :2]).T
+
+
+def _on_uv0(tex: Texture | None) -> Texture | None:
+    return tex if tex is not None and tex.tex_coord == 0 else None
+
+
+def _layer_of(mat) -> tuple[torch.Tensor, tuple[int, int], np.ndarray, bool, bool] | None:
+    """A material's diffuse albedo texture as a layer, on the grid of its base colour texture
+    (else of its metallic-roughness texture): ``base (1 - metallic)`` without the factors'
+    base colour, composed texel by texel (the metallic-roughness texture read at the UVs of the
+    grid's texel centres), re-encoded to 8-bit sRGB (an 8-bit base colour image without a
+    metallic texture comes back to its own codes); its wrap codes, transform and filter, and
+    whether the metallic part is in it (else the per-vertex metallic multiplies the factor).
+    None where neither texture is on ``TEXCOORD_0``."""
+    base, mr = _on_uv0(mat.base_color_texture), _on_uv0(mat.metallic_roughness_texture)
+    grid = base if base is not None else mr
+    if grid is None or (base is None and mat.base_color_texture is not None):
+        return None  # the base colour is on another UV set: per vertex
+    h, w = int(grid.image.shape[0]), int(grid.image.shape[1])
+    rgb = torch.ones(h, w, 3, dtype=torch.float64)
+    if base is not None:
+        rgb = base.image[..., :3].detach().cpu().double()
+    uv = None if mr is None else _texel_uvs(grid)
+    with_metal = uv is not None or mat.metallic_roughness_texture is None
+    if uv is not None:
+        metal = sample_texture(mr, uv.to(mr.image))[..., 2].cpu().double()
+        rgb = rgb * (1 - mat.metallic * metal)[..., None]
+    elif mat.metallic_roughness_texture is None:
+        rgb = rgb * (1 - mat.metallic)
     img = torch.round(srgb_encode(rgb) * 255).to(torch.uint8).contiguous()
-    s = tex.sampler
+    s = grid.sampler
     wrap = (WRAP_MODES.index(s.wrap_s), WRAP_MODES.index(s.wrap_t))
-    xf = np.array(tex.uv_transform if tex.uv_transform is not None else _IDENTITY, np.float32)
-    return img, wrap, xf, s.mag_filter == "nearest"
+    xf = np.array(grid.uv_transform if grid.uv_transform is not None else _IDENTITY, np.float32)
+    return img, wrap, xf, s.mag_filter == "nearest", with_metal
 
 
 _IDENTITY = ((1.0, 0.0, 0.0), (0.0, 1.0, 0.0))
@@ -200,35 +238,38 @@ _IDENTITY = ((1.0, 0.0, 0.0), (0.0, 1.0, 0.0))
 
 def albedo_texture(asset, diffuse: torch.Tensor, metallic: torch.Tensor) -> AlbedoTexture | None:
     """The per-pixel albedo of a glTF asset (module docstring); None where no material has a
-    base colour texture on ``TEXCOORD_0`` (the per-vertex albedo is then all there is).
+    base colour or metallic-roughness texture on ``TEXCOORD_0`` (the per-vertex albedo is then
+    all there is).
 
     Parameters
     ----------
     asset : :class:`lobelight.scene.GltfAsset` (V vertices)
     diffuse : (V, 3) the bake's per-vertex diffuse albedo (the factor of untextured vertices)
-    metallic : (V,) per-vertex metallic
+    metallic : (V,) per-vertex metallic (for a layer whose metallic part is not in its image)
     """
     mats = asset.materials
-    textured = [
-        m.base_color_texture is not None and m.base_color_texture.tex_coord == 0 for m in mats
-    ]
-    if not any(textured):
+    layers = [_layer_of(m) for m in mats]
+    if all(x is None for x in layers):
         return None
     dev = asset.uvs.device
     images = [torch.full((1, 1, 3), 255, dtype=torch.uint8)]
     wraps, xforms, nearest = [(0, 0)], [np.array(_IDENTITY, np.float32)], [False]
     of_material = torch.zeros(len(mats), dtype=torch.int64)
-    for m, (mat, has) in enumerate(zip(mats, textured, strict=True)):
-        if has:
-            img, wrap, xf, near = _layer_of(mat.base_color_texture)
+    metal_inside = torch.zeros(len(mats), dtype=torch.bool)
+    for m, found in enumerate(layers):
+        if found is not None:
+            img, wrap, xf, near, with_metal = found
             of_material[m] = len(images)
+            metal_inside[m] = with_metal
             images.append(img)
             wraps.append(wrap)
             xforms.append(xf)
             nearest.append(near)
     layer = of_material.to(dev)[asset.material]
     base = torch.tensor([m.base_color[:3] for m in mats], dtype=torch.float32, device=dev)
-    factor = base[asset.material] * asset.colors[:, :3] * (1 - metallic.to(dev))[:, None]
+    inside = metal_inside.to(dev)[asset.material]
+    keep = torch.where(inside, torch.ones_like(metallic), 1 - metallic.to(dev, torch.float32))
+    factor = base[asset.material] * asset.colors[:, :3] * keep[:, None]
     factor = torch.where((layer > 0)[:, None], factor, diffuse.to(dev, torch.float32))
     return AlbedoTexture(
         uvs=asset.uvs.to(torch.float32),
