@@ -537,10 +537,10 @@ def _add_bench(sub) -> None:
             "(default: none, the summary on stdout only)")  # fmt: skip
     be.add_argument(
         "--budget",
-        type=bounded_float(0.0, math.inf, lo_open=True),
+        type=bounded_float(0.0, 1e9, lo_open=True),
         default=None,
-        help="bench all: seconds after which benchmarks not yet started are skipped (default: "
-        "none, every benchmark runs)",
+        help="bench all: seconds after which benchmarks not yet started are skipped (at most "
+        "1e9; default: none, every benchmark runs)",
     )
     be.add_argument("--scene", default="knot:2", help="scene of transport/fit (knot:2: 11.5K)")
     be.add_argument(
