@@ -1,17 +1,22 @@
 """A bake on a Dask cluster (``fit_mesh(..., client=)``): the local bake's model, faults.
 
 Every test runs on one ``distributed.LocalCluster`` of two worker processes of one thread each
-(a nanny restarts a worker that dies), with tiny meshes: two icospheres of 42 vertices side by
-side, so that indirect glossy paths bounce off the other sphere (the chunks' seeded paths are
-compared too), and a 12-vertex icosphere for two Gaussians per view.
+(:func:`lobelight.fit.cluster`; a nanny restarts a worker that dies), with tiny meshes: two
+icospheres of 42 vertices side by side, so that indirect glossy paths bounce off the other
+sphere (the chunks' seeded paths are compared too), and a 12-vertex icosphere for two
+Gaussians per view.
 """
 
 from __future__ import annotations
 
+import json
 import os
 import signal
 import socket
+import subprocess
 import sys
+import time
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -33,12 +38,9 @@ pytestmark = pytest.mark.usefixtures("one_torch_thread")
 
 @pytest.fixture(scope="module")
 def client():
-    with (
-        distributed.LocalCluster(
-            n_workers=2, threads_per_worker=1, processes=True, dashboard_address=None
-        ) as cluster,
-        distributed.Client(cluster) as c,
-    ):
+    # a distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=True)
+    with fit.cluster(workers=2) as c:
+        assert len(c.scheduler_info()["workers"]) == 2
         yield c
 
 
@@ -115,6 +117,32 @@ def test_two_gaussians_with_one_chunk_per_wavefront_give_the_local_bake(client):
     kw = dict(n=2, batch=6, indirect_paths=0, bounces=0)
     assert max(w.numel() for w in fit.wavefronts(sc.mesh)) <= 6
     _same(fit.fit_mesh(sc, **kw, client=client), fit.fit_mesh(sc, **kw))
+
+
+def test_two_gaussians_killed_mid_relaxation_resume_on_the_cluster_to_the_same_model(
+    tmp_path, client
+):
+    # 12 vertices in wavefronts of 1, 5, 5 and 1, chunks of 2: groups of several chunks that
+    # run at once; a wavefront's refit reads the state as the wavefront found it, so the
+    # checkpoint is saved between wavefronts only, and a resumed bake runs the interrupted
+    # wavefront whole again, from the state it started from
+    sc = scene.builtin("sphere", subdivisions=0, model="ggx", roughness=0.25)
+    kw = dict(n=2, batch=2, indirect_paths=0, bounces=0, checkpoint_every=0, client=client)
+    clean = fit.fit_mesh(sc, **kw)
+    ck = tmp_path / "bake.ckpt.npz"
+
+    def killer(stage, done, total):
+        if stage == "relax" and done == 5:  # inside the third wavefront (chunks 4-6)
+            raise _Kill
+
+    with pytest.raises(_Kill):
+        fit.fit_mesh(sc, **kw, checkpoint=ck, progress=killer)
+    with np.load(ck, allow_pickle=False) as z:
+        meta = json.loads(bytes(z["meta"]).decode())
+    assert (meta["stage"], meta["next"]) == ("relax", 4)  # the end of the second wavefront
+    seen = []
+    _same(fit.fit_mesh(sc, **kw, checkpoint=ck, progress=lambda *a: seen.append(a)), clean)
+    assert [d for s, d, t in seen if s == "relax"] == [5, 6, 7, 8]
 
 
 @pytest.mark.parametrize("killed_on", ["cluster", "local"])
@@ -230,3 +258,46 @@ def test_an_unreachable_scheduler_is_one_clear_error():
     with pytest.raises(InputError, match="scheduler's address or a number of local workers"):
         with fit.cluster():
             pass
+
+
+#: A client process: the bake of the two spheres on the scheduler at argv[1], saving its state
+#: after every chunk to argv[2].
+CLIENT = """
+import sys
+sys.path.insert(0, {tests!r})
+import distributed
+from lobelight import fit
+from test_cluster import KW, _two_spheres
+with distributed.Client(sys.argv[1]) as c:
+    fit.fit_mesh(_two_spheres(), **KW, client=c, checkpoint=sys.argv[2], progress=None)
+"""
+
+
+@pytest.mark.slow  # a second Python process importing torch, lobelight and Dask
+def test_a_client_process_killed_mid_bake_resumes_on_the_cluster(tmp_path, client, spheres):
+    sc, local = spheres
+    ck = tmp_path / "bake.ckpt.npz"
+    code = CLIENT.format(tests=str(Path(__file__).parent))
+    p = subprocess.Popen(
+        [sys.executable, "-c", code, client.scheduler.address, str(ck)],
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.PIPE,
+    )
+    deadline = time.monotonic() + 600
+    reached = 0
+    while p.poll() is None and time.monotonic() < deadline:
+        try:  # written atomically: a whole file or none
+            with np.load(ck, allow_pickle=False) as z:
+                reached = int(z["done"].sum())
+        except FileNotFoundError:
+            pass
+        if reached >= 12:  # two chunks of six or more came back
+            os.kill(p.pid, signal.SIGKILL)
+            break
+        time.sleep(0.01)
+    assert p.wait(timeout=60) == -signal.SIGKILL, p.stderr.read().decode()
+    assert not list(tmp_path.glob("*.partial*"))
+    seen = []
+    mf = fit.fit_mesh(sc, **KW, checkpoint=ck, client=client, progress=lambda *a: seen.append(a))
+    _same(mf, local)
+    assert len([d for s, d, t in seen if s == "fit"]) <= 14 - 2  # it went on from the checkpoint

@@ -48,10 +48,20 @@ from ..errors import InputError
 from ._checkpoint import Checkpoint, Position
 from ._chunk import Bake, Chunk, ChunkResult, fit_inputs, refit_inputs
 
-__all__ = ["CONNECT_TIMEOUT", "ClusterRun", "cluster"]
+__all__ = ["CONNECT_TIMEOUT", "WORKER_ENVIRON", "ClusterRun", "cluster"]
 
 #: Seconds :func:`cluster` waits for a scheduler to answer.
 CONNECT_TIMEOUT = 10.0
+#: The environment of the worker processes :func:`cluster` starts: glibc's allocator settings
+#: of :func:`lobelight.cli.tune` (blocks up to 32 MB served from a heap that is never
+#: trimmed), as glibc reads them at a process's start. A Dask nanny starts its worker with
+#: ``MALLOC_TRIM_THRESHOLD_=65536`` (its ``distributed.nanny.pre-spawn-environ``), under
+#: which a fit page-faults its memory in again at every allocation of its large tensors.
+WORKER_ENVIRON = {
+    "MALLOC_MMAP_THRESHOLD_": 32 * 1024 * 1024,
+    "MALLOC_TRIM_THRESHOLD_": 2**31 - 1,
+    "MALLOC_TOP_PAD_": 512 * 1024 * 1024,
+}
 #: Vertex ids an error message lists before it counts the rest.
 _LISTED = 12
 _HINT = "pip install 'lobelight[cluster]' (dask[distributed])"
@@ -63,8 +73,8 @@ def cluster(
 ) -> Iterator:
     """A ``distributed.Client`` for a bake, closed on leaving the ``with`` block: connected to
     the scheduler at ``address`` (``tcp://HOST:8786``, started with ``dask scheduler``), or to a
-    cluster of ``workers`` local worker processes of one thread each, started here and closed
-    on leaving.
+    cluster of ``workers`` local worker processes of one thread each (a nanny restarts one that
+    dies; their environment :data:`WORKER_ENVIRON`), started here and closed on leaving.
 
     Raises
     ------
@@ -73,6 +83,7 @@ def cluster(
         ``address`` and ``workers``; Dask not installed
     """
     try:
+        import dask  # optional: the [cluster] extra
         from distributed import Client, LocalCluster  # optional: the [cluster] extra
     except ImportError as e:
         raise InputError("cluster", f"a bake on a cluster needs Dask: {_HINT}") from e
@@ -92,7 +103,9 @@ def cluster(
         return
     if isinstance(workers, bool) or not isinstance(workers, int) or workers < 1:
         raise InputError("workers", f"must be a positive number of processes, got {workers!r}")
+    environ = {f"distributed.nanny.pre-spawn-environ.{k}": v for k, v in WORKER_ENVIRON.items()}
     with (
+        dask.config.set(environ),
         LocalCluster(
             n_workers=workers, threads_per_worker=1, processes=True, dashboard_address=None
         ) as local,
@@ -188,7 +201,7 @@ class ClusterRun:
             fut = self.client.submit(run_chunk, self.name, stage, cpu, inputs, pure=False)
             futures[fut] = c
         try:
-            for fut in as_completed(list(futures)):
+            for fut in as_completed(list(futures), loop=self.client.loop):
                 chunk = futures.pop(fut)
                 result = _take(fut, chunk, stage)
                 fut.release()  # the worker may forget it
