@@ -1,7 +1,8 @@
 """Environment maps: distant HDR lighting and its Gaussian-prefiltered chain.
 
 - :class:`EnvMap` radiance arriving from each direction (lat-long in Mitsuba 3's orientation, or
-  a cube map in GL layout); ``radiance(dirs)``, ``to_cubemap(res)``, ``rotate(R)``, ``power()``.
+  a cube map in GL layout); ``radiance(dirs)``, ``to_cubemap(res)``, ``rotate(R)``, ``power()``;
+  ``to_cubemap(res, cache=True)`` keeps the resampled cube on disk beside the prefiltered chains.
 - :func:`load` / :func:`save` ``.hdr`` and ``.exr`` files (lat-long or cross cube maps), checked
   at the door: a bad file is one :class:`lobelight.errors.InputError` naming it.
 - :func:`builtin` a procedural sky with a small, very bright sun, so nothing needs a file.
