@@ -205,7 +205,9 @@ def _metallic(d: float, f: float) -> float:
     return float(min(max(1 - u, 0.0), 1.0))
 
 
-def fallback_material(materials: Materials, albedo: AlbedoTexture | None = None):
+def fallback_material(
+    materials: Materials, albedo: AlbedoTexture | None = None
+) -> tuple[torch.Tensor, float, float]:
     """The fallback metallic-roughness material of a model for other viewers.
 
     Returns ``(base (V, 3) float32 in [0, 1], metallic, roughness)``: one metallic and one
