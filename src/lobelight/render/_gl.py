@@ -1009,6 +1009,10 @@ class GLRenderer:
             self.sample_ubo.release()
         self.sample_ubo = self.ctx.buffer(rec.tobytes())
         self._uniform(self.acc_prog, "weight", 1.0 / off.shape[0])
+        if self.albedo_tex is not None:
+            # each of the S samples covers 1/S of the pixel: the texture's footprint per sample
+            # shrinks by sqrt(S) across, so the samples together average the pixel's texels
+            self._uniform(self.prog, "albedo_grad_scale", float(off.shape[0]) ** -0.5)
 
     def _jitter(self, offset) -> tuple[float, float]:
         """The NDC shift that puts the sample at ``offset`` (x right, y down) under the pixel
