@@ -16,7 +16,7 @@ The model knows nothing of how it was fitted (:mod:`lobelight.fit` builds it).
 """
 
 from ._blend import LIVE_FLOOR, MIN_SAY, blend_lobes, horizon_scale
-from ._format import FORMAT, MAX_LIGHT, VERSION
+from ._format import FORMAT, MAX_LIGHT, MAX_READ_BYTES, SIGMA_MAX, SIGMA_MIN, VERSION
 from ._model import ALBEDO_MIN, Model, load, per_unit_albedo, save
 from ._visibility import VISIBILITY_RES, hit_tiles, visibility_tiles
 
@@ -25,7 +25,10 @@ __all__ = [
     "FORMAT",
     "LIVE_FLOOR",
     "MAX_LIGHT",
+    "MAX_READ_BYTES",
     "MIN_SAY",
+    "SIGMA_MAX",
+    "SIGMA_MIN",
     "VERSION",
     "VISIBILITY_RES",
     "Model",
