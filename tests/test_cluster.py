@@ -102,7 +102,7 @@ def test_fit_model_on_a_cluster_gives_the_local_model(client):
     sc = scene.builtin("sphere", subdivisions=1, model="phong", exponent=200.0)
     kw = dict(n_gaussians=1, batch=8, indirect_paths=0, bounces=1, progress=None)
     a = fit.fit_model(sc, **kw)
-    b = fit.fit_model(sc, **kw, client=client)
+    b = fit.fit_model(sc, **kw, client=client.scheduler.address)  # an address: it connects
     for x, y in ((a.gaussians.w, b.gaussians.w), (a.gaussians.mu, b.gaussians.mu),
                  (a.diffuse, b.diffuse)):  # fmt: skip
         torch.testing.assert_close(x, y, rtol=0, atol=0)
@@ -119,30 +119,37 @@ def test_two_gaussians_with_one_chunk_per_wavefront_give_the_local_bake(client):
     _same(fit.fit_mesh(sc, **kw, client=client), fit.fit_mesh(sc, **kw))
 
 
-def test_two_gaussians_killed_mid_relaxation_resume_on_the_cluster_to_the_same_model(
-    tmp_path, client
+@pytest.mark.parametrize("stage", ["fit", "relax"])
+def test_two_gaussians_killed_mid_wavefront_resume_on_the_cluster_to_the_same_model(
+    tmp_path, client, stage
 ):
     # 12 vertices in wavefronts of 1, 5, 5 and 1, chunks of 2: groups of several chunks that
-    # run at once; a wavefront's refit reads the state as the wavefront found it, so the
-    # checkpoint is saved between wavefronts only, and a resumed bake runs the interrupted
-    # wavefront whole again, from the state it started from
+    # run at once. In the flood fill a chunk reads the wavefronts before its own only, whatever
+    # the checkpoint holds of its own; a wavefront's refit reads the state as the wavefront
+    # found it, so the relaxation's checkpoint is saved between wavefronts only, and a resumed
+    # bake runs the interrupted wavefront whole again, from the state it started from
     sc = scene.builtin("sphere", subdivisions=0, model="ggx", roughness=0.25)
     kw = dict(n=2, batch=2, indirect_paths=0, bounces=0, checkpoint_every=0, client=client)
     clean = fit.fit_mesh(sc, **kw)
     ck = tmp_path / "bake.ckpt.npz"
 
-    def killer(stage, done, total):
-        if stage == "relax" and done == 5:  # inside the third wavefront (chunks 4-6)
+    def killer(at, done, total):
+        if at == stage and done == 5:  # inside the third wavefront (chunks 4-6)
             raise _Kill
 
     with pytest.raises(_Kill):
         fit.fit_mesh(sc, **kw, checkpoint=ck, progress=killer)
     with np.load(ck, allow_pickle=False) as z:
         meta = json.loads(bytes(z["meta"]).decode())
-    assert (meta["stage"], meta["next"]) == ("relax", 4)  # the end of the second wavefront
+        reached = int(z["done"].sum())
     seen = []
     _same(fit.fit_mesh(sc, **kw, checkpoint=ck, progress=lambda *a: seen.append(a)), clean)
-    assert [d for s, d, t in seen if s == "relax"] == [5, 6, 7, 8]
+    if stage == "fit":
+        assert meta["stage"] == "fit" and reached > 6  # a chunk of the third wavefront is in
+        assert [d for s, d, t in seen if s == "fit"] == [6, 7, 8]
+    else:
+        assert (meta["stage"], meta["next"]) == ("relax", 4)  # the end of the second wavefront
+        assert [d for s, d, t in seen if s == "relax"] == [5, 6, 7, 8]
 
 
 @pytest.mark.parametrize("killed_on", ["cluster", "local"])
