@@ -7,6 +7,9 @@ and the relaxation (:mod:`lobelight.fit._chunk`) through a :class:`ClusterRun`:
   (:class:`lobelight.fit._worker.BakePlugin`) that the scheduler hands to every worker, and to
   every worker that joins or is restarted later; a worker builds the scene's transport at its
   first chunk and keeps it. Workers need lobelight and Dask installed, and no data files.
+- **Devices**: a worker computes on the bake's ``device`` where one is given (the client
+  too), else on its own CUDA device where it has one, else on its CPU; results cross on the
+  CPU.
 - **What crosses per chunk**: the chunk (its vertex ids) and what it reads of the state (its
   processed neighbours' Gaussians, with two or more Gaussians per view), then its result
   (the state's arrays at its vertices): tensors of the chunk's size, on the CPU.
@@ -25,7 +28,8 @@ and the relaxation (:mod:`lobelight.fit._chunk`) through a :class:`ClusterRun`:
   all vertices, runs on the client: it reads every vertex's diffuse transfer and final
   Gaussians, the largest arrays of the bake, which are already there; on a worker they would
   cross the network twice. Its cost per vertex (a few hundred rays, a sparse product per
-  bounce) is small beside the fit's.
+  bounce) is small beside the fit's on one machine, but it does not shrink with the workers:
+  on many of them it is the part of the bake left to the client.
 
 Faults: a worker that dies mid-chunk has its chunks run again on another (the scheduler
 reschedules the tasks of a lost worker, up to ``distributed.scheduler.allowed-failures``
@@ -216,7 +220,8 @@ class ClusterRun:
                     progress(stage, done, total)
         finally:
             if futures:  # a fault, or the caller gone: the rest is not wanted
-                self.client.cancel(list(futures))
+                with contextlib.suppress(Exception):  # nothing to cancel on a lost scheduler
+                    self.client.cancel(list(futures))
 
 
 def _inputs(stage: str, bake: Bake, chunk: Chunk, readable):
