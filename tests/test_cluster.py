@@ -9,6 +9,7 @@ Gaussians per view.
 
 from __future__ import annotations
 
+import io
 import json
 import os
 import signal
@@ -29,6 +30,7 @@ cloudpickle = pytest.importorskip("cloudpickle")
 
 from lobelight import fit, scene  # noqa: E402
 from lobelight.errors import InputError  # noqa: E402
+from lobelight.progress import Reporter  # noqa: E402
 
 # the fault-injecting functions below run on the workers, which cannot import this file
 cloudpickle.register_pickle_by_value(sys.modules[__name__])
@@ -98,15 +100,26 @@ def test_the_cluster_bake_is_the_local_bake_bit_for_bit(client, spheres):
     assert not any(p.startswith("lobelight") for ps in plugins.values() for p in ps)
 
 
-def test_fit_model_on_a_cluster_gives_the_local_model(client):
+def test_fit_model_on_a_cluster_gives_the_local_model_and_reports_progress(client):
     sc = scene.builtin("sphere", subdivisions=1, model="phong", exponent=200.0)
-    kw = dict(n_gaussians=1, batch=8, indirect_paths=0, bounces=1, progress=None)
-    a = fit.fit_model(sc, **kw)
-    b = fit.fit_model(sc, **kw, client=client.scheduler.address)  # an address: it connects
+    kw = dict(n_gaussians=1, batch=8, indirect_paths=0, bounces=1)
+    a = fit.fit_model(sc, **kw, progress=None)
+    log = io.StringIO()  # off a terminal: plain lines, here one per chunk
+    b = fit.fit_model(
+        sc,
+        **kw,
+        client=client.scheduler.address,  # an address: it connects
+        progress=Reporter(log, interval=0.0, bars=False),
+    )
     for x, y in ((a.gaussians.w, b.gaussians.w), (a.gaussians.mu, b.gaussians.mu),
                  (a.diffuse, b.diffuse)):  # fmt: skip
         torch.testing.assert_close(x, y, rtol=0, atol=0)
     assert "cluster" in b.provenance and "cluster" not in a.provenance
+    lines = log.getvalue().splitlines()
+    assert f"on the Dask cluster at {client.scheduler.address} (2 workers now)" in lines[0]
+    fills = [ln for ln in lines if ln.startswith("lobelight: fit: ")]
+    assert fills[0].startswith("lobelight: fit: 1/6 chunks") and "s left" in fills[1]
+    assert fills[-1].startswith("lobelight: fit: 6/6 chunks (100 %), done in")
 
 
 def test_two_gaussians_with_one_chunk_per_wavefront_give_the_local_bake(client):
