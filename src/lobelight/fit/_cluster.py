@@ -37,7 +37,8 @@ times; the nanny restarts the worker, and the plugin reaches it again). A chunk 
 a worker, kills workers in turn or returns values that are not finite stops the bake with one
 :class:`lobelight.errors.InputError` naming its vertices. A client that dies leaves its
 checkpoint, which a bake with a cluster or without one resumes. :func:`cluster` connects to a
-scheduler, or starts a local cluster, with one clear error where none answers.
+scheduler, or starts a local cluster, with one clear error where none answers; a scheduler lost
+in the middle of a bake is one clear error too (the checkpoint stays).
 """
 
 from __future__ import annotations
@@ -45,6 +46,7 @@ from __future__ import annotations
 import contextlib
 import uuid
 from collections.abc import Callable, Iterator
+from concurrent.futures import CancelledError
 
 import torch
 
@@ -207,7 +209,7 @@ class ClusterRun:
         try:
             for fut in as_completed(list(futures), loop=self.client.loop):
                 chunk = futures.pop(fut)
-                result = _take(fut, chunk, stage)
+                result = _take(fut, chunk, stage, self.client.scheduler.address)
                 fut.release()  # the worker may forget it
                 checked(result.to(bake.state.w.device), stage).apply(bake)
                 finished[chunk.index] = True
@@ -232,12 +234,19 @@ def _inputs(stage: str, bake: Bake, chunk: Chunk, readable):
     return refit_inputs(bake, chunk).to("cpu")
 
 
-def _take(fut, chunk: Chunk, stage: str) -> ChunkResult:
-    """The result of ``fut``, or one InputError naming the chunk's vertices."""
+def _take(fut, chunk: Chunk, stage: str, scheduler: str) -> ChunkResult:
+    """The result of ``fut``, or one InputError naming the chunk's vertices (or the
+    ``scheduler``, where the client lost it)."""
     from distributed import KilledWorker  # optional: the [cluster] extra
 
     try:
         return fut.result()
+    except CancelledError as e:  # the client cancels only what it no longer waits for
+        raise InputError(
+            scheduler,
+            "the connection to the Dask scheduler was lost in the middle of the bake "
+            f"({type(e).__name__}); run the bake again to resume from its checkpoint",
+        ) from e
     except KilledWorker as e:
         raise InputError(
             name_vertices(chunk.vertices),
