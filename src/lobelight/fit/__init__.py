@@ -16,7 +16,7 @@
 """
 
 from ._auto import choose_gaussians, lobe_shape
-from ._cluster import CONNECT_TIMEOUT, cluster
+from ._cluster import CONNECT_TIMEOUT, WORKER_ENVIRON, cluster
 from ._data import FitData, gather, half_vector_lobes, lobe_estimate
 from ._floodfill import MeshFit, count_flips, fit_mesh, wavefronts
 from ._memory import MEMORY_GB
@@ -28,6 +28,7 @@ __all__ = [
     "CONNECT_TIMEOUT",
     "LAM_RANGE",
     "MEMORY_GB",
+    "WORKER_ENVIRON",
     "FitData",
     "Gaussians",
     "MeshFit",
