@@ -24,6 +24,7 @@ from PIL import Image
 
 from lobelight import brdf, envmap, fit, scene
 from lobelight._io import protect_inputs, read_input
+from lobelight.cli import main
 from lobelight.envmap import EnvMap
 from lobelight.errors import InputError
 from lobelight.geometry.camera import Camera
@@ -348,3 +349,17 @@ def test_the_khronos_validator_finds_no_errors(which, request, tmp_path):
     issues = json.loads(r.stdout)
     errors = [x for x in issues["messages"] if x["severity"] <= 1]
     assert issues["numErrors"] == 0 and issues["numWarnings"] == 0, errors[:5]
+
+
+def test_the_export_command_writes_the_models_glb(diffuse_model, tmp_path):
+    """``lobelight export MODEL --gltf OUT.glb``: the file reads back as the model; a name
+    that is not a ``.glb`` is refused before any work (exit 2), and nothing is written."""
+    src = tmp_path / "m.npz"
+    diffuse_model.save(src)
+    out = tmp_path / "m.glb"
+    assert main(["export", str(src), "--gltf", str(out), "-q"]) == 0
+    back = import_gltf(out)
+    torch.testing.assert_close(back.mesh.vertices, diffuse_model.mesh.vertices.cpu())
+    bad = tmp_path / "m.gltf"
+    assert main(["export", str(src), "--gltf", str(bad), "-q"]) == 2
+    assert not bad.exists()

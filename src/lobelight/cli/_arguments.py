@@ -81,6 +81,7 @@ def _parser() -> argparse.ArgumentParser:
         _add_bake,
         _add_info,
         _add_render,
+        _add_export,
         _add_view,
         _add_compare,
         _add_compare_brdf,
@@ -329,11 +330,48 @@ def _add_bake(sub) -> None:
         "MODEL.ckpt, from which an interrupted bake resumes; 0 after every chunk, inf after "
         "each stage only",
     )
+    where = b.add_mutually_exclusive_group()
+    where.add_argument(
+        "--cluster",
+        metavar="ADDRESS",
+        help="run the bake's chunks on the Dask cluster whose scheduler is at ADDRESS "
+        "(tcp://HOST:8786, as `dask scheduler` prints it; workers started with `dask worker "
+        "ADDRESS`; docs/cluster.md); needs lobelight[cluster]. One Gaussian per view gives the "
+        "same model as without it (default: the bake runs in this process)",
+    )
+    where.add_argument(
+        "--workers",
+        type=bounded_int(1, 1024),
+        metavar="N",
+        help="run the bake's chunks on N worker processes started on this machine (a local "
+        "Dask cluster of one thread each); needs lobelight[cluster] (default: none, the bake "
+        "runs in this process)",
+    )
 
 
 def _add_info(sub) -> None:
     i = _command(sub, "info", "run_info", "describe a model file", heavy=False)
     i.add_argument("model", help="a model file written by bake")
+
+
+def _add_export(sub) -> None:
+    ex = _command(sub, "export", "run_export", "write a model for other programs (--gltf OUT.glb)")
+    ex.add_argument("model", help="a model file written by bake")
+    ex.add_argument(
+        "--gltf",
+        required=True,
+        metavar="OUT.glb",
+        help="glTF 2.0 binary: the mesh with a fallback material, and the model's lobe data "
+        "as LOBELIGHT_prt accessors (docs/gltf-export.md); required, no default",
+    )
+    _env(ex, "written as the file's image-based light (EXT_lights_image_based; default: none)")
+    ex.add_argument(
+        "--float16",
+        action=argparse.BooleanOptionalAction,
+        default=True,
+        help="the lobe data as half floats (--no-float16: float32, twice the size)",
+    )
+    _base_res(ex, 128)
 
 
 def _add_render(sub) -> None:

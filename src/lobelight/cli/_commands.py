@@ -8,6 +8,7 @@ checked before any work starts (output folders, sizes, numbers), and bad ones ra
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import math
 import os
@@ -27,15 +28,17 @@ from ..data import envmap_names, resolve_envmap
 from ..envmap import builtin
 from ..envmap import load as load_env
 from ..errors import InputError, one_line
-from ..fit import fit_model
+from ..fit import cluster, fit_model
 from ..geometry import raycast
 from ..geometry.camera import Camera
 from ..model import load as load_model
 from ..progress import Reporter
 from ..render import (
+    Lighting,
     Renderer,
     auto_exposure,
     check_output_path,
+    export_gltf,
     gl_available,
     require_display,
     save_image,
@@ -60,6 +63,7 @@ __all__ = [
     "run_compare",
     "run_compare_brdf",
     "run_demo",
+    "run_export",
     "run_figure5",
     "run_gallery",
     "run_info",
@@ -257,6 +261,39 @@ def _writable_file(out: Path) -> Path:
     return out
 
 
+def _check_gltf_output(path: str) -> Path:
+    """``--gltf``: a ``.glb`` in an existing folder, not a folder, checked before any work."""
+    out = Path(path)
+    if out.suffix.lower() != ".glb":
+        raise InputError(str(out), "--gltf writes a glTF binary: name a .glb file")
+    if out.is_dir():
+        raise InputError(str(out), "is a folder: name a .glb file")
+    if not out.parent.is_dir():
+        raise InputError(str(out), f"the directory {str(out.parent)!r} does not exist")
+    return out
+
+
+def run_export(args) -> dict:
+    out = _check_gltf_output(args.gltf)
+    _check_base_res(args)
+    m = load_model(args.model)
+    lighting = None
+    if args.env is not None:
+        lighting = Lighting(_env(args.env), base_res=args.base_res, device=args.device)
+    check_outputs(out)  # the model and the map were read: neither is written over
+    t0 = time.perf_counter()
+    info = export_gltf(m, out, lighting=lighting, float16=args.float16)
+    return {
+        "command": "export",
+        "output": str(out),
+        "format": "gltf",
+        "environment": None if args.env is None else _env_source(args.env),
+        "float16": args.float16,
+        **info,
+        "seconds": time.perf_counter() - t0,
+    }
+
+
 def run_bake(args) -> dict:
     out = _model_path(args.scene, args.output)  # checked before any work
     if args.indirect_paths < 0:
@@ -286,18 +323,23 @@ def run_bake(args) -> dict:
         args, f"baking {sc.name}: {sc.mesh.n_vertices} vertices, {args.gaussians} Gaussian(s)/view"
     )
     t0 = time.perf_counter()
-    m = fit_model(
-        sc,
-        args.gaussians,
-        memory_gb=args.memory_gb,
-        device=args.device,
-        indirect_paths=args.indirect_paths,
-        bounces=args.bounces,
-        progress=prog,
-        seed=args.seed,
-        checkpoint=ckpt,
-        checkpoint_every=args.checkpoint_every,
-    )
+    with contextlib.ExitStack() as stack:
+        client = None
+        if args.cluster is not None or args.workers is not None:
+            client = stack.enter_context(cluster(args.cluster, workers=args.workers))
+        m = fit_model(
+            sc,
+            args.gaussians,
+            memory_gb=args.memory_gb,
+            device=args.device,
+            indirect_paths=args.indirect_paths,
+            bounces=args.bounces,
+            progress=prog,
+            seed=args.seed,
+            checkpoint=ckpt,
+            checkpoint_every=args.checkpoint_every,
+            client=client,
+        )
     # the glTF materials the scene brought (and what overrode them), for `lobelight info`
     m.provenance["materials"] = [dict(r) for r in sc.material_records]
     info = m.save(out, float16=args.float16)
