@@ -550,3 +550,25 @@ def test_a_huge_value_is_shortened_in_its_error_line(files, capsys, no_work):
     line = refused(capsys, ["render", "m.npz", "--camera", camera], names="--camera",
                    problem="characters left out")  # fmt: skip
     assert len(line) < 5000 and math.isfinite(len(line))
+
+
+def test_a_symlink_loop_in_a_scene_files_mesh_is_bad_input(tmp_path, capsys, no_work):
+    """A scene file whose ``mesh`` is a symbolic link loop: exit 2, one line naming the entry."""
+    (tmp_path / "loop1").symlink_to(tmp_path / "loop2")
+    (tmp_path / "loop2").symlink_to(tmp_path / "loop1")
+    sc = tmp_path / "a.toml"
+    sc.write_text('mesh = "loop1"\n')
+    refused(capsys, ["bake", sc, "-o", tmp_path / "a.npz"], names="a.toml: mesh",
+            problem="cannot resolve", inputs=[sc])  # fmt: skip
+
+
+def test_a_scene_files_map_that_is_a_fifo_is_named_as_such(tmp_path, capsys, no_work):
+    """A scene file's ``environment`` that is a named pipe is reported as not a regular file
+    (not as a missing one), before any work and without blocking on the pipe."""
+    mesh = tmp_path / "tri.obj"
+    mesh.write_text("v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n")
+    os.mkfifo(tmp_path / "sky.hdr")
+    sc = tmp_path / "b.toml"
+    sc.write_text('mesh = "tri.obj"\nenvironment = "sky.hdr"\n')
+    refused(capsys, ["bake", sc, "-o", tmp_path / "b.npz"], names="b.toml: environment",
+            problem="not a regular file", inputs=[sc, mesh])  # fmt: skip

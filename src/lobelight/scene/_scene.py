@@ -46,6 +46,7 @@ from __future__ import annotations
 import dataclasses
 import json
 import math
+import os
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -55,7 +56,7 @@ import numpy as np
 import torch
 
 from .. import envmap
-from .._io import TEXT_LIMIT, read_input
+from .._io import IMAGE_LIMIT, TEXT_LIMIT, check_input, read_input
 from .._tol import SMALL
 from ..data import envmap_names, resolve_envmap
 from ..errors import InputError
@@ -333,7 +334,10 @@ def _entry_path(p: Path, s: str, d: dict[str, Any], key: str) -> Path:
     value = d[key]
     if not isinstance(value, str) or not value or "\x00" in value:
         raise InputError(f"{s}: {key}", f"must be a file name, got {value!r:.60}")
-    return (p.parent / value).resolve()
+    try:
+        return (p.parent / value).resolve()
+    except (RuntimeError, OSError) as exc:  # a symbolic link loop, a path the system refuses
+        raise InputError(f"{s}: {key}", f"cannot resolve {value!r:.60} ({exc})") from None
 
 
 def default_camera(mesh: Mesh) -> Camera:
@@ -625,6 +629,8 @@ def _environment(p: Path, s: str, d: dict[str, Any]) -> str:
         return env
     env_path = _entry_path(p, s, d, "environment")
     try:
+        if os.path.lexists(env_path) and not env_path.is_dir():
+            check_input(env_path, limit=IMAGE_LIMIT)  # a pipe or device is not a map file
         found = resolve_envmap(env, relative_to=p.parent)
     except InputError as e:  # a file of another kind: named as this scene file's entry
         raise InputError(f"{s}: environment", f"{env_path} {e.problem}") from None
