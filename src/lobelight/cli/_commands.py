@@ -89,19 +89,27 @@ def _note(args, text: str) -> None:
         print(f"lobelight: {one_line(text)}", file=sys.stderr, flush=True)
 
 
-def _load_scene(args, scene: str, *, material=None):
-    """The scene ``scene`` (:func:`lobelight.scene.load`) on ``args.device``; what its files ask
-    for and lobelight does not use (a glTF's emissive, alpha modes, extensions) is said in one
-    ``lobelight: ...`` line on stderr per warning, even under ``--quiet``, without Python's
+def _said(load, *args, **kwargs):
+    """``load(*args, **kwargs)``, with lobelight's warnings while it reads (what a file asks for
+    and lobelight does not use, a parameter taken at its range's end) said in one
+    ``lobelight: ...`` line on stderr each, even under ``--quiet``, without Python's
     source-line trailer."""
     with warnings.catch_warnings(record=True) as caught:
-        sc = load_scene(scene, device=args.device, material=material)
+        warnings.simplefilter("always")
+        out = load(*args, **kwargs)
     for w in caught:
         text = str(w.message)
         if issubclass(w.category, UserWarning) and text.startswith("lobelight: "):
             print(one_line(text), file=sys.stderr, flush=True)  # it may quote the file's names
         else:  # someone else's: shown as Python would have
             warnings.showwarning(w.message, w.category, w.filename, w.lineno)
+    return out
+
+
+def _load_scene(args, scene: str, *, material=None):
+    """The scene ``scene`` (:func:`lobelight.scene.load`) on ``args.device``, its warnings said
+    as :func:`_said` says them."""
+    sc = _said(load_scene, scene, device=args.device, material=material)
     if material is not None and sc.material_records:
         names = ", ".join(repr(r["name"]) for r in sc.material_records)
         _note(args, f"--material replaces the materials of the glTF file ({names})")
@@ -276,7 +284,7 @@ def _check_gltf_output(path: str) -> Path:
 def run_export(args) -> dict:
     out = _check_gltf_output(args.gltf)
     _check_base_res(args)
-    m = load_model(args.model)
+    m = _said(load_model, args.model)
     lighting = None
     if args.env is not None:
         lighting = Lighting(_env(args.env), base_res=args.base_res, device=args.device)
@@ -371,7 +379,7 @@ def run_bake(args) -> dict:
 
 
 def run_info(args) -> dict:
-    m = load_model(args.model)
+    m = _said(load_model, args.model)
     p = Path(args.model)
     g = m.gaussians
     live = g.w.amax((-1, -2)) > 0
@@ -478,7 +486,7 @@ def run_render(args) -> dict:
     if args.rotate is not None:
         args.rotate = math.remainder(args.rotate, 360.0)  # the same turn, in -180..180
     outputs = _render_outputs(args, width, height)
-    m = load_model(args.model, device=args.device)
+    m = _said(load_model, args.model, device=args.device)
     env = _env(args.env, m.provenance)
     check_outputs(*outputs)  # the model and the map were read: neither is written over
     cam = _camera_from(args.camera, m.provenance, m.mesh)
@@ -546,7 +554,7 @@ def run_render(args) -> dict:
 def run_view(args) -> dict:
     require_display()  # no model is loaded where no window can open
     # checked before a window opens; its stored environment is the default
-    m = load_model(args.model)
+    m = _said(load_model, args.model)
     width, height = _size(args)
     envs = [_env(path, m.provenance) for path in (args.env or [None])]  # each read at the door
     return view(m, env=envs, width=width, height=height, sun=args.sun)
@@ -568,7 +576,7 @@ def run_compare(args) -> dict:
     _check_base_res(args)
     if args.scene is None and args.model is None:
         raise InputError("scene", "give a scene, or --model MODEL to score a model's own scene")
-    model = load_model(args.model, device=args.device) if args.model else None
+    model = _said(load_model, args.model, device=args.device) if args.model else None
     sc = _compare_scene(args, model)
     env = _env(args.env) if args.env else None
     _output_folder(args.output)
