@@ -568,8 +568,10 @@ def _add_bench(sub) -> None:
             "lobe-tables",
             "lobes",
             "brdf-fit",
+            "start",
         ],
-        help="which benchmark (all: every benchmark with a goal, on --device, in one run)",
+        help="which benchmark (all: every benchmark with a goal, on --device, in one run; "
+        "start: a render's start in a new process, cold and warm)",
     )
     _output(be, None, "bench all: JSON file of the results, rewritten after each benchmark "
             "(default: none, the summary on stdout only)")  # fmt: skip

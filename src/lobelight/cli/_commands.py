@@ -788,6 +788,8 @@ def run_bench(args) -> dict:
         )
     if w == "rays":
         return bench_rays(device=args.device)
+    if w == "start":  # --repeats: the warm runs
+        return bench.bench_start(**({} if args.repeats is None else {"runs": args.repeats}))
     if w == "prefilter":
         _check_base_res(args)
         return bench.bench_prefilter(base_res=args.base_res, device=args.device, **reps)

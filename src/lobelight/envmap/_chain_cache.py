@@ -41,7 +41,7 @@ from typing import Any
 import numpy as np
 import torch
 
-from .._cache import UNREADABLE, cache_dir
+from .._cache import UNREADABLE, cache_dir, cache_max_bytes, regular_entry
 from .._io import atomic_writer
 
 __all__ = [
@@ -68,13 +68,7 @@ DEFAULT_MAX_MB = 2048
 
 def max_bytes() -> int:
     """The size cap of the chain folder, in bytes (module docstring)."""
-    text = os.environ.get("LOBELIGHT_CACHE_MAX_MB", "")
-    try:
-        mb = float(text) if text else DEFAULT_MAX_MB
-    except ValueError:
-        logger.warning("LOBELIGHT_CACHE_MAX_MB=%r is not a number: using %d", text, DEFAULT_MAX_MB)
-        mb = DEFAULT_MAX_MB
-    return max(int(mb * 2**20), 0)
+    return cache_max_bytes(DEFAULT_MAX_MB)
 
 
 def trim(folder: str | os.PathLike, limit: int, *, keep: str | os.PathLike | None = None) -> None:
@@ -132,6 +126,8 @@ def read_chain(
     ``resolutions`` (``K`` of them).
     """
     path = Path(path)
+    if not regular_entry(path):  # missing, or a pipe or device that would block the read
+        return None
     try:
         z = np.load(path, allow_pickle=False)
     except FileNotFoundError:
@@ -213,6 +209,8 @@ def read_cube(path: str | os.PathLike, key: str, res: int) -> np.ndarray | None:
     """The ``(6, res, res, 3)`` float32 cube map of an entry, or None when the file is missing,
     unreadable or not exactly the cube ``key`` at ``res`` (finite values included)."""
     path = Path(path)
+    if not regular_entry(path):  # missing, or a pipe or device that would block the read
+        return None
     try:
         z = np.load(path, allow_pickle=False)
     except FileNotFoundError:

@@ -290,7 +290,8 @@ def _bounding_sphere(mesh) -> tuple[np.ndarray, float]:
 
 def _background(lighting: Lighting) -> np.ndarray:
     """The map as the background's cube texture, ``(6, BACKGROUND_RES, BACKGROUND_RES, 3)``."""
-    cube = lighting.env.to_cubemap(BACKGROUND_RES)
+    # kept on disk beside the chain for a static map; a dynamic one (ChainBuilders) is not
+    cube = lighting.env.to_cubemap(BACKGROUND_RES, cache=lighting._builders is None)
     return cube.detach().cpu().numpy().astype(np.float32)
 
 

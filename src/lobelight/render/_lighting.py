@@ -111,7 +111,10 @@ class Lighting:
             self.sun, diffuse_env = extract_sun(self.env)
         self._rest_env = diffuse_env
         self._rest_pf: Prefiltered | None = None
-        self.sh = sh.project_envmap(diffuse_env, sh_order, res=64).to(torch.float32)
+        # a static map's resampled cube is kept on disk (read back by the next process)
+        cube_cache = builders is None
+        self.sh = sh.project_envmap(diffuse_env, sh_order, res=64, cache=cube_cache)
+        self.sh = self.sh.to(torch.float32)
         self.name = env.name
         self._rotator = sh.Rotator(self.sh)
 
