@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import io
 import json
+import math
 import os
 import signal
 import socket
@@ -29,6 +30,7 @@ distributed = pytest.importorskip(
 cloudpickle = pytest.importorskip("cloudpickle")
 
 from lobelight import fit, scene  # noqa: E402
+from lobelight.bench import bench_cluster  # noqa: E402
 from lobelight.cli import main  # noqa: E402
 from lobelight.errors import InputError  # noqa: E402
 from lobelight.model._format import read  # noqa: E402
@@ -339,3 +341,14 @@ def test_bake_on_a_cluster_from_the_command_line_writes_the_local_model(client, 
     ga, gb = a["gaussians"], b["gaussians"]
     for x, y in ((ga.w, gb.w), (ga.mu, gb.mu), (ga.lam, gb.lam)):
         torch.testing.assert_close(x, y, rtol=0, atol=0)
+
+
+def test_bench_cluster_times_the_local_and_the_cluster_bakes():
+    """``lobelight bench cluster``'s record: a local run and one per worker count, each with
+    its chunks' stage timed, and the overhead and projection computed from them."""
+    r = bench_cluster(scene="sphere:1", workers=(1,), indirect_paths=0, bounces=0)
+    assert [row["workers"] for row in r["runs"]] == [0, 1]
+    assert all(row["chunk_stage_seconds"] > 0 for row in r["runs"])
+    assert r["chunks"] == math.ceil(r["vertices"] / r["batch"])
+    assert r["projection"]["workers"] == 20 * (os.cpu_count() or 1)
+    assert math.isfinite(r["overhead"]) and math.isfinite(r["overhead_seconds_per_chunk"])

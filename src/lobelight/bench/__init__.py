@@ -23,6 +23,8 @@ machine description (:func:`machine`).
   RESULT.json`` prints them)
 - :func:`bench_start` a render's start: ``lobelight render`` in a fresh process, cold and warm,
   and where its time goes (:mod:`~lobelight.bench.start`)
+- :func:`bench_cluster` a bake on local Dask clusters against one process, with a projection
+  across machines (:mod:`~lobelight.bench.cluster`)
 - :func:`machine` where a benchmark ran; :func:`sync` waits for a device's queued work
 
 Each name is imported from its module when first used (the modules import what they measure:
@@ -42,6 +44,7 @@ _HOMES = {
     "GOALS": ".suite",
     "bench_all": ".suite",
     "bench_brdf_fit": ".brdf_fit",
+    "bench_cluster": ".cluster",
     "bench_fit": ".fit",
     "bench_lobes": ".cosine",
     "bench_prefilter": ".prefilter",

@@ -569,9 +569,11 @@ def _add_bench(sub) -> None:
             "lobes",
             "brdf-fit",
             "start",
+            "cluster",
         ],
         help="which benchmark (all: every benchmark with a goal, on --device, in one run; "
-        "start: a render's start in a new process, cold and warm)",
+        "start: a render's start in a new process, cold and warm; cluster: a bake on 1 and 2 "
+        "local Dask workers against one process, --scene, lobelight[cluster])",
     )
     _output(be, None, "bench all: JSON file of the results, rewritten after each benchmark "
             "(default: none, the summary on stdout only)")  # fmt: skip
@@ -582,7 +584,11 @@ def _add_bench(sub) -> None:
         help="bench all: seconds after which benchmarks not yet started are skipped (at most "
         "1e9; default: none, every benchmark runs)",
     )
-    be.add_argument("--scene", default="knot:2", help="scene of transport/fit (knot:2: 11.5K)")
+    be.add_argument(
+        "--scene",
+        default="knot:2",
+        help="scene of transport, fit and cluster (knot:2: 11.5K vertices)",
+    )
     be.add_argument(
         "--fit-material",
         default=None,

@@ -788,6 +788,8 @@ def run_bench(args) -> dict:
         )
     if w == "rays":
         return bench_rays(device=args.device)
+    if w == "cluster":
+        return bench.bench_cluster(scene=args.scene)
     if w == "start":  # --repeats: the warm runs
         return bench.bench_start(**({} if args.repeats is None else {"runs": args.repeats}))
     if w == "prefilter":
