@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import contextlib
 import dataclasses
+import importlib
 import math
 import os
 import sys
@@ -22,7 +23,6 @@ import torch
 from .. import bench
 from .._io import IMAGE_LIMIT, check_input, check_outputs, note_input
 from .._tol import DIVISOR_F64
-from ..bench import bench_all, bench_brdf_fit, bench_lobes, bench_rays, bench_tables
 from ..brdf import sharp_lobe
 from ..data import envmap_names, resolve_envmap
 from ..envmap import builtin
@@ -47,11 +47,6 @@ from ..render import (
 )
 from ..scene import Scene, default_camera
 from ..scene import load as load_scene
-from ..studies.compare import compare
-from ..studies.compare_brdf import compare_brdf
-from ..studies.demo import demo
-from ..studies.figure5 import figure5
-from ..studies.lobes_demo import lobes_demo
 from ._gallery import gallery_main
 from ._limits import MAX_EXPOSURE
 from ._size import check_frames, check_image, parse_size
@@ -72,6 +67,31 @@ __all__ = [
     "run_view",
     "use_rays",
 ]
+
+
+def _lazy(module: str, name: str):
+    """``name`` of ``module``, imported when first called: a command loads only what it runs
+    (the studies and benchmarks pull in Mitsuba, numba and the cosine lobes, which a render's
+    start would pay for otherwise)."""
+
+    def call(*args, **kwargs):
+        return getattr(importlib.import_module(module), name)(*args, **kwargs)
+
+    call.__name__ = call.__qualname__ = name
+    call.__doc__ = f"``{module}.{name}``, imported on the first call."
+    return call
+
+
+bench_all = _lazy("lobelight.bench.suite", "bench_all")
+bench_brdf_fit = _lazy("lobelight.bench.brdf_fit", "bench_brdf_fit")
+bench_lobes = _lazy("lobelight.bench.cosine", "bench_lobes")
+bench_rays = _lazy("lobelight.bench.rays", "bench_rays")
+bench_tables = _lazy("lobelight.bench.cosine", "bench_tables")
+compare = _lazy("lobelight.studies.compare", "compare")
+compare_brdf = _lazy("lobelight.studies.compare_brdf", "compare_brdf")
+demo = _lazy("lobelight.studies.demo", "demo")
+figure5 = _lazy("lobelight.studies.figure5", "figure5")
+lobes_demo = _lazy("lobelight.studies.lobes_demo", "lobes_demo")
 
 # --------------------------------------------------------------------------------------------
 # feedback

@@ -4,6 +4,8 @@ per-vertex material parameters."""
 
 from __future__ import annotations
 
+import functools
+import importlib
 import warnings
 from dataclasses import dataclass
 from functools import cached_property
@@ -11,12 +13,21 @@ from pathlib import Path
 
 import numpy as np
 import torch
-import trimesh
 
 from .._io import check_input
 from .._tol import DIVISOR_F64
 from ..errors import InputError
 from ._gltf import GLTF_SUFFIXES, GltfMaterial, read_gltf, sample_texture
+
+
+@functools.cache
+def _trimesh():
+    """trimesh, imported when first used rather than with this module: it loads scipy and
+    networkx, a large part of the start of a process that reads no mesh file (a render)."""
+    trimesh = importlib.import_module("trimesh")
+    importlib.import_module("trimesh.creation")
+    return trimesh
+
 
 __all__ = [
     "MAX_EXTENT",
@@ -142,7 +153,7 @@ class Mesh:
 
     def to_trimesh(self):
         """The mesh as a ``trimesh.Trimesh`` (no processing, our normals attached)."""
-        return trimesh.Trimesh(
+        return _trimesh().Trimesh(
             vertices=self.vertices.detach().cpu().numpy().astype(np.float64),
             faces=self.faces.cpu().numpy(),
             vertex_normals=self.normals.detach().cpu().numpy(),
@@ -421,12 +432,12 @@ def _trimesh_arrays(p: Path) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]
     normals for every geometry (else None). trimesh keeps the normals a file holds in the
     geometry's cache and computes them on access otherwise: the cache tells them apart."""
     try:
-        loaded = trimesh.load_scene(str(p), process=False, skip_materials=True)
+        loaded = _trimesh().load_scene(str(p), process=False, skip_materials=True)
         parts = []
         for node in loaded.graph.nodes_geometry:
             transform, geom_name = loaded.graph[node]
             g = loaded.geometry[geom_name]
-            if not isinstance(g, trimesh.Trimesh) or len(g.faces) == 0:
+            if not isinstance(g, _trimesh().Trimesh) or len(g.faces) == 0:
                 continue
             has_normals = "vertex_normals" in g._cache  # read from the file, not computed
             parts.append((transform, g, g.vertex_normals if has_normals else None))

@@ -6,10 +6,21 @@ need no files and any tessellation is one argument away.
 
 from __future__ import annotations
 
+import functools
+import importlib
 import math
 
 import numpy as np
-import trimesh
+
+
+@functools.cache
+def _trimesh():
+    """trimesh, imported when first used rather than with this module: it loads scipy and
+    networkx, a large part of the start of a process that reads no mesh file (a render)."""
+    trimesh = importlib.import_module("trimesh")
+    importlib.import_module("trimesh.creation")
+    return trimesh
+
 
 __all__ = ["ground_plane", "icosphere", "torus_knot", "uv_sphere"]
 
@@ -96,5 +107,5 @@ def uv_sphere(n_lat: int = 32, n_lon: int = 64, radius: float = 1.0):
 
 def icosphere(subdivisions: int = 3, radius: float = 1.0):
     """Geodesic sphere (trimesh's subdivided icosahedron), ``10 * 4^s + 2`` vertices."""
-    m = trimesh.creation.icosphere(subdivisions=subdivisions, radius=radius)
+    m = _trimesh().creation.icosphere(subdivisions=subdivisions, radius=radius)
     return np.asarray(m.vertices), np.asarray(m.faces)
