@@ -63,7 +63,7 @@ import torch
 from .. import brdf as _brdf
 from ..errors import InputError
 from ..geometry.camera import Camera
-from ..scene import GltfAsset, GltfMaterial, Scene, Texture, sample_texture
+from ..scene import GltfAsset, GltfMaterial, Scene, Texture, sample_texture, wrap_texels
 
 __all__ = ["SUM_PLUGIN", "gltf_bsdf", "load_mitsuba", "material_dict", "scene_dict"]
 
@@ -268,16 +268,6 @@ def _bitmap(mi, data: torch.Tensor, tex: Texture, uvs, where: str) -> dict:
 _UNWRAP_GROWTH = 4
 
 
-def _wrapped(i: torch.Tensor, n: int, mode: str) -> torch.Tensor:
-    """Texel indices ``i`` wrapped into [0, n) by the glTF wrap ``mode``."""
-    if mode == "clamp":
-        return i.clamp(0, n - 1)
-    if mode == "mirror":
-        j = torch.remainder(i, 2 * n)
-        return torch.where(j >= n, 2 * n - 1 - j, j)
-    return torch.remainder(i, n)
-
-
 def _unwrapped(data: torch.Tensor, tex: Texture, rows: np.ndarray, uvs, where: str):
     """``data`` (H, W, C) laid out over every texel the material's ``uvs`` (k, 2) reach
     (after the UV transform ``rows`` (3, 3)), each wrapped by its own axis's mode, and the UV
@@ -300,8 +290,8 @@ def _unwrapped(data: torch.Tensor, tex: Texture, rows: np.ndarray, uvs, where: s
             f"wraps U by {s.wrap_s!r} and V by {s.wrap_t!r} and its UVs span {nw} x {nh} "
             f"texels: too many to lay out for Mitsuba's one wrap mode",
         )
-    xs = _wrapped(torch.arange(int(lo[0]), int(hi[0]) + 1), w, s.wrap_s)  # (nw,)
-    ys = _wrapped(torch.arange(int(lo[1]), int(hi[1]) + 1), h, s.wrap_t)  # (nh,)
+    xs = wrap_texels(torch.arange(int(lo[0]), int(hi[0]) + 1), w, s.wrap_s)  # (nw,)
+    ys = wrap_texels(torch.arange(int(lo[1]), int(hi[1]) + 1), h, s.wrap_t)  # (nh,)
     shift = np.array([[w / nw, 0, -lo[0] / nw], [0, h / nh, -lo[1] / nh], [0, 0, 1]])
     return data[ys][:, xs], shift @ rows
 

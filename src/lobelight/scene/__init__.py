@@ -31,6 +31,7 @@ from ._gltf import (
     Texture,
     read_gltf,
     sample_texture,
+    wrap_texels,
 )
 from ._materials import (
     LOBE_PARAMS,
@@ -124,4 +125,5 @@ __all__ = [
     "uniform",
     "vertex_factors",
     "weld_arrays",
+    "wrap_texels",
 ]

@@ -28,7 +28,7 @@ import numpy as np
 import torch
 
 from ..errors import InputError
-from ._gltf import Texture, sample_texture
+from ._gltf import Texture, sample_texture, wrap_texels
 
 __all__ = ["WRAP_MODES", "AlbedoTexture", "albedo_texture", "srgb_decode", "srgb_encode"]
 
@@ -163,7 +163,7 @@ class AlbedoTexture:
         flat = img.to(uv.device).reshape(-1, 3).long()
 
         def texel(iy: torch.Tensor, ix: torch.Tensor) -> torch.Tensor:
-            return table[flat[_wrap(iy, h, wt) * w + _wrap(ix, w, ws)]]
+            return table[flat[wrap_texels(iy, h, wt) * w + wrap_texels(ix, w, ws)]]
 
         if bool(self.nearest[i]):
             return texel(torch.floor(y + 0.5).long(), torch.floor(x + 0.5).long())
@@ -173,16 +173,6 @@ class AlbedoTexture:
         top = texel(y0, x0) * (1 - fx) + texel(y0, x0 + 1) * fx
         bottom = texel(y0 + 1, x0) * (1 - fx) + texel(y0 + 1, x0 + 1) * fx
         return top * (1 - fy) + bottom * fy
-
-
-def _wrap(i: torch.Tensor, n: int, mode: str) -> torch.Tensor:
-    """Integer texel indices ``i`` wrapped into [0, n) by ``mode``."""
-    if mode == "clamp":
-        return i.clamp(0, n - 1)
-    if mode == "mirror":
-        j = torch.remainder(i, 2 * n)
-        return torch.where(j >= n, 2 * n - 1 - j, j)
-    return torch.remainder(i, n)
 
 
 def _texel_uvs(tex: Texture) -> torch.Tensor | None:

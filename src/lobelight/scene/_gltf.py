@@ -61,6 +61,7 @@ __all__ = [
     "Texture",
     "read_gltf",
     "sample_texture",
+    "wrap_texels",
 ]
 
 GLTF_SUFFIXES = (".gltf", ".glb")
@@ -805,8 +806,9 @@ def _read(doc: _Document, *, textures: bool, device, warn: bool):
 # texture sampling
 
 
-def _wrap(i: torch.Tensor, n: int, mode: str) -> torch.Tensor:
-    """Integer texel indices ``i`` wrapped into [0, n) by the sampler's mode."""
+def wrap_texels(i: torch.Tensor, n: int, mode: str) -> torch.Tensor:
+    """Integer texel indices ``i`` wrapped into [0, n) by a glTF sampler's wrap ``mode``
+    (``"repeat"``, ``"clamp"`` or ``"mirror"``)."""
     if mode == "clamp":
         return i.clamp(0, n - 1)
     if mode == "mirror":
@@ -832,14 +834,14 @@ def sample_texture(
     y = uv[..., 1] * h - 0.5
     s = texture.sampler
     if (filter or s.mag_filter) == "nearest":
-        ix = _wrap(torch.floor(x + 0.5).long(), w, s.wrap_s)
-        iy = _wrap(torch.floor(y + 0.5).long(), h, s.wrap_t)
+        ix = wrap_texels(torch.floor(x + 0.5).long(), w, s.wrap_s)
+        iy = wrap_texels(torch.floor(y + 0.5).long(), h, s.wrap_t)
         return img[iy, ix]
     x0, y0 = torch.floor(x), torch.floor(y)
     fx, fy = (x - x0)[..., None], (y - y0)[..., None]
     x0, y0 = x0.long(), y0.long()
-    xa, xb = _wrap(x0, w, s.wrap_s), _wrap(x0 + 1, w, s.wrap_s)
-    ya, yb = _wrap(y0, h, s.wrap_t), _wrap(y0 + 1, h, s.wrap_t)
+    xa, xb = wrap_texels(x0, w, s.wrap_s), wrap_texels(x0 + 1, w, s.wrap_s)
+    ya, yb = wrap_texels(y0, h, s.wrap_t), wrap_texels(y0 + 1, h, s.wrap_t)
     top = img[ya, xa] * (1 - fx) + img[ya, xb] * fx
     bottom = img[yb, xa] * (1 - fx) + img[yb, xb] * fx
     return top * (1 - fy) + bottom * fy

@@ -6,21 +6,11 @@ need no files and any tessellation is one argument away.
 
 from __future__ import annotations
 
-import functools
-import importlib
 import math
 
 import numpy as np
 
-
-@functools.cache
-def _trimesh():
-    """trimesh, imported when first used rather than with this module: it loads scipy and
-    networkx, a large part of the start of a process that reads no mesh file (a render)."""
-    trimesh = importlib.import_module("trimesh")
-    importlib.import_module("trimesh.creation")
-    return trimesh
-
+from ._mesh import _trimesh
 
 __all__ = ["ground_plane", "icosphere", "torus_knot", "uv_sphere"]
 
