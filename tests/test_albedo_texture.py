@@ -3,12 +3,15 @@
 
 from __future__ import annotations
 
+import json
+
 import numpy as np
 import pytest
 import torch
 
 from lobelight import envmap, fit, scene
 from lobelight import model as model_module
+from lobelight.cli import main
 from lobelight.data import DEFAULT_ENVMAP, envmap_path
 from lobelight.errors import InputError
 from lobelight.geometry.camera import Camera
@@ -278,3 +281,14 @@ def test_a_metallic_texture_shows_in_the_diffuse_albedo_per_pixel(tmp_path):
     # the left texel is the base colour's own 8-bit codes, decoded: float32 rounding
     torch.testing.assert_close(got[0], want_left, rtol=1e-5, atol=0)
     assert torch.equal(got[1], torch.zeros(3, dtype=torch.float64))
+
+
+def test_info_says_the_albedo_is_read_per_pixel(checker_model, tmp_path, capsys):
+    """``lobelight info`` names where the diffuse albedo comes from: the checker model's one
+    8 x 8 texture."""
+    p = tmp_path / "checker.npz"
+    checker_model.save(p)
+    capsys.readouterr()
+    assert main(["info", str(p), "--json"]) == 0
+    got = json.loads(capsys.readouterr().out)["albedo"]
+    assert got == "per pixel from 1 texture (8x8), the rest per vertex"

@@ -419,9 +419,21 @@ def run_info(args) -> dict:
         # a glTF scene's materials, from the provenance (empty for other scenes)
         "materials": _material_rows(m.provenance.get("materials")),
         "reflection": _reflection(m),
+        "albedo": _albedo(m),
         "interreflection": _interreflection(m.provenance, _has_glossy(m)),
         "provenance": m.provenance,
     }
+
+
+def _albedo(m) -> str:
+    """Where the renderers read the model's diffuse albedo: per vertex, or per pixel from its
+    textures (how many, of what sizes)."""
+    a = m.albedo
+    if a is None:
+        return "per vertex"
+    sizes = ", ".join(f"{img.shape[1]}x{img.shape[0]}" for img in a.images[1:])
+    n = len(a.images) - 1
+    return f"per pixel from {n} texture{'s' if n != 1 else ''} ({sizes}), the rest per vertex"
 
 
 def _reflection(m) -> str:
