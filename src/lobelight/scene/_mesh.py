@@ -278,6 +278,23 @@ def _weld_loss(area_before: float, v: np.ndarray, f: np.ndarray, diag: float, na
         )
 
 
+def _float32_loss(v: np.ndarray, f: np.ndarray, name: str) -> None:
+    """Refuse a mesh whose surface area changes by more than :data:`MAX_WELD_LOSS` when its
+    positions are stored as float32 (as every mesh is): parts far smaller than their distance
+    from the origin, whose shape float32 cannot hold (the whole mesh's offset and size are
+    checked apart, :data:`MAX_OFFSET`)."""
+    before = float(_double_areas(v, f).sum())
+    after = float(_double_areas(v.astype(np.float32).astype(np.float64), f).sum())
+    change = abs(after / before - 1.0) if before > 0 else 0.0
+    if change > MAX_WELD_LOSS:
+        raise InputError(
+            name,
+            f"stored as float32 its positions change its surface area by {change:.1%} (at most "
+            f"{MAX_WELD_LOSS:.0%}): it holds parts far smaller than their distance from the "
+            f"origin; remove them, or move and scale the mesh so that they are not",
+        )
+
+
 def _orient_outward(v, f, nrm, name: str):
     """A closed, consistently wound mesh (each edge in two faces, once each way) of negative
     signed volume is inside out: its faces are turned (and the file's normals too where they
@@ -386,6 +403,7 @@ def weld_arrays(
         raise InputError(name, "no triangle with non-zero area")
     v, f, nrm, attrs = _compact(v, f, nrm, attrs)
     if weld:
+        _float32_loss(v, f, name)
         f, nrm = _orient_outward(v, f, nrm, name)
     n = _area_weighted_normals(v, f)
     if nrm is not None:
