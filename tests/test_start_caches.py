@@ -19,6 +19,7 @@ from lobelight.bench.start import PHASES, phases
 from lobelight.envmap import EnvMap
 from lobelight.geometry import sphere
 from lobelight.lobes import sh
+from lobelight.render import gl_available
 
 
 @pytest.fixture
@@ -223,11 +224,8 @@ def test_render_modules_import_without_trimesh_or_scipy():
 
 
 @pytest.mark.slow  # five renders in new processes: about a minute on a busy 2-core machine
+@pytest.mark.skipif(not gl_available(), reason="no headless OpenGL context (EGL)")
 def test_bench_start_runs_the_command_and_accounts_for_each_run(tmp_path):
-    from lobelight.render import gl_available
-
-    if not gl_available():
-        pytest.skip("no headless OpenGL context (EGL)")
     from lobelight.bench import bench_start
 
     rec = bench_start(vertices=300, runs=2, size=32, env="builtin", folder=tmp_path)

@@ -715,27 +715,6 @@ class Sum(BRDF):
         # per-element parameters of all components must broadcast together
         self._check_shapes()
 
-    def _clamp(self, name: str, *, lo: float | None = None, hi: float | None = None) -> None:
-        """Parameter ``name`` clamped into ``[lo, hi]`` (the model's documented range), with one
-        ``UserWarning`` naming the value given and the one taken where it was outside."""
-        t = self._p[name]
-        # the bounds as the parameter's dtype holds them: a float32 1e-4 is a little below it
-        lo, hi = (None if b is None else float(torch.tensor(b, dtype=t.dtype)) for b in (lo, hi))
-        with torch.no_grad():
-            below = lo is not None and float(t.min()) < lo
-            above = hi is not None and float(t.max()) > hi
-        if not (below or above):
-            return
-        given, bound = (float(t.min()), lo) if below else (float(t.max()), hi)
-        side = "below" if below else "above"
-        warnings.warn(
-            f"lobelight: {self.type_name} {name} {given:g} is {side} {bound:g}, the sharpest "
-            f"lobe lobelight models (a mirror at any image size): taken as {bound:g}",
-            UserWarning,
-            stacklevel=3,
-        )
-        self._p[name] = t.clamp(min=lo, max=hi)
-
     def _batch_shapes(self) -> list[tuple[str, tuple[int, ...]]]:
         return [
             (f"components[{j}].{name}", shape)

@@ -117,6 +117,24 @@ def chain_key(source: torch.Tensor, description: dict[str, Any]) -> str:
     return h.hexdigest()
 
 
+def _open_entry(path: Path, kind: str) -> np.lib.npyio.NpzFile | None:
+    """The open ``.npz`` archive of a cache entry, or None (logged) when it is missing, not a
+    regular file (a pipe or device would block the read), unreadable or not an archive."""
+    if not regular_entry(path):
+        return None
+    try:
+        z = np.load(path, allow_pickle=False)
+    except FileNotFoundError:
+        return None
+    except UNREADABLE as exc:
+        logger.info("ignoring the unreadable %s cache entry %s (%r)", kind, path, exc)
+        return None
+    if not isinstance(z, np.lib.npyio.NpzFile):  # a bare .npy file loads as one array
+        logger.info("ignoring %s: not a %s cache entry", path, kind)
+        return None
+    return z
+
+
 def read_chain(
     path: str | os.PathLike, key: str, resolutions: list[int]
 ) -> tuple[np.ndarray, list[np.ndarray]] | None:
@@ -126,17 +144,8 @@ def read_chain(
     ``resolutions`` (``K`` of them).
     """
     path = Path(path)
-    if not regular_entry(path):  # missing, or a pipe or device that would block the read
-        return None
-    try:
-        z = np.load(path, allow_pickle=False)
-    except FileNotFoundError:
-        return None
-    except UNREADABLE as exc:
-        logger.info("ignoring the unreadable prefilter cache entry %s (%r)", path, exc)
-        return None
-    if not isinstance(z, np.lib.npyio.NpzFile):  # a bare .npy file loads as one array
-        logger.info("ignoring %s: not a prefilter cache entry", path)
+    z = _open_entry(path, "prefilter")
+    if z is None:
         return None
     try:
         with z:
@@ -209,17 +218,8 @@ def read_cube(path: str | os.PathLike, key: str, res: int) -> np.ndarray | None:
     """The ``(6, res, res, 3)`` float32 cube map of an entry, or None when the file is missing,
     unreadable or not exactly the cube ``key`` at ``res`` (finite values included)."""
     path = Path(path)
-    if not regular_entry(path):  # missing, or a pipe or device that would block the read
-        return None
-    try:
-        z = np.load(path, allow_pickle=False)
-    except FileNotFoundError:
-        return None
-    except UNREADABLE as exc:
-        logger.info("ignoring the unreadable cube cache entry %s (%r)", path, exc)
-        return None
-    if not isinstance(z, np.lib.npyio.NpzFile):
-        logger.info("ignoring %s: not a cube cache entry", path)
+    z = _open_entry(path, "cube")
+    if z is None:
         return None
     try:
         with z:
