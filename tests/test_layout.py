@@ -26,6 +26,7 @@ LAYERS: list[tuple[str, ...]] = [
     ("model",),
     ("fit", "sgbrdf", "cosine"),
     ("render",),
+    ("web",),
     ("reference",),
     ("studies", "bench"),
     ("cli", "__main__"),

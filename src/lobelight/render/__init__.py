@@ -21,6 +21,8 @@
 - :class:`GLSGBRDFRenderer` the SG-mixture BRDF method (and FIS-40) in GLSL
   (``_gl_sgbrdf.py``, ``shaders/sgbrdf.glsl``); :func:`create_context` the headless context
   both OpenGL renderers use.
+- :func:`stage_sources` a shader file's two stages in a GLSL dialect (desktop 3.30, or the
+  web viewer's OpenGL ES 3.00), :func:`load_shader` a shader file's text.
 - :func:`gl_available` whether OpenGL works here; :func:`view` an interactive window
   (:func:`require_display` checks for a display first).
 - :func:`export_gltf` a model as a glTF 2.0 binary (mesh, fallback material, the lobe data as
@@ -32,7 +34,7 @@
 """
 
 from ..geometry.camera import Camera
-from ._gl import create_context, gl_available
+from ._gl import create_context, gl_available, load_shader, stage_sources
 from ._gl_sgbrdf import GLSGBRDFRenderer
 from ._gltf_out import GLTF_EXTENSION, export_gltf, fallback_material, import_gltf
 from ._lighting import Lighting, as_rotation
@@ -66,12 +68,14 @@ __all__ = [
     "fallback_material",
     "gl_available",
     "import_gltf",
+    "load_shader",
     "model_camera",
     "neutral",
     "orbit",
     "require_display",
     "sample_offsets",
     "save_image",
+    "stage_sources",
     "tonemap",
     "turntable",
     "view",

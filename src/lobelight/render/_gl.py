@@ -55,6 +55,7 @@ __all__ = [
     "gl_available",
     "load_shader",
     "set_uniforms",
+    "stage_sources",
     "upload_geodesic",
     "upload_prefiltered",
 ]
@@ -128,17 +129,21 @@ def load_shader(name: str) -> str:
     return resources.files("lobelight.render").joinpath("shaders", f"{name}.glsl").read_text()
 
 
-def _stage_sources(
+def stage_sources(
     name: str,
     defines: dict[str, int | str] | None = None,
     include: tuple = (),
     vertex_include: tuple = (),
+    *,
+    dialect: str = "#version 330\n",
 ) -> tuple[str, str]:
     """The vertex and fragment stage texts of shader file ``name`` (one file holding both
-    stages): the version line, the ``defines``, the stage's define, the text of the files that
-    ``vertex_include`` / ``include`` name (shared functions, e.g. ``"prefiltered"``,
-    ``"geodesic"``), then the file."""
-    head = "#version 330\n" + "".join(f"#define {k} {v}\n" for k, v in (defines or {}).items())
+    stages): ``dialect`` (the version line and whatever a GLSL dialect needs before the shared
+    text, e.g. OpenGL ES 3.00's precision statements), the ``defines``, the stage's define, the
+    text of the files that ``vertex_include`` / ``include`` name (shared functions, e.g.
+    ``"prefiltered"``, ``"geodesic"``), then the file. The desktop renderers and the web
+    viewer compile the same files this way, each with its own dialect."""
+    head = dialect + "".join(f"#define {k} {v}\n" for k, v in (defines or {}).items())
     src = load_shader(name)
 
     def lib(names):
@@ -157,8 +162,8 @@ def _program(
     include: tuple = (),
     vertex_include: tuple = (),
 ):
-    """A program of :func:`_stage_sources`' two stages."""
-    vertex, fragment = _stage_sources(name, defines, include, vertex_include)
+    """A program of :func:`stage_sources`' two stages."""
+    vertex, fragment = stage_sources(name, defines, include, vertex_include)
     return ctx.program(vertex_shader=vertex, fragment_shader=fragment)
 
 
