@@ -25,6 +25,8 @@ machine description (:func:`machine`).
   and where its time goes (:mod:`~lobelight.bench.start`)
 - :func:`bench_cluster` a bake on local Dask clusters against one process, with a projection
   across machines (:mod:`~lobelight.bench.cluster`)
+- :func:`bench_web` the WebGL 2 viewer's frames per second in headless chromium
+  (:mod:`~lobelight.bench.web`)
 - :func:`machine` where a benchmark ran; :func:`sync` waits for a device's queued work
 
 Each name is imported from its module when first used (the modules import what they measure:
@@ -54,6 +56,7 @@ _HOMES = {
     "bench_start": ".start",
     "bench_tables": ".cosine",
     "bench_transport": ".transport",
+    "bench_web": ".web",
     "machine": "._machine",
     "sync": "._machine",
     "synthetic_model": ".synthetic",

@@ -355,21 +355,36 @@ def _add_info(sub) -> None:
 
 
 def _add_export(sub) -> None:
-    ex = _command(sub, "export", "run_export", "write a model for other programs (--gltf OUT.glb)")
+    ex = _command(
+        sub, "export", "run_export", "write a model for other programs (--gltf OUT.glb, --web DIR)"
+    )
     ex.add_argument("model", help="a model file written by bake")
-    ex.add_argument(
+    out = ex.add_mutually_exclusive_group(required=True)
+    out.add_argument(
         "--gltf",
-        required=True,
         metavar="OUT.glb",
         help="glTF 2.0 binary: the mesh with a fallback material, and the model's lobe data "
-        "as LOBELIGHT_prt accessors (docs/gltf-export.md); required, no default",
+        "as LOBELIGHT_prt accessors (docs/gltf-export.md)",
     )
-    _env(ex, "written as the file's image-based light (EXT_lights_image_based; default: none)")
+    out.add_argument(
+        "--web",
+        metavar="DIR",
+        help="the self-contained WebGL 2 viewer: a folder that opens from file:// or any "
+        "static server, no network (docs/web-viewer.md); one of --gltf and --web is required",
+    )
+    _env(
+        ex,
+        "--gltf: written as the file's image-based light (EXT_lights_image_based; default: "
+        "none); --web: a map the page offers, repeat it for several (default: the model's, "
+        "else the built-in sky)",
+        repeat=True,
+    )
+    _sun(ex)
     ex.add_argument(
         "--float16",
         action=argparse.BooleanOptionalAction,
         default=True,
-        help="the lobe data as half floats (--no-float16: float32, twice the size)",
+        help="--gltf: the lobe data as half floats (--no-float16: float32, twice the size)",
     )
     _base_res(ex, 128)
 
@@ -446,6 +461,18 @@ def _add_view(sub) -> None:
     )
     _sun(v)
     _size(v, 1024, 768)
+    v.add_argument(
+        "--web",
+        action="store_true",
+        help="no window: write the WebGL 2 viewer to a temporary folder and serve it on "
+        "localhost (for a machine without a display: reach it through an SSH tunnel)",
+    )
+    v.add_argument(
+        "--port",
+        type=bounded_int(0, 65535),
+        default=8000,
+        help="--web: the local port (default: %(default)s; 0 picks a free one)",
+    )
 
 
 def _add_compare(sub) -> None:
@@ -570,10 +597,12 @@ def _add_bench(sub) -> None:
             "brdf-fit",
             "start",
             "cluster",
+            "web",
         ],
         help="which benchmark (all: every benchmark with a goal, on --device, in one run; "
         "start: a render's start in a new process, cold and warm; cluster: a bake on 1 and 2 "
-        "local Dask workers against one process, --scene, lobelight[cluster])",
+        "local Dask workers against one process, --scene, lobelight[cluster]; web: the WebGL 2 "
+        "viewer's frames per second in headless chromium, lobelight[web])",
     )
     _output(be, None, "bench all: JSON file of the results, rewritten after each benchmark "
             "(default: none, the summary on stdout only)")  # fmt: skip

@@ -13,7 +13,9 @@ import dataclasses
 import importlib
 import math
 import os
+import shutil
 import sys
+import tempfile
 import time
 import warnings
 from pathlib import Path
@@ -47,6 +49,7 @@ from ..render import (
 )
 from ..scene import Scene, default_camera
 from ..scene import load as load_scene
+from ..web import export_web, serve
 from ._gallery import gallery_main
 from ._limits import MAX_EXPOSURE
 from ._size import check_frames, check_image, parse_size
@@ -302,12 +305,16 @@ def _check_gltf_output(path: str) -> Path:
 
 
 def run_export(args) -> dict:
+    if args.web is not None:
+        return _run_export_web(args)
     out = _check_gltf_output(args.gltf)
     _check_base_res(args)
+    if args.env is not None and len(args.env) > 1:
+        raise InputError("--env", "--gltf writes one image-based light: give one map")
     m = _said(load_model, args.model)
     lighting = None
     if args.env is not None:
-        lighting = Lighting(_env(args.env), base_res=args.base_res, device=args.device)
+        lighting = Lighting(_env(args.env[0]), base_res=args.base_res, device=args.device)
     check_outputs(out)  # the model and the map were read: neither is written over
     t0 = time.perf_counter()
     info = export_gltf(m, out, lighting=lighting, float16=args.float16)
@@ -315,9 +322,40 @@ def run_export(args) -> dict:
         "command": "export",
         "output": str(out),
         "format": "gltf",
-        "environment": None if args.env is None else _env_source(args.env),
+        "environment": None if args.env is None else _env_source(args.env[0]),
         "float16": args.float16,
         **info,
+        "seconds": time.perf_counter() - t0,
+    }
+
+
+def _web_inputs(args, m) -> tuple[list, list[str]]:
+    """``--env`` maps of a web export (default: the model's own, else the built-in sky) and
+    the paths read: the model file and the map files."""
+    sources = [_env_source(path, m.provenance) for path in (args.env or [None])]
+    envs = [builtin() if s == "builtin" else load_env(_env_file(s)) for s in sources]
+    inputs = [args.model] + [_env_file(s) for s in sources if s != "builtin"]
+    return envs, inputs
+
+
+def _run_export_web(args) -> dict:
+    """``export MODEL --web DIR``: the viewer's folder, written atomically."""
+    _check_base_res(args)
+    out = Path(args.web)
+    if out.exists() and not out.is_dir():
+        raise InputError(str(out), "is a file: --web writes a folder")
+    m = _said(load_model, args.model)
+    envs, inputs = _web_inputs(args, m)
+    t0 = time.perf_counter()
+    info = export_web(
+        m, out, envs, base_res=args.base_res, sun=args.sun, device=args.device, inputs=inputs
+    )
+    return {
+        "command": "export",
+        "format": "web",
+        "environments": [e.name for e in envs],
+        **info,
+        "open": f"file://{out.resolve()}/index.html",
         "seconds": time.perf_counter() - t0,
     }
 
@@ -584,12 +622,35 @@ def run_render(args) -> dict:
 
 
 def run_view(args) -> dict:
-    require_display()  # no model is loaded where no window can open
+    if args.web:
+        return _run_view_web(args)
+    try:
+        require_display()  # no model is loaded where no window can open
+    except InputError as e:
+        raise InputError(
+            "view",
+            f"{e.problem}; or serve the viewer to a browser: lobelight view --web MODEL "
+            "[--port P] (through an SSH tunnel from another machine)",
+        ) from None
     # checked before a window opens; its stored environment is the default
     m = _said(load_model, args.model)
     width, height = _size(args)
     envs = [_env(path, m.provenance) for path in (args.env or [None])]  # each read at the door
     return view(m, env=envs, width=width, height=height, sun=args.sun)
+
+
+def _run_view_web(args) -> dict:
+    """``view --web MODEL``: the viewer written to a temporary folder and served on
+    localhost until interrupted; the folder is removed after."""
+    m = _said(load_model, args.model)
+    envs, inputs = _web_inputs(args, m)
+    tmp = Path(tempfile.mkdtemp(prefix="lobelight-web-"))
+    try:
+        info = export_web(m, tmp / "viewer", envs, sun=args.sun, inputs=inputs)
+        serve(tmp / "viewer", args.port, announce=lambda line: print(line, flush=True))
+    finally:
+        shutil.rmtree(tmp, ignore_errors=True)
+    return {"command": "view", "web": True, "bytes": info["bytes"], "port": args.port}
 
 
 #: Scene arguments that are bare meshes: they bring a mesh and nothing else (their material is
@@ -818,12 +879,8 @@ def run_bench(args) -> dict:
             budget_seconds=args.budget,
             progress=_progress(args),
         )
-    if w == "rays":
-        return bench_rays(device=args.device)
-    if w == "cluster":
-        return bench.bench_cluster(scene=args.scene)
-    if w == "start":  # --repeats: the warm runs
-        return bench.bench_start(**({} if args.repeats is None else {"runs": args.repeats}))
+    if w in ("rays", "cluster", "web", "start"):
+        return _run_bench_other(args)
     if w == "prefilter":
         _check_base_res(args)
         return bench.bench_prefilter(base_res=args.base_res, device=args.device, **reps)
@@ -853,6 +910,19 @@ def run_bench(args) -> dict:
     if w == "brdf-fit":
         return bench_brdf_fit(material=args.material, device=args.device)
     raise AssertionError(w)
+
+
+def _run_bench_other(args) -> dict:
+    """The benchmarks of ``bench`` with few options: rays, cluster, web, start."""
+    w = args.what
+    if w == "rays":
+        return bench_rays(device=args.device)
+    if w == "cluster":
+        return bench.bench_cluster(scene=args.scene)
+    if w == "web":
+        return bench.bench_web()
+    # start; --repeats: the warm runs
+    return bench.bench_start(**({} if args.repeats is None else {"runs": args.repeats}))
 
 
 def run_demo(args) -> dict:

@@ -1,0 +1,113 @@
+"""The WebGL 2 viewer's frames per second in a headless browser (``lobelight bench web``).
+
+Each case exports a synthetic model (:func:`lobelight.bench.synthetic_model`, a sphere of about
+10K or 50K vertices, N Gaussians per view) under the built-in sky with its sun
+(:func:`lobelight.web.export_web`), opens the page in the system's chromium (Playwright for
+Python; ``--headless=new --use-angle=swiftshader``: WebGL 2 on SwiftShader, the CPU) at a fixed
+canvas size, and times the page's own frames (its script's ``benchmark`` hook: draw, tone-map
+into the canvas, read one pixel back, so each frame is finished before the next). The folder's size
+and the page's load time are recorded beside them, with the machine's load average: the
+machine may be shared.
+"""
+
+from __future__ import annotations
+
+import os
+import shutil
+import tempfile
+import time
+from pathlib import Path
+
+from ..envmap import builtin
+from ..errors import InputError
+from ..render import Lighting
+from ..web import export_web
+from ._machine import machine
+from .synthetic import synthetic_model
+
+__all__ = ["bench_web"]
+
+#: Chromium's flags for WebGL 2 on SwiftShader without a display.
+CHROMIUM_FLAGS = (
+    "--headless=new",
+    "--no-sandbox",
+    "--use-angle=swiftshader",
+    "--enable-unsafe-swiftshader",
+)
+
+
+def _chromium() -> str:
+    path = shutil.which("chromium") or shutil.which("chromium-browser")
+    if path is None:
+        raise InputError("bench web", "needs the system chromium (apt-get install chromium)")
+    return path
+
+
+def _page_fps(browser, folder: Path, size: int, frames: int) -> dict:
+    """Load time and frames per second of the page at ``size`` squared."""
+    page = browser.new_page(viewport={"width": size + 40, "height": size + 40})
+    t0 = time.perf_counter()
+    page.goto(f"file://{folder}/index.html?size={size}x{size}&still=1")
+    page.wait_for_function("window.lobelight && window.lobelight.ready")
+    page.evaluate("window.lobelight.ready")
+    load = time.perf_counter() - t0
+    status = page.evaluate("window.lobelight.status")
+    if not status["ok"]:
+        page.close()
+        return {"error": status["message"], "load_seconds": load}
+    r = page.evaluate("n => window.lobelight.benchmark(n, 2)", frames)
+    renderer = page.evaluate(
+        "() => { const gl = window.lobelight.viewer.gl;"
+        " const e = gl.getExtension('WEBGL_debug_renderer_info');"
+        " return e ? gl.getParameter(e.UNMASKED_RENDERER_WEBGL) : gl.getParameter(gl.RENDERER); }"
+    )
+    page.close()
+    return {"fps": r["fps"], "frames": r["frames"], "load_seconds": load, "renderer": renderer}
+
+
+def bench_web(
+    *,
+    vertices: tuple[int, ...] = (10_000, 50_000),
+    gaussians: tuple[int, ...] = (1, 3),
+    sizes: tuple[int, ...] = (512, 1024),
+    frames: int = 10,
+) -> dict:
+    """Frames per second of the web viewer per (vertices, Gaussians, canvas size) (module
+    docstring). Needs chromium and ``lobelight[web]`` (Playwright)."""
+    try:
+        from playwright.sync_api import sync_playwright  # optional (the web extra)
+    except ImportError:
+        raise InputError("bench web", "needs Playwright: pip install 'lobelight[web]'") from None
+    exe = _chromium()
+    lighting = Lighting(builtin(), sun=True)
+    load_before = os.getloadavg()
+    cases = []
+    tmp = Path(tempfile.mkdtemp(prefix="lobelight-bench-web-"))
+    try:
+        with sync_playwright() as p:
+            browser = p.chromium.launch(executable_path=exe, args=list(CHROMIUM_FLAGS))
+            for v in vertices:
+                for n in gaussians:
+                    model = synthetic_model(v, n, vary=True)
+                    folder = tmp / f"v{v}-n{n}"
+                    info = export_web(model, folder, [lighting])
+                    for size in sizes:
+                        r = _page_fps(browser, folder, size, frames)
+                        cases.append({
+                            "vertices": model.mesh.n_vertices,
+                            "gaussians": n,
+                            "size": size,
+                            "folder_bytes": info["bytes"],
+                            **r,
+                        })  # fmt: skip
+            browser.close()
+    finally:
+        shutil.rmtree(tmp, ignore_errors=True)
+    return {
+        "benchmark": "web",
+        "browser": f"{exe} {' '.join(CHROMIUM_FLAGS)}",
+        "cases": cases,
+        "load_average_before": load_before,
+        "load_average_after": os.getloadavg(),
+        "machine": machine("cpu"),
+    }

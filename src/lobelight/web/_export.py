@@ -1,0 +1,519 @@
+"""The web viewer's folder: a model, its maps and the page, written and read back.
+
+:func:`export_web` writes a folder that a browser opens from ``file://`` or any static server
+(no network, no build step): ``index.html`` and ``viewer.js`` (the page, package data),
+``shaders.js`` (the shared shader files in the page's GLSL ES 3.00 dialect, assembled by
+:func:`lobelight.render.stage_sources`), ``model.js`` and one ``env-K.js`` per map (data files
+of :mod:`._format`). :func:`read_web` loads a folder back and checks it. The layout is
+``docs/web-viewer.md``'s; the page uploads what the desktop renderer uploads
+(``render/_gl.py``), built here from public data.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import shutil
+import tempfile
+from dataclasses import dataclass
+from importlib import resources
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from .. import model as model_module
+from ..brdf import sharp_lobe
+from ..envmap import EnvMap, Prefiltered
+from ..errors import InputError
+from ..geometry import sphere
+from ..lobes import sg, sh
+from ..render import Lighting, model_camera, stage_sources
+from ._format import read_data_file, write_data_file
+
+__all__ = [
+    "BACKGROUND_RES",
+    "WEB_VERSION",
+    "WebFolder",
+    "dialect",
+    "export_web",
+    "read_web",
+    "shader_variant",
+]
+
+#: Version of the folder's layout (the model file's ``header.version``).
+WEB_VERSION = 1
+#: Largest face resolution of the background's cube map in the folder.
+BACKGROUND_RES = 256
+#: The desktop renderer's constants the page must share (render/_gl.py, render/_sun_shadow.py:
+#: the candidate table's resolution, the shadow map's texels, the soft shadow's taps).
+CAND_RES = 32
+SHADOW_RES = 4096
+SHADOW_SAMPLES = 32
+BLOCKER_SAMPLES = 16
+#: Directions at which the page evaluates the rotated SH lighting to refit its coefficients
+#: (a Fibonacci sphere: more than the 25 coefficients, well conditioned).
+SH_FIT_DIRECTIONS = 64
+#: The largest finite half float; brighter texels are clipped to it (the SH keep their light).
+HALF_MAX = 65504.0
+#: Files of the page copied from the package's assets.
+_PAGE_FILES = ("index.html", "viewer.js")
+#: The marker that a folder is one this module wrote (it may be replaced as a whole).
+_MARKER = "model.js"
+
+
+def dialect() -> str:
+    """The page's GLSL ES 3.00 header (``web/assets/es300.glsl``): the version line and the
+    precision statements, given to :func:`lobelight.render.stage_sources` as ``dialect``."""
+    return resources.files("lobelight.web").joinpath("assets", "es300.glsl").read_text()
+
+
+@dataclass(frozen=True)
+class WebFolder:
+    """A web folder read back (:func:`read_web`): the model file's header and arrays, each
+    map's, and the shader variants by key."""
+
+    path: Path
+    header: dict
+    arrays: dict
+    envs: list
+    shaders: dict
+
+
+def _f16(x) -> np.ndarray:
+    """float16 of ``x`` with magnitudes clipped to the largest finite half float."""
+    a = np.asarray(x, np.float64)
+    return np.clip(a, -HALF_MAX, HALF_MAX).astype("<f2")
+
+
+def _np(t: torch.Tensor, dtype) -> np.ndarray:
+    return t.detach().cpu().numpy().astype(dtype)
+
+
+def _kept(w: torch.Tensor) -> torch.Tensor:
+    """(V, J) records some rendering sees: light at the view or at a geodesic neighbour (the
+    model file's and the glTF export's rule)."""
+    live = w.amax((-1, -2)) > 0  # (V, J)
+    nbr = sphere.geodesic_neighbor_table(device=w.device)  # (J, 6), -1 padded
+    near = live[:, nbr.clamp_min(0)] & (nbr >= 0)  # (V, J, 6)
+    return live | near.any(-1)
+
+
+def _records(model) -> dict[str, np.ndarray]:
+    """The stored records as half floats: ``flags (V, J)`` (bit 0 stored, bit 1 the view above
+    the vertex's horizon), then per stored record (row-major) and Gaussian the light it
+    carries ``light (K, N, 3)``, its width ``sigma (K, N)`` and mean ``mean (K, N, 3)``.
+
+    A record whose light is live (mean over RGB at least ``LIVE_FLOOR``) but rounds to zero in
+    half floats keeps the smallest half float: the live rule blends widths and means over the
+    live records, and a record must not die on the way."""
+    g = model.gaussians
+    keep = _kept(g.w)  # (V, J)
+    above = (model.views[None] * model.mesh.normals[:, None]).sum(-1) > 0  # (V, J)
+    flags = keep.to(torch.uint8) | (above.to(torch.uint8) << 1)
+    e = g.w.double() * sg.integral(g.lam.double())[..., None]  # (V, J, N, 3)
+    light = _f16(_np(e[keep], np.float64))  # (K, N, 3)
+    live = e[keep].mean(-1).cpu().numpy() >= model_module.LIVE_FLOOR  # (K, N)
+    dead16 = light.astype(np.float32).mean(-1) < model_module.LIVE_FLOOR
+    light[live & dead16] = np.float16(2.0**-24)
+    return {
+        "flags": _np(flags, np.uint8),
+        "light": light,
+        "sigma": _f16(_np(g.lam[keep].double().rsqrt(), np.float64)),
+        "mean": _f16(_np(g.mu[keep], np.float64)),
+    }
+
+
+def _geodesic() -> tuple[dict[str, np.ndarray], int]:
+    """What ``geodesic.glsl`` reads: the planes ``(540, 4)`` (three great-circle normals per
+    triangle, ``.w`` the opposite corner's view) and the candidate image ``(6 R, R T, 4)``
+    (-1 padded), as ``render/_gl.py`` builds them; and ``T`` (CAND_TEXELS)."""
+    planes, faces = sphere.face_planes(torch.float32, torch.device("cpu"))
+    pl = torch.cat([planes.T.reshape(180, 3, 3), faces.reshape(180, 3, 1).float()], -1)
+    cand = sphere.triangle_candidates(CAND_RES)  # (6, R, R, K)
+    texels = -(-cand.shape[-1] // 4)
+    cand = torch.nn.functional.pad(cand, (0, 4 * texels - cand.shape[-1]), value=-1)
+    img = cand.reshape(6 * CAND_RES, CAND_RES * texels, 4).numpy().astype("<i2")
+    return {"planes": pl.reshape(540, 4).numpy().astype("<f4"), "candidates": img}, texels
+
+
+def _fibonacci(n: int) -> np.ndarray:
+    """``(n, 3)`` float64 unit directions of a Fibonacci sphere."""
+    i = np.arange(n) + 0.5
+    z = 1 - 2 * i / n
+    r = np.sqrt(1 - z * z)
+    a = i * math.pi * (3 - math.sqrt(5))
+    return np.stack([r * np.cos(a), r * np.sin(a), z], -1)
+
+
+def _sh_fit(order: int) -> dict[str, np.ndarray]:
+    """The page's SH rotation: the rotated lighting's coefficients are ``fit @ (Y(R^T d_i) c)``
+    with ``fit`` the pseudo-inverse of the basis at the directions ``d_i`` (exact: a rotation
+    keeps each band)."""
+    d = _fibonacci(SH_FIT_DIRECTIONS)
+    y = sh.basis(torch.from_numpy(d), order).numpy()  # (D, n^2)
+    return {"sh_dirs": d.astype("<f4"), "sh_fit": np.linalg.pinv(y).astype("<f4")}
+
+
+def _atlas(pf: Prefiltered) -> tuple[np.ndarray, dict]:
+    """Every prefiltered level's padded faces in one ``(H, W, 3)`` half-float image (six faces
+    side by side per level, levels stacked: the desktop renderer's atlas) and the uniforms
+    ``prefiltered.glsl`` reads of it."""
+    base = pf.base_res
+    pads = [p.detach().cpu().numpy() for p in pf.padded]  # (6, P, P, 3) each
+    width = 6 * (base + 2)
+    atlas = np.zeros((sum(p.shape[1] for p in pads), width, 3), np.float32)
+    rows, res, y = [], [], 0
+    for p in pads:  # a loop over levels and their six faces, not texels
+        size = p.shape[1]
+        for f in range(6):
+            atlas[y : y + size, f * size : (f + 1) * size] = p[f]
+        rows.append(float(y))
+        res.append(float(size - 2))
+        y += size
+    uniforms = {
+        "atlas_size": [float(width), float(atlas.shape[0])],
+        "level_y": rows,
+        "level_res": res,
+        "n_levels": len(pf.levels),
+        "lam0": float(pf.lambdas[0]),
+        "log_rho": float(torch.log(pf.lambdas[0] / pf.lambdas[1])),
+    }
+    return _f16(atlas), uniforms
+
+
+def _sun_glossy_supported(spec) -> bool:
+    """Whether the desktop renderer shades the sun's glossy reflection off ``spec`` per pixel
+    (the BRDF has a shader formula, :attr:`lobelight.brdf.BRDF.sun_model`)."""
+    return spec is not None and spec.sun_model is not None
+
+
+def _sun_vertex_params(spec, spread: float, n_vertices: int) -> np.ndarray:
+    """Per-vertex parameters of the sun's glossy BRDF, ``(V, 10)`` float32 (or ``(1, 10)``
+    when every vertex has the same): the lobe widened by the disc
+    (:meth:`lobelight.brdf.BRDF.sun_widened`), then its ``sun_param``, specular RGB (1 where
+    the model has none), eta RGB (``f0`` for Schlick's Fresnel term), k RGB (0 where none)."""
+    if spread > 0:
+        spec = spec.sun_widened(spread)
+    v = n_vertices
+
+    def per_vertex(name: str, width: int) -> torch.Tensor:
+        if name not in spec.params:
+            return torch.full((v, width), 1.0 if name == "specular" else 0.0)
+        t = spec.params[name].detach().cpu().float()
+        if t.ndim == 0:
+            return t.expand(v, width)
+        return t.reshape(-1, width).expand(v, width)
+
+    parts = ((spec.sun_param, 1), ("specular", 3), ("f0" if spec.schlick else "eta", 3), ("k", 3))
+    out = torch.cat([per_vertex(n, w) for n, w in parts], 1).numpy().astype("<f4")
+    return out[:1] if bool((out == out[:1]).all()) else out
+
+
+def shader_variant(has_sun: bool, sun_glossy: bool, bounce: bool, levels: int) -> str:
+    """The key of the shader variant a map needs (``shaders.js``)."""
+    return f"sun{int(has_sun)}-glossy{int(sun_glossy)}-bounce{int(bounce)}-levels{levels}"
+
+
+def _programs(model, n_sh: int, texels: int, key_args: tuple) -> dict[str, list[str]]:
+    """The page's programs of one variant as ES 3.00 stage texts: the object's shading and
+    depth pre-pass (prt.glsl), the shadow map's, the background's and the tone mapping's."""
+    has_sun, sun_glossy, bounce, levels = key_args
+    es = dialect()
+    defines = {
+        "N_GAUSSIANS": model.n_gaussians,
+        "N_INDIRECT": model.indirect_gaussians,
+        "N_SH": n_sh,
+        "MAX_LEVELS": levels,
+        "FLOOR": f"{model_module.LIVE_FLOOR:.6e}",
+        "MIN_SAY": f"{model_module.MIN_SAY:.6e}",
+        "HAS_BOUNCE": int(bounce),
+        "HAS_SUN": int(has_sun),
+        "SUN_GLOSSY": int(sun_glossy),
+        "SHARP": 0,
+        "ALBEDO_TEX": 0,
+        "ALBEDO_LAYERS": 1,
+        "VERTEX_TABLE": 0,
+        "TABLE_WIDTH": 4096,
+        "TABLE_ROWS": 1,
+        "SHADOW_SAMPLES": SHADOW_SAMPLES,
+        "BLOCKER_SAMPLES": BLOCKER_SAMPLES,
+        "CAND_RES": CAND_RES,
+        "CAND_TEXELS": texels,
+    }
+    frame = ("frame",)
+    return {
+        "prt": list(
+            stage_sources(
+                "prt",
+                {**defines, "DEPTH_ONLY": 0},
+                ("frame", "prefiltered"),
+                ("frame", "geodesic"),
+                dialect=es,
+            )
+        ),
+        "depth": list(stage_sources("prt", {**defines, "DEPTH_ONLY": 1}, frame, frame, dialect=es)),
+        "shadow": list(stage_sources("shadow", {"N_SH": n_sh}, frame, frame, dialect=es)),
+        "background": list(stage_sources("background", {"N_SH": n_sh}, frame, frame, dialect=es)),
+        "tonemap": list(stage_sources("tonemap", dialect=es)),
+    }
+
+
+def _check_model(model) -> list[str]:
+    """What the page cannot show of ``model``: an error for what it would show wrongly, the
+    notes (shown by the page) for what it shows in part."""
+    if model.albedo is not None:
+        raise InputError(
+            "model",
+            "has albedo textures (its diffuse transfer is per unit albedo), which the web "
+            "viewer does not read yet: use lobelight view or render",
+        )
+    notes = []
+    if sharp_lobe(model.materials.specular) is not None:
+        notes.append(
+            "The material's sharp reflection is shaded per pixel on the desktop "
+            "(visibility and hit tiles); the web viewer shows its fitted Gaussians instead."
+        )
+    return notes
+
+
+def _model_file(model) -> tuple[dict, dict[str, np.ndarray], int]:
+    """The model data file's header and arrays, and CAND_TEXELS."""
+    mesh = model.mesh
+    verts = mesh.vertices.detach().cpu().double()
+    center = verts.mean(0)
+    radius = float((verts - center).norm(dim=-1).max())
+    geo, texels = _geodesic()
+    n_sh = int(model.diffuse.shape[1])
+    arrays = {
+        "positions": _np(mesh.vertices, "<f4"),
+        "normals": _np(mesh.normals, "<f4"),
+        "faces": _np(mesh.faces, "<u4"),
+        "albedo": _np(model.materials.diffuse.expand(mesh.n_vertices, 3), "<f4"),
+        **_records(model),
+        "diffuse": _f16(_np(model.diffuse, np.float64)),
+        **geo,
+        **_sh_fit(math.isqrt(n_sh)),
+    }
+    if model.bounce is not None:
+        arrays["bounce"] = _f16(_np(model.bounce, np.float64))
+    cam = model_camera(model)
+    spec = model.materials.specular
+    header = {
+        "version": WEB_VERSION,
+        "n_vertices": mesh.n_vertices,
+        "n_faces": int(mesh.faces.shape[0]),
+        "n_views": int(model.views.shape[0]),
+        "n_gaussians": model.n_gaussians,
+        "indirect_gaussians": model.indirect_gaussians,
+        "n_sh": n_sh,
+        "records": int(arrays["light"].shape[0]),
+        "center": center.tolist(),
+        "radius": radius,
+        "camera": {
+            "origin": list(cam.origin),
+            "target": list(cam.target),
+            "up": list(cam.up),
+            "fov": cam.fov,
+            "fov_axis": cam.fov_axis,
+        },
+        "sun_glossy": _sun_glossy_supported(spec),
+        "shadow": {"res": SHADOW_RES, "samples": SHADOW_SAMPLES, "blockers": BLOCKER_SAMPLES},
+        "notes": _check_model(model),
+        "name": str((model.provenance or {}).get("scene", "model")),
+    }
+    return header, arrays, texels
+
+
+def _env_file(model, lighting: Lighting, sun_glossy_spec: bool) -> tuple[dict, dict, tuple]:
+    """One map's data file header and arrays, and its shader variant's arguments."""
+    has_sun = lighting.sun is not None
+    sun_glossy = has_sun and sun_glossy_spec
+    pf = lighting.rest_prefiltered if sun_glossy else lighting.prefiltered
+    atlas, uniforms = _atlas(pf)
+    # about the map's own texel density (a lat-long row spans four faces), at most 256
+    width = int(lighting.env.data.shape[1])
+    res = int(min(BACKGROUND_RES, max(16, 2 ** math.ceil(math.log2(max(width // 4, 1))))))
+    cube = lighting.env.to_cubemap(res, cache=True)
+    arrays = {
+        "atlas": atlas,
+        "background": _f16(_np(cube, np.float64)),
+        "sh": _np(lighting.sh, "<f4"),
+    }
+    header = {
+        "name": lighting.name,
+        "prefiltered": uniforms,
+        "base_res": pf.base_res,
+        "sun": None,
+        "has_bounce": bool(model.bounce is not None and has_sun),
+        "sun_glossy": sun_glossy,
+    }
+    if has_sun:
+        sun = lighting.sun
+        spec = model.materials.specular
+        header["sun"] = {
+            "direction": _np(sun.direction, np.float64).tolist(),
+            "irradiance": _np(sun.irradiance, np.float64).tolist(),
+            "spread": float(sun.spread),
+            # the shadow's disc: a uniform disc of the sun's RMS angle (render/_sun_shadow.py)
+            "tan": math.tan(math.sqrt(2.0) * float(sun.spread)),
+        }
+        if sun_glossy:
+            v = model.mesh.n_vertices
+            arrays["sun_params"] = _sun_vertex_params(spec, float(sun.spread), v)
+            fresnel = 2.0 if spec.schlick else float(spec.fresnel)
+            header["sun_brdf"] = {"model": int(spec.sun_model), "fresnel": fresnel}
+    key_args = (has_sun, sun_glossy, header["has_bounce"], len(pf.levels))
+    header["variant"] = shader_variant(*key_args)
+    return header, arrays, key_args
+
+
+def _as_lighting(env, *, base_res: int, sun: bool, device) -> Lighting:
+    if isinstance(env, Lighting):
+        return env
+    if not isinstance(env, EnvMap):
+        raise InputError("envs", f"expected EnvMaps or Lightings, got {type(env).__name__}")
+    return Lighting(env, base_res=base_res, sun=sun, device=device)
+
+
+def _check_out(out: Path, inputs) -> None:
+    """``out`` may be made, or replaced when it is a folder this module wrote; never a file
+    read as an input or a folder holding one."""
+    if out.exists() and not out.is_dir():
+        raise InputError(str(out), "is a file: name a folder for the web viewer")
+    if out.is_dir() and any(out.iterdir()) and not (out / _MARKER).is_file():
+        raise InputError(str(out), "is a folder that is not a web export: not written over")
+    if not out.parent.is_dir():
+        raise InputError(str(out), f"the directory {str(out.parent)!r} does not exist")
+    res = out.resolve()
+    for p in inputs:
+        q = Path(p).resolve()
+        if q == res or res in q.parents:
+            raise InputError(str(out), f"holds an input ({p}): not written over")
+
+
+def export_web(
+    model,
+    out,
+    envs,
+    *,
+    base_res: int = 128,
+    sun: bool = True,
+    device=None,
+    inputs=(),
+) -> dict:
+    """Write the web viewer's folder for ``model`` under the maps ``envs`` (EnvMaps or
+    Lightings, the first shown first) at ``out``, atomically: a temporary folder beside it,
+    renamed into place (an earlier export there is replaced whole).
+
+    ``inputs``: paths the caller read (the model file, the maps): ``out`` must not be one or
+    hold one. Returns ``{"output", "files": {name: bytes}, "bytes", "notes"}``."""
+    out = Path(out)
+    envs = list(envs)
+    if not envs:
+        raise InputError("envs", "give at least one map")
+    _check_out(out, inputs)
+    lightings = [_as_lighting(e, base_res=base_res, sun=sun, device=device) for e in envs]
+    header, arrays, texels = _model_file(model)
+    n_sh = header["n_sh"]
+    for li in lightings:
+        if li.sh.shape[0] != n_sh:
+            raise InputError("envs", f"{li.name}: {li.sh.shape[0]} SH coefficients, model {n_sh}")
+    tmp = Path(tempfile.mkdtemp(prefix=f".{out.name}.", suffix=".partial", dir=out.parent))
+    try:
+        files = {}
+        variants = {}
+        header["envs"] = []
+        for i, li in enumerate(lightings):
+            eh, ea, key_args = _env_file(model, li, header["sun_glossy"])
+            name = f"env-{i}.js"
+            files[name] = write_data_file(tmp / name, "env", eh, ea)
+            header["envs"].append({"name": eh["name"], "file": name})
+            if eh["variant"] not in variants:
+                variants[eh["variant"]] = _programs(model, n_sh, texels, key_args)
+        files["model.js"] = write_data_file(tmp / "model.js", "model", header, arrays)
+        files["shaders.js"] = write_data_file(tmp / "shaders.js", "shaders", variants, {})
+        assets = resources.files("lobelight.web").joinpath("assets")
+        for name in _PAGE_FILES:
+            (tmp / name).write_bytes(assets.joinpath(name).read_bytes())
+            files[name] = (tmp / name).stat().st_size
+        read_web(tmp)  # what the page will read passes our own reader
+        _replace(tmp, out)
+    except BaseException:
+        shutil.rmtree(tmp, ignore_errors=True)
+        raise
+    return {
+        "output": str(out),
+        "files": files,
+        "bytes": sum(files.values()),
+        "notes": header["notes"],
+    }
+
+
+def _replace(tmp: Path, out: Path) -> None:
+    """Rename the finished folder ``tmp`` to ``out``; an earlier export there is moved aside
+    first and removed after."""
+    os.chmod(tmp, 0o755)
+    if not out.exists():
+        os.replace(tmp, out)
+        return
+    old = Path(tempfile.mkdtemp(prefix=f".{out.name}.", suffix=".old", dir=out.parent))
+    old.rmdir()
+    os.replace(out, old)
+    os.replace(tmp, out)
+    shutil.rmtree(old, ignore_errors=True)
+
+
+def _check_model_arrays(path: Path, h: dict, a: dict) -> None:
+    """The model file's arrays against its header's counts."""
+    v, f, j, n, s, k = (h["n_vertices"], h["n_faces"], h["n_views"], h["n_gaussians"],
+                        h["n_sh"], h["records"])  # fmt: skip
+    want = {
+        "positions": (v, 3),
+        "normals": (v, 3),
+        "faces": (f, 3),
+        "albedo": (v, 3),
+        "flags": (v, j),
+        "light": (k, n, 3),
+        "sigma": (k, n),
+        "mean": (k, n, 3),
+        "diffuse": (v, s, 3),
+        "planes": (540, 4),
+    }
+    for name, shape in want.items():
+        if name not in a or tuple(a[name].shape) != shape:
+            got = None if name not in a else tuple(a[name].shape)
+            raise InputError(str(path), f"array {name} has shape {got}, expected {shape}")
+    if int((a["flags"] & 1).sum()) != k:
+        raise InputError(str(path), f"flags mark {int((a['flags'] & 1).sum())} records, not {k}")
+    if f and int(a["faces"].max()) >= v:
+        raise InputError(str(path), "a face names a vertex past the last")
+    if "bounce" in a and a["bounce"].shape != (v, s, 3):
+        raise InputError(str(path), f"array bounce has shape {a['bounce'].shape}")
+
+
+def read_web(path) -> WebFolder:
+    """Load a web folder back and check it: every file present, the model's arrays against its
+    counts, each map's arrays and shader variant. One :class:`InputError` naming the problem."""
+    path = Path(path)
+    for name in (*_PAGE_FILES, "shaders.js", "model.js"):
+        if not (path / name).is_file():
+            raise InputError(str(path), f"has no {name}: not a web export")
+    header, arrays = read_data_file(path / "model.js", "model")
+    if header.get("version") != WEB_VERSION:
+        raise InputError(str(path), f"layout version {header.get('version')}, not {WEB_VERSION}")
+    _check_model_arrays(path / "model.js", header, arrays)
+    shaders, _ = read_data_file(path / "shaders.js", "shaders")
+    envs = []
+    for rec in header["envs"]:
+        eh, ea = read_data_file(path / rec["file"], "env")
+        if eh["variant"] not in shaders:
+            raise InputError(str(path / rec["file"]), f"needs shader variant {eh['variant']}")
+        sh_shape = (header["n_sh"], 3)
+        if ea["sh"].shape != sh_shape or ea["background"].shape[0] != 6:
+            raise InputError(str(path / rec["file"]), "has an SH or background of another shape")
+        atlas = ea["atlas"].shape
+        if list(atlas[1::-1]) != [int(x) for x in eh["prefiltered"]["atlas_size"]]:
+            raise InputError(str(path / rec["file"]), "its atlas does not match its size")
+        envs.append((eh, ea))
+    return WebFolder(path, header, arrays, envs, shaders)

@@ -1,0 +1,998 @@
+// lobelight's WebGL 2 viewer: a fitted model relit under environment maps, shaded by the
+// desktop renderer's own shader files (lobelight/render/shaders, assembled in the GLSL ES 3.00
+// dialect into shaders.js). The textures, uniform blocks and vertex attributes are the ones
+// lobelight/render/_gl.py uploads; docs/web-viewer.md describes the data files and this page.
+// A classic script (not a module): a page opened from file:// may load classic scripts only.
+"use strict";
+
+(function () {
+  const store = { env: [] };
+  const waiting = { env: [] };
+
+  // every data file calls this: lobelight_data(kind, {header, arrays})
+  window.lobelight_data = function (kind, doc) {
+    if (kind === "env") {
+      const resolve = waiting.env.shift();
+      if (resolve) resolve(doc);
+      return;
+    }
+    store[kind] = doc;
+  };
+
+  // ---------------------------------------------------------------------------------------
+  // data
+
+  function bytesOf(b64) {
+    const s = atob(b64);
+    const n = s.length;
+    const out = new Uint8Array(n);
+    for (let i = 0; i < n; ++i) out[i] = s.charCodeAt(i);
+    return out;
+  }
+
+  const ARRAY_TYPES = {
+    "<f4": Float32Array, "<f2": Uint16Array, "<u4": Uint32Array, "|u1": Uint8Array,
+    "<i2": Int16Array,
+  };
+
+  function decode(rec) {
+    const bytes = bytesOf(rec.b64);
+    const T = ARRAY_TYPES[rec.dtype];
+    if (!T) throw new Error("unknown array type " + rec.dtype);
+    return { data: new T(bytes.buffer), shape: rec.shape };
+  }
+
+  function decodeAll(doc) {
+    const out = {};
+    for (const k in doc.arrays) out[k] = decode(doc.arrays[k]);
+    return out;
+  }
+
+  function loadScript(src) {
+    return new Promise(function (resolve, reject) {
+      const s = document.createElement("script");
+      s.src = src;
+      s.onerror = function () { reject(new Error("cannot load " + src)); };
+      waiting.env.push(resolve);
+      document.head.appendChild(s);
+    });
+  }
+
+  // half-float bits of a number (round to nearest even), for the few values made here
+  const f32 = new Float32Array(1);
+  const u32 = new Uint32Array(f32.buffer);
+  function toHalf(x) {
+    f32[0] = x;
+    const b = u32[0];
+    const sign = (b >>> 16) & 0x8000;
+    const e = ((b >>> 23) & 0xff) - 127 + 15;
+    let m = b & 0x7fffff;
+    if (e >= 31) return sign | 0x7c00;
+    if (e <= 0) {
+      if (e < -10) return sign;
+      m = (m | 0x800000) >> (1 - e);
+      return sign | ((m + 0x1000) >> 13);
+    }
+    return sign | ((e << 10) + ((m + 0x1000) >> 13));
+  }
+  const HALF_ONE = toHalf(1.0);
+
+  // ---------------------------------------------------------------------------------------
+  // spherical harmonics in lobelight's basis (lobelight.lobes.sh.basis: real, orthonormal,
+  // k = l^2 + l + m, polar axis +z, no Condon-Shortley phase), in float64
+
+  function shBasis(x, y, z, order) {
+    const n = Math.hypot(x, y, z);
+    x /= n; y /= n; z /= n;
+    const re = [1], im = [0];
+    for (let m = 1; m < order; ++m) {
+      re.push(x * re[m - 1] - y * im[m - 1]);
+      im.push(x * im[m - 1] + y * re[m - 1]);
+    }
+    const out = [1 / Math.sqrt(4 * Math.PI)];
+    let prev2 = null, prev = [out[0]];
+    for (let l = 1; l < order; ++l) {
+      const q = [];
+      for (let m = 0; m <= l - 2; ++m) {
+        const a = Math.sqrt((4 * l * l - 1) / (l * l - m * m));
+        const b = Math.sqrt(((l - 1) * (l - 1) - m * m) / (4 * (l - 1) * (l - 1) - 1));
+        q.push(a * (z * prev[m] - b * prev2[m]));
+      }
+      const top = prev[l - 1];
+      q.push(Math.sqrt(2 * l + 1) * z * top);
+      q.push(Math.sqrt((2 * l + 1) / (2 * l)) * top);
+      for (let m = l; m >= 1; --m) out.push(q[m] * im[m] * Math.SQRT2);
+      out.push(q[0]);
+      for (let m = 1; m <= l; ++m) out.push(q[m] * re[m] * Math.SQRT2);
+      prev2 = prev;
+      prev = q;
+    }
+    return out;
+  }
+
+  // ---------------------------------------------------------------------------------------
+  // small linear algebra (float64; matrices row-major arrays of 9)
+
+  function sub(a, b) { return [a[0] - b[0], a[1] - b[1], a[2] - b[2]]; }
+  function dot(a, b) { return a[0] * b[0] + a[1] * b[1] + a[2] * b[2]; }
+  function cross(a, b) {
+    return [a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]];
+  }
+  function normalize(a) { const n = Math.hypot(a[0], a[1], a[2]); return [a[0] / n, a[1] / n, a[2] / n]; }
+  function matVec(r, v) {
+    return [r[0] * v[0] + r[1] * v[1] + r[2] * v[2], r[3] * v[0] + r[4] * v[1] + r[5] * v[2],
+            r[6] * v[0] + r[7] * v[1] + r[8] * v[2]];
+  }
+  function matTVec(r, v) {
+    return [r[0] * v[0] + r[3] * v[1] + r[6] * v[2], r[1] * v[0] + r[4] * v[1] + r[7] * v[2],
+            r[2] * v[0] + r[5] * v[1] + r[8] * v[2]];
+  }
+  // lobelight.render.as_rotation(angle): degrees about +y
+  function rotationY(deg) {
+    const a = deg * Math.PI / 180, c = Math.cos(a), s = Math.sin(a);
+    return [c, 0, s, 0, 1, 0, -s, 0, c];
+  }
+  // rows u, v, l of the shadow map's frame (render/_sun_shadow.py sun_frame)
+  function sunFrame(l) {
+    l = normalize(l);
+    const a = Math.abs(l[0]) < 0.9 ? [1, 0, 0] : [0, 1, 0];
+    const u = normalize(cross(l, a));
+    const v = cross(l, u);
+    return [u, v, l];
+  }
+  // Mitsuba's perspective sensor (lobelight.geometry.camera.Camera.frame, tan_half)
+  function cameraFrame(origin, target, up) {
+    const d = normalize(sub(target, origin));
+    const left = normalize(cross(up, d));
+    return { eye: origin, left: left, up: cross(d, left), dir: d };
+  }
+  function tanHalf(fov, axis, w, h) {
+    const t = Math.tan(fov * Math.PI / 360), aspect = w / h;
+    if (axis === "smaller") axis = w <= h ? "x" : "y";
+    else if (axis === "larger") axis = w >= h ? "x" : "y";
+    return axis === "y" ? [t * aspect, t] : [t, t / aspect];
+  }
+
+  // ---------------------------------------------------------------------------------------
+  // the viewer
+
+  class LimitError extends Error {}
+
+  // offsets in floats of frame.glsl's Frame block (render/_gl.py _FRAME)
+  const FRAME = {
+    eye: 0, sun_on: 3, cam_left: 4, shadow_scale: 7, cam_up: 8, shadow_offset: 11, cam_dir: 12,
+    shadow_bias: 15, sun_dir: 16, diffuse_on: 19, sun_e: 20, glossy_on: 23, shadow_center: 24,
+    tan_half: 28, depth_range: 30, rot_t: 32, shadow_frame: 44, sh_light: 56,
+  };
+  const PLANES_BINDING = 0, FRAME_BINDING = 1, SAMPLE_BINDING = 2;
+  const UNITS = {
+    gauss_tex: 0, diff_tex: 1, cand_tex: 2, atlas: 3, env: 4, image: 5, shadow_map: 6,
+    bounce_tex: 8, shadow_depth: 9,
+  };
+  const TEX_WIDTH = 4096;
+  const CURVE_NEUTRAL = 2;
+
+  class Viewer {
+    constructor(gl, model, shaders, options) {
+      this.gl = gl;
+      this.h = model.header;
+      this.shaders = shaders;
+      this.options = options;
+      this.maxTex = Math.min(gl.getParameter(gl.MAX_TEXTURE_SIZE), options.maxTexture || 1e9);
+      this.a = decodeAll(model);
+      this.programs = {};
+      this.envs = [];
+      this.env = null;
+      this.targets = {};
+      this.checkLimits();
+      this.uploadModel();
+    }
+
+    // the model's data textures: one width for the records and the transfers; refused with
+    // the numbers when they exceed this device's texture size
+    checkLimits() {
+      const h = this.h, gl = this.gl;
+      const recs = h.n_vertices * h.n_views * h.n_gaussians * 2;
+      const diff = h.n_vertices * h.n_sh;
+      const t = Math.max(recs, diff);
+      let width = Math.min(TEX_WIDTH, this.maxTex);
+      while (Math.ceil(t / width) > this.maxTex && width < this.maxTex) width *= 2;
+      width = Math.min(width, this.maxTex);
+      if (Math.ceil(t / width) > this.maxTex) {
+        throw new LimitError(
+          "This model is too large for this device's textures: its " + h.n_vertices +
+          " vertices × " + h.n_views + " views × " + h.n_gaussians + " Gaussians need " +
+          t + " texels, and the largest texture here holds " + this.maxTex + " × " +
+          this.maxTex + " = " + this.maxTex * this.maxTex + ".");
+      }
+      if (h.shadow.res > this.maxTex) {
+        throw new LimitError("The sun's shadow map needs " + h.shadow.res + "² texels; this " +
+                             "device's largest texture is " + this.maxTex + "².");
+      }
+      const need = 4 * h.n_gaussians + 10;
+      const have = gl.getParameter(gl.MAX_VARYING_VECTORS);
+      if (need > have) {
+        throw new LimitError("This model's " + h.n_gaussians + " Gaussians per view need " +
+                             "about " + need + " varying vectors; this device has " + have + ".");
+      }
+      this.texWidth = width;
+    }
+
+    dataTexture(width, rows, internal, format, type, data) {
+      const gl = this.gl, t = gl.createTexture();
+      gl.bindTexture(gl.TEXTURE_2D, t);
+      gl.pixelStorei(gl.UNPACK_ALIGNMENT, 1);
+      gl.texImage2D(gl.TEXTURE_2D, 0, internal, width, rows, 0, format, type, data);
+      gl.texParameteri(gl.TEXTURE_2D, gl.TEXTURE_MIN_FILTER, gl.NEAREST);
+      gl.texParameteri(gl.TEXTURE_2D, gl.TEXTURE_MAG_FILTER, gl.NEAREST);
+      gl.texParameteri(gl.TEXTURE_2D, gl.TEXTURE_WRAP_S, gl.CLAMP_TO_EDGE);
+      gl.texParameteri(gl.TEXTURE_2D, gl.TEXTURE_WRAP_T, gl.CLAMP_TO_EDGE);
+      return t;
+    }
+
+    // the Gaussian records as render/_gl.py's gauss_tex: two RGBA texels per (vertex, view,
+    // Gaussian), (e, sigma) then (mu, above); the records left out of the file are zero
+    gaussTexture() {
+      const gl = this.gl, h = this.h, a = this.a, w = this.texWidth;
+      const nv = h.n_vertices, nj = h.n_views, n = h.n_gaussians;
+      const texels = nv * nj * n * 2;
+      const rows = Math.ceil(texels / w);
+      const out = new Uint16Array(rows * w * 4);
+      const flags = a.flags.data, light = a.light.data, sigma = a.sigma.data, mean = a.mean.data;
+      let r = 0;
+      for (let vj = 0; vj < nv * nj; ++vj) {
+        const f = flags[vj];
+        for (let k = 0; k < n; ++k) {
+          const o = 8 * (vj * n + k);
+          if (f & 2) out[o + 7] = HALF_ONE;
+          if (!(f & 1)) continue;
+          const s = r * n + k;
+          out[o] = light[3 * s]; out[o + 1] = light[3 * s + 1]; out[o + 2] = light[3 * s + 2];
+          out[o + 3] = sigma[s];
+          out[o + 4] = mean[3 * s]; out[o + 5] = mean[3 * s + 1]; out[o + 6] = mean[3 * s + 2];
+        }
+        if (f & 1) r += 1;
+      }
+      return this.dataTexture(w, rows, gl.RGBA16F, gl.RGBA, gl.HALF_FLOAT, out);
+    }
+
+    // (V, n, 3) half floats as one RGBA16F texel per coefficient (alpha 0)
+    rgbTexture(arr) {
+      const gl = this.gl, w = this.texWidth;
+      const src = arr.data, t = src.length / 3;
+      const rows = Math.max(1, Math.ceil(t / w));
+      const out = new Uint16Array(rows * w * 4);
+      for (let i = 0; i < t; ++i) {
+        out[4 * i] = src[3 * i]; out[4 * i + 1] = src[3 * i + 1]; out[4 * i + 2] = src[3 * i + 2];
+      }
+      return this.dataTexture(w, rows, gl.RGBA16F, gl.RGBA, gl.HALF_FLOAT, out);
+    }
+
+    buffer(target, data) {
+      const gl = this.gl, b = gl.createBuffer();
+      gl.bindBuffer(target, b);
+      gl.bufferData(target, data, gl.STATIC_DRAW);
+      return b;
+    }
+
+    uploadModel() {
+      const gl = this.gl, a = this.a, h = this.h;
+      this.gaussTex = this.gaussTexture();
+      this.diffTex = this.rgbTexture(a.diffuse);
+      this.bounceTex = a.bounce ? this.rgbTexture(a.bounce)
+                                : this.rgbTexture({ data: new Uint16Array(3 * h.n_sh) });
+      const cand = a.candidates;
+      this.candTex = this.dataTexture(cand.shape[1], cand.shape[0], gl.RGBA32F, gl.RGBA,
+                                      gl.FLOAT, Float32Array.from(cand.data));
+      this.planes = this.buffer(gl.UNIFORM_BUFFER, a.planes.data);
+      this.vbo = this.buffer(gl.ARRAY_BUFFER, a.positions.data);
+      this.nbo = this.buffer(gl.ARRAY_BUFFER, a.normals.data);
+      this.abo = this.buffer(gl.ARRAY_BUFFER, a.albedo.data);
+      this.ibo = this.buffer(gl.ELEMENT_ARRAY_BUFFER, a.faces.data);
+      this.nIndices = a.faces.data.length;
+      this.quad = this.buffer(gl.ARRAY_BUFFER, new Float32Array([-1, -1, 1, -1, -1, 1, 1, 1]));
+      this.frameData = new Float32Array(FRAME.sh_light + 8 * h.n_sh);
+      this.frameUbo = gl.createBuffer();
+      gl.bindBuffer(gl.UNIFORM_BUFFER, this.frameUbo);
+      gl.bufferData(gl.UNIFORM_BUFFER, this.frameData.byteLength, gl.DYNAMIC_DRAW);
+      this.sampleUbo = this.buffer(gl.UNIFORM_BUFFER, new Float32Array(4));  // jitter 0
+      this.center = h.center;
+      this.radius = h.radius;
+      this.shadowRes = h.shadow.res;
+      this.shadowKey = null;
+    }
+
+    compile(name, stages) {
+      const gl = this.gl;
+      const prog = gl.createProgram();
+      const kinds = [gl.VERTEX_SHADER, gl.FRAGMENT_SHADER];
+      for (let i = 0; i < 2; ++i) {
+        const s = gl.createShader(kinds[i]);
+        gl.shaderSource(s, stages[i]);
+        gl.compileShader(s);
+        if (!gl.getShaderParameter(s, gl.COMPILE_STATUS)) {
+          throw new Error("The " + name + " shader does not compile here (" +
+                          (i ? "fragment" : "vertex") + " stage):\n" + gl.getShaderInfoLog(s));
+        }
+        gl.attachShader(prog, s);
+      }
+      gl.linkProgram(prog);
+      if (!gl.getProgramParameter(prog, gl.LINK_STATUS)) {
+        throw new Error("The " + name + " program does not link here:\n" +
+                        gl.getProgramInfoLog(prog));
+      }
+      for (const [block, binding] of [["Frame", FRAME_BINDING], ["Planes", PLANES_BINDING],
+                                      ["Sample", SAMPLE_BINDING]]) {
+        const i = gl.getUniformBlockIndex(prog, block);
+        if (i !== gl.INVALID_INDEX) gl.uniformBlockBinding(prog, i, binding);
+      }
+      gl.useProgram(prog);
+      for (const u in UNITS) {
+        const loc = gl.getUniformLocation(prog, u);
+        if (loc) gl.uniform1i(loc, UNITS[u]);
+      }
+      return prog;
+    }
+
+    uniform(prog, name, kind, value) {
+      const gl = this.gl, loc = gl.getUniformLocation(prog, name);
+      if (!loc) return;  // compiled out
+      gl.useProgram(prog);
+      gl[kind](loc, value);
+    }
+
+    attribute(prog, name, buffer, size, stride, offset) {
+      const gl = this.gl, loc = gl.getAttribLocation(prog, name);
+      if (loc < 0) return;
+      gl.bindBuffer(gl.ARRAY_BUFFER, buffer);
+      gl.enableVertexAttribArray(loc);
+      gl.vertexAttribPointer(loc, size, gl.FLOAT, false, stride || 0, offset || 0);
+    }
+
+    // the programs of one shader variant and their vertex arrays
+    programsFor(variant, env) {
+      if (this.programs[variant]) return this.programs[variant];
+      const gl = this.gl, src = this.shaders.header[variant];
+      const p = {};
+      for (const name of ["prt", "depth", "shadow", "background", "tonemap"]) {
+        p[name] = this.compile(name, src[name]);
+      }
+      const size = gl.getActiveUniformBlockParameter(
+        p.prt, gl.getUniformBlockIndex(p.prt, "Frame"), gl.UNIFORM_BLOCK_DATA_SIZE);
+      if (size !== this.frameData.byteLength) {
+        throw new Error("frame.glsl's block has " + size + " bytes; the page fills " +
+                        this.frameData.byteLength);
+      }
+      const sampleSize = gl.getActiveUniformBlockParameter(
+        p.prt, gl.getUniformBlockIndex(p.prt, "Sample"), gl.UNIFORM_BLOCK_DATA_SIZE);
+      gl.bindBuffer(gl.UNIFORM_BUFFER, this.sampleUbo);
+      gl.bufferData(gl.UNIFORM_BUFFER, new Float32Array(Math.max(4, sampleSize / 4)), gl.STATIC_DRAW);
+      this.uniform(p.prt, "tex_width", "uniform1i", this.texWidth);
+      p.vao = this.vertexArray(p.prt, true);
+      p.depthVao = this.vertexArray(p.depth, false);
+      p.shadowVao = this.vertexArray(p.shadow, false);
+      p.bgVao = this.quadArray(p.background);
+      p.tmVao = this.quadArray(p.tonemap);
+      this.programs[variant] = p;
+      return p;
+    }
+
+    vertexArray(prog, full) {
+      const gl = this.gl, vao = gl.createVertexArray();
+      gl.bindVertexArray(vao);
+      this.attribute(prog, "in_pos", this.vbo, 3);
+      if (full) {
+        this.attribute(prog, "in_normal", this.nbo, 3);
+        this.attribute(prog, "in_albedo", this.abo, 3);
+      }
+      gl.bindBuffer(gl.ELEMENT_ARRAY_BUFFER, this.ibo);
+      gl.bindVertexArray(null);
+      return vao;
+    }
+
+    quadArray(prog) {
+      const gl = this.gl, vao = gl.createVertexArray();
+      gl.bindVertexArray(vao);
+      this.attribute(prog, "in_xy", this.quad, 2);
+      gl.bindVertexArray(null);
+      return vao;
+    }
+
+    // the sun's glossy BRDF per vertex (render/_sun_glossy.py): a buffer, or constant
+    // attribute values when every vertex has the same
+    sunAttributes(env, prog, vao) {
+      const gl = this.gl, sp = env.arrays.sun_params;
+      gl.bindVertexArray(vao);
+      const names = [["in_sb0", 4, 0], ["in_eta", 3, 4], ["in_k", 3, 7]];
+      if (sp.shape[0] === 1) {
+        for (const [name, size, off] of names) {
+          const loc = gl.getAttribLocation(prog, name);
+          if (loc < 0) continue;
+          gl.disableVertexAttribArray(loc);
+          const v = sp.data.slice(off, off + size);
+          gl.vertexAttrib4f(loc, v[0], v[1], v[2], size === 4 ? v[3] : 1);
+        }
+      } else {
+        if (!env.sunBuffer) env.sunBuffer = this.buffer(gl.ARRAY_BUFFER, sp.data);
+        for (const [name, size, off] of names) {
+          this.attribute(prog, name, env.sunBuffer, size, 40, 4 * off);
+        }
+      }
+      gl.bindVertexArray(null);
+    }
+
+    // one map: its chain's atlas, its background cube, its SH and sun
+    addEnv(doc) {
+      const gl = this.gl, h = doc.header, arrays = decodeAll(doc);
+      const at = arrays.atlas;
+      const [ah, aw] = at.shape;
+      if (aw > this.maxTex || ah > this.maxTex) {
+        throw new LimitError("The map " + h.name + "'s prefiltered chain is " + aw + " × " + ah +
+                             " texels; this device's largest texture is " + this.maxTex + ".");
+      }
+      const atlas = gl.createTexture();
+      gl.bindTexture(gl.TEXTURE_2D, atlas);
+      gl.pixelStorei(gl.UNPACK_ALIGNMENT, 1);
+      gl.texImage2D(gl.TEXTURE_2D, 0, gl.RGB16F, aw, ah, 0, gl.RGB, gl.HALF_FLOAT, at.data);
+      gl.texParameteri(gl.TEXTURE_2D, gl.TEXTURE_MIN_FILTER, gl.LINEAR);
+      gl.texParameteri(gl.TEXTURE_2D, gl.TEXTURE_MAG_FILTER, gl.LINEAR);
+      gl.texParameteri(gl.TEXTURE_2D, gl.TEXTURE_WRAP_S, gl.CLAMP_TO_EDGE);
+      gl.texParameteri(gl.TEXTURE_2D, gl.TEXTURE_WRAP_T, gl.CLAMP_TO_EDGE);
+      const bg = arrays.background, res = bg.shape[1];
+      const cube = gl.createTexture();
+      gl.bindTexture(gl.TEXTURE_CUBE_MAP, cube);
+      const face = res * res * 3;
+      for (let f = 0; f < 6; ++f) {
+        gl.texImage2D(gl.TEXTURE_CUBE_MAP_POSITIVE_X + f, 0, gl.RGB16F, res, res, 0, gl.RGB,
+                      gl.HALF_FLOAT, bg.data.subarray(f * face, (f + 1) * face));
+      }
+      gl.texParameteri(gl.TEXTURE_CUBE_MAP, gl.TEXTURE_MIN_FILTER, gl.LINEAR);
+      gl.texParameteri(gl.TEXTURE_CUBE_MAP, gl.TEXTURE_MAG_FILTER, gl.LINEAR);
+      gl.texParameteri(gl.TEXTURE_CUBE_MAP, gl.TEXTURE_WRAP_S, gl.CLAMP_TO_EDGE);
+      gl.texParameteri(gl.TEXTURE_CUBE_MAP, gl.TEXTURE_WRAP_T, gl.CLAMP_TO_EDGE);
+      const env = { header: h, arrays: arrays, atlas: atlas, cube: cube };
+      const p = this.programsFor(h.variant, env);
+      const pf = h.prefiltered;
+      this.uniform(p.prt, "atlas_size", "uniform2fv", pf.atlas_size);
+      this.uniform(p.prt, "level_y", "uniform1fv", pf.level_y);
+      this.uniform(p.prt, "level_res", "uniform1fv", pf.level_res);
+      this.uniform(p.prt, "n_levels", "uniform1i", pf.n_levels);
+      this.uniform(p.prt, "lam0", "uniform1f", pf.lam0);
+      this.uniform(p.prt, "log_rho", "uniform1f", pf.log_rho);
+      env.programs = p;
+      this.envs.push(env);
+      return env;
+    }
+
+    useEnv(i) {
+      const env = this.envs[i], p = env.programs, h = env.header;
+      this.env = env;
+      this.rot = null;
+      this.shadowKey = null;
+      if (h.sun) {
+        this.uniform(p.prt, "sun_tan", "uniform1f", h.sun.tan);
+        this.uniform(p.prt, "shadow_res", "uniform1f", this.shadowRes);
+        this.makeShadowMap();
+        const f = this.frameData;
+        const scale = 1 / (1.02 * this.radius);
+        const texel = 2 / (scale * this.shadowRes);
+        f.set(h.sun.irradiance, FRAME.sun_e);
+        f.set(this.center, FRAME.shadow_center);
+        f[FRAME.shadow_scale] = scale;
+        f[FRAME.shadow_offset] = 1.5 * texel;
+        f[FRAME.shadow_bias] = 1 / this.shadowRes;
+      }
+      if (h.sun_glossy) {
+        this.uniform(p.prt, "sun_model", "uniform1i", h.sun_brdf.model);
+        this.uniform(p.prt, "sun_fresnel", "uniform1f", h.sun_brdf.fresnel);
+        this.uniform(p.prt, "sun_spread", "uniform1f", h.sun.spread);
+        this.sunAttributes(env, p.prt, p.vao);
+      }
+    }
+
+    // the sun's depth map (render/_gl.py _make_shadow_map): compared with 2x2 filtering on
+    // its unit, read without comparison through a sampler on another
+    makeShadowMap() {
+      if (this.shadowTex) return;
+      const gl = this.gl, r = this.shadowRes;
+      const t = gl.createTexture();
+      gl.bindTexture(gl.TEXTURE_2D, t);
+      gl.texStorage2D(gl.TEXTURE_2D, 1, gl.DEPTH_COMPONENT24, r, r);
+      gl.texParameteri(gl.TEXTURE_2D, gl.TEXTURE_COMPARE_MODE, gl.COMPARE_REF_TO_TEXTURE);
+      gl.texParameteri(gl.TEXTURE_2D, gl.TEXTURE_COMPARE_FUNC, gl.LEQUAL);
+      gl.texParameteri(gl.TEXTURE_2D, gl.TEXTURE_MIN_FILTER, gl.LINEAR);
+      gl.texParameteri(gl.TEXTURE_2D, gl.TEXTURE_MAG_FILTER, gl.LINEAR);
+      gl.texParameteri(gl.TEXTURE_2D, gl.TEXTURE_WRAP_S, gl.CLAMP_TO_EDGE);
+      gl.texParameteri(gl.TEXTURE_2D, gl.TEXTURE_WRAP_T, gl.CLAMP_TO_EDGE);
+      this.shadowTex = t;
+      const s = gl.createSampler();
+      gl.samplerParameteri(s, gl.TEXTURE_MIN_FILTER, gl.NEAREST);
+      gl.samplerParameteri(s, gl.TEXTURE_MAG_FILTER, gl.NEAREST);
+      gl.samplerParameteri(s, gl.TEXTURE_WRAP_S, gl.CLAMP_TO_EDGE);
+      gl.samplerParameteri(s, gl.TEXTURE_WRAP_T, gl.CLAMP_TO_EDGE);
+      gl.samplerParameteri(s, gl.TEXTURE_COMPARE_MODE, gl.NONE);
+      this.shadowSampler = s;
+      this.shadowFbo = gl.createFramebuffer();
+      gl.bindFramebuffer(gl.FRAMEBUFFER, this.shadowFbo);
+      gl.framebufferTexture2D(gl.FRAMEBUFFER, gl.DEPTH_ATTACHMENT, gl.TEXTURE_2D, t, 0);
+      gl.bindFramebuffer(gl.FRAMEBUFFER, null);
+    }
+
+    // a float colour target with a depth buffer, kept by size and type
+    target(w, h, internal) {
+      const key = w + "x" + h + ":" + internal;
+      if (this.targets[key]) return this.targets[key];
+      const gl = this.gl;
+      const color = gl.createTexture();
+      gl.bindTexture(gl.TEXTURE_2D, color);
+      gl.texStorage2D(gl.TEXTURE_2D, 1, internal, w, h);
+      gl.texParameteri(gl.TEXTURE_2D, gl.TEXTURE_MIN_FILTER, gl.NEAREST);
+      gl.texParameteri(gl.TEXTURE_2D, gl.TEXTURE_MAG_FILTER, gl.NEAREST);
+      const depth = gl.createRenderbuffer();
+      gl.bindRenderbuffer(gl.RENDERBUFFER, depth);
+      gl.renderbufferStorage(gl.RENDERBUFFER, gl.DEPTH_COMPONENT24, w, h);
+      const fbo = gl.createFramebuffer();
+      gl.bindFramebuffer(gl.FRAMEBUFFER, fbo);
+      gl.framebufferTexture2D(gl.FRAMEBUFFER, gl.COLOR_ATTACHMENT0, gl.TEXTURE_2D, color, 0);
+      gl.framebufferRenderbuffer(gl.FRAMEBUFFER, gl.DEPTH_ATTACHMENT, gl.RENDERBUFFER, depth);
+      if (gl.checkFramebufferStatus(gl.FRAMEBUFFER) !== gl.FRAMEBUFFER_COMPLETE) {
+        throw new Error("A float colour target cannot be rendered to here.");
+      }
+      gl.bindFramebuffer(gl.FRAMEBUFFER, null);
+      const t = { fbo: fbo, color: color, w: w, h: h };
+      this.targets[key] = t;
+      return t;
+    }
+
+    // frame.glsl's block for a camera {eye, left, up, dir, tan} and rotation R (row-major)
+    fillFrame(cam, rot, diffuse, glossy) {
+      const f = this.frameData, env = this.env, h = env.header, n = this.h.n_sh;
+      f.set(cam.eye, FRAME.eye);
+      f.set(cam.left, FRAME.cam_left);
+      f.set(cam.up, FRAME.cam_up);
+      f.set(cam.dir, FRAME.cam_dir);
+      f.set(cam.tan, FRAME.tan_half);
+      const dist = Math.hypot(...sub(cam.eye, this.center));
+      const near = Math.max(dist - 1.01 * this.radius, 1e-3 * this.radius);
+      f.set([near, dist + 1.01 * this.radius], FRAME.depth_range);
+      const key = rot.join(",");
+      if (key !== this.rot) {
+        for (let j = 0; j < 3; ++j) f.set(rot.slice(3 * j, 3 * j + 3), FRAME.rot_t + 4 * j);
+        const sh = this.rotateSH(env.arrays.sh.data, rot);
+        for (let i = 0; i < n; ++i) f.set(sh[i], FRAME.sh_light + 4 * i);
+        if (h.sun) {
+          const l = matVec(rot, h.sun.direction);
+          const fr = sunFrame(l);
+          for (let j = 0; j < 3; ++j) {
+            f.set([fr[0][j], fr[1][j], fr[2][j]], FRAME.shadow_frame + 4 * j);
+          }
+          f.set(fr[2], FRAME.sun_dir);
+          this.sunFrameKey = fr.join(",");
+          if (h.has_bounce) {
+            const y = shBasis(l[0], l[1], l[2], Math.round(Math.sqrt(n)));
+            const e = h.sun.irradiance;
+            for (let i = 0; i < n; ++i) {
+              f.set([y[i] * e[0], y[i] * e[1], y[i] * e[2]], FRAME.sh_light + 4 * n + 4 * i);
+            }
+          }
+        }
+        this.rot = key;
+      }
+      const sunOn = !!h.sun && (diffuse || (glossy && h.sun_glossy));
+      f[FRAME.diffuse_on] = diffuse ? 1 : 0;
+      f[FRAME.glossy_on] = glossy ? 1 : 0;
+      f[FRAME.sun_on] = sunOn ? 1 : 0;
+      const gl = this.gl;
+      gl.bindBuffer(gl.UNIFORM_BUFFER, this.frameUbo);
+      gl.bufferSubData(gl.UNIFORM_BUFFER, 0, this.frameData);
+      return sunOn;
+    }
+
+    // the rotated lighting's SH, L(R^T w): evaluated at fixed directions and refitted
+    rotateSH(c, rot) {
+      const a = this.a, n = this.h.n_sh, order = Math.round(Math.sqrt(n));
+      const dirs = a.sh_dirs.data, fit = a.sh_fit.data, nd = a.sh_dirs.shape[0];
+      const vals = [];
+      for (let i = 0; i < nd; ++i) {
+        const d = matTVec(rot, [dirs[3 * i], dirs[3 * i + 1], dirs[3 * i + 2]]);
+        const y = shBasis(d[0], d[1], d[2], order);
+        const v = [0, 0, 0];
+        for (let k = 0; k < n; ++k) {
+          v[0] += y[k] * c[3 * k]; v[1] += y[k] * c[3 * k + 1]; v[2] += y[k] * c[3 * k + 2];
+        }
+        vals.push(v);
+      }
+      const out = [];
+      for (let k = 0; k < n; ++k) {
+        const s = [0, 0, 0];
+        for (let i = 0; i < nd; ++i) {
+          const w = fit[k * nd + i];
+          s[0] += w * vals[i][0]; s[1] += w * vals[i][1]; s[2] += w * vals[i][2];
+        }
+        out.push(s);
+      }
+      return out;
+    }
+
+    bindBlocks() {
+      const gl = this.gl;
+      gl.bindBufferBase(gl.UNIFORM_BUFFER, FRAME_BINDING, this.frameUbo);
+      gl.bindBufferBase(gl.UNIFORM_BUFFER, PLANES_BINDING, this.planes);
+      gl.bindBufferBase(gl.UNIFORM_BUFFER, SAMPLE_BINDING, this.sampleUbo);
+    }
+
+    shadowPass(p) {
+      if (this.sunFrameKey === this.shadowKey) return;
+      const gl = this.gl;
+      this.shadowKey = this.sunFrameKey;
+      gl.bindFramebuffer(gl.FRAMEBUFFER, this.shadowFbo);
+      gl.viewport(0, 0, this.shadowRes, this.shadowRes);
+      gl.enable(gl.DEPTH_TEST);
+      gl.depthFunc(gl.LESS);
+      gl.depthMask(true);
+      gl.clear(gl.DEPTH_BUFFER_BIT);
+      gl.useProgram(p.shadow);
+      gl.bindVertexArray(p.shadowVao);
+      gl.drawElements(gl.TRIANGLES, this.nIndices, gl.UNSIGNED_INT, 0);
+      gl.bindVertexArray(null);
+    }
+
+    bindTexture(unit, target, tex) {
+      const gl = this.gl;
+      gl.activeTexture(gl.TEXTURE0 + unit);
+      gl.bindTexture(target, tex);
+    }
+
+    // one frame into target t: the object's depth, its shading where the depth is the
+    // front-most, then the background where the object left the far plane (GLRenderer.draw)
+    draw(t, cam, rot, opts) {
+      const gl = this.gl, env = this.env, p = env.programs;
+      const sunOn = this.fillFrame(cam, rot, opts.diffuse, opts.glossy);
+      this.bindBlocks();
+      if (sunOn) this.shadowPass(p);
+      gl.bindFramebuffer(gl.FRAMEBUFFER, t.fbo);
+      gl.viewport(0, 0, t.w, t.h);
+      gl.clearColor(0, 0, 0, 0);
+      gl.clear(gl.COLOR_BUFFER_BIT | gl.DEPTH_BUFFER_BIT);
+      gl.enable(gl.DEPTH_TEST);
+      gl.depthFunc(gl.LESS);
+      gl.colorMask(false, false, false, false);
+      gl.useProgram(p.depth);
+      gl.bindVertexArray(p.depthVao);
+      gl.drawElements(gl.TRIANGLES, this.nIndices, gl.UNSIGNED_INT, 0);
+      gl.colorMask(true, true, true, true);
+      gl.depthFunc(gl.LEQUAL);
+      this.bindTexture(UNITS.gauss_tex, gl.TEXTURE_2D, this.gaussTex);
+      this.bindTexture(UNITS.diff_tex, gl.TEXTURE_2D, this.diffTex);
+      this.bindTexture(UNITS.cand_tex, gl.TEXTURE_2D, this.candTex);
+      this.bindTexture(UNITS.bounce_tex, gl.TEXTURE_2D, this.bounceTex);
+      this.bindTexture(UNITS.atlas, gl.TEXTURE_2D, env.atlas);
+      if (env.header.sun) {
+        this.bindTexture(UNITS.shadow_map, gl.TEXTURE_2D, this.shadowTex);
+        this.bindTexture(UNITS.shadow_depth, gl.TEXTURE_2D, this.shadowTex);
+        gl.bindSampler(UNITS.shadow_depth, this.shadowSampler);
+      }
+      gl.useProgram(p.prt);
+      gl.bindVertexArray(p.vao);
+      gl.drawElements(gl.TRIANGLES, this.nIndices, gl.UNSIGNED_INT, 0);
+      if (env.header.sun) gl.bindSampler(UNITS.shadow_depth, null);
+      if (opts.background) {
+        this.bindTexture(UNITS.env, gl.TEXTURE_CUBE_MAP, env.cube);
+        gl.useProgram(p.background);
+        gl.bindVertexArray(p.bgVao);
+        gl.drawArrays(gl.TRIANGLE_STRIP, 0, 4);
+      }
+      gl.bindVertexArray(null);
+      gl.depthFunc(gl.LESS);
+    }
+
+    // the frame tone-mapped onto the canvas (tonemap.glsl: exposure, Khronos PBR Neutral, sRGB)
+    present(t, exposure) {
+      const gl = this.gl, p = this.env.programs;
+      gl.bindFramebuffer(gl.FRAMEBUFFER, null);
+      gl.viewport(0, 0, gl.drawingBufferWidth, gl.drawingBufferHeight);
+      gl.disable(gl.DEPTH_TEST);
+      this.bindTexture(UNITS.image, gl.TEXTURE_2D, t.color);
+      this.uniform(p.tonemap, "scale", "uniform1f", Math.pow(2, exposure));
+      this.uniform(p.tonemap, "curve", "uniform1i", CURVE_NEUTRAL);
+      gl.useProgram(p.tonemap);
+      gl.bindVertexArray(p.tmVao);
+      gl.drawArrays(gl.TRIANGLE_STRIP, 0, 4);
+      gl.bindVertexArray(null);
+    }
+
+    // linear RGBA of target t, rows top first
+    readLinear(t) {
+      const gl = this.gl, w = t.w, h = t.h;
+      gl.bindFramebuffer(gl.FRAMEBUFFER, t.fbo);
+      const px = new Float32Array(w * h * 4);
+      gl.readPixels(0, 0, w, h, gl.RGBA, gl.FLOAT, px);
+      gl.bindFramebuffer(gl.FRAMEBUFFER, null);
+      const out = new Float32Array(w * h * 4);
+      for (let y = 0; y < h; ++y) {
+        out.set(px.subarray((h - 1 - y) * w * 4, (h - y) * w * 4), y * w * 4);
+      }
+      return out;
+    }
+  }
+
+  // ---------------------------------------------------------------------------------------
+  // the page
+
+  const api = window.lobelight = {
+    ready: null,
+    status: { ok: false, message: "loading" },
+    viewer: null,
+    shBasis: shBasis,
+  };
+
+  function showMessage(text) {
+    const m = document.getElementById("message");
+    if (m) {
+      m.textContent = text;
+      m.style.display = "flex";
+    }
+    api.status = { ok: false, message: text };
+  }
+
+  function pageOptions() {
+    const q = new URLSearchParams(window.location.search);
+    const o = {};
+    if (q.get("max_texture")) o.maxTexture = parseInt(q.get("max_texture"), 10);
+    if (q.get("size")) o.size = q.get("size").split("x").map(function (s) { return parseInt(s, 10); });
+    o.env = parseInt(q.get("env") || "0", 10);
+    o.still = q.get("still") === "1";
+    return o;
+  }
+
+  function decodeB64Floats(b64) { return new Float32Array(bytesOf(b64).buffer); }
+  function floatsB64(arr) {
+    const b = new Uint8Array(arr.buffer, arr.byteOffset, arr.byteLength);
+    let s = "";
+    for (let i = 0; i < b.length; i += 0x8000) {
+      s += String.fromCharCode.apply(null, b.subarray(i, i + 0x8000));
+    }
+    return btoa(s);
+  }
+  api._floats = decodeB64Floats;
+
+  // the interactive state: an orbit about the exported camera's target, a light turn about +y
+  function makeOrbit(cam) {
+    const off = sub(cam.origin, cam.target);
+    const up = normalize(cam.up);
+    const dist = Math.hypot(off[0], off[1], off[2]);
+    const upPart = dot(off, up) / dist;
+    const flat = sub(off, up.map(function (u) { return u * dot(off, up); }));
+    const fwd = normalize(Math.hypot(...flat) > 1e-9 ? flat : cross(up, [1, 0, 0]));
+    return { target: cam.target, up: up, fwd: fwd, side: cross(up, fwd), dist: dist,
+             pitch: Math.asin(Math.max(-1, Math.min(1, upPart))), yaw: 0, fov: cam.fov,
+             axis: cam.fov_axis || "x" };
+  }
+
+  function orbitCamera(o, w, h) {
+    const cp = Math.cos(o.pitch), sp = Math.sin(o.pitch);
+    const cy = Math.cos(o.yaw), sy = Math.sin(o.yaw);
+    const dir = [0, 1, 2].map(function (i) {
+      return cp * (cy * o.fwd[i] + sy * o.side[i]) + sp * o.up[i];
+    });
+    const eye = [0, 1, 2].map(function (i) { return o.target[i] + o.dist * dir[i]; });
+    const f = cameraFrame(eye, o.target, o.up);
+    f.tan = tanHalf(o.fov, o.axis, w, h);
+    return f;
+  }
+
+  function bindControls(state, canvas, viewer) {
+    const byId = function (id) { return document.getElementById(id); };
+    const exp = byId("exposure");
+    exp.value = state.exposure.toFixed(1);
+    byId("exposure-value").textContent = exp.value;
+    exp.addEventListener("input", function () {
+      state.exposure = parseFloat(exp.value);
+      byId("exposure-value").textContent = exp.value;
+    });
+    byId("parts").addEventListener("change", function (e) { state.parts = e.target.value; });
+    byId("background").addEventListener("change", function (e) {
+      state.background = e.target.checked;
+    });
+    const sel = byId("env");
+    viewer.h.envs.forEach(function (e, i) {
+      const opt = document.createElement("option");
+      opt.value = String(i);
+      opt.textContent = e.name;
+      sel.appendChild(opt);
+    });
+    sel.value = String(state.env);
+    sel.addEventListener("change", function () { api.setEnv(parseInt(sel.value, 10)); });
+    let drag = null;
+    canvas.addEventListener("contextmenu", function (e) { e.preventDefault(); });
+    canvas.addEventListener("pointerdown", function (e) {
+      drag = { x: e.clientX, y: e.clientY, light: e.shiftKey || e.button === 2 };
+      canvas.setPointerCapture(e.pointerId);
+    });
+    canvas.addEventListener("pointerup", function () { drag = null; });
+    canvas.addEventListener("pointermove", function (e) {
+      if (!drag) return;
+      const dx = e.clientX - drag.x, dy = e.clientY - drag.y;
+      drag.x = e.clientX; drag.y = e.clientY;
+      if (drag.light) {
+        state.light += dx * 0.5;
+      } else {
+        state.orbit.yaw -= dx * 0.01;
+        state.orbit.pitch = Math.max(-1.55, Math.min(1.55, state.orbit.pitch + dy * 0.01));
+      }
+    });
+    canvas.addEventListener("wheel", function (e) {
+      e.preventDefault();
+      const o = state.orbit;
+      o.dist = Math.max(1.05 * viewer.radius, Math.min(50 * viewer.radius, o.dist * Math.exp(e.deltaY * 0.001)));
+    }, { passive: false });
+  }
+
+  // an exposure that puts the object's bright pixels near the top of the display range
+  function autoExposure(viewer, state) {
+    const t = viewer.target(64, 64, viewer.gl.RGBA32F);
+    viewer.draw(t, orbitCamera(state.orbit, 64, 64), rotationY(state.light),
+                { diffuse: true, glossy: true, background: false });
+    const px = viewer.readLinear(t);
+    const lum = [];
+    for (let i = 0; i < px.length; i += 4) {
+      if (px[i + 3] > 0.5) lum.push(0.2126 * px[i] + 0.7152 * px[i + 1] + 0.0722 * px[i + 2]);
+    }
+    if (!lum.length) return 0;
+    lum.sort(function (a, b) { return a - b; });
+    const hi = lum[Math.floor(0.9 * (lum.length - 1))];
+    return hi > 0 ? Math.max(-10, Math.min(10, Math.log2(0.8 / hi))) : 0;
+  }
+
+  function loop(viewer, state, canvas) {
+    const fpsEl = document.getElementById("fps");
+    let frames = 0, t0 = performance.now();
+    function frame() {
+      const w = canvas.width, h = canvas.height;
+      const t = viewer.target(w, h, viewer.gl.RGBA16F);
+      const cam = orbitCamera(state.orbit, w, h);
+      viewer.draw(t, cam, rotationY(state.light), {
+        diffuse: state.parts !== "glossy", glossy: state.parts !== "diffuse",
+        background: state.background,
+      });
+      viewer.present(t, state.exposure);
+      frames += 1;
+      const now = performance.now();
+      if (now - t0 >= 1000) {
+        api.fps = frames * 1000 / (now - t0);
+        fpsEl.textContent = api.fps.toFixed(1) + " fps · " + w + "×" + h;
+        frames = 0;
+        t0 = now;
+      }
+      if (!state.still) requestAnimationFrame(frame);
+    }
+    requestAnimationFrame(frame);
+  }
+
+  function sizeCanvas(canvas, options) {
+    if (options.size) {
+      canvas.width = options.size[0];
+      canvas.height = options.size[1];
+      canvas.style.width = options.size[0] + "px";
+      canvas.style.height = options.size[1] + "px";
+    } else {
+      canvas.width = Math.max(1, canvas.clientWidth);
+      canvas.height = Math.max(1, canvas.clientHeight);
+    }
+  }
+
+  async function start() {
+    const options = pageOptions();
+    const canvas = document.getElementById("view");
+    const gl = canvas.getContext("webgl2", { antialias: false, preserveDrawingBuffer: true });
+    if (!gl) {
+      showMessage("This browser has no WebGL 2: the viewer needs it (a current Chrome, " +
+                  "Firefox, Safari or Edge, with hardware acceleration on).");
+      return;
+    }
+    if (!gl.getExtension("EXT_color_buffer_float")) {
+      showMessage("This browser's WebGL 2 lacks EXT_color_buffer_float: the viewer renders " +
+                  "linear radiance into float targets and cannot run without it.");
+      return;
+    }
+    if (!store.model || !store.shaders) {
+      showMessage("The model's data files (model.js, shaders.js) did not load: open the " +
+                  "folder that lobelight export --web wrote, whole.");
+      return;
+    }
+    let viewer;
+    try {
+      viewer = new Viewer(gl, store.model, store.shaders, options);
+    } catch (e) {
+      showMessage(e.message);
+      return;
+    }
+    api.viewer = viewer;
+    const notes = viewer.h.notes || [];
+    if (notes.length) {
+      const el = document.getElementById("notes");
+      el.textContent = notes.join(" ");
+      el.style.display = "block";
+    }
+    const state = {
+      orbit: makeOrbit(viewer.h.camera), light: 0, exposure: 0, parts: "both",
+      background: true, env: options.env, still: options.still,
+    };
+    api.state = state;
+    api.setEnv = async function (i) {
+      if (!viewer.envs[i]) {
+        for (let k = viewer.envs.length; k <= i; ++k) {
+          viewer.addEnv(await loadScript(viewer.h.envs[k].file));
+        }
+      }
+      viewer.useEnv(i);
+      state.env = i;
+    };
+    try {
+      await api.setEnv(state.env);
+      sizeCanvas(canvas, options);
+      state.exposure = autoExposure(viewer, state);
+    } catch (e) {
+      showMessage(e.message);
+      return;
+    }
+    bindControls(state, canvas, viewer);
+    window.addEventListener("resize", function () { sizeCanvas(canvas, options); });
+    api.status = { ok: true, message: "ready" };
+    loop(viewer, state, canvas);
+  }
+
+  api.start = function () {
+    api.ready = start().catch(function (e) { showMessage(String(e && e.message || e)); });
+    return api.ready;
+  };
+
+  // Test hook: render a camera {origin, left, up, dir, tan_half} (or {origin, target, up,
+  // fov, fov_axis}), a lighting rotation (row-major 3 x 3, or degrees about +y), the parts and
+  // the map into an RGBA32F target; returns {width, height, b64}: linear RGBA float32, rows
+  // top first, alpha 1 on the object.
+  api.renderLinear = async function (req) {
+    const v = api.viewer;
+    await api.setEnv(req.env || 0);
+    const w = req.width, h = req.height;
+    let cam;
+    if (req.left) {
+      cam = { eye: req.origin, left: req.left, up: req.up, dir: req.dir, tan: req.tan_half };
+    } else {
+      cam = cameraFrame(req.origin, req.target, req.up || [0, 1, 0]);
+      cam.tan = tanHalf(req.fov, req.fov_axis || "x", w, h);
+    }
+    let rot = req.rotation == null ? rotationY(0) : req.rotation;
+    if (typeof rot === "number") rot = rotationY(rot);
+    const t = v.target(w, h, v.gl.RGBA32F);
+    v.draw(t, cam, rot, {
+      diffuse: req.diffuse !== false, glossy: req.glossy !== false,
+      background: !!req.background,
+    });
+    return { width: w, height: h, b64: floatsB64(v.readLinear(t)) };
+  };
+
+  // frames per second of the interactive path (draw and tone-map into the canvas) at the
+  // canvas's size, over `frames` frames after `warm` unmeasured ones, each finished
+  // (a pixel read back) before the next
+  api.benchmark = function (frames, warm) {
+    const v = api.viewer, s = api.state, gl = v.gl;
+    const canvas = gl.canvas;
+    s.still = true;
+    const px = new Uint8Array(4);
+    const one = function () {
+      const t = v.target(canvas.width, canvas.height, gl.RGBA16F);
+      v.draw(t, orbitCamera(s.orbit, canvas.width, canvas.height), rotationY(s.light),
+             { diffuse: true, glossy: true, background: true });
+      v.present(t, s.exposure);
+      gl.readPixels(0, 0, 1, 1, gl.RGBA, gl.UNSIGNED_BYTE, px);
+      s.orbit.yaw += 0.01;
+    };
+    for (let i = 0; i < (warm || 2); ++i) one();
+    const t0 = performance.now();
+    for (let i = 0; i < frames; ++i) one();
+    const dt = (performance.now() - t0) / 1000;
+    return { frames: frames, seconds: dt, fps: frames / dt, width: canvas.width,
+             height: canvas.height };
+  };
+})();

@@ -1,0 +1,314 @@
+"""The WebGL 2 viewer (:mod:`lobelight.web`): its folder written and read back, and the page in
+a real browser (headless chromium on SwiftShader, driven by Playwright) against the torch
+renderer."""
+
+from __future__ import annotations
+
+import base64
+import io
+import os
+import shutil
+import threading
+import urllib.request
+
+import numpy as np
+import pytest
+import torch
+
+from lobelight import envmap, fit, render, scene, web
+from lobelight.cli import main
+from lobelight.errors import InputError
+from lobelight.geometry import sphere
+from lobelight.lobes import sh
+from lobelight.model import Model
+from lobelight.web._serve import make_server
+
+CHROMIUM = shutil.which("chromium") or shutil.which("chromium-browser")
+try:
+    import playwright.sync_api as _pw  # optional (the web extra)
+except ImportError:
+    _pw = None
+
+needs_browser = pytest.mark.skipif(
+    CHROMIUM is None or _pw is None,
+    reason="needs the system chromium (apt-get install chromium) and Playwright for Python "
+    "(pip install 'lobelight[web]'); its own browser download is not used",
+)
+#: Chromium's flags for WebGL 2 on SwiftShader without a display.
+FLAGS = ["--headless=new", "--no-sandbox", "--use-angle=swiftshader", "--enable-unsafe-swiftshader"]
+W, H = 96, 72
+
+
+def analytic_model(n: int) -> Model:
+    """``sphere:2`` whose transport is ``n`` analytic Gaussians per view (no fit: fast): a
+    glossy lobe about the mirror direction, a broad one about the normal, and for ``n = 3`` a
+    mid-width one between; weights zero below the horizon, as a fitted model has them."""
+    sc = scene.builtin("sphere", subdivisions=2)
+    nrm = sc.mesh.normals  # (V, 3)
+    views = sphere.geodesic_views()  # (J, 3)
+    cos = nrm @ views.T  # (V, J)
+    refl = 2 * cos[..., None] * nrm[:, None] - views[None]  # (V, J, 3)
+    mid = torch.nn.functional.normalize(refl + nrm[:, None], dim=-1)
+    mu = torch.stack([refl, nrm[:, None].expand_as(refl), mid], 2)[:, :, :n]  # (V, J, n, 3)
+    lam = torch.tensor([300.0, 3.0, 40.0])[:n].expand(*cos.shape, n).clone()
+    up = (cos > 0).float()[..., None, None]
+    w = torch.tensor([[0.9, 0.8, 0.6], [0.05, 0.1, 0.2], [0.2, 0.3, 0.1]])[:n]
+    w = w * up * (lam[..., None] / 6.3)
+    diffuse = torch.zeros(nrm.shape[0], 25, 3)
+    diffuse[:, 0] = 0.2
+    diffuse[:, 1:4] = 0.1 * nrm[:, [1, 2, 0], None]
+    g = fit.Gaussians(w.contiguous(), torch.nn.functional.normalize(mu, dim=-1), lam)
+    return Model(sc.mesh, views, g, diffuse, sc.materials, {"scene": "analytic"})
+
+
+@pytest.fixture(scope="module")
+def sky():
+    # the built-in sky made small: the same sun and sky, without seconds of resampling
+    return envmap.builtin(height=64)
+
+
+@pytest.fixture(scope="module")
+def browser():
+    if CHROMIUM is None or _pw is None:
+        pytest.skip("needs chromium and Playwright")
+    with _pw.sync_playwright() as p:
+        b = p.chromium.launch(executable_path=CHROMIUM, args=FLAGS)
+        yield b
+        b.close()
+
+
+def open_page(browser, folder, query="still=1", viewport=(320, 240)):
+    """The folder's page, loaded (its ``lobelight.ready`` settled)."""
+    page = browser.new_page(viewport={"width": viewport[0], "height": viewport[1]})
+    page.goto(f"file://{folder}/index.html?{query}")
+    page.wait_for_function("window.lobelight && window.lobelight.ready")
+    page.evaluate("window.lobelight.ready")
+    return page
+
+
+def render_in_page(page, cam, rotation, **parts) -> np.ndarray:
+    """The test hook's linear RGBA (H, W, 4) for a camera and a rotation (degrees about +y)."""
+    f = cam.frame(dtype=torch.float64).numpy()
+    req = {
+        "origin": list(cam.origin),
+        "left": f[0].tolist(),
+        "up": f[1].tolist(),
+        "dir": f[2].tolist(),
+        "tan_half": list(cam.tan_half(W, H)),
+        "width": W,
+        "height": H,
+        "rotation": rotation,
+        **parts,
+    }
+    r = page.evaluate("req => window.lobelight.renderLinear(req)", req)
+    return np.frombuffer(base64.b64decode(r["b64"]), np.float32).reshape(H, W, 4)
+
+
+def interior(mask: np.ndarray) -> np.ndarray:
+    """Pixels whose 3 x 3 neighbourhood is all on the object."""
+    m = mask.copy()
+    for dy in (-1, 0, 1):
+        for dx in (-1, 0, 1):
+            m &= np.roll(np.roll(mask, dy, 0), dx, 1)
+    return m
+
+
+# ---------------------------------------------------------------------------------------------
+# the folder
+
+
+def test_the_folder_reads_back_as_the_model(sky, tmp_path):
+    m = analytic_model(3)
+    info = web.export_web(m, tmp_path / "v", [sky], base_res=32)
+    assert info["bytes"] == sum(info["files"].values())
+    assert sorted(info["files"]) == sorted(
+        ["env-0.js", "model.js", "shaders.js", "index.html", "viewer.js"]
+    )
+    f = web.read_web(tmp_path / "v")
+    a = f.arrays
+    np.testing.assert_array_equal(a["positions"], m.mesh.vertices.numpy())
+    np.testing.assert_array_equal(a["faces"], m.mesh.faces.numpy())
+    keep = (a["flags"] & 1).astype(bool)
+    above = (a["flags"] & 2).astype(bool)
+    want_above = (m.views[None] * m.mesh.normals[:, None]).sum(-1) > 0
+    np.testing.assert_array_equal(above, want_above.numpy())
+    g = m.gaussians
+    # half floats: 11 significant bits, a rounding of at most 2^-11 relative
+    e = (g.w.double() * g.lam.double().mul(-2).exp().neg().add(1)[..., None]
+         * (2 * np.pi / g.lam.double())[..., None])[torch.from_numpy(keep)]  # fmt: skip
+    np.testing.assert_allclose(a["light"].astype(np.float64), e.numpy(), rtol=2**-11, atol=6e-8)
+    np.testing.assert_allclose(
+        a["mean"].astype(np.float32), g.mu[torch.from_numpy(keep)].numpy(), rtol=0, atol=2**-11
+    )
+    sig = g.lam[torch.from_numpy(keep)].rsqrt().numpy()
+    np.testing.assert_allclose(a["sigma"].astype(np.float32), sig, rtol=2**-11)
+    # the records left out carry no light at their view nor at a neighbour
+    assert float(g.w.amax((-1, -2))[~torch.from_numpy(keep)].max()) == 0.0
+    # every shader variant is the ES dialect's
+    for variant in f.shaders.values():
+        for vs, fs in variant.values():
+            assert vs.startswith("#version 300 es") and fs.startswith("#version 300 es")
+    # the SH fit of the page's rotation is exact on band-limited functions
+    env_sh = torch.tensor(np.array(f.envs[0][1]["sh"]), dtype=torch.float64)
+    d = torch.tensor(np.array(a["sh_dirs"]), dtype=torch.float64)
+    back = torch.tensor(np.array(a["sh_fit"]), dtype=torch.float64) @ (sh.basis(d, 5) @ env_sh)
+    torch.testing.assert_close(back, env_sh, rtol=0, atol=1e-5 * float(env_sh.abs().max()))
+
+
+def test_the_folder_is_written_atomically_and_never_over_an_input(sky, tmp_path):
+    m = analytic_model(1)
+    out = tmp_path / "v"
+    web.export_web(m, out, [sky], base_res=16)
+    web.export_web(m, out, [sky], base_res=16)  # an earlier export is replaced whole
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["v"]  # nothing partial left
+    other = tmp_path / "other"
+    other.mkdir()
+    (other / "keep.txt").write_text("x")
+    with pytest.raises(InputError, match="not a web export"):
+        web.export_web(m, other, [sky], base_res=16)
+    src = out / "model.npz"
+    with pytest.raises(InputError, match="holds an input"):
+        web.export_web(m, out, [sky], base_res=16, inputs=[src])
+    (out / "model.js").write_text('lobelight_data("model", {});')
+    with pytest.raises(InputError):
+        web.read_web(out)
+
+
+def test_the_server_serves_the_folder(sky, tmp_path):
+    web.export_web(analytic_model(1), tmp_path / "v", [sky], base_res=16)
+    server = make_server(tmp_path / "v", 0)
+    port = server.server_address[1]
+    t = threading.Thread(target=server.serve_forever, daemon=True)
+    t.start()
+    try:
+        with urllib.request.urlopen(f"http://127.0.0.1:{port}/viewer.js") as r:
+            assert r.headers["Content-Type"].startswith("text/javascript")
+            assert b"renderLinear" in r.read()
+    finally:
+        server.shutdown()
+        server.server_close()
+    assert f"ssh -L {port}:localhost:{port}" in web.tunnel_hint(port)
+
+
+def test_the_export_command_writes_the_folder(tmp_path):
+    src = tmp_path / "m.npz"
+    analytic_model(1).save(src)
+    out = tmp_path / "web"
+    assert main(["export", str(src), "--web", str(out), "--base-res", "16", "-q"]) == 0
+    assert web.read_web(out).header["n_gaussians"] == 1
+    # one of --gltf and --web; --gltf takes one map
+    assert main(["export", str(src), "-q"]) == 2
+    glb = tmp_path / "m.glb"
+    assert main(["export", str(src), "--gltf", str(glb), "--env", "builtin", "--env",
+                 "builtin", "-q"]) == 2  # fmt: skip
+
+
+def test_view_without_a_display_names_view_web(tmp_path, monkeypatch, capsys):
+    monkeypatch.delenv("DISPLAY", raising=False)
+    monkeypatch.delenv("WAYLAND_DISPLAY", raising=False)
+    src = tmp_path / "m.npz"
+    analytic_model(1).save(src)
+    assert main(["view", str(src)]) == 2
+    assert "view --web" in capsys.readouterr().err
+
+
+# ---------------------------------------------------------------------------------------------
+# the page in a browser
+
+
+@needs_browser
+def test_the_pages_sh_basis_is_lobelights(browser, sky, tmp_path):
+    web.export_web(analytic_model(1), tmp_path / "v", [sky], base_res=16)
+    page = open_page(browser, tmp_path / "v")
+    d = torch.nn.functional.normalize(torch.randn(20, 3, generator=torch.manual_seed(0)), dim=-1)
+    got = page.evaluate("ds => ds.map(d => window.lobelight.shBasis(d[0], d[1], d[2], 5))",
+                        d.tolist())  # fmt: skip
+    page.close()
+    # both in float64: agreement to rounding
+    torch.testing.assert_close(
+        torch.tensor(got, dtype=torch.float64), sh.basis(d.double(), 5), rtol=0, atol=1e-12
+    )
+
+
+@needs_browser
+@pytest.mark.parametrize("n", [1, 3])
+@pytest.mark.parametrize("sun", [False, True])
+def test_the_browser_matches_the_torch_path(browser, sky, tmp_path, n, sun):
+    """Linear radiance of the page's test hook against ``Renderer(..., backend="torch")`` on
+    the object's interior pixels, with and without a lighting rotation.
+
+    Bound: 1e-2 relative (of the pixel's largest channel). The page's data are half floats
+    (2^-11 relative per number: the records, the SH transfer, the prefiltered chain), which
+    moves a pixel by about 1e-3 here; SwiftShader's rasteriser snaps vertices to a sub-pixel
+    grid and filters half-float textures with its own weights, a few 1e-3 more where the
+    image changes fast. Silhouette pixels are left out: there a grazing pixel's shading point
+    moves with the snapping and the glossy image changes by far more than 1e-2 per pixel."""
+    m = analytic_model(n)
+    lighting = render.Lighting(sky, base_res=32, sun=sun)
+    assert (lighting.sun is not None) == sun
+    web.export_web(m, tmp_path / "v", [lighting])
+    page = open_page(browser, tmp_path / "v")
+    cam = render.model_camera(m)
+    tr = render.Renderer(m, lighting, W, H, backend="torch", samples=1)
+    for rotation in (0.0, 65.0):
+        img = render_in_page(page, cam, rotation)
+        ref, mask = tr.render(cam, rotation or None, return_mask=True, background=False)
+        ref, mask = ref.numpy(), mask.numpy()
+        on = img[..., 3] > 0.5
+        # the coverage agrees but for pixel centres that graze the silhouette
+        assert int((on != mask).sum()) <= 4
+        px = interior(on & mask)
+        assert int(px.sum()) > 500
+        rel = np.abs(img[..., :3] - ref).max(-1) / np.maximum(ref.max(-1), 1e-6)
+        assert float(rel[px].max()) <= 1e-2, (rotation, float(rel[px].max()))
+    page.close()
+
+
+def _screenshot(page) -> np.ndarray:
+    from PIL import Image  # optional (matplotlib's dependency, in the dev extra)
+
+    return np.asarray(Image.open(io.BytesIO(page.locator("#view").screenshot())).convert("RGB"))
+
+
+@needs_browser
+def test_the_page_shows_the_object_and_its_controls_change_it(browser, sky, tmp_path):
+    web.export_web(analytic_model(1), tmp_path / "v", [sky, sky], base_res=32)
+    page = open_page(browser, tmp_path / "v", "size=160x120&still=1", (400, 300))
+    assert page.evaluate("window.lobelight.status.ok")
+    page.evaluate("() => new Promise(r => requestAnimationFrame(() => r()))")
+    a = _screenshot(page).astype(np.float32)
+    # non-blank: the object at the centre differs from the background at the corners
+    assert a.std() > 5
+    centre = a[50:70, 70:90].mean((0, 1))
+    corner = a[:10, :10].mean((0, 1))
+    assert np.abs(centre - corner).max() > 10
+    if os.environ.get("LOBELIGHT_WEB_SCREENSHOT"):  # the README's picture
+        page.screenshot(path=os.environ["LOBELIGHT_WEB_SCREENSHOT"])
+
+    def after(js):
+        page.evaluate(js)
+        page.evaluate("() => { window.lobelight.state.still = false; }")
+        page.evaluate("() => new Promise(r => requestAnimationFrame(() => "
+                      "requestAnimationFrame(() => r())))")  # fmt: skip
+        page.evaluate("() => { window.lobelight.state.still = true; }")
+        return _screenshot(page).astype(np.float32)
+
+    b = after("() => { const e = document.getElementById('exposure'); e.value = '-3';"
+              " e.dispatchEvent(new Event('input')); }")  # fmt: skip
+    assert b[50:70, 70:90].mean() < centre.mean() - 5  # darker
+    c = after("() => { const e = document.getElementById('background'); e.checked = false;"
+              " e.dispatchEvent(new Event('change')); }")  # fmt: skip
+    assert np.abs(c[:10, :10] - b[:10, :10]).max() > 1  # the environment hidden
+    page.close()
+
+
+@needs_browser
+def test_a_model_beyond_the_texture_limits_gets_a_clear_message(browser, sky, tmp_path):
+    # a device whose textures hold 256 x 256 texels: the records need 162 x 92 x 2 more
+    web.export_web(analytic_model(1), tmp_path / "v", [sky], base_res=16)
+    page = open_page(browser, tmp_path / "v", "max_texture=256")
+    status = page.evaluate("window.lobelight.status")
+    assert not status["ok"]
+    assert "too large for this device's textures" in status["message"]
+    assert page.locator("#message").is_visible()
+    page.close()
