@@ -80,9 +80,12 @@ class WebFolder:
     shaders: dict
 
 
-def _f16(x) -> np.ndarray:
-    """float16 of ``x`` with magnitudes clipped to the largest finite half float."""
+def _f16(x, float16: bool = True) -> np.ndarray:
+    """float16 of ``x`` with magnitudes clipped to the largest finite half float (float32
+    with ``float16=False``)."""
     a = np.asarray(x, np.float64)
+    if not float16:
+        return a.astype("<f4")
     return np.clip(a, -HALF_MAX, HALF_MAX).astype("<f2")
 
 
@@ -99,7 +102,7 @@ def _kept(w: torch.Tensor) -> torch.Tensor:
     return live | near.any(-1)
 
 
-def _records(model) -> dict[str, np.ndarray]:
+def _records(model, float16: bool) -> dict[str, np.ndarray]:
     """The stored records as half floats: ``flags (V, J)`` (bit 0 stored, bit 1 the view above
     the vertex's horizon), then per stored record (row-major) and Gaussian the light it
     carries ``light (K, N, 3)``, its width ``sigma (K, N)`` and mean ``mean (K, N, 3)``.
@@ -112,15 +115,15 @@ def _records(model) -> dict[str, np.ndarray]:
     above = (model.views[None] * model.mesh.normals[:, None]).sum(-1) > 0  # (V, J)
     flags = keep.to(torch.uint8) | (above.to(torch.uint8) << 1)
     e = g.w.double() * sg.integral(g.lam.double())[..., None]  # (V, J, N, 3)
-    light = _f16(_np(e[keep], np.float64))  # (K, N, 3)
+    light = _f16(_np(e[keep], np.float64), float16)  # (K, N, 3)
     live = e[keep].mean(-1).cpu().numpy() >= model_module.LIVE_FLOOR  # (K, N)
     dead16 = light.astype(np.float32).mean(-1) < model_module.LIVE_FLOOR
     light[live & dead16] = np.float16(2.0**-24)
     return {
         "flags": _np(flags, np.uint8),
         "light": light,
-        "sigma": _f16(_np(g.lam[keep].double().rsqrt(), np.float64)),
-        "mean": _f16(_np(g.mu[keep], np.float64)),
+        "sigma": _f16(_np(g.lam[keep].double().rsqrt(), np.float64), float16),
+        "mean": _f16(_np(g.mu[keep], np.float64), float16),
     }
 
 
@@ -277,7 +280,7 @@ def _check_model(model) -> list[str]:
     return notes
 
 
-def _model_file(model) -> tuple[dict, dict[str, np.ndarray], int]:
+def _model_file(model, float16: bool) -> tuple[dict, dict[str, np.ndarray], int]:
     """The model data file's header and arrays, and CAND_TEXELS."""
     mesh = model.mesh
     verts = mesh.vertices.detach().cpu().double()
@@ -290,13 +293,13 @@ def _model_file(model) -> tuple[dict, dict[str, np.ndarray], int]:
         "normals": _np(mesh.normals, "<f4"),
         "faces": _np(mesh.faces, "<u4"),
         "albedo": _np(model.materials.diffuse.expand(mesh.n_vertices, 3), "<f4"),
-        **_records(model),
-        "diffuse": _f16(_np(model.diffuse, np.float64)),
+        **_records(model, float16),
+        "diffuse": _f16(_np(model.diffuse, np.float64), float16),
         **geo,
         **_sh_fit(math.isqrt(n_sh)),
     }
     if model.bounce is not None:
-        arrays["bounce"] = _f16(_np(model.bounce, np.float64))
+        arrays["bounce"] = _f16(_np(model.bounce, np.float64), float16)
     cam = model_camera(model)
     spec = model.materials.specular
     header = {
@@ -401,20 +404,24 @@ def export_web(
     sun: bool = True,
     device=None,
     inputs=(),
+    float16: bool = True,
 ) -> dict:
     """Write the web viewer's folder for ``model`` under the maps ``envs`` (EnvMaps or
     Lightings, the first shown first) at ``out``, atomically: a temporary folder beside it,
     renamed into place (an earlier export there is replaced whole).
 
     ``inputs``: paths the caller read (the model file, the maps): ``out`` must not be one or
-    hold one. Returns ``{"output", "files": {name: bytes}, "bytes", "notes"}``."""
+    hold one. ``float16``: the records and transfers as half floats (False: float32, twice
+    the size; the chain and background are half floats either way).
+
+    Returns ``{"output", "files": {name: bytes}, "bytes", "notes"}``."""
     out = Path(out)
     envs = list(envs)
     if not envs:
         raise InputError("envs", "give at least one map")
     _check_out(out, inputs)
     lightings = [_as_lighting(e, base_res=base_res, sun=sun, device=device) for e in envs]
-    header, arrays, texels = _model_file(model)
+    header, arrays, texels = _model_file(model, float16)
     n_sh = header["n_sh"]
     for li in lightings:
         if li.sh.shape[0] != n_sh:

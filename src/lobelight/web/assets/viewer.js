@@ -237,14 +237,16 @@
       const nv = h.n_vertices, nj = h.n_views, n = h.n_gaussians;
       const texels = nv * nj * n * 2;
       const rows = Math.ceil(texels / w);
-      const out = new Uint16Array(rows * w * 4);
+      const half = a.light.data instanceof Uint16Array;
+      const out = half ? new Uint16Array(rows * w * 4) : new Float32Array(rows * w * 4);
+      const one = half ? HALF_ONE : 1.0;
       const flags = a.flags.data, light = a.light.data, sigma = a.sigma.data, mean = a.mean.data;
       let r = 0;
       for (let vj = 0; vj < nv * nj; ++vj) {
         const f = flags[vj];
         for (let k = 0; k < n; ++k) {
           const o = 8 * (vj * n + k);
-          if (f & 2) out[o + 7] = HALF_ONE;
+          if (f & 2) out[o + 7] = one;
           if (!(f & 1)) continue;
           const s = r * n + k;
           out[o] = light[3 * s]; out[o + 1] = light[3 * s + 1]; out[o + 2] = light[3 * s + 2];
@@ -253,19 +255,22 @@
         }
         if (f & 1) r += 1;
       }
-      return this.dataTexture(w, rows, gl.RGBA16F, gl.RGBA, gl.HALF_FLOAT, out);
+      return half ? this.dataTexture(w, rows, gl.RGBA16F, gl.RGBA, gl.HALF_FLOAT, out)
+                  : this.dataTexture(w, rows, gl.RGBA32F, gl.RGBA, gl.FLOAT, out);
     }
 
-    // (V, n, 3) half floats as one RGBA16F texel per coefficient (alpha 0)
+    // (V, n, 3) half (or single) floats as one RGBA16F (RGBA32F) texel per coefficient
     rgbTexture(arr) {
       const gl = this.gl, w = this.texWidth;
       const src = arr.data, t = src.length / 3;
       const rows = Math.max(1, Math.ceil(t / w));
-      const out = new Uint16Array(rows * w * 4);
+      const half = src instanceof Uint16Array;
+      const out = half ? new Uint16Array(rows * w * 4) : new Float32Array(rows * w * 4);
       for (let i = 0; i < t; ++i) {
         out[4 * i] = src[3 * i]; out[4 * i + 1] = src[3 * i + 1]; out[4 * i + 2] = src[3 * i + 2];
       }
-      return this.dataTexture(w, rows, gl.RGBA16F, gl.RGBA, gl.HALF_FLOAT, out);
+      return half ? this.dataTexture(w, rows, gl.RGBA16F, gl.RGBA, gl.HALF_FLOAT, out)
+                  : this.dataTexture(w, rows, gl.RGBA32F, gl.RGBA, gl.FLOAT, out);
     }
 
     buffer(target, data) {
@@ -783,16 +788,22 @@
 
   function bindControls(state, canvas, viewer) {
     const byId = function (id) { return document.getElementById(id); };
+    const changed = function () { if (state.still && api.redraw) api.redraw(); };
     const exp = byId("exposure");
     exp.value = state.exposure.toFixed(1);
     byId("exposure-value").textContent = exp.value;
     exp.addEventListener("input", function () {
       state.exposure = parseFloat(exp.value);
       byId("exposure-value").textContent = exp.value;
+      changed();
     });
-    byId("parts").addEventListener("change", function (e) { state.parts = e.target.value; });
+    byId("parts").addEventListener("change", function (e) {
+      state.parts = e.target.value;
+      changed();
+    });
     byId("background").addEventListener("change", function (e) {
       state.background = e.target.checked;
+      changed();
     });
     const sel = byId("env");
     viewer.h.envs.forEach(function (e, i) {
@@ -802,7 +813,9 @@
       sel.appendChild(opt);
     });
     sel.value = String(state.env);
-    sel.addEventListener("change", function () { api.setEnv(parseInt(sel.value, 10)); });
+    sel.addEventListener("change", function () {
+      api.setEnv(parseInt(sel.value, 10)).then(changed);
+    });
     let drag = null;
     canvas.addEventListener("contextmenu", function (e) { e.preventDefault(); });
     canvas.addEventListener("pointerdown", function (e) {
@@ -820,11 +833,14 @@
         state.orbit.yaw -= dx * 0.01;
         state.orbit.pitch = Math.max(-1.55, Math.min(1.55, state.orbit.pitch + dy * 0.01));
       }
+      changed();
     });
     canvas.addEventListener("wheel", function (e) {
       e.preventDefault();
       const o = state.orbit;
-      o.dist = Math.max(1.05 * viewer.radius, Math.min(50 * viewer.radius, o.dist * Math.exp(e.deltaY * 0.001)));
+      o.dist = Math.max(1.05 * viewer.radius,
+                        Math.min(50 * viewer.radius, o.dist * Math.exp(e.deltaY * 0.001)));
+      changed();
     }, { passive: false });
   }
 
@@ -847,7 +863,7 @@
   function loop(viewer, state, canvas) {
     const fpsEl = document.getElementById("fps");
     let frames = 0, t0 = performance.now();
-    function frame() {
+    function draw() {
       const w = canvas.width, h = canvas.height;
       const t = viewer.target(w, h, viewer.gl.RGBA16F);
       const cam = orbitCamera(state.orbit, w, h);
@@ -864,8 +880,13 @@
         frames = 0;
         t0 = now;
       }
+    }
+    function frame() {
+      draw();
       if (!state.still) requestAnimationFrame(frame);
     }
+    // one frame now (a still page redraws when a control changes)
+    api.redraw = draw;
     requestAnimationFrame(frame);
   }
 
