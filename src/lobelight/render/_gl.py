@@ -44,6 +44,7 @@ from ._sun_glossy import (
     sun_glossy_uniforms,
     sun_glossy_vertex_params,
     sun_widened,
+    tail_scale,
 )
 from ._sun_shadow import BLOCKER_SAMPLES, SHADOW_SAMPLES, disc_radius, sun_frame
 from ._tonemap import CURVES, DEFAULT_CURVE
@@ -71,6 +72,8 @@ SHADOW_RES = 4096
 _GL_TEXTURE_CUBE_MAP_SEAMLESS = 0x884F
 #: Texture unit of the shadow map's depths read without comparison (the soft shadow's search).
 _SHADOW_DEPTH_UNIT = 9
+#: Texture unit of the whole map's chain, read by a sharp lobe for the sun's shape.
+_WHOLE_ATLAS_UNIT = 5
 #: Texture units of the per-pixel reflection's visibility tiles, faces and positions.
 _VIS_UNIT = 10
 #: Width in texels of the visibility atlas and of the face and position textures.
@@ -759,10 +762,26 @@ class GLRenderer:
         import moderngl  # optional (the gl extra)
 
         self.atlas, self._atlas_uniforms = upload_prefiltered(self.ctx, pf)
+        # a sharp lobe reads the sun's shape in the whole map's chain (prt.glsl sun_shape)
+        self.whole_atlas = None
+        if self.sharp is not None and self.sun_glossy:
+            self.whole_atlas = self._upload_whole(lighting)
         self.env_cube = self.ctx.texture_cube(
             (BACKGROUND_RES,) * 2, 3, _background(lighting).tobytes(), dtype="f4"
         )
         self.env_cube.filter = (moderngl.LINEAR, moderngl.LINEAR)
+
+    def _upload_whole(self, lighting: Lighting):
+        """The whole map's chain as a second atlas of the first's layout, and the analytic
+        highlight's tail factor (render/_sun_glossy.py ``tail_scale``)."""
+        whole = lighting.prefiltered
+        atlas = _atlas(whole)[0]
+        if atlas.shape != (self.atlas.height, self.atlas.width, 4):
+            raise InputError("lighting", "the whole map's chain differs in layout from its rest's")
+        tex = self.ctx.texture((atlas.shape[1], atlas.shape[0]), 4, atlas.tobytes(), dtype="f4")
+        tex.filter = self.atlas.filter
+        self.prog["sun_tail"].value = tail_scale(self._specular, float(lighting.sun.spread))
+        return tex
 
     def _connect_programs(self, tex_width: int) -> None:
         """The programs' uniform-block bindings, texture units and the uniforms that hold for
@@ -784,6 +803,7 @@ class GLRenderer:
             ("diff_tex", 1),
             ("cand_tex", 2),
             ("atlas", 3),
+            ("whole_atlas", _WHOLE_ATLAS_UNIT),
             ("shadow_map", 6),
             ("bounce_tex", 8),
             ("shadow_depth", _SHADOW_DEPTH_UNIT),
@@ -948,6 +968,9 @@ class GLRenderer:
         ):
             return False
         self.atlas.write(_atlas(pf)[0].tobytes())
+        if self.whole_atlas is not None:
+            self.whole_atlas.release()
+            self.whole_atlas = self._upload_whole(lighting)
         for face, data in enumerate(_background(lighting)):
             self.env_cube.write(face, data.tobytes())
         if self.has_sun:
@@ -1177,6 +1200,8 @@ class GLRenderer:
             if self.has_bounce:
                 self.bounce_tex.use(8)
             self.atlas.use(3)
+            if self.whole_atlas is not None:
+                self.whole_atlas.use(_WHOLE_ATLAS_UNIT)
             if self.albedo_tex is not None:
                 self.albedo_tex.use(_ALBEDO_UNIT)
             if self.sharp is not None:
@@ -1278,6 +1303,7 @@ class GLRenderer:
             self.sample_ubo,
             self.cand_tex,
             self.atlas,
+            *(() if self.whole_atlas is None else (self.whole_atlas,)),
             self.env_cube,
             self.prog,
             self.bg_prog,

@@ -63,10 +63,13 @@ __all__ = [
     "INDIRECT_SCALE_MAX",
     "OCCLUDED_FLOOR",
     "SHARP_NV_MIN",
+    "disc_shade",
     "indirect_light",
     "indirect_scale",
+    "lobe_points",
     "object_light",
     "shade",
+    "sun_reflection",
     "visible_fraction",
 ]
 
@@ -84,18 +87,20 @@ OCCLUDED_FLOOR = 0.05
 HIT_SHADOW_OFFSET = 1e-4
 
 
-def shade(sharp: SharpLobe, lighting, r: torch.Tensor, n: torch.Tensor, nv: torch.Tensor,
-          vis: torch.Tensor, rot, *, rest: bool) -> torch.Tensor:  # fmt: skip
-    """``E(n.v) sum_i a_i L(R; lam_i) V`` (module docstring: two lookups across the plane of
-    incidence for a microfacet lobe): (P, 3) for reflected directions ``r (P, 3)`` about
-    shading normals ``n (P, 3)``, ``nv (P,)``, visible fractions ``vis (P,)``; ``rest``: the
-    map without its sun."""
-    w = sharp.weights.to(r.device)[:, None]  # (M, 1)
+def lobe_points(sharp: SharpLobe, r: torch.Tensor, n: torch.Tensor, nv: torch.Tensor):
+    """Where and how sharply :func:`shade` reads the lighting (module docstring).
+
+    Returns
+    -------
+    dirs : (K, P, M, 3) unit directions, K = 2 points across the plane of incidence for a
+        microfacet lobe, 1 for a lobe that keeps its width about ``R``
+    lam : (P, M) their sharpness
+    weights : (M,) the mixture's weights; each of the K points carries ``1 / K`` of them
+    """
+    w = sharp.weights.to(r.device)
+    m = w.shape[0]
     if not sharp.warp:
-        lam = sharp.sharpness(nv)  # (P, M)
-        m = lam.shape[-1]
-        look = lighting.lookup(r[:, None].expand(-1, m, 3), lam, rot, rest=rest)  # (P, M, 3)
-        return sharp.directional_albedo(nv) * (look * w).sum(1) * vis[:, None]
+        return r[None, :, None].expand(1, -1, m, 3), sharp.sharpness(nv), w
     lam0 = sharp.lam.to(r.device)  # (M,)
     c = nv.clamp_min(SHARP_NV_MIN)[:, None]  # (P, 1)
     lam = lam0 / c**2  # (P, M) the width across the plane of incidence
@@ -103,9 +108,50 @@ def shade(sharp: SharpLobe, lighting, r: torch.Tensor, n: torch.Tensor, nv: torc
     t = torch.nn.functional.normalize(n - (n * r).sum(-1, keepdim=True) * r, dim=-1)  # (P, 3)
     step = s[..., None] * t[:, None]  # (P, M, 3)
     d = torch.nn.functional.normalize(torch.stack([r[:, None] + step, r[:, None] - step]), dim=-1)
-    look = lighting.lookup(d, lam.expand(2, -1, -1), rot, rest=rest)  # (2, P, M, 3)
-    mixed = (0.5 * look.sum(0) * w).sum(1)
+    return d, lam, w
+
+
+def shade(sharp: SharpLobe, lighting, r: torch.Tensor, n: torch.Tensor, nv: torch.Tensor,
+          vis: torch.Tensor, rot, *, rest: bool) -> torch.Tensor:  # fmt: skip
+    """``E(n.v) sum_i a_i L(R; lam_i) V`` (module docstring: two lookups across the plane of
+    incidence for a microfacet lobe): (P, 3) for reflected directions ``r (P, 3)`` about
+    shading normals ``n (P, 3)``, ``nv (P,)``, visible fractions ``vis (P,)``; ``rest``: the
+    map without its sun."""
+    d, lam, w = lobe_points(sharp, r, n, nv)
+    look = lighting.lookup(d, lam.expand(d.shape[0], -1, -1), rot, rest=rest)  # (K, P, M, 3)
+    mixed = (look.mean(0) * w[:, None]).sum(1)
     return sharp.directional_albedo(nv) * mixed * vis[:, None]
+
+
+def disc_shade(sharp: SharpLobe, r: torch.Tensor, n: torch.Tensor, nv: torch.Tensor,
+               sun_dir: torch.Tensor, sun) -> torch.Tensor:  # fmt: skip
+    """What :func:`shade` would read from the sun alone were it the Gaussian disc the shadows
+    and :func:`lobelight.render._sun_glossy.sun_widened` take it for: (P, 3). A normalised
+    lookup of sharpness ``lam`` at ``d`` sees a disc of irradiance ``E`` and RMS angle
+    ``sigma`` about ``l`` as ``E lam' / (2 pi) exp(lam' (d.l - 1))``, ``1 / lam' = 1 / lam +
+    sigma^2 / 2`` (two small-angle Gaussians convolved)."""
+    d, lam, w = lobe_points(sharp, r, n, nv)
+    lw = 1 / (1 / lam.clamp_min(DIVISOR_F32) + float(sun.spread) ** 2 / 2)  # (P, M)
+    chord = (d - sun_dir.to(d.device, d.dtype)).pow(2).sum(-1)  # (K, P, M)
+    g = (lw / (2 * math.pi) * torch.exp(-0.5 * lw * chord)).mean(0)  # (P, M)
+    e = sun.irradiance.to(d.device, d.dtype)
+    return sharp.directional_albedo(nv) * (g * w).sum(1)[:, None] * e
+
+
+def sun_reflection(sharp: SharpLobe, lighting, r: torch.Tensor, n: torch.Tensor,
+                   nv: torch.Tensor, rot) -> torch.Tensor:  # fmt: skip
+    """The sun's own pixels seen in the sharp lobe, before its visibility: (P, 3), :func:`shade`
+    of the whole map less :func:`shade` of the map without its sun (the chains are linear in
+    the map, so the difference is the sun's excess over its surroundings, prefiltered).
+
+    A sun taken out of the map is a disc to the shadows and to rough lobes, but a sharp lobe
+    sees its shape: a studio's softbox or a window is a rectangle with hard edges, and the
+    lobe is narrower than it. The renderers shade the sun's glossy light off a sharp lobe as
+    the BRDF's analytic highlight of the disc (whose long tail the mixture lacks) plus this
+    less :func:`disc_shade`: the mixture's core moves from the disc to the sun's shape."""
+    one = torch.ones_like(nv)
+    whole = shade(sharp, lighting, r, n, nv, one, rot, rest=False)
+    return (whole - shade(sharp, lighting, r, n, nv, one, rot, rest=True)).clamp_min(0)
 
 
 def visible_fraction(tiles: torch.Tensor, corners: torch.Tensor, bary: torch.Tensor,

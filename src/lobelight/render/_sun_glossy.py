@@ -53,6 +53,7 @@ __all__ = [
     "sun_glossy_vertex_params",
     "sun_through",
     "sun_widened",
+    "tail_scale",
 ]
 
 
@@ -68,6 +69,24 @@ def sun_widened(spec, spread: float):
     if spread <= 0.0:
         return spec
     return spec.sun_widened(spread)
+
+
+def tail_scale(spec, spread: float) -> float:
+    """How much brighter the widened lobe's far tail is than the lobe's own: a microfacet
+    distribution falls as ``alpha^2 / theta^4`` far from its peak, and a disc small against
+    ``theta`` leaves that tail as it is, so the widened lobe (:func:`sun_widened`) overstates
+    it by ``alpha'^2 / alpha^2``; this is the inverse, ``alpha^2 / alpha'^2`` (Blinn-Phong
+    through its Beckmann alpha, ``(e' + 2) / (e + 2)``; modified Phong, whose lobe has no
+    such tail, ``e' / e``, the peak's). 1 for ``spread`` 0. For a constant-parameter model
+    (:func:`lobelight.brdf.sharp_lobe`'s)."""
+    if spread <= 0.0:
+        return 1.0
+    name = spec.sun_param
+    p = float(spec.params[name].detach().float().mean())
+    q = float(spec.sun_widened(spread).params[name].detach().float().mean())
+    if name == "alpha":
+        return (p / q) ** 2
+    return (q + 2) / (p + 2) if spec.sun_model == 3 else q / p
 
 
 def sun_glossy_uniforms(spec) -> dict[str, float | int]:

@@ -34,8 +34,16 @@ from ..lobes import sg
 from ..model import blend_lobes
 from ._albedo import diffuse_albedo, diffuse_light
 from ._lighting import Lighting
-from ._reflection import indirect_light, indirect_scale, object_light, shade, visible_fraction
-from ._sun_glossy import sun_glossy, sun_glossy_supported, sun_through
+from ._reflection import (
+    disc_shade,
+    indirect_light,
+    indirect_scale,
+    object_light,
+    shade,
+    sun_reflection,
+    visible_fraction,
+)
+from ._sun_glossy import sun_glossy, sun_glossy_supported, sun_through, tail_scale
 from ._sun_shadow import disc_radius, disc_visibility
 
 __all__ = ["VertexData", "pixel_stage", "render_torch", "sun_stage", "vertex_stage"]
@@ -227,9 +235,29 @@ def sun_stage(
         if diffuse:
             out[lit] = albedo[lit] / math.pi * e * (cos[lit] * vis)[:, None]
         if glossy:
-            spec = sun_glossy(model, lighting, pos[lit], n[lit], eye, f[lit], b[lit, :, 0], rot)
-            out[lit] += spec * vis[:, None]
+            out[lit] += (
+                _sun_specular(model, lighting, pos[lit], n[lit], eye, f[lit], b[lit], rot)
+                * vis[:, None]
+            )
     return out
+
+
+def _sun_specular(model, lighting, pos, n, eye, corners, b, rot) -> torch.Tensor:
+    """The sun's glossy light at lit points before its visibility, (p, 3): the BRDF's highlight
+    of the widened disc (:func:`lobelight.render._sun_glossy.sun_glossy`), and for a sharp lobe
+    the sun's shape in place of the disc's (:func:`lobelight.render._reflection.sun_reflection`
+    less :func:`lobelight.render._reflection.disc_shade`)."""
+    out = sun_glossy(model, lighting, pos, n, eye, corners, b[..., 0], rot)
+    sharp = sharp_lobe(model.materials.specular)
+    if sharp is None:
+        return out
+    view = torch.nn.functional.normalize(eye.to(pos.device, pos.dtype) - pos, dim=-1)
+    nv = (n * view).sum(-1).clamp_min(0)
+    r = mirror_direction(n, view)
+    shape = sun_reflection(sharp, lighting, r, n, nv, rot).to(pos.device)
+    disc = disc_shade(sharp, r, n, nv, lighting.sun_direction(rot), lighting.sun).to(pos.device)
+    tail = tail_scale(model.materials.specular, lighting.sun.spread)
+    return (tail * (out - disc) + shape).clamp_min(0)
 
 
 def render_torch(

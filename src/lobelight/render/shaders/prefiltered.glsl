@@ -10,10 +10,10 @@ uniform float level_res[MAX_LEVELS];
 uniform int n_levels;
 uniform float lam0;               // sharpness of level 0
 uniform float log_rho;            // log of the sharpness ratio between levels
-// Bilinear lookup of level k at direction d: the GL major-axis face rule, then hardware
-// bilinear filtering inside the face's padded tile (its one-texel border holds the
+// Bilinear lookup of level k of the atlas tex at direction d: the GL major-axis face rule, then
+// hardware bilinear filtering inside the face's padded tile (its one-texel border holds the
 // neighbouring faces' texels, so this equals a seamless cube-map lookup)
-vec3 level_lookup(int k, vec3 d) {
+vec3 level_lookup_in(sampler2D tex, int k, vec3 d) {
     vec3 a = abs(d);
     int face;
     float sc, tc, ma;
@@ -28,13 +28,14 @@ vec3 level_lookup(int k, vec3 d) {
     vec2 uv = vec2(sc, tc) / max(ma, 1e-30);
     vec2 x = clamp((uv + 1.0) * 0.5 * res + 0.5, 0.5, res + 0.5);  // padded texel index
     vec2 tcoord = vec2(float(face) * (res + 2.0) + x.x + 0.5, level_y[k] + x.y + 0.5);
-    return texture(atlas, tcoord / atlas_size).rgb;
+    return texture(tex, tcoord / atlas_size).rgb;
 }
 
-// The lighting averaged under the normalised Gaussian, int G L dw / int G dw: the two levels
-// around lam, blended with the weight that minimises the L2 distance of the blended kernel to
-// the requested one (Prefiltered.level_coords, "l2")
-vec3 prefiltered_lookup(vec3 mu, float lam) {
+// The lighting averaged under the normalised Gaussian, int G L dw / int G dw, in the atlas tex
+// (atlas, or another chain of its layout): the two levels around lam, blended with the weight
+// that minimises the L2 distance of the blended kernel to the requested one
+// (Prefiltered.level_coords, "l2")
+vec3 prefiltered_lookup_in(sampler2D tex, vec3 mu, float lam) {
     float kf = log(lam0 / lam) / log_rho;
     int kmax = n_levels - 1;
     int k0 = clamp(int(floor(kf)), 0, kmax - 1);
@@ -47,8 +48,10 @@ vec3 prefiltered_lookup(vec3 mu, float lam) {
     if (kf < 0.0) t = 0.0;
     if (kf > float(kmax)) t = 1.0;
     t = clamp(t, 0.0, 1.0);
-    return (1.0 - t) * level_lookup(k0, mu) + t * level_lookup(k0 + 1, mu);
+    return (1.0 - t) * level_lookup_in(tex, k0, mu) + t * level_lookup_in(tex, k0 + 1, mu);
 }
+
+vec3 prefiltered_lookup(vec3 mu, float lam) { return prefiltered_lookup_in(atlas, mu, lam); }
 
 // int G(w; mu, lam) L(w) dw
 vec3 integrate(vec3 mu, float lam) {

@@ -372,6 +372,50 @@ float sun_through(vec3 mu, float lam) {
     float integral = lam < 1e-4 ? 4.0 * PI * (1.0 - lam) : 2.0 * PI * (1.0 - exp(-2.0 * lam)) / lam;
     return ratio * g / integral;
 }
+
+#if defined(SHARP) && SHARP
+uniform sampler2D whole_atlas;  // the whole map's chain, atlas's layout (atlas: without the sun)
+uniform float sun_tail;         // the analytic highlight's tail factor (_sun_glossy.py tail_scale)
+
+// what sharp_lighting would read of the sun alone were it the Gaussian disc, in the world frame:
+// per lookup of sharpness lam at d, E lam' / (2 pi) exp(lam' (d.l - 1)), 1 / lam' = 1 / lam +
+// sigma^2 / 2, without E (render/_reflection.py disc_shade)
+float disc_lighting(vec3 r, vec3 t, float nv) {
+    float s2 = 0.5 * sun_spread * sun_spread;
+    float acc = 0.0;
+    if (sharp_warp > 0.0) {
+        float c = max(nv, SHARP_NV_MIN);
+        for (int i = 0; i < MIXTURE; ++i) {
+            float lw = 1.0 / (c * c / sharp_lam[i] + s2);
+            vec3 step = sqrt(max(1.0 - c * c, 0.0) / sharp_lam[i]) * t;
+            vec3 a = normalize(r + step) - sun_dir, b = normalize(r - step) - sun_dir;
+            acc += (0.5 * sharp_weight[i]) * lw / (2.0 * PI)
+                   * (exp(-0.5 * lw * dot(a, a)) + exp(-0.5 * lw * dot(b, b)));
+        }
+        return acc;
+    }
+    for (int i = 0; i < MIXTURE; ++i) {
+        float lw = 1.0 / (1.0 / sharp_lam[i] + s2);
+        vec3 a = r - sun_dir;
+        acc += sharp_weight[i] * lw / (2.0 * PI) * exp(-0.5 * lw * dot(a, a));
+    }
+    return acc;
+}
+
+// the sun's glossy light off a sharp lobe, before its visibility (render/_torch.py
+// _sun_specular): the disc's analytic highlight spec with its tail rescaled, and the mixture's
+// core moved from the disc to the sun's own shape in the map (whole chain less atlas)
+vec3 sun_shape(vec3 spec, vec3 n, vec3 d) {
+    float nv = max(dot(n, d), 0.0);
+    vec3 mirror = 2.0 * dot(n, d) * n - d;
+    vec3 t = across(n, mirror);
+    vec3 albedo = directional_albedo(nv);
+    vec3 whole = sharp_lighting_in(whole_atlas, rot_t * mirror, rot_t * t, nv);
+    vec3 shape = albedo * max(whole - sharp_lighting(rot_t * mirror, rot_t * t, nv), 0.0);
+    vec3 disc = albedo * disc_lighting(mirror, t, nv) * sun_e;
+    return max(sun_tail * (spec - disc) + shape, 0.0);
+}
+#endif
 #endif
 
 // the prefiltered lookups (integrate, level_lookup) come from prefiltered.glsl
@@ -407,7 +451,13 @@ void main() {
             float vis = sun_visibility(v_pos, n, ng);
             if (diffuse_on > 0.0) c += albedo_px * (0.3183098861837907 * cosine * vis) * sun_e;
 #if SUN_GLOSSY
-            if (sun_gl) c += sun_brdf_cos(sun_dir, d, n) * vis * sun_e;
+            if (sun_gl) {
+                vec3 spec = sun_brdf_cos(sun_dir, d, n) * sun_e;
+#if defined(SHARP) && SHARP
+                spec = sun_shape(spec, n, d);
+#endif
+                c += spec * vis;
+            }
 #endif
         }
     }

@@ -111,26 +111,29 @@ vec3 across(vec3 n, vec3 r) {
     return t * inversesqrt(max(dot(t, t), 1e-30));
 }
 
-// sum_i a_i L(R; lam_i): the lighting under the lobe's mixture at R, t the plane of incidence's
-// direction across R (both rotated); a microfacet lobe as two lookups of sharpness
-// lam_i / (n.v)^2 at R +- s_i t, s_i^2 = (1 - (n.v)^2) / lam_i (render/_reflection.py shade)
-vec3 sharp_lighting(vec3 r, vec3 t, float nv) {
+// sum_i a_i L(R; lam_i): the lighting of the atlas tex under the lobe's mixture at R, t the
+// plane of incidence's direction across R (both rotated); a microfacet lobe as two lookups of
+// sharpness lam_i / (n.v)^2 at R +- s_i t, s_i^2 = (1 - (n.v)^2) / lam_i (render/_reflection.py
+// shade, lobe_points)
+vec3 sharp_lighting_in(sampler2D tex, vec3 r, vec3 t, float nv) {
     vec3 acc = vec3(0.0);
     if (sharp_warp > 0.0) {
         float c = max(nv, SHARP_NV_MIN);
         for (int i = 0; i < MIXTURE; ++i) {
             float lam = sharp_lam[i] / (c * c);
             vec3 step = sqrt(max(1.0 - c * c, 0.0) / sharp_lam[i]) * t;
-            acc += (0.5 * sharp_weight[i]) * (prefiltered_lookup(normalize(r + step), lam)
-                                              + prefiltered_lookup(normalize(r - step), lam));
+            acc += (0.5 * sharp_weight[i]) * (prefiltered_lookup_in(tex, normalize(r + step), lam)
+                                              + prefiltered_lookup_in(tex, normalize(r - step), lam));
         }
         return acc;
     }
     for (int i = 0; i < MIXTURE; ++i) {
-        acc += sharp_weight[i] * prefiltered_lookup(r, sharp_lam[i]);
+        acc += sharp_weight[i] * prefiltered_lookup_in(tex, r, sharp_lam[i]);
     }
     return acc;
 }
+
+vec3 sharp_lighting(vec3 r, vec3 t, float nv) { return sharp_lighting_in(atlas, r, t, nv); }
 
 #if HAS_SUN
 float sun_visibility(vec3 pos, vec3 n, vec3 ng);  // prt.glsl
