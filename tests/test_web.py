@@ -39,11 +39,13 @@ FLAGS = ["--headless=new", "--no-sandbox", "--use-angle=swiftshader", "--enable-
 W, H = 96, 72
 
 
-def analytic_model(n: int) -> Model:
+def analytic_model(n: int, roughness: float | None = None) -> Model:
     """``sphere:2`` whose transport is ``n`` analytic Gaussians per view (no fit: fast): a
     glossy lobe about the mirror direction, a broad one about the normal, and for ``n = 3`` a
-    mid-width one between; weights zero below the horizon, as a fitted model has them."""
-    sc = scene.builtin("sphere", subdivisions=2)
+    mid-width one between; weights zero below the horizon, as a fitted model has them.
+    ``roughness``: the material's GGX alpha (default the built-in sphere's)."""
+    kw = {} if roughness is None else {"roughness": roughness}
+    sc = scene.builtin("sphere", subdivisions=2, **kw)
     nrm = sc.mesh.normals  # (V, 3)
     views = sphere.geodesic_views()  # (J, 3)
     cos = nrm @ views.T  # (V, J)
@@ -336,4 +338,18 @@ def test_a_model_beyond_the_texture_limits_gets_a_clear_message(browser, sky, tm
     assert not status["ok"]
     assert "too large for this device's textures" in status["message"]
     assert page.locator("#message").is_visible()
+    page.close()
+
+
+@needs_browser
+def test_a_sharp_metal_is_shown_by_its_gaussians_and_the_page_says_so(browser, sky, tmp_path):
+    # GGX alpha 0.03: the desktop shades its direct light per pixel (reflection.glsl), which
+    # the page does not: the export's notes and the page's note say so
+    m = analytic_model(1, roughness=0.03)
+    info = web.export_web(m, tmp_path / "v", [sky], base_res=16)
+    assert any("sharp reflection" in n for n in info["notes"])
+    page = open_page(browser, tmp_path / "v")
+    assert page.evaluate("window.lobelight.status.ok")
+    assert page.locator("#notes").is_visible()
+    assert "fitted Gaussians" in page.locator("#notes").inner_text()
     page.close()

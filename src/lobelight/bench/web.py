@@ -43,11 +43,11 @@ def _chromium() -> str:
     return path
 
 
-def _page_fps(browser, folder: Path, size: int, frames: int) -> dict:
+def _page_fps(browser, folder: Path, size: int, frames: int, query: str = "") -> dict:
     """Load time and frames per second of the page at ``size`` squared."""
     page = browser.new_page(viewport={"width": size + 40, "height": size + 40})
     t0 = time.perf_counter()
-    page.goto(f"file://{folder}/index.html?size={size}x{size}&still=1")
+    page.goto(f"file://{folder}/index.html?size={size}x{size}&still=1{query}")
     page.wait_for_function("window.lobelight && window.lobelight.ready")
     page.evaluate("window.lobelight.ready")
     load = time.perf_counter() - t0
@@ -71,15 +71,17 @@ def bench_web(
     gaussians: tuple[int, ...] = (1, 3),
     sizes: tuple[int, ...] = (512, 1024),
     frames: int = 10,
+    sun: bool = True,
 ) -> dict:
     """Frames per second of the web viewer per (vertices, Gaussians, canvas size) (module
-    docstring). Needs chromium and ``lobelight[web]`` (Playwright)."""
+    docstring); ``sun``: the sky's sun shaded per pixel with its soft shadow (False: in the
+    SH and the chain). Needs chromium and ``lobelight[web]`` (Playwright)."""
     try:
         from playwright.sync_api import sync_playwright  # optional (the web extra)
     except ImportError:
         raise InputError("bench web", "needs Playwright: pip install 'lobelight[web]'") from None
     exe = _chromium()
-    lighting = Lighting(builtin(), sun=True)
+    lighting = Lighting(builtin(), sun=sun)
     load_before = os.getloadavg()
     cases = []
     tmp = Path(tempfile.mkdtemp(prefix="lobelight-bench-web-"))
@@ -106,6 +108,7 @@ def bench_web(
     return {
         "benchmark": "web",
         "browser": f"{exe} {' '.join(CHROMIUM_FLAGS)}",
+        "sun": sun,
         "cases": cases,
         "load_average_before": load_before,
         "load_average_after": os.getloadavg(),

@@ -661,11 +661,13 @@
       gl.clear(gl.COLOR_BUFFER_BIT | gl.DEPTH_BUFFER_BIT);
       gl.enable(gl.DEPTH_TEST);
       gl.depthFunc(gl.LESS);
-      gl.colorMask(false, false, false, false);
-      gl.useProgram(p.depth);
-      gl.bindVertexArray(p.depthVao);
-      gl.drawElements(gl.TRIANGLES, this.nIndices, gl.UNSIGNED_INT, 0);
-      gl.colorMask(true, true, true, true);
+      if (this.options.prepass !== false) {
+        gl.colorMask(false, false, false, false);
+        gl.useProgram(p.depth);
+        gl.bindVertexArray(p.depthVao);
+        gl.drawElements(gl.TRIANGLES, this.nIndices, gl.UNSIGNED_INT, 0);
+        gl.colorMask(true, true, true, true);
+      }
       gl.depthFunc(gl.LEQUAL);
       this.bindTexture(UNITS.gauss_tex, gl.TEXTURE_2D, this.gaussTex);
       this.bindTexture(UNITS.diff_tex, gl.TEXTURE_2D, this.diffTex);
@@ -746,6 +748,8 @@
     if (q.get("max_texture")) o.maxTexture = parseInt(q.get("max_texture"), 10);
     if (q.get("size")) o.size = q.get("size").split("x").map(function (s) { return parseInt(s, 10); });
     o.env = parseInt(q.get("env") || "0", 10);
+    // prepass=0: no depth pre-pass (each covered pixel may then be shaded more than once)
+    o.prepass = q.get("prepass") !== "0";
     o.still = q.get("still") === "1";
     return o;
   }
