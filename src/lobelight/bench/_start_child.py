@@ -5,9 +5,12 @@ Run as a script, ``python _start_child.py TIMES.json T0 -- render MODEL ...``: `
 parent's ``time.time()`` just before it started this process. The library modules are
 imported first and their public functions wrapped (before the command line imports them, so
 that it binds the wrapped ones); then the command line runs as ``python -m lobelight.cli``
-does. At exit the timings go to ``TIMES.json``: per label the summed seconds, the calls and
-the first call's start, in seconds after this process began (``time.perf_counter``), and the
-wall-clock instants ``start`` (this script's first line) and ``end`` (after the command).
+does (its ``main`` then ends the process itself: :func:`lobelight.cli.main`). At exit the
+timings go to ``TIMES.json``, from an ``atexit`` handler registered before the command's own
+(so it runs after theirs, whichever way the process ends): per label the summed seconds, the
+calls and the first call's start, in seconds after this process began (``time.perf_counter``),
+and the wall-clock instants ``start`` (this script's first line) and ``end`` (the record's
+writing, after the command and the other exit handlers).
 """
 
 import time
@@ -15,7 +18,8 @@ import time
 _T_START = time.time()
 _P_START = time.perf_counter()
 
-import json  # noqa: E402 (the clock starts first)
+import atexit  # noqa: E402 (the clock starts first)
+import json  # noqa: E402
 import runpy  # noqa: E402
 import sys  # noqa: E402
 from pathlib import Path  # noqa: E402
@@ -100,16 +104,8 @@ def _gl_hooks() -> None:
     _wrap(moderngl.Context, "program", "gl_programs")
 
 
-def main() -> int:
-    out, t0 = sys.argv[1], float(sys.argv[2])
-    argv = sys.argv[4:] if sys.argv[3:4] == ["--"] else sys.argv[3:]
-    _gl_hooks()
-    sys.argv = ["lobelight", *argv]
-    code = 0
-    try:
-        runpy.run_module("lobelight.cli", run_name="__main__", alter_sys=True)
-    except SystemExit as exc:
-        code = exc.code if isinstance(exc.code, int) else 1
+def _write_record(out: str, t0: float) -> None:
+    """The timings (module docstring) as JSON in ``out``; ``t0`` the parent's start."""
     record = {
         "parent_t0": t0,
         "start": _T_START,
@@ -117,12 +113,23 @@ def main() -> int:
         "torch_imported": _P_TORCH - _P_START,
         "library_imported": _P_IMPORTS - _P_START,
         "finished": time.perf_counter() - _P_START,
-        "exit_code": code,
         "torch_threads": torch.get_num_threads(),
         "timers": _TIMES,
     }
     Path(out).write_text(json.dumps(record))
-    return code
+
+
+def main() -> int:
+    out, t0 = sys.argv[1], float(sys.argv[2])
+    argv = sys.argv[4:] if sys.argv[3:4] == ["--"] else sys.argv[3:]
+    _gl_hooks()
+    atexit.register(_write_record, out, t0)
+    sys.argv = ["lobelight", *argv]
+    try:
+        runpy.run_module("lobelight.cli", run_name="__main__", alter_sys=True)
+    except SystemExit as exc:
+        return exc.code if isinstance(exc.code, int) else 1
+    return 0
 
 
 if __name__ == "__main__":

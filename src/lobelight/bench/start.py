@@ -9,10 +9,10 @@ running the real command line with timers around the library calls it makes
 process until the process has exited.
 
 The child's cache folder (``LOBELIGHT_CACHE``) is the benchmark's own: the first run starts
-from an empty cache (``cold``: the map's prefiltered chain, its resampled cubes and the
-geodesic candidate table are computed and written), the runs after it find them there
-(``warm``). The model file and the Python modules are in the operating system's file cache in
-both: a first start after a reboot reads them from the disk as well.
+from an empty cache (``cold``: the map's prefiltered chain, its resampled cubes, the geodesic
+candidate table and the sharp lobe's measurement are computed and written), the runs after it
+find them there (``warm``). The model file and the Python modules are in the operating
+system's file cache in both: a first start after a reboot reads them from the disk as well.
 
 Phases of a run, in seconds (``phases``; they sum to ``wall``):
 
@@ -23,8 +23,10 @@ Phases of a run, in seconds (``phases``; they sum to ``wall``):
 - ``model_read``, ``map_read``;
 - ``renderer_setup`` (:class:`lobelight.render.Renderer`: the lighting, the GL context, the
   shaders, the uploads), ``frame`` (one rendered image), ``save`` (exposure and the file);
-- ``exit``: from the command's end to the process's end (the summary's print, the
-  interpreter's teardown); ``other``: the rest (between the timed calls).
+- ``exit``: from the child's record, written by the last of the process's exit handlers, to
+  the process's end (:func:`lobelight.cli.main` ends its process without the interpreter's
+  teardown); ``other``: the rest (between the timed calls: the summary's print, the other
+  exit handlers).
 
 ``setup_parts`` splits ``renderer_setup`` by the calls timed inside it: ``lighting`` (of which
 ``sun`` and ``sh_projection``), ``chain`` (the prefiltered chain read or built),

@@ -2,28 +2,55 @@
 fitted to the lobe's profile, and its directional albedo.
 
 :func:`sharp_lobe` measures a BRDF once: the lobe's profile ``f_s(w, n) cos`` at normal
-incidence against four Gaussians of sharpness ``lam0 * 4, lam0, lam0 / 4, lam0 / 16``
+incidence against five Gaussians of sharpness ``lam0 * 4, lam0, ..., lam0 / 64``
 (``lam0`` from the lobe's half-maximum angle), their shares of light by non-negative least
 squares, and ``E(n.v) = int f_s cos`` (Fresnel included) at 64 cosines by stratified importance
 sampling. The renderers shade such a lobe per pixel (``lobelight.render``; docs/method.md,
 "Sharp reflections per pixel").
+
+A measurement is the same in every process: it is kept in memory per material and on disk in
+``lobelight._cache.cache_dir() / "brdf"``, one small file per material keyed by a hash of its
+parameters, :data:`SHARP_VERSION`, the measurement's settings and the source of the ``brdf``
+package (whose code the measurement evaluates). Reading checks the key, the arrays' shapes,
+dtypes and values and a hash of them; an entry that fails, or cannot be read, is measured
+again and rewritten (atomically: a reader never sees half a file).
 """
 
 from __future__ import annotations
 
+import functools
+import hashlib
 import json
+import logging
 import math
 from dataclasses import dataclass
+from pathlib import Path
 
+import numpy as np
 import torch
 
+from .. import __version__
+from .._cache import UNREADABLE, cache_dir, regular_entry
+from .._io import atomic_writer
 from .._tol import DIVISOR_F32
 
-__all__ = ["ALBEDO_SAMPLES", "ALBEDO_STEPS", "MIXTURE", "SHARP_LAM", "SharpLobe", "sharp_lobe"]
+__all__ = [
+    "ALBEDO_SAMPLES",
+    "ALBEDO_STEPS",
+    "MIXTURE",
+    "SHARP_LAM",
+    "SHARP_VERSION",
+    "SharpLobe",
+    "sharp_lobe",
+]
 
-#: Gaussians in the lobe's shape mixture, sharpness ``lam0 * 4, lam0, lam0 / 4, lam0 / 16``:
-#: a GGX lobe's tail holds a third of its light beyond where one Gaussian of its width reaches.
-MIXTURE = 4
+logger = logging.getLogger(__name__)
+
+#: Gaussians in the lobe's shape mixture, sharpness ``lam0 * 4^(1 - i)``, down to ``lam0 / 64``:
+#: a GGX lobe's tail holds a third of its light beyond where one Gaussian of its width reaches,
+#: and a bright source seen in the tail lights what the tail reaches (at alpha 0.03 the fit
+#: gives ``lam0 / 64`` 6 % of the light, and a sixth Gaussian, ``lam0 / 256``, none).
+MIXTURE = 5
 #: The sharpest lobe kept in fitted Gaussians: lobes whose half-maximum sharpness ``lam0`` is
 #: at least this (a GGX or Beckmann alpha up to about 0.065) are shaded per pixel. Measured
 #: better per pixel at alpha 0.03 (docs/results.md); wider lobes keep the fitted Gaussians,
@@ -34,6 +61,9 @@ ALBEDO_STEPS = 64
 #: Importance samples per table entry (a stratified grid: the table's error is far below a
 #: percent for the lobes shaded here).
 ALBEDO_SAMPLES = 64
+#: Version of the measurement, part of a disk entry's key: raise it when :func:`_measure`
+#: changes what it computes.
+SHARP_VERSION = 1
 
 
 @dataclass(frozen=True)
@@ -80,8 +110,30 @@ def sharp_lobe(spec) -> SharpLobe | None:
         return None
     key = json.dumps(spec.to_dict(), sort_keys=True)
     if key not in _CACHE:
-        _CACHE[key] = _measure(spec)
+        _CACHE[key] = _stored_or_measured(spec, key)
     return _CACHE[key]
+
+
+def _stored_or_measured(spec, params: str) -> SharpLobe | None:
+    """:func:`sharp_lobe` of a material with parameters ``params`` (its ``to_dict`` as JSON):
+    read from its disk entry (module docstring), else measured and written there."""
+    if spec.sun_model is None or spec.per_element_params:
+        return None  # no measurement to keep
+    try:
+        key = _entry_key(params)
+    except OSError as exc:  # the package's source unreadable: no key, no entry
+        logger.info("not caching the sharp lobe: %s", exc)
+        return _measure(spec)
+    path = cache_dir() / "brdf" / f"sharp-lobe-{key[:16]}.npz"
+    found, lobe = _read_entry(path, key)
+    if found:
+        return lobe
+    lobe = _measure(spec)
+    try:
+        _write_entry(path, key, lobe)
+    except OSError as exc:  # a cache that cannot be written only costs the next run time
+        logger.warning("could not write the sharp lobe to %s: %s", path, exc)
+    return lobe
 
 
 def _measure(spec) -> SharpLobe | None:
@@ -159,3 +211,101 @@ def _albedo_table(spec) -> torch.Tensor:
     wo_b = wo[:, None].expand(-1, u.shape[0], 3)
     _, weight, _ = spec.sample(wo_b, n.expand_as(wo_b), u[None].expand(t, -1, 3))
     return weight.mean(1)  # (T, 3)
+
+
+def _entry_key(params: str) -> str:
+    """Hex sha256 naming the disk entry of a material's lobe (module docstring)."""
+    head = {
+        "version": SHARP_VERSION,
+        "params": params,
+        "settings": [MIXTURE, SHARP_LAM, ALBEDO_STEPS, ALBEDO_SAMPLES],
+        "lobelight": __version__,
+        "code": _code_digest(),
+    }
+    return hashlib.sha256(json.dumps(head, sort_keys=True).encode()).hexdigest()
+
+
+@functools.cache
+def _code_digest() -> str:
+    """Hex sha256 of the ``brdf`` package's source files (this one's included). Raises
+    OSError where one cannot be read."""
+    h = hashlib.sha256()
+    for f in sorted(Path(__file__).parent.glob("*.py")):
+        h.update(f.name.encode())
+        h.update(f.read_bytes())
+    return h.hexdigest()
+
+
+#: A disk entry's arrays: name, dtype and shape.
+_ENTRY = {
+    "weights": (np.float32, (MIXTURE,)),
+    "lam": (np.float32, (MIXTURE,)),
+    "albedo": (np.float32, (ALBEDO_STEPS, 3)),
+}
+
+
+def _values_digest(arrays: dict[str, np.ndarray], warp: bool) -> str:
+    h = hashlib.sha256(b"warp" if warp else b"no warp")
+    for name in _ENTRY:
+        h.update(np.ascontiguousarray(arrays[name]).tobytes())
+    return h.hexdigest()
+
+
+def _read_entry(path: Path, key: str) -> tuple[bool, SharpLobe | None]:
+    """``(True, lobe)`` from the entry at ``path`` (``lobe`` None for a lobe too wide to shade
+    per pixel), or ``(False, None)`` when the entry is missing, not a regular file,
+    unreadable, or not exactly a whole lobe named ``key`` (the module docstring's checks)."""
+    if not regular_entry(path):
+        return False, None
+    try:
+        with np.load(path, allow_pickle=False) as z:
+            head = json.loads(str(z["header"][()]))
+            arrays = {name: z[name] for name in _ENTRY if name in z.files}
+    except (*UNREADABLE, TypeError, AttributeError, IndexError) as exc:
+        logger.info("ignoring the unreadable sharp lobe %s (%r)", path, exc)
+        return False, None
+    if not isinstance(head, dict) or head.get("key") != key:
+        return False, None
+    if head.get("lobe") is False and not arrays:
+        return True, None
+    if not (head.get("lobe") is True and _entry_fine(arrays, head)):
+        logger.info("ignoring the sharp lobe %s: not the lobe asked for", path)
+        return False, None
+    lobe = SharpLobe(
+        weights=torch.from_numpy(arrays["weights"]),
+        lam=torch.from_numpy(arrays["lam"]),
+        warp=head["warp"],
+        albedo=torch.from_numpy(arrays["albedo"]),
+    )
+    return True, lobe
+
+
+def _entry_fine(arrays: dict[str, np.ndarray], head: dict) -> bool:
+    """An entry's arrays of their dtypes and shapes, finite, with non-negative weights and
+    albedo and positive sharpness, matching the hash of them in ``head``."""
+    if set(arrays) != set(_ENTRY) or not isinstance(head.get("warp"), bool):
+        return False
+    for name, (dtype, shape) in _ENTRY.items():
+        a = arrays[name]
+        if a.dtype != dtype or a.shape != shape or not bool(np.isfinite(a).all()):
+            return False
+    plausible = (arrays["weights"] >= 0).all() and (arrays["lam"] > 0).all()
+    plausible = plausible and (arrays["albedo"] >= 0).all()
+    return bool(plausible) and head.get("values") == _values_digest(arrays, head["warp"])
+
+
+def _write_entry(path: Path, key: str, lobe: SharpLobe | None) -> None:
+    """Store ``lobe`` (or that there is none) as ``path``, atomically (the folder is created).
+    Raises OSError."""
+    if lobe is None:
+        head, arrays = {"key": key, "lobe": False}, {}
+    else:
+        arrays = {
+            "weights": lobe.weights.cpu().numpy().astype(np.float32),
+            "lam": lobe.lam.cpu().numpy().astype(np.float32),
+            "albedo": lobe.albedo.cpu().numpy().astype(np.float32),
+        }
+        head = {"key": key, "lobe": True, "warp": bool(lobe.warp)}
+        head["values"] = _values_digest(arrays, lobe.warp)
+    with atomic_writer(path) as f:
+        np.savez(f, header=np.array(json.dumps(head, sort_keys=True)), **arrays)

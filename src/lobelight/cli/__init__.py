@@ -42,7 +42,7 @@ from .._cache import MAX_MB_ENV, cache_dir, cache_max_bytes, check_environment
 from .._io import protect_inputs
 from ..errors import MAX_QUOTED, InputError, Terminated, one_line, shorten
 from ._arguments import _parser, _UsageError
-from ._process import tune
+from ._process import end_process, tune
 
 __all__ = ["main", "tune"]
 
@@ -118,14 +118,25 @@ def _on_sigterm(signum, frame) -> None:
 
 def main(argv: list[str] | None = None) -> int:
     """Run the CLI; returns the exit code (0 ok, 1 unexpected error, 2 bad input, 130 Ctrl-C,
-    143 SIGTERM)."""
+    143 SIGTERM).
+
+    Without ``argv`` the command line is the process's own (the ``lobelight`` program,
+    ``python -m lobelight.cli``): the process then ends with that code as soon as the command
+    is done and its output flushed, without the interpreter's teardown
+    (:func:`lobelight.cli._process.end_process`, which says what runs and what is skipped). A
+    program that runs the command line inside its own process passes ``argv``
+    (``main(sys.argv[1:])``) and gets the code back."""
     if threading.current_thread() is threading.main_thread():
         previous = signal.signal(signal.SIGTERM, _on_sigterm)
         try:
-            return _main(argv)
+            code = _main(argv)
         finally:
             signal.signal(signal.SIGTERM, previous)
-    return _main(argv)
+    else:
+        code = _main(argv)
+    if argv is None:
+        end_process(code)
+    return code
 
 
 def _main(argv: list[str] | None) -> int:

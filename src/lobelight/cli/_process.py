@@ -15,17 +15,23 @@ embeds lobelight may call :func:`lobelight.cli.tune` once, early, for the same e
   workers of one take the cores from the other. A short spin lets the system runtime's
   workers sleep sooner. It reads the setting when it loads, so this runs after torch is
   imported (torch's own runtime keeps its default) and before the first compiled kernel.
+
+And one for a process that has done its work: :func:`end_process` ends it at once (the
+interpreter's teardown of a process that imported torch, sympy and a GL driver is a sizeable
+part of a short command's wall time), once everything that matters at exit has happened.
 """
 
 from __future__ import annotations
 
+import atexit
 import ctypes
 import ctypes.util
 import functools
 import os
 import sys
+import threading
 
-__all__ = ["keep_freed_memory", "short_openmp_spin", "tune"]
+__all__ = ["end_process", "keep_freed_memory", "short_openmp_spin", "tune"]
 
 # glibc's mallopt parameters (malloc.h)
 _M_TRIM_THRESHOLD = -1
@@ -64,3 +70,47 @@ def tune() -> None:
     """Both settings above: for a process that bakes, fits and shades (the command line's)."""
     short_openmp_spin()
     keep_freed_memory()
+
+
+def end_process(code: int) -> None:
+    """End this process now with exit status ``code``, skipping the interpreter's teardown.
+
+    First what a normal exit does that anyone can observe: the ``atexit`` handlers run
+    (logging's shutdown, which flushes and closes its handlers; ``weakref.finalize``'s, which
+    removes temporary folders; multiprocessing's, which joins its children; those of torch and
+    PIL), then Python's stdout and stderr are flushed, and C's stdio buffers (``fflush``).
+    Skipped, with ``os._exit``: the garbage collection and deallocation of every object and
+    module (memory the kernel frees at once; no output file is open by then, every file being
+    written whole and closed), and the C libraries' exit handlers and static destructors
+    (torch's, the OpenMP runtimes', the GL driver's and LLVM's: they free memory and end
+    threads, which the kernel does as well).
+
+    Returns without ending where that would cut anything short: a thread other than the main
+    one that is not a daemon still runs (the interpreter waits for it), the interpreter is to
+    stay interactive (``python -i``), or stdout or stderr cannot be flushed (the normal exit
+    reports it). Call it only where the process is the caller's, with nothing left to do.
+    """
+    main = threading.main_thread()
+    if threading.current_thread() is not main or sys.flags.inspect:
+        return
+    if any(t is not main and t.is_alive() and not t.daemon for t in threading.enumerate()):
+        return
+    atexit._run_exitfuncs()  # each handler once: the list is empty after this
+    try:
+        for stream in (sys.stdout, sys.stderr):
+            if stream is not None:
+                stream.flush()
+    except (OSError, ValueError):  # a closed stream or a reader gone: the normal exit's case
+        return
+    _flush_c_stdio()
+    os._exit(code)
+
+
+def _flush_c_stdio() -> None:
+    """``fflush(NULL)``: what C code printed into its stdio buffers (a normal exit flushes
+    them); nothing where the C library cannot be loaded."""
+    try:
+        libc = ctypes.CDLL(None)
+        libc.fflush(None)
+    except (OSError, AttributeError, TypeError):  # TypeError: no CDLL(None) on Windows
+        pass

@@ -44,6 +44,7 @@ import json
 import math
 import zipfile
 import zlib
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -309,11 +310,16 @@ def read(path) -> dict[str, Any]:
     g = _expand(a["gaussians"], a["keep"], h)
     out = _build(p, a, h, mats, g)
     vis, face, dist = (a.get(k) for k in ("visibility", "hit_face", "hit_distance"))
-    out["visibility"] = None if vis is None else torch.from_numpy(vis.copy())
-    out["hits"] = None if face is None else (torch.from_numpy(face.copy()),
-                                             torch.from_numpy(dist.copy()))  # fmt: skip
+    # the arrays read are this read's own and writable: copied only where not C-ordered
+    out["visibility"] = None if vis is None else _tensor(vis)
+    out["hits"] = None if face is None else (_tensor(face), _tensor(dist))
     out["albedo"] = read_albedo(a)
     return out
+
+
+def _tensor(arr: np.ndarray) -> torch.Tensor:
+    """A C-ordered tensor of an array read from the file (sharing its memory where it is)."""
+    return torch.from_numpy(np.ascontiguousarray(arr))
 
 
 def check(a: dict[str, np.ndarray], name: str) -> tuple[_Header, Materials]:
@@ -409,12 +415,25 @@ def _check_tiles(vis, face, dist, v: int, n_faces: int, name: str) -> None:
     _need(ok, name, f"hit_face must be ({v}, R, R) int32 tiles, got {face.shape}")
     _need(dist.shape == face.shape, name,
           f"hit_distance must be {face.shape} float16, got {dist.shape}")  # fmt: skip
-    _need(face.size == 0 or (int(face.min()) >= -1 and int(face.max()) < n_faces), name,
-          f"hit_face holds triangle ids outside -1..{n_faces - 1}")  # fmt: skip
-    _need(bool(np.isfinite(dist).all()) and not bool((dist < 0).any()), name,
-          "hit_distance holds negative or non-finite distances")  # fmt: skip
+    if face.size:
+        lo, hi = torch.aminmax(torch.from_numpy(face))
+        _need(int(lo) >= -1 and int(hi) < n_faces, name,
+              f"hit_face holds triangle ids outside -1..{n_faces - 1}")  # fmt: skip
+    _need(_distances_fine(dist), name, "hit_distance holds negative or non-finite distances")
     _need(vis is None or face.shape == vis.shape, name,
           "hit tiles and visibility tiles differ in resolution")  # fmt: skip
+
+
+def _distances_fine(dist: np.ndarray) -> bool:
+    """Whether float16 distances are all finite and not negative (-0 is not): read from their
+    bits where every one is a finite value >= +0 (sign bit clear, exponent not all ones: as
+    int16, 0..0x7BFF), else from their values."""
+    if not dist.size:
+        return True
+    lo, hi = torch.aminmax(torch.from_numpy(dist.view(np.int16)))
+    if int(lo) >= 0 and int(hi) <= 0x7BFF:
+        return True
+    return bool(np.isfinite(dist).all()) and not bool((dist < 0).any())
 
 
 @dataclass(frozen=True)
@@ -448,7 +467,7 @@ _UNREADABLE = (
 def _open(p: Path, name: str) -> dict[str, np.ndarray]:
     """The container: a regular zip archive of ``.npy`` arrays holding every array of
     ``_ARRAYS``, of a plausible expanded size. Returns the arrays, with those of ``_OPTIONAL``
-    it holds."""
+    it holds (:func:`_read_members`)."""
     check_input(p, limit=MAX_FILE_BYTES)  # a regular file (not a device or pipe)
     _need(_is_zip(p), name, _not_a_model(p))
     try:
@@ -459,11 +478,51 @@ def _open(p: Path, name: str) -> dict[str, np.ndarray]:
             missing = [k for k in _ARRAYS if k not in z.files]
             _need(not missing, name, f"not a lobelight model file (missing {missing})")
             _check_sizes(z.zip, p.stat().st_size, name)  # before anything is decompressed
-            return {k: z[k] for k in (*_ARRAYS, *_OPTIONAL) if k in z.files}
+            keys = [k for k in (*_ARRAYS, *_OPTIONAL) if k in z.files]
+            return _read_members(z, p, keys, name)
     except InputError:
         raise
     except _UNREADABLE as exc:
         raise InputError(name, f"cannot read model file: {type(exc).__name__}: {exc}") from None
+
+
+#: Threads that decompress a model file's members at once (zlib lets go of Python's lock while
+#: it inflates), and the decompressed bytes below which a file is read on one thread.
+READ_THREADS = 2
+_PARALLEL_BYTES = 8 << 20
+
+
+def _directory(archive: zipfile.ZipFile) -> list[tuple]:
+    """What a zip directory declares of each member: name, sizes, checksum, offset."""
+    return [
+        (i.filename, i.file_size, i.compress_size, i.CRC, i.header_offset)
+        for i in archive.infolist()
+    ]
+
+
+def _read_members(z, p: Path, keys: list[str], name: str) -> dict[str, np.ndarray]:
+    """The members ``keys`` of the open archive ``z`` (as ``z[key]`` reads them), the largest
+    first on :data:`READ_THREADS` threads, each through its own handle on ``p`` whose
+    directory must be the one :func:`_check_sizes` checked (a file replaced meanwhile is
+    refused, so the declared sizes still bound what is read). A failure is the one the first
+    failing member in ``keys``' order raises, as in a read of one member after another."""
+    sizes = {i.filename.removesuffix(".npy"): i.file_size for i in z.zip.infolist()}
+    if READ_THREADS < 2 or sum(sizes.get(k, 0) for k in keys) < _PARALLEL_BYTES:
+        return {k: z[k] for k in keys}
+    directory = _directory(z.zip)
+
+    def member(key: str) -> np.ndarray:
+        with np.load(p, allow_pickle=False) as own:
+            same = isinstance(own, np.lib.npyio.NpzFile) and _directory(own.zip) == directory
+            _need(same, name, "the file changed while it was read")
+            return own[key]
+
+    with ThreadPoolExecutor(READ_THREADS) as pool:
+        futures = {k: pool.submit(member, k) for k in sorted(keys, key=lambda k: -sizes.get(k, 0))}
+        try:
+            return {k: futures[k].result() for k in keys}
+        finally:
+            pool.shutdown(cancel_futures=True)
 
 
 def _header(raw: np.ndarray, name: str) -> _Header:
@@ -600,9 +659,45 @@ def _check_sh_order(diffuse: np.ndarray, meta: dict[str, Any], name: str) -> Non
 def _check_records(g7: np.ndarray, integral: bool, name: str) -> None:
     """The stored Gaussians (K, N, 7): means not zero, widths in ``SIGMA_MIN..SIGMA_MAX``,
     weights non-negative, none carrying more than :data:`MAX_LIGHT` (the weight times the
-    Gaussian's integral; ``integral``: the weights stored are that product)."""
+    Gaussian's integral; ``integral``: the weights stored are that product).
+
+    Decided in float32 where that is plain (:func:`_records_plainly_fine`), else in float64
+    (:func:`_check_records_f64`), whose verdict and message are the check's."""
     if not g7.size:
         return
+    if g7.dtype == np.float64 or not _records_plainly_fine(g7, integral):
+        _check_records_f64(g7, integral, name)
+
+
+#: Relative rounding float32's arithmetic stays far within (a few ulps of 6e-8): a float32
+#: value this far on the right side of a bound is on it in float64 as well.
+_F32_MARGIN = 1e-4
+
+
+def _records_plainly_fine(g7: np.ndarray, integral: bool) -> bool:
+    """Whether float32 arithmetic shows every record of ``g7`` (K, N, 7), float32 or float16,
+    within :func:`_check_records`' bounds by more than :data:`_F32_MARGIN` (False: decide
+    in float64). The widths' range and the weights' signs are exact in any dtype; the light a
+    record carries is bounded above by its largest weight times ``min(2 pi sigma^2, 4 pi)``
+    (the Gaussian's integral ``2 pi (1 - exp(-2 / sigma^2)) sigma^2`` is below both)."""
+    t = torch.from_numpy(g7).reshape(-1, 7)  # (K N, 7), no copy
+    lo, hi = (float(x) for x in torch.aminmax(t[:, 6]))
+    if not (SIGMA_MIN <= lo and hi <= SIGMA_MAX * (1 + _SIGMA_ROUNDING)):
+        return False
+    if float(t[:, :3].amin(-1).min()) < 0:
+        return False
+    m = t[:, 3:6].float()  # (K N, 3) the means
+    norm2 = m[:, 0].square().addcmul_(m[:, 1], m[:, 1]).addcmul_(m[:, 2], m[:, 2])  # (K N,)
+    if not float(norm2.min()) > 1e-12 * (1 + _F32_MARGIN):
+        return False
+    w = t[:, :3].amax(-1).float()  # (K N,) the largest channel: the one that carries most
+    if not integral:
+        w = w * t[:, 6].float().square().mul_(2 * math.pi).clamp_max_(4 * math.pi)
+    return float(w.max()) <= MAX_LIGHT * (1 - _F32_MARGIN)
+
+
+def _check_records_f64(g7: np.ndarray, integral: bool, name: str) -> None:
+    """:func:`_check_records` in float64."""
     _need(
         bool((np.linalg.norm(g7[..., 3:6].astype(np.float64), axis=-1) > 1e-6).all()),
         name,
@@ -697,20 +792,29 @@ def _expand(g7: np.ndarray, keep: np.ndarray, h: _Header) -> Gaussians:
     """The Gaussians (V, J, N) of every record, dropped ones with zero weight (checked records
     ``g7 (K, N, 7)`` of the ``keep (V, J)`` mask). Allocates the expanded arrays and nothing of
     their size besides (:func:`_check_memory` has bounded them)."""
-    mask = torch.from_numpy(keep)
-    rec = torch.from_numpy(np.asarray(g7, dtype=np.float32))  # (K, N, 7)
+    rec = torch.from_numpy(g7).float()  # (K, N, 7), no copy for float32
     lam_k = rec[..., 6].pow(-2)  # (K, N)
     w_k = rec[..., :3]
     if h.meta.get("weights", "peak") == "integral":
         w_k = w_k / sg.integral(lam_k.double()).float()[..., None]
-    w = torch.zeros(h.v, h.j, h.n, 3)
-    w[mask] = w_k
-    mu = torch.zeros(h.v, h.j, h.n, 3)
-    mu[..., 1] = 1.0  # dropped records: zero weight, any unit mean
-    mu[mask] = torch.nn.functional.normalize(rec[..., 3:6], dim=-1)
-    lam = torch.ones(h.v, h.j, h.n)
-    lam[mask] = lam_k
-    return Gaussians(w, mu, lam)
+    mu_k = torch.nn.functional.normalize(rec[..., 3:6], dim=-1)  # (K, N, 3)
+    flat = torch.from_numpy(keep).reshape(-1)  # (V J,)
+    kept = flat.nonzero().squeeze(1)  # (K,) records in row-major (vertex, view) order
+    w = torch.zeros(h.v * h.j, h.n, 3)
+    w.index_copy_(0, kept, w_k)
+    lam = torch.ones(h.v * h.j, h.n)
+    lam.index_copy_(0, kept, lam_k)
+    mu = torch.empty(h.v * h.j, h.n, 3)
+    mu.index_copy_(0, kept, mu_k)
+    dropped = (~flat).nonzero().squeeze(1)
+    if dropped.numel():  # zero weight, any unit mean
+        mu.index_copy_(0, dropped, _UP.expand(dropped.shape[0], h.n, 3))
+    shape = (h.v, h.j, h.n)
+    return Gaussians(w.view(*shape, 3), mu.view(*shape, 3), lam.view(shape))
+
+
+#: The mean of a dropped record (its weight is zero).
+_UP = torch.tensor([0.0, 1.0, 0.0])
 
 
 def _build(p: Path, a, h: _Header, mats: Materials, g: Gaussians) -> dict[str, Any]:
