@@ -15,6 +15,7 @@ import numpy as np
 import pytest
 import torch
 
+import test_albedo_texture as checker
 from lobelight import envmap, fit, render, scene, web
 from lobelight.cli import main
 from lobelight.errors import InputError
@@ -353,3 +354,28 @@ def test_a_sharp_metal_is_shown_by_its_gaussians_and_the_page_says_so(browser, s
     assert page.locator("#notes").is_visible()
     assert "fitted Gaussians" in page.locator("#notes").inner_text()
     page.close()
+
+
+@needs_browser
+def test_the_page_reads_albedo_textures_as_the_torch_path(browser, tmp_path):
+    """A bilinear, repeating checker texture under a UV transform, magnified
+    (tests/test_albedo_texture.py's): the page's texture array and ``albedo.glsl`` against the
+    torch path's sampler, by the desktop shader's bound: half-float texels and the rasteriser's
+    UVs against the rays' (the bilinear weights move with them), 1 % of the brightest cell."""
+    size, cam = checker.SIZE, checker.CAMERA
+    p = tmp_path / "checker.glb"
+    checker._checker_glb(p, mag_filter=9729)
+    sc = scene.load(str(p))
+    sc.albedo.transform = torch.tensor([[[1.5, 0.0, 0.25], [0.0, 1.5, -0.1]]] * 2)
+    sc.albedo.wrap = torch.tensor([[0, 0], [2, 1]])
+    m = fit.fit_model(sc, 1, indirect_paths=0, bounces=0, progress=None)
+    lighting = render.Lighting(envmap.builtin(height=64), base_res=16)
+    web.export_web(m, tmp_path / "v", [lighting])
+    page = open_page(browser, tmp_path / "v")
+    got = render_in_page(page, cam, 0.0, size=(size, size), glossy=False)[..., :3]
+    page.close()
+    r = render.Renderer(m, lighting, size, size, backend="torch", samples=1)
+    want = r.render(cam, diffuse=True, glossy=False, background=False).numpy()
+    inner = np.isfinite(checker._pixel_uv()).all(-1)
+    d = np.abs(got - want)[inner]
+    assert d.max() < 0.01 * want[inner].max()

@@ -29,6 +29,7 @@ from ..errors import InputError
 from ..geometry import sphere
 from ..lobes import sg, sh
 from ..render import Lighting, model_camera, stage_sources
+from ..scene import srgb_decode
 from ._format import read_data_file, write_data_file
 
 __all__ = [
@@ -56,6 +57,10 @@ BLOCKER_SAMPLES = 16
 SH_FIT_DIRECTIONS = 64
 #: The largest finite half float; brighter texels are clipped to it (the SH keep their light).
 HALF_MAX = 65504.0
+#: Texels across and down of the albedo layers at most (larger ones are downsampled), and
+#: the layers at most: the desktop renderer's limits (render/_gl_albedo.py).
+MAX_ALBEDO_SIZE = 2048
+MAX_ALBEDO_LAYERS = 64
 #: Files of the page copied from the package's assets.
 _PAGE_FILES = ("index.html", "viewer.js")
 #: The marker that a folder is one this module wrote (it may be replaced as a whole).
@@ -234,8 +239,8 @@ def _programs(model, n_sh: int, texels: int, key_args: tuple) -> dict[str, list[
         "HAS_SUN": int(has_sun),
         "SUN_GLOSSY": int(sun_glossy),
         "SHARP": 0,
-        "ALBEDO_TEX": 0,
-        "ALBEDO_LAYERS": 1,
+        "ALBEDO_TEX": int(model.albedo is not None),
+        "ALBEDO_LAYERS": 1 if model.albedo is None else len(model.albedo.images),
         "VERTEX_TABLE": 0,
         "TABLE_WIDTH": 4096,
         "TABLE_ROWS": 1,
@@ -245,12 +250,13 @@ def _programs(model, n_sh: int, texels: int, key_args: tuple) -> dict[str, list[
         "CAND_TEXELS": texels,
     }
     frame = ("frame",)
+    include = ("frame", "prefiltered") + (("albedo",) if model.albedo is not None else ())
     return {
         "prt": list(
             stage_sources(
                 "prt",
                 {**defines, "DEPTH_ONLY": 0},
-                ("frame", "prefiltered"),
+                include,
                 ("frame", "geodesic"),
                 dialect=es,
             )
@@ -262,15 +268,57 @@ def _programs(model, n_sh: int, texels: int, key_args: tuple) -> dict[str, list[
     }
 
 
+def _albedo_layers(albedo) -> np.ndarray:
+    """``(L, H, W, 3)`` float16 linear RGB of every layer of an
+    :class:`lobelight.scene.AlbedoTexture`, decoded from sRGB and resampled to one size (the
+    largest layer's, at most :data:`MAX_ALBEDO_SIZE`): bilinearly, area-averaged where it
+    shrinks, at the nearest texel for a layer read so; as the desktop renderer's texture array."""
+    n = len(albedo.images)
+    if n > MAX_ALBEDO_LAYERS:
+        raise InputError("albedo", f"has {n} texture layers, at most {MAX_ALBEDO_LAYERS}")
+    w = min(max(int(img.shape[1]) for img in albedo.images), MAX_ALBEDO_SIZE)
+    h = min(max(int(img.shape[0]) for img in albedo.images), MAX_ALBEDO_SIZE)
+    out = np.empty((n, h, w, 3), np.float16)
+    for i, img in enumerate(albedo.images):  # a loop over layers, not texels
+        lin = srgb_decode(img.float() / 255)  # (h_i, w_i, 3)
+        if tuple(lin.shape[:2]) != (h, w):
+            x = lin.permute(2, 0, 1)[None]
+            if bool(albedo.nearest[i]):
+                x = torch.nn.functional.interpolate(x, size=(h, w), mode="nearest-exact")
+            else:
+                shrink = x.shape[-1] > w or x.shape[-2] > h
+                x = torch.nn.functional.interpolate(
+                    x, size=(h, w), mode="bilinear", align_corners=False, antialias=shrink
+                )
+            lin = x[0].permute(1, 2, 0)
+        out[i] = lin.clamp(0, 1).numpy().astype(np.float16)
+    return out
+
+
+def _albedo(albedo) -> tuple[dict, dict[str, np.ndarray]]:
+    """The albedo textures' header (what ``albedo.glsl``'s uniforms hold) and arrays (the
+    layers and the per-vertex UVs, layers and factors)."""
+    layers = _albedo_layers(albedo)
+    mode = np.concatenate(
+        [albedo.wrap.cpu().numpy(), albedo.nearest.cpu().numpy()[:, None]], axis=1
+    )  # (L, 3)
+    header = {
+        "layers": int(layers.shape[0]),
+        "xform": _np(albedo.transform, np.float64).reshape(-1).tolist(),
+        "mode": mode.astype(np.float64).reshape(-1).tolist(),
+        "size": [float(layers.shape[2]), float(layers.shape[1])],
+    }
+    arrays = {
+        "albedo_layers": layers,
+        "uvs": _np(albedo.uvs, "<f4"),
+        "layer": _np(albedo.layer, "<f4"),
+        "factor": _np(albedo.factor, "<f4"),
+    }
+    return header, arrays
+
+
 def _check_model(model) -> list[str]:
-    """What the page cannot show of ``model``: an error for what it would show wrongly, the
-    notes (shown by the page) for what it shows in part."""
-    if model.albedo is not None:
-        raise InputError(
-            "model",
-            "has albedo textures (its diffuse transfer is per unit albedo), which the web "
-            "viewer does not read yet: use lobelight view or render",
-        )
+    """What the page shows of ``model`` only in part: the notes the page shows."""
     notes = []
     if sharp_lobe(model.materials.specular) is not None:
         notes.append(
@@ -300,6 +348,10 @@ def _model_file(model, float16: bool) -> tuple[dict, dict[str, np.ndarray], int]
     }
     if model.bounce is not None:
         arrays["bounce"] = _f16(_np(model.bounce, np.float64), float16)
+    albedo_header = None
+    if model.albedo is not None:
+        albedo_header, albedo_arrays = _albedo(model.albedo)
+        arrays.update(albedo_arrays)
     cam = model_camera(model)
     spec = model.materials.specular
     header = {
@@ -323,6 +375,7 @@ def _model_file(model, float16: bool) -> tuple[dict, dict[str, np.ndarray], int]
         "sun_glossy": _sun_glossy_supported(spec),
         "shadow": {"res": SHADOW_RES, "samples": SHADOW_SAMPLES, "blockers": BLOCKER_SAMPLES},
         "notes": _check_model(model),
+        "albedo_textures": albedo_header,
         "name": str((model.provenance or {}).get("scene", "model")),
     }
     return header, arrays, texels
@@ -497,6 +550,15 @@ def _check_model_arrays(path: Path, h: dict, a: dict) -> None:
         raise InputError(str(path), "a face names a vertex past the last")
     if "bounce" in a and a["bounce"].shape != (v, s, 3):
         raise InputError(str(path), f"array bounce has shape {a['bounce'].shape}")
+    at = h.get("albedo_textures")
+    if at is not None:
+        shapes = {"uvs": (v, 2), "layer": (v,), "factor": (v, 3)}
+        for name, shape in shapes.items():
+            if name not in a or a[name].shape != shape:
+                raise InputError(str(path), f"array {name} missing or not of shape {shape}")
+        layers = a.get("albedo_layers")
+        if layers is None or layers.ndim != 4 or layers.shape[0] != at["layers"]:
+            raise InputError(str(path), "its albedo layers do not match the header")
 
 
 def read_web(path) -> WebFolder:

@@ -167,7 +167,7 @@
   const PLANES_BINDING = 0, FRAME_BINDING = 1, SAMPLE_BINDING = 2;
   const UNITS = {
     gauss_tex: 0, diff_tex: 1, cand_tex: 2, atlas: 3, env: 4, image: 5, shadow_map: 6,
-    bounce_tex: 8, shadow_depth: 9,
+    bounce_tex: 8, shadow_depth: 9, albedo_tex: 10,
   };
   const TEX_WIDTH = 4096;
   const CURVE_NEUTRAL = 2;
@@ -295,6 +295,7 @@
       this.abo = this.buffer(gl.ARRAY_BUFFER, a.albedo.data);
       this.ibo = this.buffer(gl.ELEMENT_ARRAY_BUFFER, a.faces.data);
       this.nIndices = a.faces.data.length;
+      if (a.albedo_layers) this.uploadAlbedo();
       this.quad = this.buffer(gl.ARRAY_BUFFER, new Float32Array([-1, -1, 1, -1, -1, 1, 1, 1]));
       this.frameData = new Float32Array(FRAME.sh_light + 8 * h.n_sh);
       this.frameUbo = gl.createBuffer();
@@ -305,6 +306,35 @@
       this.radius = h.radius;
       this.shadowRes = h.shadow.res;
       this.shadowKey = null;
+    }
+
+    // the albedo textures (albedo.glsl): one mipmapped RGBA16F texture array, and the
+    // per-vertex UVs, layers and factors
+    uploadAlbedo() {
+      const gl = this.gl, a = this.a, al = a.albedo_layers;
+      const [n, h, w] = al.shape;
+      if (w > this.maxTex || h > this.maxTex) {
+        throw new LimitError("The model's albedo textures are " + w + " × " + h + " texels; " +
+                             "this device's largest texture is " + this.maxTex + ".");
+      }
+      const rgba = new Uint16Array(n * h * w * 4);
+      for (let i = 0; i < n * h * w; ++i) {
+        rgba[4 * i] = al.data[3 * i]; rgba[4 * i + 1] = al.data[3 * i + 1];
+        rgba[4 * i + 2] = al.data[3 * i + 2]; rgba[4 * i + 3] = HALF_ONE;
+      }
+      const t = gl.createTexture();
+      gl.bindTexture(gl.TEXTURE_2D_ARRAY, t);
+      gl.pixelStorei(gl.UNPACK_ALIGNMENT, 1);
+      gl.texImage3D(gl.TEXTURE_2D_ARRAY, 0, gl.RGBA16F, w, h, n, 0, gl.RGBA, gl.HALF_FLOAT, rgba);
+      gl.generateMipmap(gl.TEXTURE_2D_ARRAY);
+      gl.texParameteri(gl.TEXTURE_2D_ARRAY, gl.TEXTURE_MIN_FILTER, gl.LINEAR_MIPMAP_LINEAR);
+      gl.texParameteri(gl.TEXTURE_2D_ARRAY, gl.TEXTURE_MAG_FILTER, gl.LINEAR);
+      gl.texParameteri(gl.TEXTURE_2D_ARRAY, gl.TEXTURE_WRAP_S, gl.REPEAT);
+      gl.texParameteri(gl.TEXTURE_2D_ARRAY, gl.TEXTURE_WRAP_T, gl.REPEAT);
+      this.albedoTex = t;
+      this.uvbo = this.buffer(gl.ARRAY_BUFFER, a.uvs.data);
+      this.lbo = this.buffer(gl.ARRAY_BUFFER, a.layer.data);
+      this.factorBo = this.buffer(gl.ARRAY_BUFFER, a.factor.data);
     }
 
     compile(name, stages) {
@@ -373,6 +403,13 @@
       gl.bindBuffer(gl.UNIFORM_BUFFER, this.sampleUbo);
       gl.bufferData(gl.UNIFORM_BUFFER, new Float32Array(Math.max(4, sampleSize / 4)), gl.STATIC_DRAW);
       this.uniform(p.prt, "tex_width", "uniform1i", this.texWidth);
+      const at = this.h.albedo_textures;
+      if (at) {
+        this.uniform(p.prt, "albedo_xform", "uniform3fv", at.xform);
+        this.uniform(p.prt, "albedo_mode", "uniform3fv", at.mode);
+        this.uniform(p.prt, "albedo_size", "uniform2fv", at.size);
+        this.uniform(p.prt, "albedo_grad_scale", "uniform1f", 1.0);  // one sample per pixel
+      }
       p.vao = this.vertexArray(p.prt, true);
       p.depthVao = this.vertexArray(p.depth, false);
       p.shadowVao = this.vertexArray(p.shadow, false);
@@ -389,6 +426,11 @@
       if (full) {
         this.attribute(prog, "in_normal", this.nbo, 3);
         this.attribute(prog, "in_albedo", this.abo, 3);
+        if (this.albedoTex) {
+          this.attribute(prog, "in_uv", this.uvbo, 2);
+          this.attribute(prog, "in_layer", this.lbo, 1);
+          this.attribute(prog, "in_factor", this.factorBo, 3);
+        }
       }
       gl.bindBuffer(gl.ELEMENT_ARRAY_BUFFER, this.ibo);
       gl.bindVertexArray(null);
@@ -674,6 +716,7 @@
       this.bindTexture(UNITS.cand_tex, gl.TEXTURE_2D, this.candTex);
       this.bindTexture(UNITS.bounce_tex, gl.TEXTURE_2D, this.bounceTex);
       this.bindTexture(UNITS.atlas, gl.TEXTURE_2D, env.atlas);
+      if (this.albedoTex) this.bindTexture(UNITS.albedo_tex, gl.TEXTURE_2D_ARRAY, this.albedoTex);
       if (env.header.sun) {
         this.bindTexture(UNITS.shadow_map, gl.TEXTURE_2D, this.shadowTex);
         this.bindTexture(UNITS.shadow_depth, gl.TEXTURE_2D, this.shadowTex);
