@@ -950,6 +950,9 @@
   }
 
   async function start() {
+    // milliseconds since the page's navigation began: the scripts read and parsed, the
+    // model's arrays decoded and uploaded, the first map's and the programs', the first frame
+    const timings = api.timings = { scripts: performance.now() };
     const options = pageOptions();
     const canvas = document.getElementById("view");
     const gl = canvas.getContext("webgl2", { antialias: false, preserveDrawingBuffer: true });
@@ -971,6 +974,7 @@
     let viewer;
     try {
       viewer = new Viewer(gl, store.model, store.shaders, options);
+      timings.model = performance.now();
     } catch (e) {
       showMessage(e.message);
       return;
@@ -998,8 +1002,10 @@
     };
     try {
       await api.setEnv(state.env);
+      timings.env = performance.now();
       sizeCanvas(canvas, options);
       state.exposure = autoExposure(viewer, state);
+      timings.first_frame = performance.now();
     } catch (e) {
       showMessage(e.message);
       return;
