@@ -364,13 +364,15 @@ def _add_export(sub) -> None:
         "--gltf",
         metavar="OUT.glb",
         help="glTF 2.0 binary: the mesh with a fallback material, and the model's lobe data "
-        "as LOBELIGHT_prt accessors (docs/gltf-export.md)",
+        "as LOBELIGHT_prt accessors (docs/gltf-export.md); default: none, one of --gltf and "
+        "--web is required",
     )
     out.add_argument(
         "--web",
         metavar="DIR",
         help="the self-contained WebGL 2 viewer: a folder that opens from file:// or any "
-        "static server, no network (docs/web-viewer.md); one of --gltf and --web is required",
+        "static server, no network (docs/web-viewer.md); default: none, one of --gltf and "
+        "--web is required",
     )
     _env(
         ex,
@@ -384,7 +386,8 @@ def _add_export(sub) -> None:
         "--float16",
         action=argparse.BooleanOptionalAction,
         default=True,
-        help="--gltf: the lobe data as half floats (--no-float16: float32, twice the size)",
+        help="the lobe data (--web: the records and transfers) as half floats (--no-float16: "
+        "float32, twice the size)",
     )
     _base_res(ex, 128)
 
@@ -465,7 +468,8 @@ def _add_view(sub) -> None:
         "--web",
         action="store_true",
         help="no window: write the WebGL 2 viewer to a temporary folder and serve it on "
-        "localhost (for a machine without a display: reach it through an SSH tunnel)",
+        "localhost (for a machine without a display: reach it through an SSH tunnel; "
+        "default: a window)",
     )
     v.add_argument(
         "--port",

@@ -348,12 +348,20 @@ def _run_export_web(args) -> dict:
     envs, inputs = _web_inputs(args, m)
     t0 = time.perf_counter()
     info = export_web(
-        m, out, envs, base_res=args.base_res, sun=args.sun, device=args.device, inputs=inputs
+        m,
+        out,
+        envs,
+        base_res=args.base_res,
+        sun=args.sun,
+        device=args.device,
+        inputs=inputs,
+        float16=args.float16,
     )
     return {
         "command": "export",
         "format": "web",
         "environments": [e.name for e in envs],
+        "float16": args.float16,
         **info,
         "open": f"file://{out.resolve()}/index.html",
         "seconds": time.perf_counter() - t0,
@@ -645,6 +653,7 @@ def _run_view_web(args) -> dict:
     m = _said(load_model, args.model)
     envs, inputs = _web_inputs(args, m)
     tmp = Path(tempfile.mkdtemp(prefix="lobelight-web-"))
+    print("lobelight: writing the web viewer (the maps' prefiltered chains first)...", flush=True)
     try:
         info = export_web(m, tmp / "viewer", envs, sun=args.sun, inputs=inputs)
         serve(tmp / "viewer", args.port, announce=lambda line: print(line, flush=True))
