@@ -379,3 +379,37 @@ def test_the_page_reads_albedo_textures_as_the_torch_path(browser, tmp_path):
     inner = np.isfinite(checker._pixel_uv()).all(-1)
     d = np.abs(got - want)[inner]
     assert d.max() < 0.01 * want[inner].max()
+
+
+@needs_browser
+@pytest.mark.parametrize(
+    ("hide", "says"),
+    [
+        ("c === 'webgl2' ? null : get.call(this, c, o)", "no WebGL 2"),
+        (None, "lacks EXT_color_buffer_float"),
+    ],
+)
+def test_a_browser_without_webgl2_or_float_targets_gets_a_clear_message(
+    browser, sky, tmp_path, hide, says
+):
+    # the browser's WebGL made to lack what the page needs, before the page's scripts run
+    web.export_web(analytic_model(1), tmp_path / "v", [sky], base_res=16)
+    page = browser.new_page()
+    if hide is not None:
+        page.add_init_script(
+            "{ const get = HTMLCanvasElement.prototype.getContext;"
+            f" HTMLCanvasElement.prototype.getContext = function (c, o) {{ return {hide}; }}; }}"
+        )
+    else:
+        page.add_init_script(
+            "{ const ext = WebGL2RenderingContext.prototype.getExtension;"
+            " WebGL2RenderingContext.prototype.getExtension = function (n) {"
+            " return n === 'EXT_color_buffer_float' ? null : ext.call(this, n); }; }"
+        )
+    page.goto(f"file://{tmp_path / 'v'}/index.html?still=1")
+    page.wait_for_function("window.lobelight && window.lobelight.ready")
+    page.evaluate("window.lobelight.ready")
+    status = page.evaluate("window.lobelight.status")
+    assert not status["ok"] and says in status["message"]
+    assert page.locator("#message").is_visible()
+    page.close()
