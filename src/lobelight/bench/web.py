@@ -6,7 +6,8 @@ Each case exports a synthetic model (:func:`lobelight.bench.synthetic_model`, a 
 Python; ``--headless=new --use-angle=swiftshader``: WebGL 2 on SwiftShader, the CPU) at a fixed
 canvas size, and times the page's own frames (its script's ``benchmark`` hook: draw, tone-map
 into the canvas, read one pixel back, so each frame is finished before the next). The folder's size
-and the page's load time are recorded beside them, with the machine's load average: the
+and the page's load time are recorded beside them, and the time of a still frame (four
+samples per pixel, drawn once the view rests), with the machine's load average: the
 machine may be shared.
 """
 
@@ -56,13 +57,21 @@ def _page_fps(browser, folder: Path, size: int, frames: int, query: str = "") ->
         page.close()
         return {"error": status["message"], "load_seconds": load}
     r = page.evaluate("n => window.lobelight.benchmark(n, 2)", frames)
+    # a still frame: the desktop renderer's samples per pixel (4), drawn once the view rests
+    still = page.evaluate("() => window.lobelight.benchmark(2, 0, true)")
     renderer = page.evaluate(
         "() => { const gl = window.lobelight.viewer.gl;"
         " const e = gl.getExtension('WEBGL_debug_renderer_info');"
         " return e ? gl.getParameter(e.UNMASKED_RENDERER_WEBGL) : gl.getParameter(gl.RENDERER); }"
     )
     page.close()
-    return {"fps": r["fps"], "frames": r["frames"], "load_seconds": load, "renderer": renderer}
+    return {
+        "fps": r["fps"],
+        "frames": r["frames"],
+        "still_frame_seconds": 1.0 / still["fps"],
+        "load_seconds": load,
+        "renderer": renderer,
+    }
 
 
 def bench_web(

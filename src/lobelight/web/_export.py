@@ -28,7 +28,7 @@ from ..envmap import EnvMap, Prefiltered
 from ..errors import InputError
 from ..geometry import sphere
 from ..lobes import sg, sh
-from ..render import Lighting, model_camera, stage_sources
+from ..render import Lighting, model_camera, sample_offsets, stage_sources
 from ..scene import srgb_decode
 from ._format import read_data_file, write_data_file
 
@@ -52,6 +52,8 @@ CAND_RES = 32
 SHADOW_RES = 4096
 SHADOW_SAMPLES = 32
 BLOCKER_SAMPLES = 16
+#: Samples per pixel of a still frame (lobelight.render.Renderer's default).
+STILL_SAMPLES = 4
 #: Directions at which the page evaluates the rotated SH lighting to refit its coefficients
 #: (a Fibonacci sphere: more than the 25 coefficients, well conditioned).
 SH_FIT_DIRECTIONS = 64
@@ -265,6 +267,7 @@ def _programs(model, n_sh: int, texels: int, key_args: tuple) -> dict[str, list[
         "shadow": list(stage_sources("shadow", {"N_SH": n_sh}, frame, frame, dialect=es)),
         "background": list(stage_sources("background", {"N_SH": n_sh}, frame, frame, dialect=es)),
         "tonemap": list(stage_sources("tonemap", dialect=es)),
+        "accumulate": list(stage_sources("accumulate", dialect=es)),
     }
 
 
@@ -374,6 +377,8 @@ def _model_file(model, float16: bool) -> tuple[dict, dict[str, np.ndarray], int]
         },
         "sun_glossy": _sun_glossy_supported(spec),
         "shadow": {"res": SHADOW_RES, "samples": SHADOW_SAMPLES, "blockers": BLOCKER_SAMPLES},
+        # a still frame's sub-pixel samples: the desktop renderer's default
+        "samples": sample_offsets(STILL_SAMPLES).tolist(),
         "notes": _check_model(model),
         "albedo_textures": albedo_header,
         "name": str((model.provenance or {}).get("scene", "model")),

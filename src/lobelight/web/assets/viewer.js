@@ -389,7 +389,7 @@
       if (this.programs[variant]) return this.programs[variant];
       const gl = this.gl, src = this.shaders.header[variant];
       const p = {};
-      for (const name of ["prt", "depth", "shadow", "background", "tonemap"]) {
+      for (const name of ["prt", "depth", "shadow", "background", "tonemap", "accumulate"]) {
         p[name] = this.compile(name, src[name]);
       }
       const size = gl.getActiveUniformBlockParameter(
@@ -415,6 +415,7 @@
       p.shadowVao = this.vertexArray(p.shadow, false);
       p.bgVao = this.quadArray(p.background);
       p.tmVao = this.quadArray(p.tonemap);
+      p.accVao = this.quadArray(p.accumulate);
       this.programs[variant] = p;
       return p;
     }
@@ -566,8 +567,8 @@
     }
 
     // a float colour target with a depth buffer, kept by size and type
-    target(w, h, internal) {
-      const key = w + "x" + h + ":" + internal;
+    target(w, h, internal, tag) {
+      const key = w + "x" + h + ":" + internal + ":" + (tag || "");
       if (this.targets[key]) return this.targets[key];
       const gl = this.gl;
       const color = gl.createTexture();
@@ -586,7 +587,7 @@
         throw new Error("A float colour target cannot be rendered to here.");
       }
       gl.bindFramebuffer(gl.FRAMEBUFFER, null);
-      const t = { fbo: fbo, color: color, w: w, h: h };
+      const t = { fbo: fbo, color: color, w: w, h: h, internal: internal };
       this.targets[key] = t;
       return t;
     }
@@ -690,13 +691,56 @@
       gl.bindTexture(target, tex);
     }
 
-    // one frame into target t: the object's depth, its shading where the depth is the
-    // front-most, then the background where the object left the far plane (GLRenderer.draw)
+    // one frame into target t (GLRenderer.draw): with several sub-pixel sample offsets
+    // ([x, y] in [0, 1), x right, y down), one pass per sample with the image shifted
+    // (frame.glsl's jitter) added into t with weight 1 / S (accumulate.glsl); alpha is then
+    // the fraction of the pixel's samples on the object
     draw(t, cam, rot, opts) {
       const gl = this.gl, env = this.env, p = env.programs;
       const sunOn = this.fillFrame(cam, rot, opts.diffuse, opts.glossy);
       this.bindBlocks();
       if (sunOn) this.shadowPass(p);
+      const offsets = opts.offsets && opts.offsets.length > 1 ? opts.offsets : null;
+      if (!offsets) {
+        this.setJitter(opts.offsets ? opts.offsets[0] : [0.5, 0.5], t);
+        this.drawSample(t, opts.background);
+        return;
+      }
+      const pass = this.target(t.w, t.h, t.internal, "pass");
+      gl.bindFramebuffer(gl.FRAMEBUFFER, t.fbo);
+      gl.clearColor(0, 0, 0, 0);
+      gl.clear(gl.COLOR_BUFFER_BIT);
+      for (const o of offsets) {
+        this.setJitter(o, t);
+        this.drawSample(pass, opts.background);
+        gl.bindFramebuffer(gl.FRAMEBUFFER, t.fbo);
+        gl.viewport(0, 0, t.w, t.h);
+        gl.disable(gl.DEPTH_TEST);
+        gl.enable(gl.BLEND);
+        gl.blendFunc(gl.ONE, gl.ONE);
+        gl.blendEquation(gl.FUNC_ADD);
+        this.bindTexture(UNITS.image, gl.TEXTURE_2D, pass.color);
+        this.uniform(p.accumulate, "weight", "uniform1f", 1 / offsets.length);
+        gl.useProgram(p.accumulate);
+        gl.bindVertexArray(p.accVao);
+        gl.drawArrays(gl.TRIANGLE_STRIP, 0, 4);
+        gl.bindVertexArray(null);
+        gl.disable(gl.BLEND);
+      }
+    }
+
+    // the NDC shift that puts the sample at offset o under the pixel centre (GL's y runs up)
+    setJitter(o, t) {
+      const gl = this.gl;
+      gl.bindBuffer(gl.UNIFORM_BUFFER, this.sampleUbo);
+      gl.bufferSubData(gl.UNIFORM_BUFFER, 0,
+                       new Float32Array([2 * (0.5 - o[0]) / t.w, 2 * (o[1] - 0.5) / t.h]));
+    }
+
+    // one sample of every pixel into t: the object's depth, its shading where the depth is
+    // the front-most, then the background where the object left the far plane
+    drawSample(t, background) {
+      const gl = this.gl, env = this.env, p = env.programs;
       gl.bindFramebuffer(gl.FRAMEBUFFER, t.fbo);
       gl.viewport(0, 0, t.w, t.h);
       gl.clearColor(0, 0, 0, 0);
@@ -726,7 +770,7 @@
       gl.bindVertexArray(p.vao);
       gl.drawElements(gl.TRIANGLES, this.nIndices, gl.UNSIGNED_INT, 0);
       if (env.header.sun) gl.bindSampler(UNITS.shadow_depth, null);
-      if (opts.background) {
+      if (background) {
         this.bindTexture(UNITS.env, gl.TEXTURE_CUBE_MAP, env.cube);
         gl.useProgram(p.background);
         gl.bindVertexArray(p.bgVao);
@@ -835,7 +879,7 @@
 
   function bindControls(state, canvas, viewer) {
     const byId = function (id) { return document.getElementById(id); };
-    const changed = function () { if (state.still && api.redraw) api.redraw(); };
+    const changed = function () { if (api.redraw) api.redraw(); };
     const exp = byId("exposure");
     exp.value = state.exposure.toFixed(1);
     byId("exposure-value").textContent = exp.value;
@@ -907,34 +951,60 @@
     return hi > 0 ? Math.max(-10, Math.min(10, Math.log2(0.8 / hi))) : 0;
   }
 
+  // frames on demand: while the view changes, one sample per pixel (the frames per second
+  // shown are of these); once it has been still for IDLE_MS, one frame with the desktop
+  // renderer's samples per pixel, then nothing until the next change
+  const IDLE_MS = 300;
+
   function loop(viewer, state, canvas) {
     const fpsEl = document.getElementById("fps");
-    let frames = 0, t0 = performance.now();
-    function draw() {
+    let frames = 0, t0 = performance.now(), pending = false;
+    function draw(offsets) {
       const w = canvas.width, h = canvas.height;
       const t = viewer.target(w, h, viewer.gl.RGBA16F);
       const cam = orbitCamera(state.orbit, w, h);
       viewer.draw(t, cam, rotationY(state.light), {
         diffuse: state.parts !== "glossy", glossy: state.parts !== "diffuse",
-        background: state.background,
+        background: state.background, offsets: offsets,
       });
       viewer.present(t, state.exposure);
-      frames += 1;
-      const now = performance.now();
-      if (now - t0 >= 1000) {
-        api.fps = frames * 1000 / (now - t0);
-        fpsEl.textContent = api.fps.toFixed(1) + " fps · " + w + "×" + h;
-        frames = 0;
-        t0 = now;
-      }
     }
     function frame() {
-      draw();
-      if (!state.still) requestAnimationFrame(frame);
+      pending = false;
+      const now = performance.now();
+      if (now - state.changedAt > IDLE_MS) {
+        draw(viewer.h.samples);
+        frames = 0;
+        return;
+      }
+      draw(null);
+      if (frames === 0) t0 = now;
+      frames += 1;
+      if (frames > 1 && now - t0 >= 500) {
+        api.fps = (frames - 1) * 1000 / (now - t0);
+        fpsEl.textContent = api.fps.toFixed(1) + " fps · " + canvas.width + "×" + canvas.height;
+      }
+      request();
     }
-    // one frame now (a still page redraws when a control changes)
-    api.redraw = draw;
-    requestAnimationFrame(frame);
+    function request() {
+      if (!pending) {
+        pending = true;
+        requestAnimationFrame(frame);
+      }
+    }
+    // something changed: a still page (still=1) draws its full frame at once, else frames
+    // follow until the view is still
+    api.redraw = function () {
+      if (state.still) {
+        draw(viewer.h.samples);
+        return;
+      }
+      state.changedAt = performance.now();
+      request();
+    };
+    state.changedAt = performance.now();
+    if (state.still) draw(viewer.h.samples);
+    else request();
   }
 
   function sizeCanvas(canvas, options) {
@@ -1011,7 +1081,10 @@
       return;
     }
     bindControls(state, canvas, viewer);
-    window.addEventListener("resize", function () { sizeCanvas(canvas, options); });
+    window.addEventListener("resize", function () {
+      sizeCanvas(canvas, options);
+      if (api.redraw) api.redraw();
+    });
     api.status = { ok: true, message: "ready" };
     loop(viewer, state, canvas);
   }
@@ -1041,15 +1114,16 @@
     const t = v.target(w, h, v.gl.RGBA32F);
     v.draw(t, cam, rot, {
       diffuse: req.diffuse !== false, glossy: req.glossy !== false,
-      background: !!req.background,
+      background: !!req.background, offsets: req.offsets,
     });
     return { width: w, height: h, b64: floatsB64(v.readLinear(t)) };
   };
 
   // frames per second of the interactive path (draw and tone-map into the canvas) at the
   // canvas's size, over `frames` frames after `warm` unmeasured ones, each finished
-  // (a pixel read back) before the next
-  api.benchmark = function (frames, warm) {
+  // (a pixel read back) before the next; `still`: the still frames (the desktop's samples
+  // per pixel) instead
+  api.benchmark = function (frames, warm, still) {
     const v = api.viewer, s = api.state, gl = v.gl;
     const canvas = gl.canvas;
     s.still = true;
@@ -1057,12 +1131,13 @@
     const one = function () {
       const t = v.target(canvas.width, canvas.height, gl.RGBA16F);
       v.draw(t, orbitCamera(s.orbit, canvas.width, canvas.height), rotationY(s.light),
-             { diffuse: true, glossy: true, background: true });
+             { diffuse: true, glossy: true, background: true,
+               offsets: still ? v.h.samples : null });
       v.present(t, s.exposure);
       gl.readPixels(0, 0, 1, 1, gl.RGBA, gl.UNSIGNED_BYTE, px);
       s.orbit.yaw += 0.01;
     };
-    for (let i = 0; i < (warm || 2); ++i) one();
+    for (let i = 0; i < (warm == null ? 2 : warm); ++i) one();
     const t0 = performance.now();
     for (let i = 0; i < frames; ++i) one();
     const dt = (performance.now() - t0) / 1000;
