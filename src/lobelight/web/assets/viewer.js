@@ -209,11 +209,13 @@
         throw new LimitError("The sun's shadow map needs " + h.shadow.res + "² texels; this " +
                              "device's largest texture is " + this.maxTex + "².");
       }
-      const need = 4 * h.n_gaussians + 10;
+      // prt.glsl's varyings: two vec4 per Gaussian, the diffuse light, position, normal and
+      // albedo, the sun's BRDF (three) and the albedo textures' UV, layer and factor (three)
+      const need = 2 * h.n_gaussians + 4 + (h.sun_glossy ? 3 : 0) + (h.albedo_textures ? 3 : 0);
       const have = gl.getParameter(gl.MAX_VARYING_VECTORS);
       if (need > have) {
         throw new LimitError("This model's " + h.n_gaussians + " Gaussians per view need " +
-                             "about " + need + " varying vectors; this device has " + have + ".");
+                             need + " varying vectors; this device has " + have + ".");
       }
       this.texWidth = width;
     }
