@@ -38,7 +38,7 @@ from ..lobes import sg
 from ..model import VISIBILITY_RES
 from ._gl_albedo import albedo_array, albedo_uniforms
 from ._lighting import Lighting
-from ._reflection import INDIRECT_SCALE_MAX, OCCLUDED_FLOOR, SHARP_NV_MIN
+from ._reflection import INDIRECT_SCALE_MAX, OCCLUDED_FLOOR, SHARP_NV_MIN, SUN_RESOLVED
 from ._sun_glossy import (
     sun_glossy_supported,
     sun_glossy_uniforms,
@@ -621,6 +621,7 @@ class GLRenderer:
             "ALBEDO_STEPS": ALBEDO_STEPS,
             "OCCLUDED_FLOOR": f"{OCCLUDED_FLOOR:.6e}",
             "SHARP_NV_MIN": f"{SHARP_NV_MIN:.6e}",
+            "SUN_RESOLVED": f"{SUN_RESOLVED:.6e}",
             "INDIRECT_SCALE_MAX": f"{INDIRECT_SCALE_MAX:.6e}",
             "SHADOW_SAMPLES": SHADOW_SAMPLES,
             "BLOCKER_SAMPLES": BLOCKER_SAMPLES,
@@ -762,26 +763,33 @@ class GLRenderer:
         import moderngl  # optional (the gl extra)
 
         self.atlas, self._atlas_uniforms = upload_prefiltered(self.ctx, pf)
-        # a sharp lobe reads the sun's shape in the whole map's chain (prt.glsl sun_shape)
         self.whole_atlas = None
-        if self.sharp is not None and self.sun_glossy:
-            self.whole_atlas = self._upload_whole(lighting)
+        self._upload_whole(lighting)
         self.env_cube = self.ctx.texture_cube(
             (BACKGROUND_RES,) * 2, 3, _background(lighting).tobytes(), dtype="f4"
         )
         self.env_cube.filter = (moderngl.LINEAR, moderngl.LINEAR)
 
-    def _upload_whole(self, lighting: Lighting):
-        """The whole map's chain as a second atlas of the first's layout, and the analytic
-        highlight's tail factor (render/_sun_glossy.py ``tail_scale``)."""
-        whole = lighting.prefiltered
-        atlas = _atlas(whole)[0]
+    def _upload_whole(self, lighting: Lighting) -> None:
+        """A sharp lobe's view of the sun's shape (prt.glsl ``sun_shape``): the analytic
+        highlight's tail factor (render/_sun_glossy.py ``tail_scale``) and, where a Gaussian of
+        the mixture resolves the sun's disc, the whole map's chain as a second atlas of the
+        first's layout (:attr:`whole_atlas`, None otherwise: nothing reads it)."""
+        if self.whole_atlas is not None:
+            self.whole_atlas.release()
+            self.whole_atlas = None
+        if self.sharp is None or not self.sun_glossy:
+            return
+        spread = float(lighting.sun.spread)
+        self.prog["sun_tail"].value = tail_scale(self._specular, spread)
+        if not bool((self.sharp.lam * spread**2 >= SUN_RESOLVED).any()):
+            return
+        atlas = _atlas(lighting.prefiltered)[0]
         if atlas.shape != (self.atlas.height, self.atlas.width, 4):
             raise InputError("lighting", "the whole map's chain differs in layout from its rest's")
         tex = self.ctx.texture((atlas.shape[1], atlas.shape[0]), 4, atlas.tobytes(), dtype="f4")
         tex.filter = self.atlas.filter
-        self.prog["sun_tail"].value = tail_scale(self._specular, float(lighting.sun.spread))
-        return tex
+        self.whole_atlas = tex
 
     def _connect_programs(self, tex_width: int) -> None:
         """The programs' uniform-block bindings, texture units and the uniforms that hold for
@@ -968,9 +976,7 @@ class GLRenderer:
         ):
             return False
         self.atlas.write(_atlas(pf)[0].tobytes())
-        if self.whole_atlas is not None:
-            self.whole_atlas.release()
-            self.whole_atlas = self._upload_whole(lighting)
+        self._upload_whole(lighting)
         for face, data in enumerate(_background(lighting)):
             self.env_cube.write(face, data.tobytes())
         if self.has_sun:

@@ -63,13 +63,13 @@ __all__ = [
     "INDIRECT_SCALE_MAX",
     "OCCLUDED_FLOOR",
     "SHARP_NV_MIN",
-    "disc_shade",
+    "SUN_RESOLVED",
     "indirect_light",
     "indirect_scale",
     "lobe_points",
     "object_light",
     "shade",
-    "sun_reflection",
+    "sun_sharp",
     "visible_fraction",
 ]
 
@@ -80,6 +80,10 @@ INDIRECT_SCALE_MAX = 4.0
 #: The smallest ``n.v`` a microfacet lobe's widths are taken at (a grazing view's lobe does not
 #: become a line; :meth:`lobelight.brdf.SharpLobe.sharpness`'s floor).
 SHARP_NV_MIN = 0.02
+#: A Gaussian of a sharp lobe's mixture resolves the sun's shape where ``lam sigma^2`` is at
+#: least this (the Gaussian narrower than twice the disc's RMS angle); a wider one sees a
+#: disc and the sun's shape alike (:func:`sun_sharp`).
+SUN_RESOLVED = 0.25
 #: ``1 - v_fit`` floor of the rescaling's divisor.
 OCCLUDED_FLOOR = 0.05
 #: Shadow rays from a hit point are lifted off its triangle by this fraction of the mesh's
@@ -123,35 +127,40 @@ def shade(sharp: SharpLobe, lighting, r: torch.Tensor, n: torch.Tensor, nv: torc
     return sharp.directional_albedo(nv) * mixed * vis[:, None]
 
 
-def disc_shade(sharp: SharpLobe, r: torch.Tensor, n: torch.Tensor, nv: torch.Tensor,
-               sun_dir: torch.Tensor, sun) -> torch.Tensor:  # fmt: skip
-    """What :func:`shade` would read from the sun alone were it the Gaussian disc the shadows
-    and :func:`lobelight.render._sun_glossy.sun_widened` take it for: (P, 3). A normalised
-    lookup of sharpness ``lam`` at ``d`` sees a disc of irradiance ``E`` and RMS angle
-    ``sigma`` about ``l`` as ``E lam' / (2 pi) exp(lam' (d.l - 1))``, ``1 / lam' = 1 / lam +
-    sigma^2 / 2`` (two small-angle Gaussians convolved)."""
-    d, lam, w = lobe_points(sharp, r, n, nv)
-    lw = 1 / (1 / lam.clamp_min(DIVISOR_F32) + float(sun.spread) ** 2 / 2)  # (P, M)
-    chord = (d - sun_dir.to(d.device, d.dtype)).pow(2).sum(-1)  # (K, P, M)
-    g = (lw / (2 * math.pi) * torch.exp(-0.5 * lw * chord)).mean(0)  # (P, M)
-    e = sun.irradiance.to(d.device, d.dtype)
-    return sharp.directional_albedo(nv) * (g * w).sum(1)[:, None] * e
-
-
-def sun_reflection(sharp: SharpLobe, lighting, r: torch.Tensor, n: torch.Tensor,
-                   nv: torch.Tensor, rot) -> torch.Tensor:  # fmt: skip
-    """The sun's own pixels seen in the sharp lobe, before its visibility: (P, 3), :func:`shade`
-    of the whole map less :func:`shade` of the map without its sun (the chains are linear in
-    the map, so the difference is the sun's excess over its surroundings, prefiltered).
+def sun_sharp(sharp: SharpLobe, lighting, r: torch.Tensor, n: torch.Tensor, nv: torch.Tensor,
+              rot, analytic: torch.Tensor, tail: float) -> torch.Tensor:  # fmt: skip
+    """The sun's glossy light off a sharp lobe, before its visibility: (P, 3), docs/method.md
+    equation 12, ``[tail (A - D) + S]+``.
 
     A sun taken out of the map is a disc to the shadows and to rough lobes, but a sharp lobe
     sees its shape: a studio's softbox or a window is a rectangle with hard edges, and the
-    lobe is narrower than it. The renderers shade the sun's glossy light off a sharp lobe as
-    the BRDF's analytic highlight of the disc (whose long tail the mixture lacks) plus this
-    less :func:`disc_shade`: the mixture's core moves from the disc to the sun's shape."""
-    one = torch.ones_like(nv)
-    whole = shade(sharp, lighting, r, n, nv, one, rot, rest=False)
-    return (whole - shade(sharp, lighting, r, n, nv, one, rot, rest=True)).clamp_min(0)
+    lobe is narrower than it. ``A (P, 3)`` is the BRDF's analytic highlight of the widened
+    disc (:func:`lobelight.render._sun_glossy.sun_glossy`), whose long tail the mixture lacks,
+    ``tail`` its tail's factor (:func:`lobelight.render._sun_glossy.tail_scale`). ``D`` is what
+    :func:`shade`'s lookups would read of the sun were it the Gaussian disc: per lookup of
+    sharpness ``lam`` at ``d``, ``E lam' / (2 pi) exp(lam' (d.l - 1))``, ``1 / lam' = 1 / lam +
+    sigma^2 / 2`` (two small-angle Gaussians convolved). ``S`` is what they read of the sun's
+    own pixels: the whole map's chain less the chain without the sun (the chains are linear in
+    the map: the sun's excess over its surroundings, prefiltered), for the mixture's Gaussians
+    that resolve the disc (``lam_i sigma^2 >=`` :data:`SUN_RESOLVED`); a wider Gaussian sees
+    the disc and the shape alike, and reads ``D`` for ``S`` (no lookup)."""
+    d, lam, w = lobe_points(sharp, r, n, nv)
+    sun = lighting.sun
+    s2 = float(sun.spread) ** 2
+    lw = 1 / (1 / lam.clamp_min(DIVISOR_F32) + s2 / 2)  # (P, M)
+    chord = (d - lighting.sun_direction(rot).to(d.device, d.dtype)).pow(2).sum(-1)  # (K, P, M)
+    disc = (lw / (2 * math.pi) * torch.exp(-0.5 * lw * chord)).mean(0) * w  # (P, M)
+    albedo = sharp.directional_albedo(nv)
+    e = sun.irradiance.to(d.device, d.dtype)
+    res = sharp.lam.to(d.device) * s2 >= SUN_RESOLVED  # (M,)
+    out = tail * (analytic - albedo * disc.sum(1)[:, None] * e)
+    out = out + albedo * disc[:, ~res].sum(1)[:, None] * e
+    if bool(res.any()):
+        dr, lr = d[:, :, res], lam[:, res].expand(d.shape[0], -1, -1)
+        whole = lighting.lookup(dr, lr, rot, rest=False)  # (K, P, m, 3)
+        rest = lighting.lookup(dr, lr, rot, rest=True)
+        out = out + albedo * ((whole - rest).mean(0) * w[res][:, None]).sum(1).clamp_min(0)
+    return out.clamp_min(0)
 
 
 def visible_fraction(tiles: torch.Tensor, corners: torch.Tensor, bary: torch.Tensor,

@@ -35,12 +35,11 @@ from ..model import blend_lobes
 from ._albedo import diffuse_albedo, diffuse_light
 from ._lighting import Lighting
 from ._reflection import (
-    disc_shade,
     indirect_light,
     indirect_scale,
     object_light,
     shade,
-    sun_reflection,
+    sun_sharp,
     visible_fraction,
 )
 from ._sun_glossy import sun_glossy, sun_glossy_supported, sun_through, tail_scale
@@ -244,20 +243,17 @@ def sun_stage(
 
 def _sun_specular(model, lighting, pos, n, eye, corners, b, rot) -> torch.Tensor:
     """The sun's glossy light at lit points before its visibility, (p, 3): the BRDF's highlight
-    of the widened disc (:func:`lobelight.render._sun_glossy.sun_glossy`), and for a sharp lobe
-    the sun's shape in place of the disc's (:func:`lobelight.render._reflection.sun_reflection`
-    less :func:`lobelight.render._reflection.disc_shade`)."""
+    of the widened disc (:func:`lobelight.render._sun_glossy.sun_glossy`); for a sharp lobe,
+    with the sun's shape in the mixture's core (:func:`lobelight.render._reflection.sun_sharp`)."""
     out = sun_glossy(model, lighting, pos, n, eye, corners, b[..., 0], rot)
     sharp = sharp_lobe(model.materials.specular)
     if sharp is None:
         return out
     view = torch.nn.functional.normalize(eye.to(pos.device, pos.dtype) - pos, dim=-1)
     nv = (n * view).sum(-1).clamp_min(0)
-    r = mirror_direction(n, view)
-    shape = sun_reflection(sharp, lighting, r, n, nv, rot).to(pos.device)
-    disc = disc_shade(sharp, r, n, nv, lighting.sun_direction(rot), lighting.sun).to(pos.device)
     tail = tail_scale(model.materials.specular, lighting.sun.spread)
-    return (tail * (out - disc) + shape).clamp_min(0)
+    r = mirror_direction(n, view)
+    return sun_sharp(sharp, lighting, r, n, nv, rot, out, tail).to(pos.device)
 
 
 def render_torch(

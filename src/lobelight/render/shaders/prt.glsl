@@ -377,43 +377,41 @@ float sun_through(vec3 mu, float lam) {
 uniform sampler2D whole_atlas;  // the whole map's chain, atlas's layout (atlas: without the sun)
 uniform float sun_tail;         // the analytic highlight's tail factor (_sun_glossy.py tail_scale)
 
-// what sharp_lighting would read of the sun alone were it the Gaussian disc, in the world frame:
-// per lookup of sharpness lam at d, E lam' / (2 pi) exp(lam' (d.l - 1)), 1 / lam' = 1 / lam +
-// sigma^2 / 2, without E (render/_reflection.py disc_shade)
-float disc_lighting(vec3 r, vec3 t, float nv) {
-    float s2 = 0.5 * sun_spread * sun_spread;
-    float acc = 0.0;
-    if (sharp_warp > 0.0) {
-        float c = max(nv, SHARP_NV_MIN);
-        for (int i = 0; i < MIXTURE; ++i) {
-            float lw = 1.0 / (c * c / sharp_lam[i] + s2);
-            vec3 step = sqrt(max(1.0 - c * c, 0.0) / sharp_lam[i]) * t;
-            vec3 a = normalize(r + step) - sun_dir, b = normalize(r - step) - sun_dir;
-            acc += (0.5 * sharp_weight[i]) * lw / (2.0 * PI)
-                   * (exp(-0.5 * lw * dot(a, a)) + exp(-0.5 * lw * dot(b, b)));
-        }
-        return acc;
-    }
-    for (int i = 0; i < MIXTURE; ++i) {
-        float lw = 1.0 / (1.0 / sharp_lam[i] + s2);
-        vec3 a = r - sun_dir;
-        acc += sharp_weight[i] * lw / (2.0 * PI) * exp(-0.5 * lw * dot(a, a));
-    }
-    return acc;
-}
-
-// the sun's glossy light off a sharp lobe, before its visibility (render/_torch.py
-// _sun_specular): the disc's analytic highlight spec with its tail rescaled, and the mixture's
-// core moved from the disc to the sun's own shape in the map (whole chain less atlas)
+// the sun's glossy light off a sharp lobe, before its visibility (render/_reflection.py
+// sun_sharp, docs/method.md equation 12): [tail (A - D) + S]+, A the disc's analytic highlight,
+// D what the mixture's lookups read of the sun as the Gaussian disc (per lookup of sharpness
+// lam at d, E lam' / (2 pi) exp(lam' (d.l - 1)), 1 / lam' = 1 / lam + sigma^2 / 2), S what they
+// read of the sun's own pixels (the whole chain less atlas) for the Gaussians that resolve the
+// disc (lam_i sigma^2 >= SUN_RESOLVED), D for the others. The world frame; lookups rotated.
 vec3 sun_shape(vec3 spec, vec3 n, vec3 d) {
     float nv = max(dot(n, d), 0.0);
-    vec3 mirror = 2.0 * dot(n, d) * n - d;
-    vec3 t = across(n, mirror);
+    vec3 r = 2.0 * dot(n, d) * n - d;
+    vec3 t = across(n, r);
+    float s2 = sun_spread * sun_spread;
+    bool warp = sharp_warp > 0.0;
+    float c = warp ? max(nv, SHARP_NV_MIN) : 1.0;
+    float disc_all = 0.0, disc_res = 0.0;
+    vec3 shape = vec3(0.0);
+    for (int i = 0; i < MIXTURE; ++i) {
+        float lam = warp ? sharp_lam[i] / (c * c) : sharp_lam[i];
+        float lw = 1.0 / (1.0 / lam + 0.5 * s2);
+        vec3 step = warp ? sqrt(max(1.0 - c * c, 0.0) / sharp_lam[i]) * t : vec3(0.0);
+        vec3 p = normalize(r + step), q = normalize(r - step);
+        vec3 a = p - sun_dir, b = q - sun_dir;
+        float g = sharp_weight[i] * lw / (2.0 * PI)
+                  * 0.5 * (exp(-0.5 * lw * dot(a, a)) + exp(-0.5 * lw * dot(b, b)));
+        disc_all += g;
+        if (sharp_lam[i] * s2 < SUN_RESOLVED) continue;
+        disc_res += g;
+        vec3 rp = rot_t * p, rq = rot_t * q;
+        shape += (0.5 * sharp_weight[i])
+                 * (prefiltered_lookup_in(whole_atlas, rp, lam) - prefiltered_lookup(rp, lam)
+                    + prefiltered_lookup_in(whole_atlas, rq, lam) - prefiltered_lookup(rq, lam));
+    }
     vec3 albedo = directional_albedo(nv);
-    vec3 whole = sharp_lighting_in(whole_atlas, rot_t * mirror, rot_t * t, nv);
-    vec3 shape = albedo * max(whole - sharp_lighting(rot_t * mirror, rot_t * t, nv), 0.0);
-    vec3 disc = albedo * disc_lighting(mirror, t, nv) * sun_e;
-    return max(sun_tail * (spec - disc) + shape, 0.0);
+    vec3 out_ = sun_tail * (spec - albedo * disc_all * sun_e) + albedo * (disc_all - disc_res) * sun_e
+                + albedo * max(shape, 0.0);
+    return max(out_, 0.0);
 }
 #endif
 #endif
