@@ -50,9 +50,18 @@ from ._sun_shadow import BLOCKER_SAMPLES, SHADOW_SAMPLES, disc_radius, sun_frame
 from ._tonemap import CURVES, DEFAULT_CURVE
 
 __all__ = [
+    "BACKGROUND_RES",
+    "CAND_RES",
+    "FRAME_LAYOUT",
+    "SHADOW_RES",
+    "TEX_WIDTH",
     "GLRenderer",
     "PassTimer",
+    "atlas_image",
+    "atlas_uniforms",
     "create_context",
+    "gaussian_records",
+    "geodesic_tables",
     "gl_available",
     "load_shader",
     "set_uniforms",
@@ -100,7 +109,7 @@ _PLANES_BINDING, _FRAME_BINDING, _SAMPLE_BINDING = 0, 1, 2
 #: Offsets in floats of the members of frame.glsl's ``Frame`` block (std140: a scalar fills the
 #: fourth float after a vec3, a mat3 is three vec4 columns, a vec4 array element is 4 floats);
 #: ``sh_sun`` follows ``sh_light``'s ``N_SH`` vec4s.
-_FRAME = {
+FRAME_LAYOUT = {
     "eye": 0,
     "sun_on": 3,
     "cam_left": 4,
@@ -227,7 +236,7 @@ def _tile_atlas(tiles: np.ndarray, per_row: int) -> np.ndarray:
     return atlas.reshape(rows, per_row, r, r).transpose(0, 2, 1, 3).reshape(rows * r, per_row * r)
 
 
-def _atlas(pf: Prefiltered) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def atlas_image(pf: Prefiltered) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """All prefiltered levels' padded faces in one image: ``(H, W, 4)`` (RGB, alpha 1), row and
     res per level."""
     base = pf.base_res
@@ -255,7 +264,7 @@ def _rgb0(table: torch.Tensor) -> np.ndarray:
     return rows.reshape(-1, 4).detach().cpu().numpy()
 
 
-def _gaussian_records(model) -> np.ndarray:
+def gaussian_records(model) -> np.ndarray:
     """Two texels per Gaussian ``(2 V J N, 4)``: record ``(v, j, k)`` is texels ``2r`` and
     ``2r + 1`` with ``r = (v J + j) N + k``, holding the light the lobe carries and its width
     ``(e, sigma)``, then its axis and whether the record's view is above the vertex's horizon
@@ -274,10 +283,10 @@ def _gaussian_records(model) -> np.ndarray:
 
 def _transfer_images(model, *, bounce: bool) -> tuple[np.ndarray, np.ndarray, np.ndarray, int]:
     """The model's transfer as three ``(H, W, 4)`` float32 images of one width ``W``: the
-    Gaussian records (:func:`_gaussian_records`), the diffuse transfer ``(V, N_SH)`` RGB per
+    Gaussian records (:func:`gaussian_records`), the diffuse transfer ``(V, N_SH)`` RGB per
     texel, and the interreflected part of the transfer (``Model.bounce``; one vertex of zeros
     when ``bounce`` is false); returns them and ``W``."""
-    rec = _gaussian_records(model)
+    rec = gaussian_records(model)
     img, width = _wrap(rec)
     dimg, width2 = _wrap(_rgb0(model.diffuse), width)
     if width2 != width:  # all share one width uniform; wrap again at the larger width
@@ -303,8 +312,8 @@ def _background(lighting: Lighting) -> np.ndarray:
     return cube.detach().cpu().numpy().astype(np.float32)
 
 
-def _atlas_uniforms(pf: Prefiltered, atlas_shape, rows: np.ndarray, res: np.ndarray) -> dict:
-    """The uniforms ``prefiltered.glsl`` reads of an atlas of :func:`_atlas`'s layout
+def atlas_uniforms(pf: Prefiltered, atlas_shape, rows: np.ndarray, res: np.ndarray) -> dict:
+    """The uniforms ``prefiltered.glsl`` reads of an atlas of :func:`atlas_image`'s layout
     (``atlas_shape`` its ``(H, W, 4)``, ``rows`` and ``res`` per level)."""
     return {
         "atlas_size": (float(atlas_shape[1]), float(atlas_shape[0])),
@@ -321,14 +330,14 @@ def upload_prefiltered(ctx, pf: Prefiltered):
     (bind the texture to the unit of its ``atlas`` sampler)."""
     import moderngl  # optional (the gl extra)
 
-    atlas, rows, res = _atlas(pf)
+    atlas, rows, res = atlas_image(pf)
     tex = ctx.texture((atlas.shape[1], atlas.shape[0]), 4, atlas.tobytes(), dtype="f4")
     tex.filter = (moderngl.LINEAR, moderngl.LINEAR)
     tex.repeat_x = tex.repeat_y = False
-    return tex, _atlas_uniforms(pf, atlas.shape, rows, res)
+    return tex, atlas_uniforms(pf, atlas.shape, rows, res)
 
 
-def _geodesic_tables() -> tuple[np.ndarray, np.ndarray, dict[str, int]]:
+def geodesic_tables() -> tuple[np.ndarray, np.ndarray, dict[str, int]]:
     """What ``geodesic.glsl`` reads, as arrays: the 180 triangles' planes ``(540, 4)`` float32
     (three great-circle normals per triangle, ``.w`` the view index of the opposite corner),
     the candidate table as a ``(6 CAND_RES, CAND_RES CAND_TEXELS, 4)`` float32 image (the
@@ -344,7 +353,7 @@ def _geodesic_tables() -> tuple[np.ndarray, np.ndarray, dict[str, int]]:
 
 
 def upload_geodesic(ctx):
-    """What ``geodesic.glsl`` reads (:func:`_geodesic_tables`): the planes as a uniform block
+    """What ``geodesic.glsl`` reads (:func:`geodesic_tables`): the planes as a uniform block
     (bind it to the ``Planes`` block), the candidate table as a texture (bind it to the unit of
     the ``cand_tex`` sampler), and the defines the shader needs.
 
@@ -354,7 +363,7 @@ def upload_geodesic(ctx):
     """
     import moderngl  # optional (the gl extra)
 
-    block, img, defines = _geodesic_tables()
+    block, img, defines = geodesic_tables()
     ubo = ctx.buffer(block.tobytes())
     tex = ctx.texture((img.shape[1], img.shape[0]), 4, img.tobytes(), dtype="f4")
     tex.filter = (moderngl.NEAREST, moderngl.NEAREST)
@@ -372,7 +381,7 @@ def set_uniforms(prog, values: dict) -> None:
 
 class _FrameBlock:
     """frame.glsl's ``Frame`` uniform block: a float32 copy ``(56 + 8 N_SH,)`` filled member by
-    member (offsets in :data:`_FRAME`), written by :meth:`flush` in one write when it differs
+    member (offsets in :data:`FRAME_LAYOUT`), written by :meth:`flush` in one write when it differs
     from what was written last.
 
     Each write goes into the next of :data:`_FRAME_BUFFERS` buffers (:attr:`buffer` is the one
@@ -382,7 +391,7 @@ class _FrameBlock:
 
     def __init__(self, ctx, n_sh: int):
         self.n_sh = n_sh
-        self.data = np.zeros(_FRAME["sh_light"] + 8 * n_sh, np.float32)
+        self.data = np.zeros(FRAME_LAYOUT["sh_light"] + 8 * n_sh, np.float32)
         self.buffers = [ctx.buffer(reserve=self.data.nbytes) for _ in range(_FRAME_BUFFERS)]
         self.buffer = self.buffers[0]
         self._next = 0
@@ -391,17 +400,17 @@ class _FrameBlock:
     def set(self, name: str, value) -> None:
         """A scalar or vector member."""
         v = np.asarray(value, np.float32).reshape(-1)
-        o = _FRAME[name]
+        o = FRAME_LAYOUT[name]
         self.data[o : o + v.size] = v
 
     def set_columns(self, name: str, columns) -> None:
         """A mat3 member from its ``(3, 3)`` columns (row ``j`` = column ``j``)."""
-        o = _FRAME[name]
+        o = FRAME_LAYOUT[name]
         self.data[o : o + 12].reshape(3, 4)[:, :3] = np.asarray(columns, np.float32)
 
     def set_sh(self, name: str, coeffs) -> None:
         """``sh_light`` or ``sh_sun`` from ``(N_SH, 3)`` coefficients."""
-        o = _FRAME["sh_light"] + (4 * self.n_sh if name == "sh_sun" else 0)
+        o = FRAME_LAYOUT["sh_light"] + (4 * self.n_sh if name == "sh_sun" else 0)
         rows = self.data[o : o + 4 * self.n_sh].reshape(self.n_sh, 4)
         rows[:, :3] = np.asarray(coeffs, np.float32)
 
@@ -784,7 +793,7 @@ class GLRenderer:
         self.prog["sun_tail"].value = tail_scale(self._specular, spread)
         if not bool((self.sharp.lam * spread**2 >= SUN_RESOLVED).any()):
             return
-        atlas = _atlas(lighting.prefiltered)[0]
+        atlas = atlas_image(lighting.prefiltered)[0]
         if atlas.shape != (self.atlas.height, self.atlas.width, 4):
             raise InputError("lighting", "the whole map's chain differs in layout from its rest's")
         tex = self.ctx.texture((atlas.shape[1], atlas.shape[0]), 4, atlas.tobytes(), dtype="f4")
@@ -837,7 +846,7 @@ class GLRenderer:
         """frame.glsl's block (:class:`_FrameBlock`), checked against the compiled one."""
         self.frame_block = _FrameBlock(self.ctx, n_sh)
         size = self.prog["Frame"].size
-        if size != self.frame_block.data.nbytes:  # frame.glsl and _FRAME disagree
+        if size != self.frame_block.data.nbytes:  # frame.glsl and FRAME_LAYOUT disagree
             raise RuntimeError(
                 f"Frame block of {size} bytes, expected {self.frame_block.data.nbytes}"
             )
@@ -975,7 +984,7 @@ class GLRenderer:
             or float(pf.lambdas[0]) != self._atlas_uniforms["lam0"]
         ):
             return False
-        self.atlas.write(_atlas(pf)[0].tobytes())
+        self.atlas.write(atlas_image(pf)[0].tobytes())
         self._upload_whole(lighting)
         for face, data in enumerate(_background(lighting)):
             self.env_cube.write(face, data.tobytes())

@@ -66,6 +66,7 @@ __all__ = [
     "export_gltf",
     "fallback_material",
     "import_gltf",
+    "kept_records",
 ]
 
 #: The extension that describes the lobe data (in ``extensionsUsed`` only).
@@ -163,7 +164,7 @@ def _png(rgb: np.ndarray) -> bytes:
     return buf.getvalue()
 
 
-def _kept(w: torch.Tensor) -> torch.Tensor:
+def kept_records(w: torch.Tensor) -> torch.Tensor:
     """(V, J) records some rendering sees: weight at the view or at a geodesic neighbour."""
     live = w.amax((-1, -2)) > 0  # (V, J)
     nbr = sphere.geodesic_neighbor_table(device=w.device)  # (J, 6), -1 padded
@@ -316,7 +317,7 @@ def _primitives(doc: _Doc, model: Model, attrs: dict, metal: float, rough: float
 def _lobes(doc: _Doc, model: Model, f16: bool) -> dict:
     """The extension's lobe data: the kept records' Gaussians, the views, the transfer."""
     g = model.gaussians
-    keep = _kept(g.w)  # (V, J)
+    keep = kept_records(g.w)  # (V, J)
     lam = g.lam.clamp_min(SHARPNESS_MIN)
     light = g.w * sg.integral(lam.double()).to(g.w.dtype)[..., None]  # (V, J, N, 3)
     sigma = lam.rsqrt().clamp_max(_SIGMA_F16)  # (V, J, N)

@@ -1,7 +1,7 @@
 // The per-frame values of a PRT frame, one std140 block shared by prt.glsl, background.glsl and
 // shadow.glsl; render/_gl.py's _FrameBlock fills a copy in Python and writes it to the buffer in
 // one write when a value changes (a still frame writes nothing). Each scalar fills the fourth
-// float after a vec3, where std140 places it; _gl.py's _FRAME offsets (in floats) are the ones in
+// float after a vec3, where std140 places it; _gl.py's FRAME_LAYOUT offsets (in floats) are the ones in
 // the comments. N_SH is defined by the loader.
 layout(std140) uniform Frame {
     vec3 eye;            float sun_on;         // 0: camera origin; the sun shaded this frame

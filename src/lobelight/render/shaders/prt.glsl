@@ -61,6 +61,14 @@ out vec3 v_eta;
 out vec3 v_k;
 #endif
 
+#if defined(GL_ES) && defined(SHARP) && SHARP && !VERTEX_TABLE
+// OpenGL ES 3.00 has no gl_PrimitiveID: the web viewer draws the triangles unindexed, each
+// corner carrying its vertex's id and its triangle's (reflection.glsl corners)
+in float in_vertex;
+in float in_face;
+flat out int v_face;
+#endif
+
 // the depth pre-pass and the shading pass must rasterise the same depths
 invariant gl_Position;
 
@@ -84,7 +92,12 @@ void main() {
 ivec2 at(int i) { return ivec2(i % tex_width, i / tex_width); }
 
 void main() {
+#if defined(GL_ES) && defined(SHARP) && SHARP && !VERTEX_TABLE
+    int v = int(in_vertex + 0.5);
+    v_face = int(in_face + 0.5);
+#else
     int v = gl_VertexID;
+#endif
     vec3 d = normalize(eye - in_pos);
 
     vec3 bdet;
@@ -178,8 +191,18 @@ void main() {
     for (int k = 0; k < N_GAUSSIANS - N_INDIRECT; ++k) direct += v_lobe[2 * k].rgb;
     table0 = vec4(v_diffuse, 0.0);
     table1 = vec4(direct, 0.0);
+    // constant indices: OpenGL ES indexes fragment outputs by constants only
 #if N_INDIRECT > 0
-    for (int k = 0; k < 2 * N_INDIRECT; ++k) table_lobe[k] = v_lobe[2 * (N_GAUSSIANS - N_INDIRECT) + k];
+    table_lobe[0] = v_lobe[2 * (N_GAUSSIANS - N_INDIRECT)];
+    table_lobe[1] = v_lobe[2 * (N_GAUSSIANS - N_INDIRECT) + 1];
+#endif
+#if N_INDIRECT > 1
+    table_lobe[2] = v_lobe[2 * (N_GAUSSIANS - N_INDIRECT) + 2];
+    table_lobe[3] = v_lobe[2 * (N_GAUSSIANS - N_INDIRECT) + 3];
+#endif
+#if N_INDIRECT > 2
+    table_lobe[4] = v_lobe[2 * (N_GAUSSIANS - N_INDIRECT) + 4];
+    table_lobe[5] = v_lobe[2 * (N_GAUSSIANS - N_INDIRECT) + 5];
 #endif
 }
 

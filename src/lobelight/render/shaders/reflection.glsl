@@ -88,9 +88,17 @@ void triangle_at(int f, vec3 p, out ivec3 c, out vec3 b) {
     b /= max(b.x + b.y + b.z, 1e-30);
 }
 
+#ifdef GL_ES
+flat in int v_face;  // the triangle's id from its corners (prt.glsl: OpenGL ES has no gl_PrimitiveID)
+#endif
+
 // the fragment's triangle corners and barycentrics, from its primitive id and position
 void corners(vec3 p, out ivec3 c, out vec3 b) {
+#ifdef GL_ES
+    triangle_at(v_face, p, c, b);
+#else
     triangle_at(gl_PrimitiveID, p, c, b);
+#endif
 }
 
 // the visible fraction at direction r of a point of corners c and barycentrics b

@@ -1,0 +1,70 @@
+"""The data the shaders read, laid out as the desktop renderer uploads it: for other front ends
+of the same shader files (the web viewer, :mod:`lobelight.web`), so that their layouts cannot
+drift from the desktop's.
+
+- Textures: :func:`gaussian_records` (two texels per Gaussian record), :func:`atlas_image` and
+  :func:`atlas_uniforms` (the prefiltered chain's atlas, ``prefiltered.glsl``),
+  :func:`geodesic_tables` (``geodesic.glsl``'s planes and candidate cube), :data:`TEX_WIDTH`
+  (the width long arrays wrap at), :data:`CAND_RES`, :data:`SHADOW_RES`,
+  :data:`BACKGROUND_RES`; :func:`albedo_array` and :func:`albedo_uniforms` (``albedo.glsl``),
+  :data:`MAX_ALBEDO_SIZE`, :data:`MAX_ALBEDO_LAYERS`.
+- Uniform blocks: :data:`FRAME_LAYOUT` (``frame.glsl``'s per-frame block, offsets in floats).
+- The sun: :func:`disc_radius`, :data:`SHADOW_SAMPLES`, :data:`BLOCKER_SAMPLES`
+  (``shadow.glsl``, the percentage-closer soft shadow), :func:`sun_glossy_supported`,
+  :func:`sun_glossy_uniforms`, :func:`sun_glossy_vertex_params`, :func:`sun_widened`,
+  :func:`tail_scale` (the sun's glossy reflection per pixel).
+- Records: :func:`kept_records` (the records some rendering sees: live at the view or at a
+  geodesic neighbour).
+- Shader text: :func:`stage_sources` (a file's two stages in a dialect), :func:`load_shader`.
+"""
+
+from ._gl import (
+    BACKGROUND_RES,
+    CAND_RES,
+    FRAME_LAYOUT,
+    SHADOW_RES,
+    TEX_WIDTH,
+    atlas_image,
+    atlas_uniforms,
+    gaussian_records,
+    geodesic_tables,
+    load_shader,
+    stage_sources,
+)
+from ._gl_albedo import MAX_ALBEDO_LAYERS, MAX_ALBEDO_SIZE, albedo_array, albedo_uniforms
+from ._gltf_out import kept_records
+from ._sun_glossy import (
+    sun_glossy_supported,
+    sun_glossy_uniforms,
+    sun_glossy_vertex_params,
+    sun_widened,
+    tail_scale,
+)
+from ._sun_shadow import BLOCKER_SAMPLES, SHADOW_SAMPLES, disc_radius
+
+__all__ = [
+    "BACKGROUND_RES",
+    "BLOCKER_SAMPLES",
+    "CAND_RES",
+    "FRAME_LAYOUT",
+    "MAX_ALBEDO_LAYERS",
+    "MAX_ALBEDO_SIZE",
+    "SHADOW_RES",
+    "SHADOW_SAMPLES",
+    "TEX_WIDTH",
+    "albedo_array",
+    "albedo_uniforms",
+    "atlas_image",
+    "atlas_uniforms",
+    "disc_radius",
+    "gaussian_records",
+    "geodesic_tables",
+    "kept_records",
+    "load_shader",
+    "stage_sources",
+    "sun_glossy_supported",
+    "sun_glossy_uniforms",
+    "sun_glossy_vertex_params",
+    "sun_widened",
+    "tail_scale",
+]
