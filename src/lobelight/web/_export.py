@@ -24,16 +24,34 @@ import torch
 
 from .. import model as model_module
 from ..brdf import sharp_lobe
-from ..envmap import EnvMap, Prefiltered
+from ..envmap import EnvMap
 from ..errors import InputError
-from ..geometry import sphere
-from ..lobes import sg, sh
-from ..render import Lighting, model_camera, sample_offsets, stage_sources
-from ..scene import srgb_decode
+from ..lobes import sh
+from ..render import Lighting, model_camera, sample_offsets
+from ..render.layout import (
+    BLOCKER_SAMPLES,
+    FRAME_LAYOUT,
+    SHADOW_RES,
+    SHADOW_SAMPLES,
+    TEX_WIDTH,
+    albedo_array,
+    albedo_uniforms,
+    atlas_image,
+    atlas_uniforms,
+    disc_radius,
+    gaussian_records,
+    geodesic_tables,
+    kept_records,
+    stage_sources,
+    sun_glossy_supported,
+    sun_glossy_uniforms,
+    sun_glossy_vertex_params,
+    sun_widened,
+)
 from ._format import read_data_file, write_data_file
 
 __all__ = [
-    "BACKGROUND_RES",
+    "MAX_BACKGROUND_RES",
     "WEB_VERSION",
     "WebFolder",
     "dialect",
@@ -44,14 +62,10 @@ __all__ = [
 
 #: Version of the folder's layout (the model file's ``header.version``).
 WEB_VERSION = 1
-#: Largest face resolution of the background's cube map in the folder.
-BACKGROUND_RES = 256
-#: The desktop renderer's constants the page must share (render/_gl.py, render/_sun_shadow.py:
-#: the candidate table's resolution, the shadow map's texels, the soft shadow's taps).
-CAND_RES = 32
-SHADOW_RES = 4096
-SHADOW_SAMPLES = 32
-BLOCKER_SAMPLES = 16
+#: Largest face resolution of the background's cube map in the folder (below the desktop's
+#: :data:`lobelight.render.layout.BACKGROUND_RES`: the folder is downloaded; the background
+#: is only seen behind the object).
+MAX_BACKGROUND_RES = 256
 #: Samples per pixel of a still frame (lobelight.render.Renderer's default).
 STILL_SAMPLES = 4
 #: Directions at which the page evaluates the rotated SH lighting to refit its coefficients
@@ -59,10 +73,6 @@ STILL_SAMPLES = 4
 SH_FIT_DIRECTIONS = 64
 #: The largest finite half float; brighter texels are clipped to it (the SH keep their light).
 HALF_MAX = 65504.0
-#: Texels across and down of the albedo layers at most (larger ones are downsampled), and
-#: the layers at most: the desktop renderer's limits (render/_gl_albedo.py).
-MAX_ALBEDO_SIZE = 2048
-MAX_ALBEDO_LAYERS = 64
 #: Files of the page copied from the package's assets.
 _PAGE_FILES = ("index.html", "viewer.js")
 #: The marker that a folder is one this module wrote (it may be replaced as a whole).
@@ -100,51 +110,42 @@ def _np(t: torch.Tensor, dtype) -> np.ndarray:
     return t.detach().cpu().numpy().astype(dtype)
 
 
-def _kept(w: torch.Tensor) -> torch.Tensor:
-    """(V, J) records some rendering sees: light at the view or at a geodesic neighbour (the
-    model file's and the glTF export's rule)."""
-    live = w.amax((-1, -2)) > 0  # (V, J)
-    nbr = sphere.geodesic_neighbor_table(device=w.device)  # (J, 6), -1 padded
-    near = live[:, nbr.clamp_min(0)] & (nbr >= 0)  # (V, J, 6)
-    return live | near.any(-1)
-
-
 def _records(model, float16: bool) -> dict[str, np.ndarray]:
-    """The stored records as half floats: ``flags (V, J)`` (bit 0 stored, bit 1 the view above
-    the vertex's horizon), then per stored record (row-major) and Gaussian the light it
-    carries ``light (K, N, 3)``, its width ``sigma (K, N)`` and mean ``mean (K, N, 3)``.
+    """The stored records as half floats, from the desktop's texels
+    (:func:`lobelight.render.layout.gaussian_records`): ``flags (V, J)`` (bit 0 stored, bit 1
+    the view above the vertex's horizon), then per stored record (row-major) and Gaussian the
+    light it carries ``light (K, N, 3)``, its width ``sigma (K, N)`` and mean ``mean (K, N, 3)``;
+    stored are :func:`lobelight.render.layout.kept_records`.
 
     A record whose light is live (mean over RGB at least ``LIVE_FLOOR``) but rounds to zero in
     half floats keeps the smallest half float: the live rule blends widths and means over the
     live records, and a record must not die on the way."""
     g = model.gaussians
-    keep = _kept(g.w)  # (V, J)
-    above = (model.views[None] * model.mesh.normals[:, None]).sum(-1) > 0  # (V, J)
-    flags = keep.to(torch.uint8) | (above.to(torch.uint8) << 1)
-    e = g.w.double() * sg.integral(g.lam.double())[..., None]  # (V, J, N, 3)
-    light = _f16(_np(e[keep], np.float64), float16)  # (K, N, 3)
-    live = e[keep].mean(-1).cpu().numpy() >= model_module.LIVE_FLOOR  # (K, N)
+    v, j, n = g.lam.shape
+    keep = kept_records(g.w).cpu().numpy()  # (V, J)
+    rec = gaussian_records(model).reshape(v, j, n, 2, 4)  # (e, sigma), (mu, above)
+    above = rec[:, :, 0, 1, 3] > 0  # (V, J)
+    flags = keep.astype(np.uint8) | (above.astype(np.uint8) << 1)
+    kept = rec[keep]  # (K, N, 2, 4)
+    light = _f16(kept[..., 0, :3], float16)  # (K, N, 3)
+    live = kept[..., 0, :3].mean(-1) >= model_module.LIVE_FLOOR  # (K, N)
     dead16 = light.astype(np.float32).mean(-1) < model_module.LIVE_FLOOR
     light[live & dead16] = np.float16(2.0**-24)
     return {
-        "flags": _np(flags, np.uint8),
+        "flags": flags,
         "light": light,
-        "sigma": _f16(_np(g.lam[keep].double().rsqrt(), np.float64), float16),
-        "mean": _f16(_np(g.mu[keep], np.float64), float16),
+        "sigma": _f16(kept[..., 0, 3], float16),
+        "mean": _f16(kept[..., 1, :3], float16),
     }
 
 
-def _geodesic() -> tuple[dict[str, np.ndarray], int]:
-    """What ``geodesic.glsl`` reads: the planes ``(540, 4)`` (three great-circle normals per
-    triangle, ``.w`` the opposite corner's view) and the candidate image ``(6 R, R T, 4)``
-    (-1 padded), as ``render/_gl.py`` builds them; and ``T`` (CAND_TEXELS)."""
-    planes, faces = sphere.face_planes(torch.float32, torch.device("cpu"))
-    pl = torch.cat([planes.T.reshape(180, 3, 3), faces.reshape(180, 3, 1).float()], -1)
-    cand = sphere.triangle_candidates(CAND_RES)  # (6, R, R, K)
-    texels = -(-cand.shape[-1] // 4)
-    cand = torch.nn.functional.pad(cand, (0, 4 * texels - cand.shape[-1]), value=-1)
-    img = cand.reshape(6 * CAND_RES, CAND_RES * texels, 4).numpy().astype("<i2")
-    return {"planes": pl.reshape(540, 4).numpy().astype("<f4"), "candidates": img}, texels
+def _geodesic() -> tuple[dict[str, np.ndarray], dict[str, int]]:
+    """What ``geodesic.glsl`` reads (:func:`lobelight.render.layout.geodesic_tables`): the
+    planes ``(540, 4)`` and the candidate image ``(6 R, R T, 4)`` as 16-bit integers; and the
+    shader's defines (``CAND_RES``, ``CAND_TEXELS``)."""
+    planes, cand, defines = geodesic_tables()
+    arrays = {"planes": planes.astype("<f4"), "candidates": cand.astype("<i2")}
+    return arrays, dict(defines)
 
 
 def _fibonacci(n: int) -> np.ndarray:
@@ -165,58 +166,25 @@ def _sh_fit(order: int) -> dict[str, np.ndarray]:
     return {"sh_dirs": d.astype("<f4"), "sh_fit": np.linalg.pinv(y).astype("<f4")}
 
 
-def _atlas(pf: Prefiltered) -> tuple[np.ndarray, dict]:
-    """Every prefiltered level's padded faces in one ``(H, W, 3)`` half-float image (six faces
-    side by side per level, levels stacked: the desktop renderer's atlas) and the uniforms
-    ``prefiltered.glsl`` reads of it."""
-    base = pf.base_res
-    pads = [p.detach().cpu().numpy() for p in pf.padded]  # (6, P, P, 3) each
-    width = 6 * (base + 2)
-    atlas = np.zeros((sum(p.shape[1] for p in pads), width, 3), np.float32)
-    rows, res, y = [], [], 0
-    for p in pads:  # a loop over levels and their six faces, not texels
-        size = p.shape[1]
-        for f in range(6):
-            atlas[y : y + size, f * size : (f + 1) * size] = p[f]
-        rows.append(float(y))
-        res.append(float(size - 2))
-        y += size
+def _atlas(pf) -> tuple[np.ndarray, dict]:
+    """The prefiltered chain's atlas (:func:`lobelight.render.layout.atlas_image`) as a
+    ``(H, W, 3)`` half-float image, and the uniforms ``prefiltered.glsl`` reads of it
+    (:func:`lobelight.render.layout.atlas_uniforms`)."""
+    atlas, rows, res = atlas_image(pf)
+    u = atlas_uniforms(pf, atlas.shape, rows, res)
     uniforms = {
-        "atlas_size": [float(width), float(atlas.shape[0])],
-        "level_y": rows,
-        "level_res": res,
-        "n_levels": len(pf.levels),
-        "lam0": float(pf.lambdas[0]),
-        "log_rho": float(torch.log(pf.lambdas[0] / pf.lambdas[1])),
+        **u,
+        "atlas_size": [float(x) for x in u["atlas_size"]],
+        "level_y": [float(x) for x in u["level_y"]],
+        "level_res": [float(x) for x in u["level_res"]],
     }
-    return _f16(atlas), uniforms
-
-
-def _sun_glossy_supported(spec) -> bool:
-    """Whether the desktop renderer shades the sun's glossy reflection off ``spec`` per pixel
-    (the BRDF has a shader formula, :attr:`lobelight.brdf.BRDF.sun_model`)."""
-    return spec is not None and spec.sun_model is not None
+    return _f16(atlas[..., :3]), uniforms
 
 
 def _sun_vertex_params(spec, spread: float, n_vertices: int) -> np.ndarray:
-    """Per-vertex parameters of the sun's glossy BRDF, ``(V, 10)`` float32 (or ``(1, 10)``
-    when every vertex has the same): the lobe widened by the disc
-    (:meth:`lobelight.brdf.BRDF.sun_widened`), then its ``sun_param``, specular RGB (1 where
-    the model has none), eta RGB (``f0`` for Schlick's Fresnel term), k RGB (0 where none)."""
-    if spread > 0:
-        spec = spec.sun_widened(spread)
-    v = n_vertices
-
-    def per_vertex(name: str, width: int) -> torch.Tensor:
-        if name not in spec.params:
-            return torch.full((v, width), 1.0 if name == "specular" else 0.0)
-        t = spec.params[name].detach().cpu().float()
-        if t.ndim == 0:
-            return t.expand(v, width)
-        return t.reshape(-1, width).expand(v, width)
-
-    parts = ((spec.sun_param, 1), ("specular", 3), ("f0" if spec.schlick else "eta", 3), ("k", 3))
-    out = torch.cat([per_vertex(n, w) for n, w in parts], 1).numpy().astype("<f4")
+    """:func:`lobelight.render.layout.sun_glossy_vertex_params` of the lobe widened by the
+    disc, ``(V, 10)`` float32, or its first row ``(1, 10)`` when every vertex has the same."""
+    out = sun_glossy_vertex_params(sun_widened(spec, spread), n_vertices).astype("<f4")
     return out[:1] if bool((out == out[:1]).all()) else out
 
 
@@ -225,7 +193,7 @@ def shader_variant(has_sun: bool, sun_glossy: bool, bounce: bool, levels: int) -
     return f"sun{int(has_sun)}-glossy{int(sun_glossy)}-bounce{int(bounce)}-levels{levels}"
 
 
-def _programs(model, n_sh: int, texels: int, key_args: tuple) -> dict[str, list[str]]:
+def _programs(model, n_sh: int, geo_defines: dict, key_args: tuple) -> dict[str, list[str]]:
     """The page's programs of one variant as ES 3.00 stage texts: the object's shading and
     depth pre-pass (prt.glsl), the shadow map's, the background's and the tone mapping's."""
     has_sun, sun_glossy, bounce, levels = key_args
@@ -248,8 +216,7 @@ def _programs(model, n_sh: int, texels: int, key_args: tuple) -> dict[str, list[
         "TABLE_ROWS": 1,
         "SHADOW_SAMPLES": SHADOW_SAMPLES,
         "BLOCKER_SAMPLES": BLOCKER_SAMPLES,
-        "CAND_RES": CAND_RES,
-        "CAND_TEXELS": texels,
+        **geo_defines,
     }
     frame = ("frame",)
     include = ("frame", "prefiltered") + (("albedo",) if model.albedo is not None else ())
@@ -271,45 +238,16 @@ def _programs(model, n_sh: int, texels: int, key_args: tuple) -> dict[str, list[
     }
 
 
-def _albedo_layers(albedo) -> np.ndarray:
-    """``(L, H, W, 3)`` float16 linear RGB of every layer of an
-    :class:`lobelight.scene.AlbedoTexture`, decoded from sRGB and resampled to one size (the
-    largest layer's, at most :data:`MAX_ALBEDO_SIZE`): bilinearly, area-averaged where it
-    shrinks, at the nearest texel for a layer read so; as the desktop renderer's texture array."""
-    n = len(albedo.images)
-    if n > MAX_ALBEDO_LAYERS:
-        raise InputError("albedo", f"has {n} texture layers, at most {MAX_ALBEDO_LAYERS}")
-    w = min(max(int(img.shape[1]) for img in albedo.images), MAX_ALBEDO_SIZE)
-    h = min(max(int(img.shape[0]) for img in albedo.images), MAX_ALBEDO_SIZE)
-    out = np.empty((n, h, w, 3), np.float16)
-    for i, img in enumerate(albedo.images):  # a loop over layers, not texels
-        lin = srgb_decode(img.float() / 255)  # (h_i, w_i, 3)
-        if tuple(lin.shape[:2]) != (h, w):
-            x = lin.permute(2, 0, 1)[None]
-            if bool(albedo.nearest[i]):
-                x = torch.nn.functional.interpolate(x, size=(h, w), mode="nearest-exact")
-            else:
-                shrink = x.shape[-1] > w or x.shape[-2] > h
-                x = torch.nn.functional.interpolate(
-                    x, size=(h, w), mode="bilinear", align_corners=False, antialias=shrink
-                )
-            lin = x[0].permute(1, 2, 0)
-        out[i] = lin.clamp(0, 1).numpy().astype(np.float16)
-    return out
-
-
 def _albedo(albedo) -> tuple[dict, dict[str, np.ndarray]]:
     """The albedo textures' header (what ``albedo.glsl``'s uniforms hold) and arrays (the
     layers and the per-vertex UVs, layers and factors)."""
-    layers = _albedo_layers(albedo)
-    mode = np.concatenate(
-        [albedo.wrap.cpu().numpy(), albedo.nearest.cpu().numpy()[:, None]], axis=1
-    )  # (L, 3)
+    layers = albedo_array(albedo)  # (L, H, W, 3) float16
+    u = albedo_uniforms(albedo)
     header = {
         "layers": int(layers.shape[0]),
-        "xform": _np(albedo.transform, np.float64).reshape(-1).tolist(),
-        "mode": mode.astype(np.float64).reshape(-1).tolist(),
-        "size": [float(layers.shape[2]), float(layers.shape[1])],
+        "xform": u["albedo_xform"].astype(np.float64).reshape(-1).tolist(),
+        "mode": u["albedo_mode"].astype(np.float64).reshape(-1).tolist(),
+        "size": u["albedo_size"].astype(np.float64).tolist(),
     }
     arrays = {
         "albedo_layers": layers,
@@ -332,12 +270,12 @@ def _check_model(model) -> list[str]:
 
 
 def _model_file(model, float16: bool) -> tuple[dict, dict[str, np.ndarray], int]:
-    """The model data file's header and arrays, and CAND_TEXELS."""
+    """The model data file's header and arrays, and the geodesic tables' shader defines."""
     mesh = model.mesh
     verts = mesh.vertices.detach().cpu().double()
     center = verts.mean(0)
     radius = float((verts - center).norm(dim=-1).max())
-    geo, texels = _geodesic()
+    geo, geo_defines = _geodesic()
     n_sh = int(model.diffuse.shape[1])
     arrays = {
         "positions": _np(mesh.vertices, "<f4"),
@@ -375,15 +313,19 @@ def _model_file(model, float16: bool) -> tuple[dict, dict[str, np.ndarray], int]
             "fov": cam.fov,
             "fov_axis": cam.fov_axis,
         },
-        "sun_glossy": _sun_glossy_supported(spec),
+        "sun_glossy": sun_glossy_supported(spec),
         "shadow": {"res": SHADOW_RES, "samples": SHADOW_SAMPLES, "blockers": BLOCKER_SAMPLES},
+        # frame.glsl's block (offsets in floats) and the width long arrays wrap at, as the
+        # desktop lays them out
+        "frame_layout": dict(FRAME_LAYOUT),
+        "tex_width": TEX_WIDTH,
         # a still frame's sub-pixel samples: the desktop renderer's default
         "samples": sample_offsets(STILL_SAMPLES).tolist(),
         "notes": _check_model(model),
         "albedo_textures": albedo_header,
         "name": str((model.provenance or {}).get("scene", "model")),
     }
-    return header, arrays, texels
+    return header, arrays, geo_defines
 
 
 def _env_file(model, lighting: Lighting, sun_glossy_spec: bool) -> tuple[dict, dict, tuple]:
@@ -394,7 +336,7 @@ def _env_file(model, lighting: Lighting, sun_glossy_spec: bool) -> tuple[dict, d
     atlas, uniforms = _atlas(pf)
     # about the map's own texel density (a lat-long row spans four faces), at most 256
     width = int(lighting.env.data.shape[1])
-    res = int(min(BACKGROUND_RES, max(16, 2 ** math.ceil(math.log2(max(width // 4, 1))))))
+    res = int(min(MAX_BACKGROUND_RES, max(16, 2 ** math.ceil(math.log2(max(width // 4, 1))))))
     cube = lighting.env.to_cubemap(res, cache=True)
     arrays = {
         "atlas": atlas,
@@ -416,14 +358,14 @@ def _env_file(model, lighting: Lighting, sun_glossy_spec: bool) -> tuple[dict, d
             "direction": _np(sun.direction, np.float64).tolist(),
             "irradiance": _np(sun.irradiance, np.float64).tolist(),
             "spread": float(sun.spread),
-            # the shadow's disc: a uniform disc of the sun's RMS angle (render/_sun_shadow.py)
-            "tan": math.tan(math.sqrt(2.0) * float(sun.spread)),
+            # the shadow's disc (lobelight.render.layout.disc_radius)
+            "tan": math.tan(disc_radius(sun)),
         }
         if sun_glossy:
             v = model.mesh.n_vertices
             arrays["sun_params"] = _sun_vertex_params(spec, float(sun.spread), v)
-            fresnel = 2.0 if spec.schlick else float(spec.fresnel)
-            header["sun_brdf"] = {"model": int(spec.sun_model), "fresnel": fresnel}
+            u = sun_glossy_uniforms(spec)
+            header["sun_brdf"] = {"model": int(u["sun_model"]), "fresnel": float(u["sun_fresnel"])}
     key_args = (has_sun, sun_glossy, header["has_bounce"], len(pf.levels))
     header["variant"] = shader_variant(*key_args)
     return header, arrays, key_args
@@ -479,7 +421,7 @@ def export_web(
         raise InputError("envs", "give at least one map")
     _check_out(out, inputs)
     lightings = [_as_lighting(e, base_res=base_res, sun=sun, device=device) for e in envs]
-    header, arrays, texels = _model_file(model, float16)
+    header, arrays, geo_defines = _model_file(model, float16)
     n_sh = header["n_sh"]
     for li in lightings:
         if li.sh.shape[0] != n_sh:
@@ -495,7 +437,7 @@ def export_web(
             files[name] = write_data_file(tmp / name, "env", eh, ea)
             header["envs"].append({"name": eh["name"], "file": name})
             if eh["variant"] not in variants:
-                variants[eh["variant"]] = _programs(model, n_sh, texels, key_args)
+                variants[eh["variant"]] = _programs(model, n_sh, geo_defines, key_args)
         files["model.js"] = write_data_file(tmp / "model.js", "model", header, arrays)
         files["shaders.js"] = write_data_file(tmp / "shaders.js", "shaders", variants, {})
         assets = resources.files("lobelight.web").joinpath("assets")

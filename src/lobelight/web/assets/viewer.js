@@ -158,24 +158,21 @@
 
   class LimitError extends Error {}
 
-  // offsets in floats of frame.glsl's Frame block (render/_gl.py _FRAME)
-  const FRAME = {
-    eye: 0, sun_on: 3, cam_left: 4, shadow_scale: 7, cam_up: 8, shadow_offset: 11, cam_dir: 12,
-    shadow_bias: 15, sun_dir: 16, diffuse_on: 19, sun_e: 20, glossy_on: 23, shadow_center: 24,
-    tan_half: 28, depth_range: 30, rot_t: 32, shadow_frame: 44, sh_light: 56,
-  };
+  // offsets in floats of frame.glsl's Frame block: the model file's frame_layout
+  // (lobelight.render.layout.FRAME_LAYOUT), set when the model is read
+  let FRAME = null;
   const PLANES_BINDING = 0, FRAME_BINDING = 1, SAMPLE_BINDING = 2;
   const UNITS = {
     gauss_tex: 0, diff_tex: 1, cand_tex: 2, atlas: 3, env: 4, image: 5, shadow_map: 6,
     bounce_tex: 8, shadow_depth: 9, albedo_tex: 10,
   };
-  const TEX_WIDTH = 4096;
   const CURVE_NEUTRAL = 2;
 
   class Viewer {
     constructor(gl, model, shaders, options) {
       this.gl = gl;
       this.h = model.header;
+      FRAME = this.h.frame_layout;
       this.shaders = shaders;
       this.options = options;
       this.maxTex = Math.min(gl.getParameter(gl.MAX_TEXTURE_SIZE), options.maxTexture || 1e9);
@@ -195,7 +192,8 @@
       const recs = h.n_vertices * h.n_views * h.n_gaussians * 2;
       const diff = h.n_vertices * h.n_sh;
       const t = Math.max(recs, diff);
-      let width = Math.min(TEX_WIDTH, this.maxTex);
+      // the width long arrays wrap at (lobelight.render.layout.TEX_WIDTH)
+      let width = Math.min(h.tex_width, this.maxTex);
       while (Math.ceil(t / width) > this.maxTex && width < this.maxTex) width *= 2;
       width = Math.min(width, this.maxTex);
       if (Math.ceil(t / width) > this.maxTex) {
