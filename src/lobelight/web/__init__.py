@@ -9,11 +9,20 @@
 - :func:`serve` serves a folder on localhost with the standard library's HTTP server.
 """
 
-from ._export import MAX_BACKGROUND_RES, WEB_VERSION, WebFolder, dialect, export_web, read_web
+from ._export import (
+    MAX_BACKGROUND_RES,
+    SHARP_DEFINES,
+    WEB_VERSION,
+    WebFolder,
+    dialect,
+    export_web,
+    read_web,
+)
 from ._serve import serve, tunnel_hint
 
 __all__ = [
     "MAX_BACKGROUND_RES",
+    "SHARP_DEFINES",
     "WEB_VERSION",
     "WebFolder",
     "dialect",

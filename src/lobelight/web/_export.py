@@ -23,7 +23,7 @@ import numpy as np
 import torch
 
 from .. import model as model_module
-from ..brdf import sharp_lobe
+from ..brdf import ALBEDO_STEPS, MIXTURE, sharp_lobe
 from ..envmap import EnvMap
 from ..errors import InputError
 from ..lobes import sh
@@ -47,11 +47,13 @@ from ..render.layout import (
     sun_glossy_uniforms,
     sun_glossy_vertex_params,
     sun_widened,
+    tail_scale,
 )
 from ._format import read_data_file, write_data_file
 
 __all__ = [
     "MAX_BACKGROUND_RES",
+    "SHARP_DEFINES",
     "WEB_VERSION",
     "WebFolder",
     "dialect",
@@ -73,6 +75,14 @@ STILL_SAMPLES = 4
 SH_FIT_DIRECTIONS = 64
 #: The largest finite half float; brighter texels are clipped to it (the SH keep their light).
 HALF_MAX = 65504.0
+#: The sharp reflection's constants that reflection.glsl and prt.glsl read as defines: the
+#: desktop's values (render/_reflection.py; tests/test_web.py checks that they are equal).
+SHARP_DEFINES = {
+    "OCCLUDED_FLOOR": 0.05,
+    "SHARP_NV_MIN": 0.02,
+    "SUN_RESOLVED": 0.25,
+    "INDIRECT_SCALE_MAX": 4.0,
+}
 #: Files of the page copied from the package's assets.
 _PAGE_FILES = ("index.html", "viewer.js")
 #: The marker that a folder is one this module wrote (it may be replaced as a whole).
@@ -218,9 +228,20 @@ def _programs(model, n_sh: int, geo_defines: dict, key_args: tuple) -> dict[str,
         "BLOCKER_SAMPLES": BLOCKER_SAMPLES,
         **geo_defines,
     }
+    sharp = sharp_lobe(model.materials.specular) is not None
+    if sharp:
+        defines.update(_sharp_defines(model))
     frame = ("frame",)
-    include = ("frame", "prefiltered") + (("albedo",) if model.albedo is not None else ())
+    include = ("frame", "prefiltered") + (("reflection",) if sharp else ())
+    include += ("albedo",) if model.albedo is not None else ()
+    table = {}
+    if sharp:  # the vertex stage's results per vertex, read at the hit points
+        table_defines = {**defines, "DEPTH_ONLY": 0, "VERTEX_TABLE": 1}
+        table["table"] = list(
+            stage_sources("prt", table_defines, frame, ("frame", "geodesic"), dialect=es)
+        )
     return {
+        **table,
         "prt": list(
             stage_sources(
                 "prt",
@@ -235,6 +256,23 @@ def _programs(model, n_sh: int, geo_defines: dict, key_args: tuple) -> dict[str,
         "background": list(stage_sources("background", {"N_SH": n_sh}, frame, frame, dialect=es)),
         "tonemap": list(stage_sources("tonemap", dialect=es)),
         "accumulate": list(stage_sources("accumulate", dialect=es)),
+    }
+
+
+def _sharp_defines(model) -> dict:
+    """The defines of a sharp material's programs: the vertex table's width (the page's
+    textures of per-vertex and per-face values wrap at :data:`lobelight.render.layout.TEX_WIDTH`)
+    and rows, the tiles' resolution, the mixture's and albedo table's sizes, and
+    :data:`SHARP_DEFINES`."""
+    v = model.mesh.n_vertices
+    return {
+        "SHARP": 1,
+        "TABLE_WIDTH": TEX_WIDTH,
+        "TABLE_ROWS": max(1, -(-v // TEX_WIDTH)),
+        "VIS_RES": int(model.visibility().shape[-1]),
+        "MIXTURE": MIXTURE,
+        "ALBEDO_STEPS": ALBEDO_STEPS,
+        **{k: f"{x:.6e}" for k, x in SHARP_DEFINES.items()},
     }
 
 
@@ -258,15 +296,29 @@ def _albedo(albedo) -> tuple[dict, dict[str, np.ndarray]]:
     return header, arrays
 
 
-def _check_model(model) -> list[str]:
-    """What the page shows of ``model`` only in part: the notes the page shows."""
-    notes = []
-    if sharp_lobe(model.materials.specular) is not None:
-        notes.append(
-            "The material's sharp reflection is shaded per pixel on the desktop "
-            "(visibility and hit tiles); the web viewer shows its fitted Gaussians instead."
-        )
-    return notes
+def _sharp(model) -> tuple[dict | None, dict[str, np.ndarray]]:
+    """A sharp material's per-pixel reflection (``reflection.glsl``): the header (the lobe's
+    mixture, its directional albedo table, the tiles' resolution) and the arrays (the
+    vertices' visibility and hit tiles, ``model.visibility()``, ``model.hits()``); None and
+    nothing for another material."""
+    sl = sharp_lobe(model.materials.specular)
+    if sl is None:
+        return None, {}
+    tiles = model.visibility().cpu().numpy().astype(np.uint8)  # (V, R, R)
+    face, dist = model.hits()
+    header = {
+        "weights": [float(x) for x in sl.weights],
+        "lam": [float(x) for x in sl.lam],
+        "warp": float(sl.warp),
+        "albedo": [[float(c) for c in row] for row in sl.albedo],
+        "vis_res": int(tiles.shape[-1]),
+    }
+    arrays = {
+        "vis_tiles": tiles,
+        "hit_face": face.cpu().numpy().astype("<i4"),
+        "hit_dist": dist.cpu().numpy().astype("<f2"),
+    }
+    return header, arrays
 
 
 def _model_file(model, float16: bool) -> tuple[dict, dict[str, np.ndarray], int]:
@@ -289,6 +341,8 @@ def _model_file(model, float16: bool) -> tuple[dict, dict[str, np.ndarray], int]
     }
     if model.bounce is not None:
         arrays["bounce"] = _f16(_np(model.bounce, np.float64), float16)
+    sharp_header, sharp_arrays = _sharp(model)
+    arrays.update(sharp_arrays)
     albedo_header = None
     if model.albedo is not None:
         albedo_header, albedo_arrays = _albedo(model.albedo)
@@ -321,7 +375,8 @@ def _model_file(model, float16: bool) -> tuple[dict, dict[str, np.ndarray], int]
         "tex_width": TEX_WIDTH,
         # a still frame's sub-pixel samples: the desktop renderer's default
         "samples": sample_offsets(STILL_SAMPLES).tolist(),
-        "notes": _check_model(model),
+        "notes": [],
+        "sharp": sharp_header,
         "albedo_textures": albedo_header,
         "name": str((model.provenance or {}).get("scene", "model")),
     }
@@ -364,11 +419,31 @@ def _env_file(model, lighting: Lighting, sun_glossy_spec: bool) -> tuple[dict, d
         if sun_glossy:
             v = model.mesh.n_vertices
             arrays["sun_params"] = _sun_vertex_params(spec, float(sun.spread), v)
+            _sharp_sun(model, lighting, atlas.shape, header, arrays)
             u = sun_glossy_uniforms(spec)
             header["sun_brdf"] = {"model": int(u["sun_model"]), "fresnel": float(u["sun_fresnel"])}
     key_args = (has_sun, sun_glossy, header["has_bounce"], len(pf.levels))
     header["variant"] = shader_variant(*key_args)
     return header, arrays, key_args
+
+
+def _sharp_sun(model, lighting: Lighting, shape, header: dict, arrays: dict) -> None:
+    """A sharp lobe's view of the sun's shape (prt.glsl ``sun_shape``): the analytic
+    highlight's tail factor ``sun_tail`` (:func:`lobelight.render.layout.tail_scale`) and,
+    where a Gaussian of the mixture resolves the sun's disc, the whole map's chain
+    ``whole_atlas``, an atlas of the chain's layout (the chain itself is the map without the
+    sun), as the desktop renderer uploads them."""
+    sl = sharp_lobe(model.materials.specular)
+    if sl is None:
+        return
+    spread = float(lighting.sun.spread)
+    header["sun_tail"] = float(tail_scale(model.materials.specular, spread))
+    if not bool((sl.lam * spread**2 >= SHARP_DEFINES["SUN_RESOLVED"]).any()):
+        return
+    whole = _atlas(lighting.prefiltered)[0]
+    if whole.shape != shape:
+        raise InputError("lighting", "the whole map's chain differs in layout from its rest's")
+    arrays["whole_atlas"] = whole
 
 
 def _as_lighting(env, *, base_res: int, sun: bool, device) -> Lighting:
@@ -497,6 +572,7 @@ def _check_model_arrays(path: Path, h: dict, a: dict) -> None:
         raise InputError(str(path), "a face names a vertex past the last")
     if "bounce" in a and a["bounce"].shape != (v, s, 3):
         raise InputError(str(path), f"array bounce has shape {a['bounce'].shape}")
+    _check_sharp_arrays(path, h, a)
     at = h.get("albedo_textures")
     if at is not None:
         shapes = {"uvs": (v, 2), "layer": (v,), "factor": (v, 3)}
@@ -506,6 +582,16 @@ def _check_model_arrays(path: Path, h: dict, a: dict) -> None:
         layers = a.get("albedo_layers")
         if layers is None or layers.ndim != 4 or layers.shape[0] != at["layers"]:
             raise InputError(str(path), "its albedo layers do not match the header")
+
+
+def _check_sharp_arrays(path: Path, h: dict, a: dict) -> None:
+    """A sharp material's tiles against the header's counts."""
+    if h.get("sharp") is None:
+        return
+    r = int(h["sharp"]["vis_res"])
+    for name in ("vis_tiles", "hit_face", "hit_dist"):
+        if name not in a or a[name].shape != (h["n_vertices"], r, r):
+            raise InputError(str(path), f"array {name} missing or not of shape (V, {r}, {r})")
 
 
 def read_web(path) -> WebFolder:

@@ -19,7 +19,7 @@ from ..errors import InputError
 __all__ = ["DTYPES", "decode_array", "encode_array", "read_data_file", "write_data_file"]
 
 #: The array types the page reads (numpy dtype strings, little-endian).
-DTYPES = ("<f4", "<f2", "<u4", "|u1", "<i2")
+DTYPES = ("<f4", "<f2", "<u4", "<i4", "|u1", "<i2")
 #: The call a data file makes, before its JSON.
 _PREFIX = "lobelight_data("
 

@@ -32,7 +32,7 @@
 
   const ARRAY_TYPES = {
     "<f4": Float32Array, "<f2": Uint16Array, "<u4": Uint32Array, "|u1": Uint8Array,
-    "<i2": Int16Array,
+    "<i2": Int16Array, "<i4": Int32Array,
   };
 
   function decode(rec) {
@@ -165,7 +165,12 @@
   const UNITS = {
     gauss_tex: 0, diff_tex: 1, cand_tex: 2, atlas: 3, env: 4, image: 5, shadow_map: 6,
     bounce_tex: 8, shadow_depth: 9, albedo_tex: 10,
+    // a sharp material's per-pixel reflection (reflection.glsl) and the whole map's chain
+    vis_tex: 11, face_tex: 12, pos_tex: 13, nrm_tex: 14, alb_tex: 15, hit_face_tex: 16,
+    hit_dist_tex: 17, table0_tex: 18, table1_tex: 19, whole_atlas: 20,
   };
+  // the first unit of the vertex table's indirect Gaussians (the sampler array table_lobe_tex)
+  const TABLE_LOBE_UNIT = 21;
   const CURVE_NEUTRAL = 2;
 
   class Viewer {
@@ -209,7 +214,9 @@
       }
       // prt.glsl's varyings: two vec4 per Gaussian, the diffuse light, position, normal and
       // albedo, the sun's BRDF (three) and the albedo textures' UV, layer and factor (three)
-      const need = 2 * h.n_gaussians + 4 + (h.sun_glossy ? 3 : 0) + (h.albedo_textures ? 3 : 0);
+      // and a sharp material's triangle id
+      const need = 2 * h.n_gaussians + 4 + (h.sun_glossy ? 3 : 0) + (h.albedo_textures ? 3 : 0) +
+                   (h.sharp ? 1 : 0);
       const have = gl.getParameter(gl.MAX_VARYING_VECTORS);
       if (need > have) {
         throw new LimitError("This model's " + h.n_gaussians + " Gaussians per view need " +
@@ -296,6 +303,7 @@
       this.ibo = this.buffer(gl.ELEMENT_ARRAY_BUFFER, a.faces.data);
       this.nIndices = a.faces.data.length;
       if (a.albedo_layers) this.uploadAlbedo();
+      if (h.sharp) this.uploadSharp();
       this.quad = this.buffer(gl.ARRAY_BUFFER, new Float32Array([-1, -1, 1, -1, -1, 1, 1, 1]));
       this.frameData = new Float32Array(FRAME.sh_light + 8 * h.n_sh);
       this.frameUbo = gl.createBuffer();
@@ -337,6 +345,112 @@
       this.factorBo = this.buffer(gl.ARRAY_BUFFER, a.factor.data);
     }
 
+    // per-vertex tiles (V, R, R) laid out perRow to a row of one image (render/_gl.py's tile
+    // atlas); returns the image's texels and its width and height
+    tileAtlas(src, perRow, r) {
+      const nv = this.h.n_vertices, rows = Math.ceil(nv / perRow), w = perRow * r;
+      const out = new src.constructor(rows * r * w);
+      for (let v = 0; v < nv; ++v) {
+        const x0 = (v % perRow) * r, y0 = Math.floor(v / perRow) * r;
+        for (let y = 0; y < r; ++y) {
+          out.set(src.subarray((v * r + y) * r, (v * r + y + 1) * r), (y0 + y) * w + x0);
+        }
+      }
+      return { data: out, w: w, h: rows * r };
+    }
+
+    // n items of `size` values as the rows of a texture `width` wide (zero-padded)
+    padded(src, size, width, Ctor) {
+      const n = src.length / size, rows = Math.max(1, Math.ceil(n / width));
+      const out = new Ctor(rows * width * size);
+      out.set(src);
+      return { data: out, rows: rows };
+    }
+
+    // a sharp material's per-pixel reflection (render/_gl.py _upload_sharp): the visibility
+    // and hit tiles, the triangles' corners and the vertices' positions, normals and albedos
+    // as textures, the vertex table's targets, and the per-corner buffers of the unindexed
+    // draw (each corner its vertex's id and its triangle's: OpenGL ES has no gl_PrimitiveID)
+    uploadSharp() {
+      const gl = this.gl, a = this.a, h = this.h, r = h.sharp.vis_res, w = h.tex_width;
+      const nv = h.n_vertices;
+      const perRow = Math.max(1, Math.min(nv, Math.floor(w / r)));
+      this.visPerRow = perRow;
+      const vis = this.tileAtlas(a.vis_tiles.data, perRow, r);
+      const hf = this.tileAtlas(a.hit_face.data, perRow, r);
+      const hd = this.tileAtlas(a.hit_dist.data, perRow, r);
+      if (vis.w > this.maxTex || vis.h > this.maxTex) {
+        throw new LimitError("This model's visibility tiles need an image of " + vis.w + " × " +
+                             vis.h + " texels; this device's largest texture is " +
+                             this.maxTex + ".");
+      }
+      this.visTex = this.dataTexture(vis.w, vis.h, gl.R8, gl.RED, gl.UNSIGNED_BYTE, vis.data);
+      this.hitFaceTex = this.dataTexture(hf.w, hf.h, gl.R32I, gl.RED_INTEGER, gl.INT, hf.data);
+      this.hitDistTex = this.dataTexture(hd.w, hd.h, gl.R16F, gl.RED, gl.HALF_FLOAT, hd.data);
+      const faces = this.padded(new Int32Array(a.faces.data.buffer), 3, w, Int32Array);
+      this.faceTex = this.dataTexture(w, faces.rows, gl.RGB32I, gl.RGB_INTEGER, gl.INT,
+                                      faces.data);
+      const tex = {};
+      for (const [name, arr] of [["pos", a.positions], ["nrm", a.normals], ["alb", a.albedo]]) {
+        const p = this.padded(arr.data, 3, w, Float32Array);
+        tex[name] = this.dataTexture(w, p.rows, gl.RGB32F, gl.RGB, gl.FLOAT, p.data);
+      }
+      this.posTex = tex.pos;
+      this.nrmTex = tex.nrm;
+      this.albTex = tex.alb;
+      // the vertex table's targets (prt.glsl VERTEX_TABLE), one RGBA32F texel per vertex
+      const rows = Math.max(1, Math.ceil(nv / w));
+      const n = 2 + 2 * h.indirect_gaussians;
+      this.tableTex = [];
+      this.tableFbo = gl.createFramebuffer();
+      gl.bindFramebuffer(gl.FRAMEBUFFER, this.tableFbo);
+      const buffers = [];
+      for (let i = 0; i < n; ++i) {
+        const t = gl.createTexture();
+        gl.bindTexture(gl.TEXTURE_2D, t);
+        gl.texStorage2D(gl.TEXTURE_2D, 1, gl.RGBA32F, w, rows);
+        gl.texParameteri(gl.TEXTURE_2D, gl.TEXTURE_MIN_FILTER, gl.NEAREST);
+        gl.texParameteri(gl.TEXTURE_2D, gl.TEXTURE_MAG_FILTER, gl.NEAREST);
+        gl.framebufferTexture2D(gl.FRAMEBUFFER, gl.COLOR_ATTACHMENT0 + i, gl.TEXTURE_2D, t, 0);
+        buffers.push(gl.COLOR_ATTACHMENT0 + i);
+        this.tableTex.push(t);
+      }
+      gl.drawBuffers(buffers);
+      if (gl.checkFramebufferStatus(gl.FRAMEBUFFER) !== gl.FRAMEBUFFER_COMPLETE) {
+        throw new Error("The sharp reflection's vertex table cannot be rendered to here.");
+      }
+      gl.bindFramebuffer(gl.FRAMEBUFFER, null);
+      this.tableSize = [w, rows];
+      // the unindexed draw: every per-vertex buffer repeated per corner, and the ids
+      const f = a.faces.data, nc = f.length;
+      const ids = new Float32Array(nc), tri = new Float32Array(nc);
+      for (let c = 0; c < nc; ++c) { ids[c] = f[c]; tri[c] = Math.floor(c / 3); }
+      this.corner = {
+        in_vertex: [this.buffer(gl.ARRAY_BUFFER, ids), 1],
+        in_face: [this.buffer(gl.ARRAY_BUFFER, tri), 1],
+        in_pos: [this.buffer(gl.ARRAY_BUFFER, this.perCorner(a.positions.data, 3)), 3],
+        in_normal: [this.buffer(gl.ARRAY_BUFFER, this.perCorner(a.normals.data, 3)), 3],
+        in_albedo: [this.buffer(gl.ARRAY_BUFFER, this.perCorner(a.albedo.data, 3)), 3],
+      };
+      if (a.uvs) {
+        this.corner.in_uv = [this.buffer(gl.ARRAY_BUFFER, this.perCorner(a.uvs.data, 2)), 2];
+        this.corner.in_layer = [this.buffer(gl.ARRAY_BUFFER, this.perCorner(a.layer.data, 1)), 1];
+        this.corner.in_factor = [this.buffer(gl.ARRAY_BUFFER, this.perCorner(a.factor.data, 3)),
+                                 3];
+      }
+      this.nCorners = nc;
+    }
+
+    // per-vertex values (`size` each) repeated at each triangle corner
+    perCorner(src, size) {
+      const f = this.a.faces.data, out = new Float32Array(f.length * size);
+      for (let c = 0; c < f.length; ++c) {
+        const v = f[c];
+        for (let k = 0; k < size; ++k) out[c * size + k] = src[v * size + k];
+      }
+      return out;
+    }
+
     compile(name, stages) {
       const gl = this.gl;
       const prog = gl.createProgram();
@@ -366,6 +480,12 @@
         const loc = gl.getUniformLocation(prog, u);
         if (loc) gl.uniform1i(loc, UNITS[u]);
       }
+      const lobes = gl.getUniformLocation(prog, "table_lobe_tex");  // a sampler array
+      if (lobes) {
+        const n = 2 * this.h.indirect_gaussians, units = [];
+        for (let i = 0; i < n; ++i) units.push(TABLE_LOBE_UNIT + i);
+        gl.uniform1iv(lobes, units);
+      }
       return prog;
     }
 
@@ -389,8 +509,9 @@
       if (this.programs[variant]) return this.programs[variant];
       const gl = this.gl, src = this.shaders.header[variant];
       const p = {};
-      for (const name of ["prt", "depth", "shadow", "background", "tonemap", "accumulate"]) {
-        p[name] = this.compile(name, src[name]);
+      for (const name of ["prt", "depth", "shadow", "background", "tonemap", "accumulate",
+                          "table"]) {
+        if (src[name]) p[name] = this.compile(name, src[name]);
       }
       const size = gl.getActiveUniformBlockParameter(
         p.prt, gl.getUniformBlockIndex(p.prt, "Frame"), gl.UNIFORM_BLOCK_DATA_SIZE);
@@ -410,7 +531,8 @@
         this.uniform(p.prt, "albedo_size", "uniform2fv", at.size);
         this.uniform(p.prt, "albedo_grad_scale", "uniform1f", 1.0);  // one sample per pixel
       }
-      p.vao = this.vertexArray(p.prt, true);
+      p.vao = this.h.sharp ? this.cornerArray(p.prt) : this.vertexArray(p.prt, true);
+      if (this.h.sharp) this.sharpUniforms(p);
       p.depthVao = this.vertexArray(p.depth, false);
       p.shadowVao = this.vertexArray(p.shadow, false);
       p.bgVao = this.quadArray(p.background);
@@ -438,6 +560,32 @@
       return vao;
     }
 
+    // the unindexed draw's vertex array: each corner's values and ids (uploadSharp)
+    cornerArray(prog) {
+      const gl = this.gl, vao = gl.createVertexArray();
+      gl.bindVertexArray(vao);
+      for (const name in this.corner) {
+        const [buffer, size] = this.corner[name];
+        this.attribute(prog, name, buffer, size);
+      }
+      gl.bindVertexArray(null);
+      return vao;
+    }
+
+    // a sharp material's uniforms (render/_gl.py _upload_sharp) and the vertex table's
+    // program (one point per vertex, from the per-vertex buffers)
+    sharpUniforms(p) {
+      const s = this.h.sharp;
+      this.uniform(p.prt, "vis_per_row", "uniform1i", this.visPerRow);
+      this.uniform(p.prt, "face_width", "uniform1i", this.h.tex_width);
+      this.uniform(p.prt, "sharp_weight", "uniform1fv", s.weights);
+      this.uniform(p.prt, "sharp_lam", "uniform1fv", s.lam);
+      this.uniform(p.prt, "sharp_warp", "uniform1f", s.warp);
+      this.uniform(p.prt, "sharp_albedo", "uniform3fv", s.albedo.flat());
+      this.uniform(p.table, "tex_width", "uniform1i", this.texWidth);
+      p.tableVao = this.vertexArray(p.table, true);
+    }
+
     quadArray(prog) {
       const gl = this.gl, vao = gl.createVertexArray();
       gl.bindVertexArray(vao);
@@ -461,9 +609,13 @@
           gl.vertexAttrib4f(loc, v[0], v[1], v[2], size === 4 ? v[3] : 1);
         }
       } else {
-        if (!env.sunBuffer) env.sunBuffer = this.buffer(gl.ARRAY_BUFFER, sp.data);
+        const corners = !!(this.h.sharp && vao === env.programs.vao);
+        const key = corners ? "sunCornerBuffer" : "sunBuffer";
+        if (!env[key]) {
+          env[key] = this.buffer(gl.ARRAY_BUFFER, corners ? this.perCorner(sp.data, 10) : sp.data);
+        }
         for (const [name, size, off] of names) {
-          this.attribute(prog, name, env.sunBuffer, size, 40, 4 * off);
+          this.attribute(prog, name, env[key], size, 40, 4 * off);
         }
       }
       gl.bindVertexArray(null);
@@ -498,7 +650,18 @@
       gl.texParameteri(gl.TEXTURE_CUBE_MAP, gl.TEXTURE_MAG_FILTER, gl.LINEAR);
       gl.texParameteri(gl.TEXTURE_CUBE_MAP, gl.TEXTURE_WRAP_S, gl.CLAMP_TO_EDGE);
       gl.texParameteri(gl.TEXTURE_CUBE_MAP, gl.TEXTURE_WRAP_T, gl.CLAMP_TO_EDGE);
-      const env = { header: h, arrays: arrays, atlas: atlas, cube: cube };
+      const env = { header: h, arrays: arrays, atlas: atlas, cube: cube, wholeAtlas: null };
+      if (arrays.whole_atlas) {  // a sharp lobe's view of the sun's shape (prt.glsl sun_shape)
+        const t = gl.createTexture();
+        gl.bindTexture(gl.TEXTURE_2D, t);
+        gl.texImage2D(gl.TEXTURE_2D, 0, gl.RGB16F, aw, ah, 0, gl.RGB, gl.HALF_FLOAT,
+                      arrays.whole_atlas.data);
+        gl.texParameteri(gl.TEXTURE_2D, gl.TEXTURE_MIN_FILTER, gl.LINEAR);
+        gl.texParameteri(gl.TEXTURE_2D, gl.TEXTURE_MAG_FILTER, gl.LINEAR);
+        gl.texParameteri(gl.TEXTURE_2D, gl.TEXTURE_WRAP_S, gl.CLAMP_TO_EDGE);
+        gl.texParameteri(gl.TEXTURE_2D, gl.TEXTURE_WRAP_T, gl.CLAMP_TO_EDGE);
+        env.wholeAtlas = t;
+      }
       const p = this.programsFor(h.variant, env);
       const pf = h.prefiltered;
       this.uniform(p.prt, "atlas_size", "uniform2fv", pf.atlas_size);
@@ -534,7 +697,14 @@
         this.uniform(p.prt, "sun_model", "uniform1i", h.sun_brdf.model);
         this.uniform(p.prt, "sun_fresnel", "uniform1f", h.sun_brdf.fresnel);
         this.uniform(p.prt, "sun_spread", "uniform1f", h.sun.spread);
+        if (h.sun_tail != null) this.uniform(p.prt, "sun_tail", "uniform1f", h.sun_tail);
         this.sunAttributes(env, p.prt, p.vao);
+        if (p.table) {
+          this.uniform(p.table, "sun_model", "uniform1i", h.sun_brdf.model);
+          this.uniform(p.table, "sun_fresnel", "uniform1f", h.sun_brdf.fresnel);
+          this.uniform(p.table, "sun_spread", "uniform1f", h.sun.spread);
+          this.sunAttributes(env, p.table, p.tableVao);
+        }
       }
     }
 
@@ -685,6 +855,38 @@
       gl.bindVertexArray(null);
     }
 
+    // the vertex stage's results for this frame's view into the vertex table, one point per
+    // vertex, read by the sharp reflection's hit points (render/_gl.py _table_pass)
+    tablePass(p) {
+      const gl = this.gl;
+      gl.bindFramebuffer(gl.FRAMEBUFFER, this.tableFbo);
+      gl.viewport(0, 0, this.tableSize[0], this.tableSize[1]);
+      gl.disable(gl.DEPTH_TEST);
+      gl.disable(gl.BLEND);
+      this.bindTexture(UNITS.gauss_tex, gl.TEXTURE_2D, this.gaussTex);
+      this.bindTexture(UNITS.diff_tex, gl.TEXTURE_2D, this.diffTex);
+      this.bindTexture(UNITS.cand_tex, gl.TEXTURE_2D, this.candTex);
+      this.bindTexture(UNITS.bounce_tex, gl.TEXTURE_2D, this.bounceTex);
+      gl.useProgram(p.table);
+      gl.bindVertexArray(p.tableVao);
+      gl.drawArrays(gl.POINTS, 0, this.h.n_vertices);
+      gl.bindVertexArray(null);
+    }
+
+    // the sharp reflection's textures on their units (render/_gl.py _draw_sample)
+    bindSharp(env) {
+      const gl = this.gl, T = gl.TEXTURE_2D;
+      const tex = [["vis_tex", this.visTex], ["face_tex", this.faceTex], ["pos_tex", this.posTex],
+                   ["nrm_tex", this.nrmTex], ["alb_tex", this.albTex],
+                   ["hit_face_tex", this.hitFaceTex], ["hit_dist_tex", this.hitDistTex],
+                   ["table0_tex", this.tableTex[0]], ["table1_tex", this.tableTex[1]]];
+      for (const [name, t] of tex) this.bindTexture(UNITS[name], T, t);
+      for (let i = 2; i < this.tableTex.length; ++i) {
+        this.bindTexture(TABLE_LOBE_UNIT + i - 2, T, this.tableTex[i]);
+      }
+      if (env.wholeAtlas) this.bindTexture(UNITS.whole_atlas, T, env.wholeAtlas);
+    }
+
     bindTexture(unit, target, tex) {
       const gl = this.gl;
       gl.activeTexture(gl.TEXTURE0 + unit);
@@ -700,6 +902,7 @@
       const sunOn = this.fillFrame(cam, rot, opts.diffuse, opts.glossy);
       this.bindBlocks();
       if (sunOn) this.shadowPass(p);
+      if (p.table && opts.glossy) this.tablePass(p);
       const offsets = opts.offsets && opts.offsets.length > 1 ? opts.offsets : null;
       if (!offsets) {
         this.setJitter(opts.offsets ? opts.offsets[0] : [0.5, 0.5], t);
@@ -766,9 +969,11 @@
         this.bindTexture(UNITS.shadow_depth, gl.TEXTURE_2D, this.shadowTex);
         gl.bindSampler(UNITS.shadow_depth, this.shadowSampler);
       }
+      if (this.h.sharp) this.bindSharp(env);
       gl.useProgram(p.prt);
       gl.bindVertexArray(p.vao);
-      gl.drawElements(gl.TRIANGLES, this.nIndices, gl.UNSIGNED_INT, 0);
+      if (this.h.sharp) gl.drawArrays(gl.TRIANGLES, 0, this.nCorners);
+      else gl.drawElements(gl.TRIANGLES, this.nIndices, gl.UNSIGNED_INT, 0);
       if (env.header.sun) gl.bindSampler(UNITS.shadow_depth, null);
       if (background) {
         this.bindTexture(UNITS.env, gl.TEXTURE_CUBE_MAP, env.cube);
