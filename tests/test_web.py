@@ -377,12 +377,13 @@ def test_a_model_beyond_the_texture_limits_gets_a_clear_message(browser, sky, tm
     page.close()
 
 
-def sharp_torus() -> Model:
+def sharp_torus(indirect: bool = False) -> Model:
     """A torus of a sharp metal (GGX alpha 0.03: :func:`lobelight.brdf.sharp_lobe` holds a
     mixture for it) with no fitted glossy transport and a constant diffuse transfer
     (tests/test_reflection.py's bare model): the desktop shades its direct light per pixel
     (reflection.glsl), its inner side sees the torus (hit tiles), and the hit points are
-    shaded from the vertex table (their diffuse light)."""
+    shaded from the vertex table (their diffuse light). ``indirect``: a second, indirect
+    Gaussian about the normal (the vertex table's indirect lobes, read at the hit points)."""
     tm = trimesh.creation.torus(
         major_radius=1.0, minor_radius=0.45, major_sections=48, minor_sections=24
     )
@@ -393,10 +394,17 @@ def sharp_torus() -> Model:
         torch.zeros(v, 92, 1, 3), torch.zeros(v, 92, 1, 3) + torch.tensor([0.0, 0.0, 1.0]),
         torch.ones(v, 92, 1),
     )  # fmt: skip
+    if indirect:
+        w = torch.cat([g.w, torch.full((v, 92, 1, 3), 0.3)], 2)
+        mu = torch.cat([g.mu, mesh.normals[:, None, None].expand(v, 92, 1, 3)], 2)
+        g = fit.Gaussians(w, mu, torch.cat([g.lam, torch.full((v, 92, 1), 4.0)], 2))
     diffuse = torch.zeros(v, 25, 3)
     diffuse[:, 0] = 0.2
     sc = scene.Scene(mesh, scene.uniform(mat, v), name="torus")
-    return Model(mesh, sphere.geodesic_views(), g, diffuse, sc.materials, {"scene": "torus"})
+    return Model(
+        mesh, sphere.geodesic_views(), g, diffuse, sc.materials, {"scene": "torus"},
+        indirect_gaussians=int(indirect),
+    )  # fmt: skip
 
 
 def test_the_sharp_constants_are_the_desktops():
@@ -406,12 +414,13 @@ def test_the_sharp_constants_are_the_desktops():
 
 
 @needs_browser
-@pytest.mark.parametrize("sun", [False, True])
-def test_a_sharp_metal_is_shaded_per_pixel_as_the_torch_path(browser, tmp_path, sun):
+@pytest.mark.parametrize(("sun", "indirect"), [(False, False), (True, True)])
+def test_a_sharp_metal_is_shaded_per_pixel_as_the_torch_path(browser, tmp_path, sun, indirect):
     """A sharp metal's per-pixel reflection (reflection.glsl: visibility tiles, the object seen
     in the lobe through the hit tiles and the vertex table; with the sun, its shape through the
-    whole map's chain, which this sun's disc resolves for the mixture's sharpest Gaussian)
-    against ``Renderer(..., backend="torch")`` on 400 sampled interior pixels of the torus, at
+    whole map's chain, which this sun's disc resolves for the mixture's sharpest Gaussian;
+    with an indirect Gaussian, the vertex table's indirect lobes) against
+    ``Renderer(..., backend="torch")`` on 400 sampled interior pixels of the torus, at
     384 x 288 as the Gaussian path's test above (whose docstring gives the 1e-2 bound).
 
     A sharp reflection is discontinuous across the image (the hit tiles' texels switch between
@@ -423,7 +432,7 @@ def test_a_sharp_metal_is_shaded_per_pixel_as_the_torch_path(browser, tmp_path, 
     shader on llvmpipe, which snaps to 1/256, meets 1e-2 without it). With the sun, the shadow
     map's penumbrae differ from the torch path's rays as the desktop shader's do (up to 0.05,
     tests/test_sun.py): one pixel in 400 may exceed the neighbour bound (measured 3 in 85K)."""
-    m = sharp_torus()
+    m = sharp_torus(indirect)
     # the built-in sky at 256 x 128: its sun's disc (spread 0.0095 rad) is resolved by the
     # mixture's sharpest Gaussian (lam sigma^2 >= SUN_RESOLVED), so whole_atlas is read
     lighting = render.Lighting(envmap.builtin(height=128), base_res=32, sun=sun)
