@@ -1,5 +1,5 @@
 """A sharp glossy reflection placed per pixel: the material's own lobe at the pixel's reflected
-direction, with the environment's visibility read there.
+direction, with the environment's visibility read there and the object seen there.
 
 Per-vertex Gaussians blended from three vertices and three of the 92 stored views cannot place
 a mirror's reflection between vertices: a reflected direction turns by twice the view's angle,
@@ -12,7 +12,7 @@ instead:
 
 ``R`` the pixel's view reflected about its interpolated normal; ``E(n.v)`` the lobe's
 directional albedo (RGB, Fresnel included; a table over ``n.v`` integrated once from the BRDF);
-``a_i, lam_i`` a mixture of four Gaussians fitted once to the lobe's shape at normal incidence;
+``a_i, lam_i`` a mixture of five Gaussians fitted once to the lobe's shape at normal incidence;
 ``L(R; lam)`` the prefiltered lookup (a Phong lobe keeps its width at every view). A microfacet
 lobe reflected about the normal is anisotropic: a tilt of the microfacet normal by ``d`` turns
 ``R`` by ``2 d`` within the plane of incidence and by ``2 (n.v) d`` across it, so the lobe keeps
@@ -20,24 +20,21 @@ its width along the plane and narrows by ``n.v`` across it (Wang et al. 2009's w
 ``lam_i / n.v``, is the isotropic lobe of the same solid angle). It is read as two lookups of
 the narrow sharpness ``lam_i / (n.v)^2`` at ``R +- s_i t``, ``t`` the plane of incidence's
 direction across ``R`` and ``s_i^2 = (1 - (n.v)^2) / lam_i`` the variance the plane's width
-adds: the two points carry that variance exactly. ``V(R)`` the
-visible fraction of the environment in direction ``R``, read bilinearly from each corner's
-octahedral visibility tile (:meth:`lobelight.model.Model.visibility`) and blended with the
-barycentrics. What the lobe does not see is the object itself: the model's indirect Gaussians
-carry that light, fitted where the stored views' visible fraction ``v_fit`` (their direct
-Gaussians' light over ``E``) left it; :func:`indirect_scale` rescales them to the pixel's own
-occluded fraction ``(1 - V) / (1 - v_fit)``.
-
-Where the lobe sees the object, the object is shaded where it is seen
-(:func:`object_light`): each corner's hit tile (:meth:`lobelight.model.Model.hits`) names the
-triangle its ray along ``R``'s texel hits and how far away; the hit point is placed from the
-pixel itself, ``q = p + t R``, and projected onto that triangle; there the object's radiance
-towards the pixel is its direct sharp reflection for the view ``-R`` (as above, with the hit's
-own visibility), its diffuse colour, the sun's light (shadowed) and its indirect Gaussians,
-taken from the current view's and re-based on the hit's reflected direction. The corners' hits
-blend with the barycentrics over the corners that found one; the pixel's indirect light is
-then ``E(n.v) (1 - V) L_hit``, and the fitted indirect Gaussians light only the pixels whose
-corners found no hit.
+adds: the two points carry that variance exactly. ``V`` the
+visible fraction of the environment in direction ``R``: the barycentric weight of the triangle's
+corners whose hit tile (below) finds no hit at ``R``, so that the environment and the object
+share the lobe consistently (one tile decides both). What the lobe does not see of the
+environment is the object itself, shaded where it is seen (:func:`object_light`): each
+corner's hit tile (:meth:`lobelight.model.Model.hits`) names the triangle its ray along ``R``'s
+texel hits and how far away; the hit point is placed from the pixel itself, ``q = p + t R``, and
+projected onto that triangle; there the object's radiance towards the pixel is its direct sharp
+reflection for the view ``-R`` (as above, with the hit's own visible fraction ``V_hit`` read
+bilinearly from its corners' octahedral visibility tiles,
+:meth:`lobelight.model.Model.visibility`), its diffuse colour, the sun's light (shadowed) and
+its indirect Gaussians, taken from the current view's, re-based on the hit's reflected
+direction and rescaled to the hit's occluded fraction ``(1 - V_hit) / (1 - v_fit)``
+(:func:`indirect_scale`; ``v_fit`` the stored views' visible fraction, their direct Gaussians'
+light over ``E``). The pixel adds ``E(n.v) sum_i b_i L_hit,i`` over the corners with a hit.
 
 Supported: the BRDFs the sun is shaded with per pixel (:attr:`lobelight.brdf.BRDF.sun_model`)
 with parameters constant over the mesh and a lobe at least as sharp as
@@ -265,8 +262,9 @@ def object_light(model, lighting, vd, sharp, pos, r, corners, bary, rot, *, sun_
 
     Returns
     -------
-    light : (P, 3), the corners' hits blended over the corners that found one
-    found : (P,) bool, whether any corner found one
+    light : (P, 3), the corners' hits' light weighted by their barycentrics, summed
+    weight : (P,), the barycentric weight of the corners that found a hit: the lobe's occluded
+        fraction (``1 - V``)
     """
     face, dist = model.hits()
     res = face.shape[-1]
@@ -276,7 +274,7 @@ def object_light(model, lighting, vd, sharp, pos, r, corners, bary, rot, *, sun_
     weight = torch.zeros(pos.shape[0], device=pos.device)
     for i in range(3):  # the triangle's corners
         f = face[corners[:, i], texel].long()
-        h = (f >= 0).nonzero().squeeze(-1)
+        h = ((f >= 0) & (bary[:, i] > 0)).nonzero().squeeze(-1)
         if h.numel() == 0:
             continue
         q = pos[h] + dist[corners[h, i], texel[h]].float()[:, None] * r[h]
@@ -285,5 +283,4 @@ def object_light(model, lighting, vd, sharp, pos, r, corners, bary, rot, *, sun_
         )
         light[h] += bary[h, i, None] * hit
         weight[h] += bary[h, i]
-    found = weight > 0
-    return light / weight.clamp_min(DIVISOR_F32)[:, None], found
+    return light, weight.clamp(0, 1)

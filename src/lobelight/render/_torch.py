@@ -35,12 +35,9 @@ from ..model import blend_lobes
 from ._albedo import diffuse_albedo, diffuse_light
 from ._lighting import Lighting
 from ._reflection import (
-    indirect_light,
-    indirect_scale,
     object_light,
     shade,
     sun_sharp,
-    visible_fraction,
 )
 from ._sun_glossy import sun_glossy, sun_glossy_supported, sun_through, tail_scale
 from ._sun_shadow import disc_radius, disc_visibility
@@ -161,8 +158,8 @@ def _glossy(
     )
     view = torch.nn.functional.normalize(vd.eye - pos, dim=-1)
     r = mirror_direction(nrm, view)
-    e, mu, sigma = blend_lobes(vd.e[c], vd.mu[c], vd.sigma[c], b, frame=(vd.mirror[c], r))
     if sharp is None:
+        e, mu, sigma = blend_lobes(vd.e[c], vd.mu[c], vd.sigma[c], b, frame=(vd.mirror[c], r))
         # the carried light times the lighting averaged under the lobe: the integral without
         # forming the (up to 1e5) peak weight
         acc = (e * lighting.lookup(mu, sigma.pow(-2), rot, rest=sun_gl).to(dev)).sum(1)
@@ -174,20 +171,13 @@ def _glossy(
             acc += sun_through(e[:, k], mu[:, k], sigma[:, k].pow(-2), sd, lighting.sun).sum(1)
         return acc
     nv = (nrm * view).sum(-1).clamp_min(0)
-    vis = visible_fraction(model.visibility().to(dev), c, b, r)
-    albedo = sharp.directional_albedo(nv)
-    acc = shade(sharp, lighting, r, nrm, nv, vis, rot, rest=sun_gl).to(dev)
-    # the object seen in the lobe, where a corner's hit tile finds it; elsewhere the indirect
-    # Gaussians fill what the pixel's lobe does not see
-    seen, found = object_light(
+    # the object seen in the lobe where a corner's hit tile finds it; the environment in the
+    # rest of it
+    seen, weight = object_light(
         model, lighting, vd, sharp, pos, r, c, b, rot, sun_gl=sun_gl, caster=caster
     )
-    k = slice(model.n_gaussians - model.indirect_gaussians, None)
-    direct = e[:, : model.direct_gaussians].sum(1)
-    ei = e[:, k] * indirect_scale(direct, albedo, vis)[:, None, None]
-    fitted = indirect_light(model, lighting, ei, mu[:, k], sigma[:, k], rot, sun_gl=sun_gl)
-    hit = albedo * (1 - vis)[:, None] * seen
-    return acc + torch.where(found[:, None], hit, fitted)
+    acc = shade(sharp, lighting, r, nrm, nv, 1 - weight, rot, rest=sun_gl).to(dev)
+    return acc + sharp.directional_albedo(nv) * seen
 
 
 def sun_stage(

@@ -487,34 +487,21 @@ void main() {
         // the pixel's own mirror direction, from its interpolated normal and view direction:
         // the blended offsets are re-based on it (lobelight.model.blend_lobes, frame=)
         vec3 mirror = 2.0 * dot(n, d) * n - d;
-        int first = 0;          // the first Gaussian shaded from the model
-        float indirect = 1.0;   // the indirect Gaussians' factor
+        int first = 0;  // the first Gaussian shaded from the model
 #if defined(SHARP) && SHARP
-        // the direct light by the material's own lobe at the pixel's reflected direction,
-        // with the visibility read there (reflection.glsl, render/_reflection.py); the
-        // indirect Gaussians fill the pixel's occluded fraction
+        // the material's own lobe at the pixel's reflected direction (reflection.glsl,
+        // render/_reflection.py): the object where the corners' hit tiles find it, the
+        // environment in the rest of the lobe
         float nv = max(dot(n, d), 0.0);
         ivec3 cc;
         vec3 cb;
         corners(v_pos, cc, cb);
-        float vis = visible_fraction(cc, cb, mirror);
-        vec3 albedo = directional_albedo(nv);
-        c += albedo * sharp_lighting(rot_t * mirror, rot_t * across(n, mirror), nv) * vis;
-        first = N_GAUSSIANS - N_INDIRECT;
-        // the object seen in the lobe, shaded where it is seen; the indirect Gaussians light
-        // only pixels whose corners' hit tiles find none
         vec4 seen = object_light(v_pos, mirror, cc, cb);
-        if (seen.a > 0.0) {
-            c += albedo * (1.0 - vis) * seen.rgb;
-            first = N_GAUSSIANS;
-        }
-        vec3 direct = vec3(0.0);
-        for (int k = 0; k < N_GAUSSIANS - N_INDIRECT; ++k) {
-            if (v_lobe[2 * k].w >= MIN_SAY) direct += v_lobe[2 * k].rgb;
-        }
-        float v_fit = clamp((direct.r + direct.g + direct.b) /
-                            max(albedo.r + albedo.g + albedo.b, 1e-30), 0.0, 1.0);
-        indirect = clamp((1.0 - vis) / max(1.0 - v_fit, OCCLUDED_FLOOR), 0.0, INDIRECT_SCALE_MAX);
+        vec3 albedo = directional_albedo(nv);
+        float vis = clamp(1.0 - seen.a, 0.0, 1.0);
+        vec3 env = sharp_lighting(rot_t * mirror, rot_t * across(n, mirror), nv);
+        c += albedo * (env * vis + seen.rgb);
+        first = N_GAUSSIANS;
 #endif
         for (int k = first; k < N_GAUSSIANS; ++k) {
             vec4 el = v_lobe[2 * k];
@@ -523,7 +510,6 @@ void main() {
             if (say < MIN_SAY) continue;
             float sigma = ms.w / say;
             vec3 mu = normalize(mirror + ms.xyz / say);
-            el.rgb *= indirect;
             c += el.rgb * prefiltered_lookup(rot_t * mu, 1.0 / (sigma * sigma));
 #if SUN_GLOSSY
             // the sun's light reflected off the object into the indirect lobes

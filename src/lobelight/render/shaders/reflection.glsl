@@ -1,9 +1,9 @@
 // A sharp reflection placed per pixel (render/_reflection.py, whose formulas these are): the
 // material's own lobe, a mixture of MIXTURE Gaussians, at the pixel's reflected direction,
-// times its directional albedo and the environment's visible fraction there, read from the
-// triangle's three corners' octahedral visibility tiles (lobelight.model.visibility_tiles)
-// and blended with the pixel's barycentrics; where the lobe sees the object, the object shaded
-// where each corner's hit tile finds it (object_light). Included in prt.glsl's fragment stage
+// times its directional albedo; where a corner's hit tile (lobelight.model.hit_tiles) finds
+// the object, the object shaded where it is seen (object_light), and the environment in the
+// rest of the lobe. A hit's own visible fraction is read from its corners' octahedral
+// visibility tiles (lobelight.model.visibility_tiles). Included in prt.glsl's fragment stage
 // when SHARP is 1; VIS_RES, MIXTURE and ALBEDO_STEPS are defined by the loader.
 
 uniform sampler2D vis_tex;        // R8 tiles of VIS_RES^2 texels, vis_per_row tiles per row
@@ -225,11 +225,12 @@ vec3 hit_light(int f, vec3 q, vec3 r) {
     return light;
 }
 
-// the object seen along r from point p of corners c and barycentrics b: the corners' hits
-// blended over those that found one (rgb), and whether any did (a). One call site of
-// hit_light in a loop over a bit mask of the corners with a hit: a loop over the three corners
-// is unrolled into three copies, and a rasteriser that runs both sides of a branch under a mask
-// (llvmpipe) runs every copy for every pixel
+// the object seen along r from point p of corners c and barycentrics b: the corners' hits'
+// light weighted by their barycentrics, summed (rgb), and the corners' weight (a), the lobe's
+// occluded fraction 1 - V (render/_reflection.py object_light). One call site of hit_light in
+// a loop over a bit mask of the corners with a hit: a loop over the three corners is unrolled
+// into three copies, and a rasteriser that runs both sides of a branch under a mask (llvmpipe)
+// runs every copy for every pixel
 vec4 object_light(vec3 p, vec3 r, ivec3 c, vec3 b) {
     ivec2 t0 = tile_texel(c.x, r), t1 = tile_texel(c.y, r), t2 = tile_texel(c.z, r);
     ivec3 f = ivec3(texelFetch(hit_face_tex, t0, 0).r, texelFetch(hit_face_tex, t1, 0).r,
@@ -248,5 +249,5 @@ vec4 object_light(vec3 p, vec3 r, ivec3 c, vec3 b) {
         light += weight * hit_light(face, p + dist * r, r);
         w += weight;
     }
-    return w > 0.0 ? vec4(light / w, 1.0) : vec4(0.0);
+    return vec4(light, min(w, 1.0));
 }
