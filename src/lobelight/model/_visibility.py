@@ -23,6 +23,7 @@ import torch
 from .._checks import check_int
 from ..geometry import octahedral
 from ..geometry.raycast import RayCaster
+from ..transport import vertex_origins
 
 __all__ = ["VISIBILITY_RES", "VISIBILITY_SUB", "hit_tiles", "visibility_tiles"]
 
@@ -40,7 +41,7 @@ def visibility_tiles(
 ) -> torch.Tensor:
     """The environment's visible fraction per texel of each vertex's octahedral tile.
 
-    Rays leave each vertex (lifted off the surface as the transport's are) along ``sub x sub``
+    Rays leave each vertex's ray origin (as the transport's do) along ``sub x sub``
     stratified directions per texel; a direction below the vertex normal's horizon counts as
     occluded (the surface itself is in the way).
 
@@ -71,12 +72,15 @@ def _rays_above_horizon(mesh, d: torch.Tensor, caster: RayCaster):
     """The rays of each batch of vertices along directions ``d (D, 3)`` above the vertex
     normal's horizon, at most :data:`_RAYS_PER_BATCH` per batch: yields ``vi (b,)`` the
     batch's vertex ids, ``bi, di (R,)`` each ray's row in the batch and direction index, and
-    ``origins (R, 3)`` lifted off the surface (the caster's offset)."""
+    ``origins (R, 3)``: the vertices' ray origins as the transport's
+    (:func:`lobelight.transport.vertex_origins`), lifted off the surface (the caster's
+    offset)."""
     dev = mesh.vertices.device
+    start = vertex_origins(mesh, caster=caster).points
     batch = max(1, _RAYS_PER_BATCH // d.shape[0])
     for s in range(0, mesh.n_vertices, batch):
         vi = torch.arange(s, min(mesh.n_vertices, s + batch), device=dev)
-        p, n = mesh.vertices[vi], mesh.normals[vi]
+        p, n = start[vi], mesh.normals[vi]
         bi, di = ((n @ d.T) > 0).nonzero(as_tuple=True)
         yield vi, bi, di, caster.spawn(p[bi], n[bi], d[di])
 
@@ -86,7 +90,7 @@ def hit_tiles(
 ) -> tuple[torch.Tensor, torch.Tensor]:
     """What each vertex sees of the object along its octahedral tile's texel centres.
 
-    One ray per texel leaves the vertex (lifted off the surface as the transport's are) along
+    One ray per texel leaves the vertex's ray origin (as the transport's do) along
     the texel's centre direction; directions below the vertex normal's horizon cast none.
 
     Parameters

@@ -10,10 +10,20 @@
   :func:`gathering_sharpness`).
 - :func:`diffuse_interreflection` adds bounces of diffuse interreflection to the SH transfer,
   with the light the hit points' glossy lobes send (from their fitted Gaussians).
+- :func:`vertex_origins` where each vertex's rays start: moved off the other side of a hard
+  edge, and, for a vertex covered by a surface just over it, to the nearest clearly more
+  exposed point of its own faces, whose transport it takes (:class:`VertexOrigins`).
 - :data:`BOUNCES` and :data:`INDIRECT_PATHS` are a bake's defaults (docs/method.md).
 """
 
 from ._interreflection import diffuse_interreflection
+from ._origins import (
+    EXPOSED_FLOOR,
+    EXPOSED_GAIN,
+    EXPOSED_STEPS,
+    VertexOrigins,
+    vertex_origins,
+)
 from ._transport import (
     BOUNCES,
     DIFFUSE_ORDER,
@@ -30,13 +40,18 @@ from ._transport import (
 __all__ = [
     "BOUNCES",
     "DIFFUSE_ORDER",
+    "EXPOSED_FLOOR",
+    "EXPOSED_GAIN",
+    "EXPOSED_STEPS",
     "INDIRECT_LAM_RANGE",
     "INDIRECT_PATHS",
     "LONE_PATH_LAM",
     "SHARED_LAM_MAX",
     "Transport",
     "TransportBatch",
+    "VertexOrigins",
     "diffuse_interreflection",
     "gathering_sharpness",
     "sample",
+    "vertex_origins",
 ]

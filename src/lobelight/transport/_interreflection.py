@@ -130,7 +130,7 @@ def diffuse_interreflection(
     total = len(starts) + bounces
     for step, s in enumerate(starts):
         vidx = torch.arange(s, min(v, s + batch), device=dev)
-        p, n = mesh.vertices[vidx][:, None], mesh.normals[vidx][:, None]
+        p, n = transport.origins.points[vidx][:, None], mesh.normals[vidx][:, None]
         cos = (n * d[None]).sum(-1)  # (b, D)
         bi, di = (cos > 0).nonzero(as_tuple=True)  # (m,) rays above the horizon
         o = transport.caster.spawn(p[bi, 0], n[bi, 0], d[di])

@@ -43,6 +43,7 @@ from ..geometry.raycast import RayCaster
 from ..lobes import sg, sh
 from ..lobes.sg import Gaussians
 from ..scene import Scene
+from ._origins import VertexOrigins, vertex_origins
 
 __all__ = [
     "BOUNCES",
@@ -166,7 +167,14 @@ class Transport:
         default on a CUDA device where Warp is installed)
     """
 
-    def __init__(self, scene: Scene, *, device=None, shadows: bool = True):
+    def __init__(
+        self,
+        scene: Scene,
+        *,
+        device=None,
+        shadows: bool = True,
+        origins: VertexOrigins | None = None,
+    ):
         self.device = torch.device(device) if device is not None else scene.mesh.device
         # shadows=False drops visibility (every direction above the horizon sees the
         # environment): the transport of plain prefiltered environment mapping, the paper's
@@ -176,8 +184,22 @@ class Transport:
         self.mesh = self.scene.mesh
         self.materials = self.scene.materials
         self.caster = RayCaster(self.mesh)
+        self._origins = origins
         # gathering_sharpness by the view's elevation, for a shared isotropic specular lobe
         self._gather_table: torch.Tensor | None = None
+
+    @property
+    def origins(self) -> VertexOrigins:
+        """Where each vertex's rays start (:func:`lobelight.transport.vertex_origins`, computed
+        on first use; or as given to the constructor): every ray this transport casts from a
+        vertex, for visibility, the indirect glossy paths' first bounce and the
+        interreflection's gather, leaves ``origins.points`` lifted by the caster's offset."""
+        if self._origins is None:
+            self._origins = vertex_origins(self.mesh, caster=self.caster)
+        elif self._origins.points.device != self.device:
+            o = self._origins
+            self._origins = VertexOrigins(o.points.to(self.device), o.exposed.to(self.device))
+        return self._origins
 
     # ---- visibility ---------------------------------------------------------------------------
 
@@ -198,16 +220,16 @@ class Transport:
         vidx = vidx.to(self.device)
         b = vidx.shape[0]
         extra = dirs.ndim - 2 if dirs.shape[0] == b and dirs.ndim >= 2 else dirs.ndim - 1
-        p = self.mesh.vertices[vidx].reshape(b, *([1] * extra), 3)
         n = self.mesh.normals[vidx].reshape(b, *([1] * extra), 3)
-        d = dirs.to(self.device, p.dtype)
-        shape = torch.broadcast_shapes(p.shape, d.shape)[:-1]
+        d = dirs.to(self.device, n.dtype)
+        shape = torch.broadcast_shapes(n.shape, d.shape)[:-1]
         d = d.expand(*shape, 3)
         up = (d * n).sum(-1) > 0
         if not self.shadows:
             return up
         out = torch.zeros(shape, dtype=torch.bool, device=self.device)
         if bool(up.any()):
+            p = self.origins.points[vidx].reshape(b, *([1] * extra), 3)
             o = self.caster.spawn(p.expand(*shape, 3)[up], n.expand(*shape, 3)[up], d[up])
             out[up] = ~self.caster.occluded(o, d[up])
         return out
@@ -467,7 +489,7 @@ class Transport:
         slot = torch.arange(m, device=dev) // paths  # (m,) which (vertex, view)
         vert = vidx.repeat_interleave(j * paths)  # (m,)
         wo = views.repeat_interleave(paths, 0).repeat(b, 1)  # (m, 3)
-        p = self.mesh.vertices[vert]
+        p = self.origins.points[vert]  # the first bounce leaves the vertex's ray origin
         n = self.mesh.normals[vert]
         above = (wo * n).sum(-1) > 0
         # first bounce: the specular lobe at x only (the diffuse part is the SH term's)
