@@ -99,8 +99,8 @@ def _check_param(
 
 def _broadcasts(a: tuple[int, ...], b: tuple[int, ...]) -> bool:
     try:
-        torch.broadcast_shapes(a, b)
-    except RuntimeError:
+        np.broadcast_shapes(a, b)
+    except ValueError:
         return False
     return True
 
@@ -373,8 +373,10 @@ class BRDF(abc.ABC):
         joint: tuple[int, ...] = ()
         for name, shape in self._batch_shapes():
             try:
-                joint = tuple(torch.broadcast_shapes(joint, shape))
-            except RuntimeError:
+                # numpy's: torch's imports sympy on its first call (a third of a second in
+                # every process that reads a model)
+                joint = np.broadcast_shapes(joint, shape)
+            except ValueError:
                 other, oshape = next((o, s) for o, s in seen if not _broadcasts(shape, s))
                 raise InputError(
                     name,

@@ -23,6 +23,7 @@ from __future__ import annotations
 from collections.abc import Mapping
 from typing import Any, ClassVar
 
+import numpy as np
 import torch
 
 from ..errors import InputError
@@ -132,8 +133,8 @@ def metallic_roughness(
     joint = tuple(c.shape[:-1])
     for name, t in (("metallic", m), ("roughness", r)):
         try:
-            joint = tuple(torch.broadcast_shapes(joint, t.shape))
-        except RuntimeError:
+            joint = np.broadcast_shapes(joint, tuple(t.shape))  # numpy's: no sympy import
+        except ValueError:
             raise InputError(
                 name, f"per-element shape {tuple(t.shape)} does not broadcast with {joint}"
             ) from None

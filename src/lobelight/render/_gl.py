@@ -270,15 +270,16 @@ def gaussian_records(model) -> np.ndarray:
     ``(e, sigma)``, then its axis and whether the record's view is above the vertex's horizon
     ``(mu, above)`` (prt.glsl's ``gaussian``)."""
     g = model.gaussians
-    sigma = g.lam.rsqrt()[..., None]
+    v, j, n = g.lam.shape
+    # one float32 buffer filled in place (a model's records are its largest array)
+    out = torch.empty(v, j, n, 2, 4, device=g.w.device)
+    out[..., 0, 3] = g.lam.rsqrt()
     # the light each lobe carries (prt.glsl blends it, not the peak weight)
-    e = (g.w.double() * sg.integral(g.lam.double())[..., None]).float()
-    a = torch.cat([e, sigma], -1).reshape(-1, 4)  # (V J N, 4)
+    torch.mul(g.w, sg.integral(g.lam)[..., None], out=out[..., 0, :3])
+    out[..., 1, :3] = g.mu
     # .w: the record's view is above the vertex's horizon (model.horizon_scale)
-    above = ((model.views[None] * model.mesh.normals[:, None]).sum(-1) > 0).float()  # (V, J)
-    above = above[:, :, None, None].expand(-1, -1, g.lam.shape[-1], 1)
-    m = torch.cat([g.mu, above], -1).reshape(-1, 4)
-    return torch.stack([a, m], 1).reshape(-1, 4).detach().cpu().numpy()
+    out[..., 1, 3] = ((model.views[None] * model.mesh.normals[:, None]).sum(-1) > 0)[..., None]
+    return out.reshape(-1, 4).detach().cpu().numpy()
 
 
 def _transfer_images(model, *, bounce: bool) -> tuple[np.ndarray, np.ndarray, np.ndarray, int]:
