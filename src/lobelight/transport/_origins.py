@@ -25,13 +25,14 @@ a bake's transport and its model's tiles compute it once); every ray a vertex ca
 from __future__ import annotations
 
 import hashlib
+import inspect
 import math
 from dataclasses import dataclass
 
 import torch
 
 from ..geometry import sphere
-from ..geometry.raycast import RayCaster
+from ..geometry.raycast import RayCaster, resolve_engine
 
 __all__ = [
     "EXPOSED_FLOOR",
@@ -57,6 +58,8 @@ _RAYS_PER_BATCH = 1 << 20
 #: tangential direction worth the name (a flat, symmetric fan): its origin is not moved
 #: sideways.
 _FLAT_FAN = 1e-3
+#: A caster's offset by default, as a fraction of the mesh's diagonal.
+_CASTER_OFFSET = inspect.signature(RayCaster).parameters["offset"].default
 #: Meshes whose origins are kept (:func:`vertex_origins`), newest last.
 _KEPT = 2
 _kept: dict[tuple, VertexOrigins] = {}
@@ -102,12 +105,15 @@ def vertex_origins(mesh, *, caster: RayCaster | None = None, exposed: bool = Tru
     Returns
     -------
     VertexOrigins, on the mesh's device. The result is kept for the mesh's arrays, the
-    caster's offset and engine: a second call for the same mesh returns it.
+    caster's offset and engine (the last two meshes'): a second call for the same mesh, with
+    an equal caster or none, returns it without casting a ray.
     """
-    caster = RayCaster(mesh) if caster is None else caster
-    key = (_digest(mesh), caster.offset, caster.engine, bool(exposed))
+    offset = _CASTER_OFFSET * mesh.scale if caster is None else caster.offset
+    engine = resolve_engine(None, mesh.device) if caster is None else caster.engine
+    key = (_digest(mesh), offset, engine, bool(exposed))
     if key in _kept:
         return _kept[key]
+    caster = RayCaster(mesh) if caster is None else caster
     points = _nudged(mesh, caster.offset)
     moved = torch.zeros(mesh.n_vertices, dtype=torch.bool, device=mesh.device)
     if exposed and mesh.n_vertices:
