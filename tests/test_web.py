@@ -366,6 +366,33 @@ def test_the_page_shows_the_object_and_its_controls_change_it(browser, sky, tmp_
 
 
 @needs_browser
+def test_frames_while_moving_have_fewer_pixels_and_the_rested_frame_all(browser, sky, tmp_path):
+    # the interactive page (no still=1): frames while the view changes at half the canvas's
+    # pixels across (moving=0.5), stretched onto the canvas, then the rested frame
+    web.export_web(analytic_model(1), tmp_path / "v", [sky], base_res=32)
+    page = open_page(browser, tmp_path / "v", "size=160x120&moving=0.5", (400, 300))
+    assert page.evaluate("window.lobelight.status.ok")
+    # the view turned at every animation frame for 0.8 s (the readout counts after 0.5 s)
+    page.evaluate(
+        "() => new Promise(r => { const api = window.lobelight, t0 = performance.now();"
+        " const f = () => { api.state.orbit.yaw += 0.01; api.redraw();"
+        " if (performance.now() - t0 < 800) requestAnimationFrame(f); else r(); };"
+        " requestAnimationFrame(f); })"
+    )
+    assert "50 % across" in page.locator("#fps").inner_text()
+    targets = page.evaluate("Object.values(window.lobelight.viewer.targets).map(t => t.w)")
+    assert 80 in targets  # a moving frame drawn at 80 x 60
+    moving = _canvas(page)
+    page.wait_for_timeout(600)  # the view rests: the full frame
+    rested = _canvas(page)
+    page.close()
+    for img in (moving, rested):  # the object at the centre, unlike the corners
+        assert np.abs(img[50:70, 70:90].mean((0, 1)) - img[:10, :10].mean((0, 1))).max() > 10
+    # the same view: the stretched half-size frame differs from the full one by its blur
+    assert np.abs(moving - rested).mean() < 10
+
+
+@needs_browser
 def test_a_model_beyond_the_texture_limits_gets_a_clear_message(browser, sky, tmp_path):
     # a device whose textures hold 128 x 128 texels: the records need 162 x 92 x 2 more
     web.export_web(analytic_model(1), tmp_path / "v", [sky], base_res=16)

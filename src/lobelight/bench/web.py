@@ -5,7 +5,9 @@ Each case exports a synthetic model (:func:`lobelight.bench.synthetic_model`, a 
 (:func:`lobelight.web.export_web`), opens the page in the system's chromium (Playwright for
 Python; ``--headless=new --use-angle=swiftshader``: WebGL 2 on SwiftShader, the CPU) at a fixed
 canvas size, and times the page's own frames (its script's ``benchmark`` hook: draw, tone-map
-into the canvas, read one pixel back, so each frame is finished before the next). The folder's size
+into the canvas, read one pixel back, so each frame is finished before the next), at the
+canvas's size and at half its pixels across (the page's least while the view changes), and
+the milliseconds of each pass (the page's ``profile`` hook). The folder's size
 and the page's load time are recorded beside them, and the time of a still frame (four
 samples per pixel, drawn once the view rests), with the machine's load average: the
 machine may be shared.
@@ -57,6 +59,10 @@ def _page_fps(browser, folder: Path, size: int, frames: int, query: str = "") ->
         page.close()
         return {"error": status["message"], "load_seconds": load}
     r = page.evaluate("n => window.lobelight.benchmark(n, 2)", frames)
+    # the frames while the view changes at half the pixels across (the page's least)
+    half = page.evaluate("n => window.lobelight.benchmark(n, 1, false, {}, 0.5)", frames)
+    # milliseconds per pass, each finished before the next (their sum exceeds a frame's)
+    passes = page.evaluate("n => window.lobelight.profile(n)", max(2, frames // 2))
     # a still frame: the desktop renderer's samples per pixel (4), drawn once the view rests
     still = page.evaluate("() => window.lobelight.benchmark(2, 0, true)")
     renderer = page.evaluate(
@@ -68,6 +74,8 @@ def _page_fps(browser, folder: Path, size: int, frames: int, query: str = "") ->
     return {
         "fps": r["fps"],
         "frames": r["frames"],
+        "fps_half_res": half["fps"],
+        "pass_ms": {k: round(v, 1) for k, v in passes.items()},
         "still_frame_seconds": 1.0 / still["fps"],
         "load_seconds": load,
         "renderer": renderer,

@@ -736,6 +736,24 @@
       gl.bindFramebuffer(gl.FRAMEBUFFER, null);
     }
 
+    // the RGBA16F target of a frame of `scale` times the canvas's pixels across (bilinearly
+    // filtered when it is smaller, for the tone mapping's stretch onto the canvas)
+    movingTarget(w, h, scale) {
+      if (scale >= 1) return this.target(w, h, this.gl.RGBA16F);
+      const gl = this.gl;
+      const sw = Math.max(1, Math.round(w * scale)), sh = Math.max(1, Math.round(h * scale));
+      const t = this.target(sw, sh, gl.RGBA16F, "moving");
+      if (!t.linear) {
+        gl.bindTexture(gl.TEXTURE_2D, t.color);
+        gl.texParameteri(gl.TEXTURE_2D, gl.TEXTURE_MIN_FILTER, gl.LINEAR);
+        gl.texParameteri(gl.TEXTURE_2D, gl.TEXTURE_MAG_FILTER, gl.LINEAR);
+        gl.texParameteri(gl.TEXTURE_2D, gl.TEXTURE_WRAP_S, gl.CLAMP_TO_EDGE);
+        gl.texParameteri(gl.TEXTURE_2D, gl.TEXTURE_WRAP_T, gl.CLAMP_TO_EDGE);
+        t.linear = true;
+      }
+      return t;
+    }
+
     // a float colour target with a depth buffer, kept by size and type
     target(w, h, internal, tag) {
       const key = w + "x" + h + ":" + internal + ":" + (tag || "");
@@ -887,6 +905,21 @@
       if (env.wholeAtlas) this.bindTexture(UNITS.whole_atlas, T, env.wholeAtlas);
     }
 
+    // with passTimes set (api.profile), the milliseconds since the last mark added to pass
+    // `name`, the GPU's work finished first
+    mark(name) {
+      if (!this.passTimes) return;
+      const gl = this.gl, bound = gl.getParameter(gl.FRAMEBUFFER_BINDING);
+      // a pixel of the target just drawn read back: the work before it finished
+      if (bound === null) gl.readPixels(0, 0, 1, 1, gl.RGBA, gl.UNSIGNED_BYTE, new Uint8Array(4));
+      else if (bound !== this.shadowFbo) {
+        gl.readPixels(0, 0, 1, 1, gl.RGBA, gl.FLOAT, new Float32Array(4));
+      }
+      const now = performance.now();
+      this.passTimes[name] = (this.passTimes[name] || 0) + now - this.markT;
+      this.markT = now;
+    }
+
     bindTexture(unit, target, tex) {
       const gl = this.gl;
       gl.activeTexture(gl.TEXTURE0 + unit);
@@ -899,10 +932,14 @@
     // the fraction of the pixel's samples on the object
     draw(t, cam, rot, opts) {
       const gl = this.gl, env = this.env, p = env.programs;
+      this.mark("other");
       const sunOn = this.fillFrame(cam, rot, opts.diffuse, opts.glossy);
       this.bindBlocks();
+      this.mark("uniforms");
       if (sunOn) this.shadowPass(p);
+      this.mark("shadow");
       if (p.table && opts.glossy) this.tablePass(p);
+      this.mark("table");
       const offsets = opts.offsets && opts.offsets.length > 1 ? opts.offsets : null;
       if (!offsets) {
         this.setJitter(opts.offsets ? opts.offsets[0] : [0.5, 0.5], t);
@@ -957,6 +994,7 @@
         gl.drawElements(gl.TRIANGLES, this.nIndices, gl.UNSIGNED_INT, 0);
         gl.colorMask(true, true, true, true);
       }
+      this.mark("depth");
       gl.depthFunc(gl.LEQUAL);
       this.bindTexture(UNITS.gauss_tex, gl.TEXTURE_2D, this.gaussTex);
       this.bindTexture(UNITS.diff_tex, gl.TEXTURE_2D, this.diffTex);
@@ -975,6 +1013,7 @@
       if (this.h.sharp) gl.drawArrays(gl.TRIANGLES, 0, this.nCorners);
       else gl.drawElements(gl.TRIANGLES, this.nIndices, gl.UNSIGNED_INT, 0);
       if (env.header.sun) gl.bindSampler(UNITS.shadow_depth, null);
+      this.mark("prt");
       if (background) {
         this.bindTexture(UNITS.env, gl.TEXTURE_CUBE_MAP, env.cube);
         gl.useProgram(p.background);
@@ -983,6 +1022,7 @@
       }
       gl.bindVertexArray(null);
       gl.depthFunc(gl.LESS);
+      this.mark("background");
     }
 
     // the frame tone-mapped onto the canvas (tonemap.glsl: exposure, Khronos PBR Neutral, sRGB)
@@ -998,6 +1038,7 @@
       gl.bindVertexArray(p.tmVao);
       gl.drawArrays(gl.TRIANGLE_STRIP, 0, 4);
       gl.bindVertexArray(null);
+      this.mark("tonemap");
     }
 
     // linear RGBA of target t, rows top first
@@ -1043,6 +1084,9 @@
     // prepass=0: no depth pre-pass (each covered pixel may then be shaded more than once)
     o.prepass = q.get("prepass") !== "0";
     o.still = q.get("still") === "1";
+    // moving=S: the frames drawn while the view changes have S times the canvas's pixels
+    // across (0 < S <= 1); without it the page chooses S (MOVING_MIN..1) for MOVING_FPS
+    if (q.get("moving")) o.moving = Math.max(0.1, Math.min(1, parseFloat(q.get("moving"))));
     return o;
   }
 
@@ -1160,13 +1204,26 @@
   // shown are of these); once it has been still for IDLE_MS, one frame with the desktop
   // renderer's samples per pixel, then nothing until the next change
   const IDLE_MS = 300;
+  // while the view changes, the page draws fewer pixels (down to MOVING_MIN of the canvas's
+  // across, a quarter of its pixels at 0.5) to keep MOVING_FPS frames per second; the frame
+  // drawn once the view rests has every pixel and the desktop's samples
+  const MOVING_FPS = 10, MOVING_MIN = 0.5;
+
+  // the moving frames' scale after a frame that took dt milliseconds: in steps of 1/8 (a few
+  // target sizes) between MOVING_MIN and 1
+  function adaptScale(scale, dt) {
+    const want = 1000 / MOVING_FPS;
+    if (dt > 1.15 * want) return Math.max(MOVING_MIN, scale - 0.125);
+    if (dt < 0.7 * want) return Math.min(1, scale + 0.125);
+    return scale;
+  }
 
   function loop(viewer, state, canvas) {
     const fpsEl = document.getElementById("fps");
-    let frames = 0, t0 = performance.now(), pending = false;
-    function draw(offsets) {
-      const w = canvas.width, h = canvas.height;
-      const t = viewer.target(w, h, viewer.gl.RGBA16F);
+    let frames = 0, t0 = performance.now(), pending = false, last = null;
+    function draw(offsets, scale) {
+      const t = viewer.movingTarget(canvas.width, canvas.height, scale || 1);
+      const w = t.w, h = t.h;
       const cam = orbitCamera(state.orbit, w, h);
       viewer.draw(t, cam, rotationY(state.light), {
         diffuse: state.parts !== "glossy", glossy: state.parts !== "diffuse",
@@ -1182,12 +1239,16 @@
         frames = 0;
         return;
       }
-      draw(null);
+      if (frames > 0 && state.moving == null) state.scale = adaptScale(state.scale, now - last);
+      last = now;
+      draw(null, state.moving == null ? state.scale : state.moving);
       if (frames === 0) t0 = now;
       frames += 1;
       if (frames > 1 && now - t0 >= 500) {
         api.fps = (frames - 1) * 1000 / (now - t0);
-        fpsEl.textContent = api.fps.toFixed(1) + " fps · " + canvas.width + "×" + canvas.height;
+        const s = state.moving == null ? state.scale : state.moving;
+        fpsEl.textContent = api.fps.toFixed(1) + " fps · " + canvas.width + "×" + canvas.height +
+                            (s < 1 ? " (" + Math.round(100 * s) + " % across while moving)" : "");
       }
       request();
     }
@@ -1263,7 +1324,8 @@
     }
     const state = {
       orbit: makeOrbit(viewer.h.camera), light: 0, exposure: 0, parts: "both",
-      background: true, env: options.env, still: options.still,
+      background: true, env: options.env, still: options.still, moving: options.moving,
+      scale: 1,
     };
     api.state = state;
     api.setEnv = async function (i) {
@@ -1324,19 +1386,36 @@
     return { width: w, height: h, b64: floatsB64(v.readLinear(t)) };
   };
 
+  // milliseconds per pass of the interactive path's frames (as benchmark's, each pass finished
+  // before the next is timed: the sum is above a frame's time), averaged over `frames`
+  api.profile = function (frames, still, parts) {
+    const v = api.viewer;
+    api.benchmark(1, 1, still, parts);
+    v.passTimes = {};
+    v.markT = performance.now();
+    const r = api.benchmark(frames, 0, still, parts);
+    const out = {};
+    for (const k in v.passTimes) out[k] = v.passTimes[k] / frames;
+    v.passTimes = null;
+    out.frame = 1000 * r.seconds / frames;
+    return out;
+  };
+
   // frames per second of the interactive path (draw and tone-map into the canvas) at the
   // canvas's size, over `frames` frames after `warm` unmeasured ones, each finished
   // (a pixel read back) before the next; `still`: the still frames (the desktop's samples
-  // per pixel) instead
-  api.benchmark = function (frames, warm, still) {
+  // per pixel) instead; `parts`: {diffuse, glossy, background} (default all shown); `scale`:
+  // the frames drawn at that fraction of the canvas's pixels across (as while moving)
+  api.benchmark = function (frames, warm, still, parts, scale) {
+    const shown = Object.assign({ diffuse: true, glossy: true, background: true }, parts || {});
     const v = api.viewer, s = api.state, gl = v.gl;
     const canvas = gl.canvas;
     s.still = true;
     const px = new Uint8Array(4);
     const one = function () {
-      const t = v.target(canvas.width, canvas.height, gl.RGBA16F);
-      v.draw(t, orbitCamera(s.orbit, canvas.width, canvas.height), rotationY(s.light),
-             { diffuse: true, glossy: true, background: true,
+      const t = v.movingTarget(canvas.width, canvas.height, still ? 1 : scale || 1);
+      v.draw(t, orbitCamera(s.orbit, t.w, t.h), rotationY(s.light),
+             { diffuse: shown.diffuse, glossy: shown.glossy, background: shown.background,
                offsets: still ? v.h.samples : null });
       v.present(t, s.exposure);
       gl.readPixels(0, 0, 1, 1, gl.RGBA, gl.UNSIGNED_BYTE, px);
