@@ -305,7 +305,8 @@ def _sharp(model) -> tuple[dict | None, dict[str, np.ndarray]]:
     if sl is None:
         return None, {}
     tiles = model.visibility().cpu().numpy().astype(np.uint8)  # (V, R, R)
-    face, dist = model.hits()
+    face, dist = (t.cpu().numpy().reshape(-1) for t in model.hits())  # (V R R,) each
+    hit = np.nonzero(face >= 0)[0]  # the texels that see the object: the rest find none
     header = {
         "weights": [float(x) for x in sl.weights],
         "lam": [float(x) for x in sl.lam],
@@ -315,8 +316,9 @@ def _sharp(model) -> tuple[dict | None, dict[str, np.ndarray]]:
     }
     arrays = {
         "vis_tiles": tiles,
-        "hit_face": face.cpu().numpy().astype("<i4"),
-        "hit_dist": dist.cpu().numpy().astype("<f2"),
+        "hit_index": hit.astype("<u4"),
+        "hit_face": face[hit].astype("<i4"),
+        "hit_dist": dist[hit].astype("<f2"),
     }
     return header, arrays
 
@@ -589,9 +591,15 @@ def _check_sharp_arrays(path: Path, h: dict, a: dict) -> None:
     if h.get("sharp") is None:
         return
     r = int(h["sharp"]["vis_res"])
-    for name in ("vis_tiles", "hit_face", "hit_dist"):
-        if name not in a or a[name].shape != (h["n_vertices"], r, r):
-            raise InputError(str(path), f"array {name} missing or not of shape (V, {r}, {r})")
+    if "vis_tiles" not in a or a["vis_tiles"].shape != (h["n_vertices"], r, r):
+        raise InputError(str(path), f"array vis_tiles missing or not of shape (V, {r}, {r})")
+    if any(name not in a for name in ("hit_index", "hit_face", "hit_dist")):
+        raise InputError(str(path), "has no hit tiles (hit_index, hit_face, hit_dist)")
+    n = a["hit_index"].shape
+    if a["hit_face"].shape != n or a["hit_dist"].shape != n or len(n) != 1:
+        raise InputError(str(path), "its hit tiles' arrays differ in length")
+    if n[0] and int(a["hit_index"].max()) >= h["n_vertices"] * r * r:
+        raise InputError(str(path), "a hit tile texel lies past the last tile")
 
 
 def read_web(path) -> WebFolder:

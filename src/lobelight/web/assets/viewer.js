@@ -377,8 +377,15 @@
       const perRow = Math.max(1, Math.min(nv, Math.floor(w / r)));
       this.visPerRow = perRow;
       const vis = this.tileAtlas(a.vis_tiles.data, perRow, r);
-      const hf = this.tileAtlas(a.hit_face.data, perRow, r);
-      const hd = this.tileAtlas(a.hit_dist.data, perRow, r);
+      // the hit tiles, stored as their texels that see the object: -1 (none) elsewhere
+      const face = new Int32Array(nv * r * r).fill(-1), dist = new Uint16Array(nv * r * r);
+      const at = a.hit_index.data;
+      for (let i = 0; i < at.length; ++i) {
+        face[at[i]] = a.hit_face.data[i];
+        dist[at[i]] = a.hit_dist.data[i];
+      }
+      const hf = this.tileAtlas(face, perRow, r);
+      const hd = this.tileAtlas(dist, perRow, r);
       if (vis.w > this.maxTex || vis.h > this.maxTex) {
         throw new LimitError("This model's visibility tiles need an image of " + vis.w + " × " +
                              vis.h + " texels; this device's largest texture is " +
