@@ -55,13 +55,16 @@ def nearest_texel(dirs: torch.Tensor, res: int) -> torch.Tensor:
     return ij[..., 1] * res + ij[..., 0]
 
 
-def bilinear(tiles: torch.Tensor, index: torch.Tensor, dirs: torch.Tensor) -> torch.Tensor:
+def bilinear(
+    tiles: torch.Tensor, index: torch.Tensor, dirs: torch.Tensor, value=None
+) -> torch.Tensor:
     """Bilinear lookup of per-element tiles along directions, clamped at the tile's edge.
 
     Parameters
     ----------
     tiles : (V, R, R) values per texel;  index : (...) int64 tile of each lookup;
-    dirs : (..., 3) unit directions
+    dirs : (..., 3) unit directions;  value : None, or a function of the gathered texels
+        (e.g. a test on them) whose float result is interpolated instead of the texels
 
     Returns
     -------
@@ -77,7 +80,8 @@ def bilinear(tiles: torch.Tensor, index: torch.Tensor, dirs: torch.Tensor) -> to
 
     def at(dy: int, dx: int) -> torch.Tensor:
         # gather, then convert: the tiles stay in their own (e.g. uint8) storage
-        return tiles[index, y0 + dy, x0 + dx].float()
+        t = tiles[index, y0 + dy, x0 + dx]
+        return (t if value is None else value(t)).float()
 
     top = at(0, 0) * (1 - fx) + at(0, 1) * fx
     bottom = at(1, 0) * (1 - fx) + at(1, 1) * fx

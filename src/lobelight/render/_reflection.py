@@ -20,21 +20,24 @@ its width along the plane and narrows by ``n.v`` across it (Wang et al. 2009's w
 ``lam_i / n.v``, is the isotropic lobe of the same solid angle). It is read as two lookups of
 the narrow sharpness ``lam_i / (n.v)^2`` at ``R +- s_i t``, ``t`` the plane of incidence's
 direction across ``R`` and ``s_i^2 = (1 - (n.v)^2) / lam_i`` the variance the plane's width
-adds: the two points carry that variance exactly. ``V`` the
-visible fraction of the environment in direction ``R``: the barycentric weight of the triangle's
-corners whose hit tile (below) finds no hit at ``R``, so that the environment and the object
-share the lobe consistently (one tile decides both). What the lobe does not see of the
-environment is the object itself, shaded where it is seen (:func:`object_light`): each
-corner's hit tile (:meth:`lobelight.model.Model.hits`) names the triangle its ray along ``R``'s
-texel hits and how far away; the hit point is placed from the pixel itself, ``q = p + t R``, and
-projected onto that triangle; there the object's radiance towards the pixel is its direct sharp
-reflection for the view ``-R`` (as above, with the hit's own visible fraction ``V_hit`` read
-bilinearly from its corners' octahedral visibility tiles,
+adds: the two points carry that variance exactly.
+
+``V`` the visible fraction of the environment in direction ``R``: where a corner's hit tile
+(below) finds the object at ``R``'s texel, the share of the corners' hit-tile texels around
+``R`` that find none (bilinear, blended with the barycentrics), so that one tile decides where
+the lobe sees the environment and where the object; 1 where no corner finds a hit. What the
+lobe does not see of the environment is the object itself, shaded where it is seen
+(:func:`object_light`): each corner's hit tile (:meth:`lobelight.model.Model.hits`) names the
+triangle its ray along ``R``'s texel hits and how far away; the hit point is placed from the
+pixel itself, ``q = p + t R``, and projected onto that triangle; there the object's radiance
+towards the pixel is its direct sharp reflection for the view ``-R`` (as above, with the hit's
+own visible fraction ``V_hit`` read bilinearly from its corners' octahedral visibility tiles,
 :meth:`lobelight.model.Model.visibility`), its diffuse colour, the sun's light (shadowed) and
 its indirect Gaussians, taken from the current view's, re-based on the hit's reflected
 direction and rescaled to the hit's occluded fraction ``(1 - V_hit) / (1 - v_fit)``
-(:func:`indirect_scale`; ``v_fit`` the stored views' visible fraction, their direct Gaussians'
-light over ``E``). The pixel adds ``E(n.v) sum_i b_i L_hit,i`` over the corners with a hit.
+(:func:`indirect_scale`; ``v_fit`` the stored views' visible fraction, their direct
+Gaussians' light over ``E``). The pixel adds ``E(n.v) (1 - V) L_hit``, ``L_hit`` the corners'
+hits' light blended with the barycentrics of the corners that found one.
 
 Supported: the BRDFs the sun is shaded with per pixel (:attr:`lobelight.brdf.BRDF.sun_model`)
 with parameters constant over the mesh and a lobe at least as sharp as
@@ -61,6 +64,7 @@ __all__ = [
     "OCCLUDED_FLOOR",
     "SHARP_NV_MIN",
     "SUN_RESOLVED",
+    "hit_free_fraction",
     "indirect_light",
     "indirect_scale",
     "lobe_points",
@@ -168,6 +172,15 @@ def visible_fraction(tiles: torch.Tensor, corners: torch.Tensor, bary: torch.Ten
     return (v * bary).sum(-1)
 
 
+def hit_free_fraction(face: torch.Tensor, corners: torch.Tensor, bary: torch.Tensor,
+                      r: torch.Tensor) -> torch.Tensor:  # fmt: skip
+    """``V(R)`` where the lobe finds the object: the share of the corners' hit tiles' texels
+    around ``r (P, 3)`` that find no hit, bilinear and blended with ``bary (P, 3)``; ``face
+    (V, R, R)`` the hit tiles' triangle ids (-1: none), ``corners (P, 3)``: (P,) in [0, 1]."""
+    free = octahedral.bilinear(face, corners, r[:, None].expand(-1, 3, 3), lambda t: t < 0)
+    return (free * bary).sum(-1)
+
+
 def indirect_scale(direct_light: torch.Tensor, albedo: torch.Tensor, vis: torch.Tensor):
     """The indirect Gaussians' factor ``(1 - V) / (1 - v_fit)`` (module docstring), (P,).
 
@@ -263,8 +276,7 @@ def object_light(model, lighting, vd, sharp, pos, r, corners, bary, rot, *, sun_
     Returns
     -------
     light : (P, 3), the corners' hits' light weighted by their barycentrics, summed
-    weight : (P,), the barycentric weight of the corners that found a hit: the lobe's occluded
-        fraction (``1 - V``)
+    weight : (P,), the barycentric weight of the corners that found a hit
     """
     face, dist = model.hits()
     res = face.shape[-1]

@@ -26,6 +26,7 @@ from dataclasses import dataclass
 
 import torch
 
+from .._tol import DIVISOR_F32
 from ..brdf import sharp_lobe
 from ..errors import InputError
 from ..geometry.camera import Camera
@@ -35,6 +36,7 @@ from ..model import blend_lobes
 from ._albedo import diffuse_albedo, diffuse_light
 from ._lighting import Lighting
 from ._reflection import (
+    hit_free_fraction,
     object_light,
     shade,
     sun_sharp,
@@ -176,8 +178,11 @@ def _glossy(
     seen, weight = object_light(
         model, lighting, vd, sharp, pos, r, c, b, rot, sun_gl=sun_gl, caster=caster
     )
-    acc = shade(sharp, lighting, r, nrm, nv, 1 - weight, rot, rest=sun_gl).to(dev)
-    return acc + sharp.directional_albedo(nv) * seen
+    found = weight > 0
+    vis = torch.where(found, hit_free_fraction(model.hits()[0].to(dev), c, r=r, bary=b), 1.0)
+    acc = shade(sharp, lighting, r, nrm, nv, vis, rot, rest=sun_gl).to(dev)
+    hit = seen / weight.clamp_min(DIVISOR_F32)[:, None]
+    return acc + sharp.directional_albedo(nv) * (1 - vis)[:, None] * hit
 
 
 def sun_stage(

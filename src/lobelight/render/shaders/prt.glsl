@@ -491,16 +491,22 @@ void main() {
 #if defined(SHARP) && SHARP
         // the material's own lobe at the pixel's reflected direction (reflection.glsl,
         // render/_reflection.py): the object where the corners' hit tiles find it, the
-        // environment in the rest of the lobe
+        // environment in the rest of the lobe (the tiles' hit-free share around it)
         float nv = max(dot(n, d), 0.0);
         ivec3 cc;
         vec3 cb;
         corners(v_pos, cc, cb);
         vec4 seen = object_light(v_pos, mirror, cc, cb);
         vec3 albedo = directional_albedo(nv);
-        float vis = clamp(1.0 - seen.a, 0.0, 1.0);
+        float vis = 1.0;
+        vec3 hit = vec3(0.0);
+        if (seen.a > 0.0) {
+            vis = cb.x * hit_free(cc.x, mirror) + cb.y * hit_free(cc.y, mirror)
+                  + cb.z * hit_free(cc.z, mirror);
+            hit = seen.rgb / seen.a;
+        }
         vec3 env = sharp_lighting(rot_t * mirror, rot_t * across(n, mirror), nv);
-        c += albedo * (env * vis + seen.rgb);
+        c += albedo * (env * vis + (1.0 - vis) * hit);
         first = N_GAUSSIANS;
 #endif
         for (int k = first; k < N_GAUSSIANS; ++k) {

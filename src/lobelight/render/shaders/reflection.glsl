@@ -71,6 +71,22 @@ float tile_lookup(int v, vec3 d) {
     return mix(mix(a, b, f.x), mix(c, e, f.x), f.y);
 }
 
+// the share of vertex v's hit-tile texels around direction d that find no hit, bilinear and
+// clamped to the tile (render/_reflection.py hit_free_fraction)
+float hit_free(int v, vec3 d) {
+    vec2 p = oct_encode(d);
+    float r = float(VIS_RES);
+    vec2 x = clamp((p + 1.0) * (0.5 * r) - 0.5, 0.0, r - 1.0);
+    ivec2 x0 = min(ivec2(floor(x)), ivec2(VIS_RES - 2));
+    vec2 f = x - vec2(x0);
+    ivec2 o = ivec2(v % vis_per_row, v / vis_per_row) * VIS_RES + x0;
+    float a = texelFetch(hit_face_tex, o, 0).r < 0 ? 1.0 : 0.0;
+    float b = texelFetch(hit_face_tex, o + ivec2(1, 0), 0).r < 0 ? 1.0 : 0.0;
+    float c = texelFetch(hit_face_tex, o + ivec2(0, 1), 0).r < 0 ? 1.0 : 0.0;
+    float e = texelFetch(hit_face_tex, o + ivec2(1, 1), 0).r < 0 ? 1.0 : 0.0;
+    return mix(mix(a, b, f.x), mix(c, e, f.x), f.y);
+}
+
 ivec2 at_face_width(int i) { return ivec2(i % face_width, i / face_width); }
 
 // the corners of triangle f and the barycentrics of p projected onto it, clamped to it
@@ -226,8 +242,8 @@ vec3 hit_light(int f, vec3 q, vec3 r) {
 }
 
 // the object seen along r from point p of corners c and barycentrics b: the corners' hits'
-// light weighted by their barycentrics, summed (rgb), and the corners' weight (a), the lobe's
-// occluded fraction 1 - V (render/_reflection.py object_light). One call site of hit_light in
+// light weighted by their barycentrics, summed (rgb), and the corners' weight (a)
+// (render/_reflection.py object_light). One call site of hit_light in
 // a loop over a bit mask of the corners with a hit: a loop over the three corners is unrolled
 // into three copies, and a rasteriser that runs both sides of a branch under a mask (llvmpipe)
 // runs every copy for every pixel
