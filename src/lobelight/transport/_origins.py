@@ -90,7 +90,7 @@ class VertexOrigins:
         return cls(mesh.vertices, torch.zeros_like(mesh.vertices[:, 0], dtype=torch.bool))
 
 
-def vertex_origins(mesh, *, caster: RayCaster | None = None, exposed: bool = True):
+def vertex_origins(mesh, *, caster: RayCaster | None = None, exposed: bool = True) -> VertexOrigins:
     """Each vertex's ray origin: moved off a hard edge's other side and, where the vertex is
     covered, to an exposed point of its own faces (the module's docstring says how).
 

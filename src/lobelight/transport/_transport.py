@@ -24,6 +24,9 @@ diffuse
     (:func:`~lobelight.transport.diffuse_interreflection`), iterating the transfer of the
     points rays hit.
 
+Every ray a vertex casts leaves its ray origin (:attr:`Transport.origins`,
+:func:`lobelight.transport.vertex_origins`): off the other side of a hard edge, and for a
+vertex covered by a surface just over it, at an exposed point of its own faces.
 Views with ``n.v <= 0`` are below the horizon: their transport is 0 and they are flagged.
 Work runs over batches of vertices so that memory stays bounded for any mesh.
 """
