@@ -5,8 +5,10 @@
 ``shaders.js`` (the shared shader files in the page's GLSL ES 3.00 dialect, assembled by
 :func:`lobelight.render.stage_sources`), ``model.js`` and one ``env-K.js`` per map (data files
 of :mod:`._format`). :func:`read_web` loads a folder back and checks it. The layout is
-``docs/web-viewer.md``'s; the page uploads what the desktop renderer uploads
-(``render/_gl.py``), built here from public data.
+``docs/web-viewer.md``'s; the page uploads what the desktop renderer uploads, laid out by
+:mod:`lobelight.render.layout` (the desktop's own layouts and constants), converted here to
+half floats and to what the page's files hold; a sharp material's per-pixel reflection
+included (its visibility and hit tiles, the whole map's chain).
 """
 
 from __future__ import annotations
