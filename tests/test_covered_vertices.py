@@ -12,8 +12,8 @@ import math
 
 import torch
 
-from lobelight import envmap, scene, transport
-from lobelight.geometry import cubemap, sphere
+from lobelight import envmap, model, scene, transport
+from lobelight.geometry import cubemap, octahedral, sphere
 from lobelight.reference import paths as reference
 from lobelight.scene import Materials, Mesh, Scene
 
@@ -103,6 +103,26 @@ def test_floor_vertex_at_a_walls_foot_sees_half_its_hemisphere():
     # no exposed points: the faces' points near these vertices see about as little
     assert transport.vertex_origins(one).n_exposed == 0
     assert transport.vertex_origins(two).n_exposed == 0
+
+
+def test_visibility_and_hit_tiles_start_where_the_transport_does():
+    # the tiles a renderer reads per pixel cast from the same origins: the floor vertex at the
+    # wall's foot sees the sky exactly where a ray leaves away from the wall and upward (no
+    # ray through a sub-texel point grazes the wall's plane: the nearest has |d.x| > 0.03,
+    # which meets the wall 2 high only beyond the offset's share), and the wall where it
+    # heads into it
+    mesh = _room(1)
+    foot = _find(mesh, (0, 0, 0), (0, 0, 1))
+    res, sub = 16, 2
+    d = octahedral.texel_directions(res, sub=sub)  # (res, res, sub^2, 3)
+    want = ((d[..., 0] > 0) & (d[..., 2] > 0)).float().mean(-1)
+    tiles = model.visibility_tiles(mesh, res=res, sub=sub)
+    assert torch.equal(tiles[foot], (want * 255).round().to(torch.uint8))
+    face, _ = model.hit_tiles(mesh, res=res)
+    c = octahedral.texel_directions(res)[:, :, 0]  # (res, res, 3) texel centres
+    wall = (face[foot] >= 64) & (face[foot] < 128)  # the wall's faces follow the floor's 64
+    assert torch.equal(wall, (c[..., 0] < 0) & (c[..., 2] > 0))
+    assert torch.equal(face[foot] == -1, ~wall)
 
 
 def _framed_quad(half: float, split: bool) -> Mesh:
