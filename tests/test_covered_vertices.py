@@ -107,10 +107,10 @@ def test_floor_vertex_at_a_walls_foot_sees_half_its_hemisphere():
 
 def test_visibility_and_hit_tiles_start_where_the_transport_does():
     # the tiles a renderer reads per pixel cast from the same origins: the floor vertex at the
-    # wall's foot sees the sky exactly where a ray leaves away from the wall and upward (no
-    # ray through a sub-texel point grazes the wall's plane: the nearest has |d.x| > 0.03,
-    # which meets the wall 2 high only beyond the offset's share), and the wall where it
-    # heads into it
+    # wall's foot sees the sky exactly where a ray leaves away from the wall and upward, and
+    # the wall where it heads into it (no ray grazes the wall's plane: the nearest has
+    # |d.x| > 0.03, so from the origin's 5e-4 off the wall it meets the plane within 0.02 of
+    # the floor, far below the wall's top at 2)
     mesh = _room(1)
     foot = _find(mesh, (0, 0, 0), (0, 0, 1))
     res, sub = 16, 2
