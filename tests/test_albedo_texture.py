@@ -292,3 +292,90 @@ def test_info_says_the_albedo_is_read_per_pixel(checker_model, tmp_path, capsys)
     assert main(["info", str(p), "--json"]) == 0
     got = json.loads(capsys.readouterr().out)["albedo"]
     assert got == "per pixel from 1 texture (8x8), the rest per vertex"
+
+
+def _logo_glb(path, *, mag: int = 9728) -> None:
+    """A unit quad whose metallic-roughness texture is metal on its right half only, a painted
+    base colour, roughness 0.5 (glTF's own BRDF, Schlick's Fresnel)."""
+    mr = np.zeros((2, 2, 3), np.uint8)
+    mr[:, 1, 2] = 255  # B = 1 (metal) in the right column
+    mr[..., 1] = 128  # G: roughness 0.5 x roughnessFactor
+    mats = [
+        {"name": "logo", "pbrMetallicRoughness": {
+            "baseColorFactor": [*PAINTED_FACTOR, 1.0], "baseColorTexture": {"index": 0},
+            "metallicFactor": 1.0, "roughnessFactor": 1.0,
+            "metallicRoughnessTexture": {"index": 1}}},
+    ]  # fmt: skip
+    base = np.broadcast_to(np.uint8(PAINTED_SRGB), (2, 2, 3))
+    s = {"magFilter": mag, "minFilter": mag}
+    write_glb(path, [_quad(0.0, material=0)], mats, [_png(base), _png(mr)], [s, s])
+
+
+def test_a_metallic_texture_gives_each_texel_its_f0(tmp_path):
+    """glTF's specular colour at normal incidence per texel: ``F0 = 0.04 (1 - m) + base m``
+    with ``m = metallicFactor x B`` and ``base`` the base colour factor times its texture:
+    0.04 grey on the dielectric half, the painted colour on the metal one."""
+    p = tmp_path / "logo.glb"
+    _logo_glb(p)
+    a = scene.load(str(p)).albedo
+    c = torch.tensor([[0, 1, 2], [0, 1, 2]])
+    b = torch.tensor([[0.8, 0.1, 0.1], [0.1, 0.1, 0.8]])
+    got = a.specular_at(c, b).double()
+    lin = srgb_decode(torch.tensor(PAINTED_SRGB, dtype=torch.float64) / 255)
+    metal = torch.tensor(PAINTED_FACTOR, dtype=torch.float64) * lin
+    # stored as 8-bit sRGB: half a code's step, relative, is about 2.4 x 0.5 / code (the
+    # decode's slope): 2.1 % at 0.04 (code 57), under 1 % for the paint
+    want0 = torch.full((3,), 0.04, dtype=torch.float64)
+    torch.testing.assert_close(got[0], want0, rtol=0.022, atol=0)
+    torch.testing.assert_close(got[1], metal, rtol=0.01, atol=0)
+
+
+@pytest.mark.parametrize(
+    "backend", ["torch", pytest.param("gl", marks=needs_gl)]
+)  # fmt: skip
+def test_the_glossy_light_follows_the_texels_f0(tmp_path, backend):
+    """The glossy light of a quad half metal, half dielectric: per pixel, the interpolated
+    vertices' glossy light times the texel's F0 over theirs. At a pixel beside the quad's
+    vertical midline on either side the vertices' blend is nearly the same, so the glossy
+    light across the line jumps by the two texels' F0 ratio (the paint over 0.04, about 4-12
+    per channel); per-vertex F0 would show no jump."""
+    p = tmp_path / "logo.glb"
+    _logo_glb(p)
+    sc = scene.load(str(p))
+    m = fit.fit_model(sc, 1, indirect_paths=0, bounces=0, progress=None)
+    img = Renderer(m, envmap.builtin(), SIZE, SIZE, backend=backend, samples=1).render(
+        CAMERA, diffuse=False, glossy=True
+    )
+    img = img.cpu().numpy().astype(np.float64)
+    uv = _pixel_uv()
+    row = SIZE // 2
+    u = uv[row, :, 0]
+    left = int(np.nanargmax(np.where(u < 0.5, u, np.nan)))
+    right = left + 1
+    assert u[right] > 0.5
+    c = torch.tensor([[0, 1, 2], [0, 1, 2]])
+    b = torch.tensor([[0.8, 0.1, 0.1], [0.1, 0.1, 0.8]])  # a left and a right texel
+    f0 = sc.albedo.specular_at(c, b).double().numpy()
+    want = f0[1] / f0[0]
+    got = img[row, right] / img[row, left]
+    # the two pixels' vertex blends differ by one pixel's step of 64 across the quad (under
+    # 3 % in the glossy light of a flat quad under the sky) and half-float texels: 5 %
+    np.testing.assert_allclose(got, want, rtol=0.05)
+
+
+def test_f0_textures_survive_the_model_file(tmp_path):
+    """The F0 images travel in the model file (``albedo_specular``) and come back equal; a
+    file whose F0 texels do not match its albedo texels is refused naming the array."""
+    p = tmp_path / "logo.glb"
+    _logo_glb(p)
+    m = fit.fit_model(scene.load(str(p)), 1, indirect_paths=0, bounces=0, progress=None)
+    out = tmp_path / "logo.npz"
+    m.save(out)
+    back = model_module.load(out).albedo
+    assert back.specular is not None
+    for x, y in zip(back.specular, m.albedo.specular, strict=True):
+        assert torch.equal(x, y)
+    arrays = albedo_arrays(m.albedo)
+    arrays["albedo_specular"] = arrays["albedo_specular"][:-1]
+    with pytest.raises(InputError, match="albedo_specular"):
+        check_albedo(arrays, m.mesh.n_vertices, "logo.npz")

@@ -10,9 +10,11 @@ hold them, their checks on read and before a write, and the texture built from t
 ``albedo_wrap``       (L, 2) uint8 wrap codes (:data:`lobelight.scene.WRAP_MODES`)
 ``albedo_transform``  (L, 2, 3) float32 UV transforms
 ``albedo_nearest``    (L,) bool read at the nearest texel
+``albedo_specular``   optional, (T, 3) uint8 sRGB-encoded: each layer's F0 image
+                      (:attr:`lobelight.scene.AlbedoTexture.specular`), laid out as the texels
 
-The arrays come all together or not at all; with them, the file's diffuse transfer is per unit
-albedo (:attr:`lobelight.model.Model.albedo`).
+The arrays come all together (``albedo_specular`` optional) or not at all; with them, the
+file's diffuse transfer is per unit albedo (:attr:`lobelight.model.Model.albedo`).
 """
 
 from __future__ import annotations
@@ -37,6 +39,11 @@ ALBEDO_DTYPES = {
     "albedo_transform": (_F32, "float32"),
     "albedo_nearest": ((np.dtype(np.bool_),), "boolean"),
 }
+#: The arrays that come together.
+_TOGETHER = tuple(ALBEDO_DTYPES)
+#: The optional F0 images, with their dtype.
+ALBEDO_DTYPES["albedo_specular"] = ((np.dtype(np.uint8),), "uint8")
+#: Every albedo array a model file may hold.
 ALBEDO_ARRAYS = tuple(ALBEDO_DTYPES)
 
 
@@ -46,7 +53,11 @@ def albedo_arrays(albedo: AlbedoTexture | None) -> dict[str, np.ndarray]:
         return {}
     sizes = np.array([img.shape[:2] for img in albedo.images], np.int32)
     texels = torch.cat([img.reshape(-1, 3) for img in albedo.images]).cpu().numpy()
-    return {
+    out = {}
+    if albedo.specular is not None:
+        spec = torch.cat([img.reshape(-1, 3) for img in albedo.specular]).cpu().numpy()
+        out["albedo_specular"] = np.ascontiguousarray(spec, np.uint8)
+    return out | {
         "albedo_uv": albedo.uvs.detach().cpu().numpy().astype(np.float32),
         "albedo_layer": albedo.layer.cpu().numpy().astype(np.int32),
         "albedo_factor": albedo.factor.detach().cpu().numpy().astype(np.float32),
@@ -67,10 +78,11 @@ def check_albedo(a: dict[str, np.ndarray], v: int, name: str) -> None:
     """The albedo arrays of a model of ``v`` vertices (module docstring), if it holds them:
     all or none, their shapes, the layers' sizes against the texels, the layer indices and
     wrap codes in range, the floats finite. Allocates nothing beyond the arrays."""
-    held = [k for k in ALBEDO_ARRAYS if k in a]
+    held = [k for k in _TOGETHER if k in a]
     if not held:
+        _need("albedo_specular" not in a, name, "albedo_specular comes with the albedo arrays")
         return
-    missing = [k for k in ALBEDO_ARRAYS if k not in a]
+    missing = [k for k in _TOGETHER if k not in a]
     _need(not missing, name, f"albedo arrays come together; the file lacks {missing}")
     sizes = a["albedo_sizes"]
     n = int(sizes.shape[0]) if sizes.ndim == 2 else -1
@@ -92,6 +104,9 @@ def check_albedo(a: dict[str, np.ndarray], v: int, name: str) -> None:
     want = (count, 3)
     _need(texels.shape == want, name,
           f"albedo_texels must be {want} for its layers' sizes, got {texels.shape}")  # fmt: skip
+    if "albedo_specular" in a:
+        spec = a["albedo_specular"].shape
+        _need(spec == want, name, f"albedo_specular must be {want} as the texels, got {spec}")
     layer = a["albedo_layer"]
     _need(layer.size == 0 or (int(layer.min()) >= 0 and int(layer.max()) < n), name,
           f"albedo_layer holds layers outside 0..{n - 1}")  # fmt: skip
@@ -107,11 +122,16 @@ def read_albedo(a: dict[str, np.ndarray]) -> AlbedoTexture | None:
         return None
     sizes = a["albedo_sizes"].astype(np.int64)
     ends = np.cumsum(np.prod(sizes, axis=1))
-    texels = torch.from_numpy(a["albedo_texels"].copy())
-    images = tuple(
-        texels[end - h * w : end].reshape(int(h), int(w), 3)
-        for (h, w), end in zip(sizes, ends, strict=True)
-    )
+
+    def split(texels: torch.Tensor) -> tuple[torch.Tensor, ...]:
+        return tuple(
+            texels[end - h * w : end].reshape(int(h), int(w), 3)
+            for (h, w), end in zip(sizes, ends, strict=True)
+        )
+
+    images = split(torch.from_numpy(a["albedo_texels"].copy()))
+    spec = a.get("albedo_specular")
+    specular = None if spec is None else split(torch.from_numpy(spec.copy()))
     return AlbedoTexture(
         uvs=torch.from_numpy(a["albedo_uv"].copy()),
         layer=torch.from_numpy(a["albedo_layer"].astype(np.int64)),
@@ -120,4 +140,5 @@ def read_albedo(a: dict[str, np.ndarray]) -> AlbedoTexture | None:
         wrap=torch.from_numpy(a["albedo_wrap"].astype(np.int64)),
         transform=torch.from_numpy(a["albedo_transform"].copy()),
         nearest=torch.from_numpy(a["albedo_nearest"].copy()),
+        specular=specular,
     )

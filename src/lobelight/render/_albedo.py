@@ -6,7 +6,17 @@ from __future__ import annotations
 
 import torch
 
-__all__ = ["diffuse_albedo", "diffuse_light", "hit_diffuse_light"]
+__all__ = [
+    "F0_MIN",
+    "diffuse_albedo",
+    "diffuse_light",
+    "hit_diffuse_light",
+    "specular_f0",
+    "specular_ratio",
+]
+
+#: The least per-vertex F0 a ratio divides by (glTF's dielectric F0 is 0.04).
+F0_MIN = 1e-3
 
 
 def diffuse_albedo(model, corners: torch.Tensor, bary: torch.Tensor) -> torch.Tensor:
@@ -39,3 +49,28 @@ def hit_diffuse_light(
     if model.albedo is not None:
         vertex_light = vertex_light * model.materials.diffuse.to(vertex_light)
     return (vertex_light[corners] * bary.to(vertex_light)[..., None]).sum(1)
+
+
+def specular_f0(model) -> torch.Tensor | None:
+    """The bake's per-vertex F0 the textures' F0 is measured against, ``(V, 3)``: the specular
+    BRDF's Schlick ``f0`` (:class:`lobelight.brdf.GGXSchlick`), None where the model has no
+    F0 texture (:attr:`lobelight.scene.AlbedoTexture.specular`) or its BRDF no ``f0``."""
+    a, spec = model.albedo, model.materials.specular
+    if a is None or a.specular is None or spec is None or "f0" not in spec.params:
+        return None
+    f0 = spec.params["f0"].detach().float()
+    return f0.reshape(-1, 3).expand(model.mesh.n_vertices, 3)
+
+
+def specular_ratio(model, corners: torch.Tensor, bary: torch.Tensor) -> torch.Tensor | None:
+    """The glossy light's per-pixel factor, the texel's F0 over the interpolated vertices'
+    (:class:`lobelight.scene.AlbedoTexture`; exact at normal incidence): (P, 3), 1 where
+    the point has no texture; None where the model has no F0 texture."""
+    f0 = specular_f0(model)
+    if f0 is None:
+        return None
+    tex = model.albedo.specular_at(corners, bary)
+    b = bary.to(tex)[..., None]
+    vert = (f0.to(tex.device)[corners.to(tex.device)] * b).sum(1)
+    ratio = tex / vert.clamp_min(F0_MIN)
+    return torch.where(torch.isnan(tex), torch.ones_like(ratio), ratio)

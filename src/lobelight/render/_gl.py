@@ -36,6 +36,7 @@ from ..geometry import sphere
 from ..geometry.camera import Camera
 from ..lobes import sg
 from ..model import VISIBILITY_RES
+from ._albedo import F0_MIN, specular_f0
 from ._gl_albedo import albedo_array, albedo_uniforms
 from ._lighting import Lighting
 from ._reflection import INDIRECT_SCALE_MAX, OCCLUDED_FLOOR, SHARP_NV_MIN, SUN_RESOLVED
@@ -602,6 +603,8 @@ class GLRenderer:
         # the interreflected part of the transfer, lit by the sun as well (Model.bounce)
         self.has_bounce = model.bounce is not None and self.has_sun
         self.lighting = lighting
+        # the glossy light scaled per pixel by the textures' F0 (render/_albedo.py)
+        self._f0 = specular_f0(model)
         pf = lighting.rest_prefiltered if self.sun_glossy else lighting.prefiltered
         self.n_levels = len(pf.levels)
         return pf
@@ -623,6 +626,8 @@ class GLRenderer:
             "SHARP": int(self.sharp is not None),
             "ALBEDO_TEX": int(model.albedo is not None),
             "ALBEDO_LAYERS": 1 if model.albedo is None else len(model.albedo.images),
+            "SPECULAR_TEX": int(self._f0 is not None),
+            "F0_MIN": f"{F0_MIN:.6e}",
             "VERTEX_TABLE": 0,
             "TABLE_WIDTH": _VIS_TEX_WIDTH,
             "TABLE_ROWS": max(1, -(-model.mesh.n_vertices // _VIS_TEX_WIDTH)),
@@ -674,7 +679,7 @@ class GLRenderer:
         self.bounce_tex = self._data_texture(bounce)
         if self.sharp is not None:
             self._upload_sharp(model)
-        self.albedo_tex = None
+        self.albedo_tex = self.specular_tex = None
         if model.albedo is not None:
             self._upload_albedo(model.albedo)
         return width
@@ -691,6 +696,12 @@ class GLRenderer:
         self.albedo_tex.build_mipmaps()
         self.albedo_tex.filter = (moderngl.LINEAR_MIPMAP_LINEAR, moderngl.LINEAR)
         set_uniforms(self.prog, albedo_uniforms(albedo))
+        if self._f0 is not None:
+            f0 = albedo_array(albedo, specular=True)
+            self.specular_tex = self.ctx.texture_array((w, h, n), 3, f0.tobytes(), dtype="f2")
+            self.specular_tex.repeat_x = self.specular_tex.repeat_y = True
+            self.specular_tex.build_mipmaps()
+            self.specular_tex.filter = (moderngl.LINEAR_MIPMAP_LINEAR, moderngl.LINEAR)
 
     def _upload_sharp(self, model) -> None:
         """The per-pixel reflection's inputs (reflection.glsl): the vertices' visibility tiles,
@@ -829,6 +840,7 @@ class GLRenderer:
             ("face_tex", _VIS_UNIT + 1),
             ("pos_tex", _VIS_UNIT + 2),
             ("albedo_tex", _ALBEDO_UNIT),
+            ("specular_tex", _ALBEDO_UNIT + 1),
             *_SHARP_UNITS,
         )
         for prog in (p, *table):
@@ -878,8 +890,12 @@ class GLRenderer:
             attrs = np.concatenate(
                 [a.uvs.detach().cpu().numpy(), layer, a.factor.detach().cpu().numpy()], axis=1
             ).astype(np.float32)
-            self.uvbo = ctx.buffer(np.ascontiguousarray(attrs).tobytes())
-            content.append((self.uvbo, "2f 1f 3f", "in_uv", "in_layer", "in_factor"))
+            fmt, names = "2f 1f 3f", ("in_uv", "in_layer", "in_factor")
+            if self._f0 is not None:
+                attrs = np.concatenate([attrs, self._f0.cpu().numpy().astype(np.float32)], 1)
+                fmt, names = fmt + " 3f", (*names, "in_f0")
+            self.uvbo = ctx.buffer(np.ascontiguousarray(attrs, np.float32).tobytes())
+            content.append((self.uvbo, fmt, *names))
         if self.sun_glossy:
             spec = self._specular
             sb = sun_glossy_vertex_params(sun_widened(spec, lighting.sun.spread), mesh.n_vertices)
@@ -1220,6 +1236,8 @@ class GLRenderer:
                 self.whole_atlas.use(_WHOLE_ATLAS_UNIT)
             if self.albedo_tex is not None:
                 self.albedo_tex.use(_ALBEDO_UNIT)
+            if self.albedo_tex is not None and self.specular_tex is not None:
+                self.specular_tex.use(_ALBEDO_UNIT + 1)
             if self.sharp is not None:
                 self.vis_tex.use(_VIS_UNIT)
                 self.face_tex.use(_VIS_UNIT + 1)
@@ -1290,7 +1308,15 @@ class GLRenderer:
 
     def release(self) -> None:
         self.make_current()
-        for o in (self._pass_fbo, self._pass_color, self.abo, self.sbo, self.uvbo, self.albedo_tex):
+        for o in (
+            self._pass_fbo,
+            self._pass_color,
+            self.abo,
+            self.sbo,
+            self.uvbo,
+            self.albedo_tex,
+            self.specular_tex,
+        ):
             if o is not None:
                 o.release()
         for o in (

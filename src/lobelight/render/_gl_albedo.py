@@ -27,8 +27,9 @@ def _layer_size(albedo) -> tuple[int, int]:
     return min(w, MAX_ALBEDO_SIZE), min(h, MAX_ALBEDO_SIZE)
 
 
-def albedo_array(albedo) -> np.ndarray:
-    """(L, H, W, 3) float16 linear RGB: every layer decoded from sRGB and resampled to one size
+def albedo_array(albedo, *, specular: bool = False) -> np.ndarray:
+    """(L, H, W, 3) float16 linear RGB: every layer (``specular``: every layer's F0 image,
+    :attr:`lobelight.scene.AlbedoTexture.specular`) decoded from sRGB and resampled to one size
     (:func:`_layer_size`): bilinearly, area-averaged where it shrinks, at the nearest texel for
     a layer read at its nearest texel; layers already of that size are copied exactly."""
     n = len(albedo.images)
@@ -36,7 +37,7 @@ def albedo_array(albedo) -> np.ndarray:
         raise InputError("albedo", f"has {n} texture layers, at most {MAX_ALBEDO_LAYERS}")
     w, h = _layer_size(albedo)
     out = np.empty((n, h, w, 3), np.float16)
-    for i, img in enumerate(albedo.images):
+    for i, img in enumerate(albedo.specular if specular else albedo.images):
         lin = srgb_decode(img.float() / 255)  # (h_i, w_i, 3)
         if tuple(lin.shape[:2]) != (h, w):
             x = lin.permute(2, 0, 1)[None]

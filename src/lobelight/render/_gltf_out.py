@@ -282,6 +282,11 @@ def _albedo_textures(doc: _Doc, albedo: AlbedoTexture) -> list[dict]:
             "transform": albedo.transform[i].tolist(),
             "nearest": near,
         })  # fmt: skip
+        if albedo.specular is not None:  # the layer's F0 image, on the same sampler
+            spec = albedo.specular[i].cpu().numpy()
+            image = doc.image(_png(spec), name=f"_LOBELIGHT_SPECULAR_{i}")
+            doc.gltf.textures.append(pygltflib.Texture(source=image, sampler=i))
+            layers[-1]["specular_texture"] = len(doc.gltf.textures) - 1
     return layers
 
 
@@ -662,6 +667,12 @@ def _read_albedo(r: _Reader, ext: dict, v: int) -> AlbedoTexture | None:
     _need(isinstance(layers, list) and all(isinstance(x, dict) for x in layers), r.name,
           "albedo must be a list of layer records")  # fmt: skip
     images = [_image(r, rec.get("texture")) for rec in layers]
+    with_spec = ["specular_texture" in rec for rec in layers]
+    _need(all(with_spec) or not any(with_spec), r.name,
+          "albedo layers must all have a specular_texture or none")  # fmt: skip
+    specular = None
+    if all(with_spec) and layers:
+        specular = tuple(_image(r, rec["specular_texture"]) for rec in layers)
     try:
         return AlbedoTexture(
             uvs=torch.from_numpy(uvs),
@@ -671,6 +682,7 @@ def _read_albedo(r: _Reader, ext: dict, v: int) -> AlbedoTexture | None:
             wrap=torch.tensor([[WRAP_MODES.index(m) for m in rec["wrap"]] for rec in layers]),
             transform=torch.tensor([rec["transform"] for rec in layers], dtype=torch.float32),
             nearest=torch.tensor([bool(rec["nearest"]) for rec in layers]),
+            specular=specular,
         )
     except (KeyError, TypeError, ValueError, RuntimeError, InputError) as exc:
         raise InputError(r.name, f"bad albedo layer records: {exc}") from None

@@ -33,7 +33,7 @@ from ..geometry.camera import Camera
 from ..geometry.raycast import RayCaster
 from ..lobes import sg
 from ..model import blend_lobes
-from ._albedo import diffuse_albedo, diffuse_light
+from ._albedo import diffuse_albedo, diffuse_light, specular_ratio
 from ._lighting import Lighting
 from ._reflection import (
     hit_free_fraction,
@@ -133,9 +133,9 @@ def pixel_stage(
         if diffuse:
             acc += diffuse_light(model, vd.diffuse, c, b)
         if glossy:
-            acc += _glossy(
-                model, lighting, vd, c, b, rot, sun_gl=sun_gl, sharp=sharp, caster=caster
-            )
+            g = _glossy(model, lighting, vd, c, b, rot, sun_gl=sun_gl, sharp=sharp, caster=caster)
+            ratio = specular_ratio(model, c, b)  # the texels' F0 (glTF textures)
+            acc += g if ratio is None else g * ratio.to(dev)
         out[s : s + PIXEL_BATCH] = acc
     if (diffuse or sun_gl) and lighting.sun is not None:
         out += sun_stage(
@@ -229,10 +229,11 @@ def sun_stage(
         if diffuse:
             out[lit] = albedo[lit] / math.pi * e * (cos[lit] * vis)[:, None]
         if glossy:
-            out[lit] += (
-                _sun_specular(model, lighting, pos[lit], n[lit], eye, f[lit], b[lit], rot)
-                * vis[:, None]
-            )
+            spec = _sun_specular(model, lighting, pos[lit], n[lit], eye, f[lit], b[lit], rot)
+            ratio = specular_ratio(model, f[lit], b[lit, :, 0])
+            if ratio is not None:
+                spec = spec * ratio.to(dev)
+            out[lit] += spec * vis[:, None]
     return out
 
 

@@ -13,7 +13,17 @@ with ``B`` the metallic-roughness texture's blue channel, composed texel by texe
 factor is ``baseColorFactor x COLOR_0``: a metallic pattern (a painted logo on a metal) shows
 per pixel as the colour does. Every other vertex reads layer 0, one white texel, with the
 bake's own per-vertex diffuse albedo as its factor: such a vertex renders as it would without
-textures. The specular part stays per vertex (the bake's one-ring averages).
+textures.
+
+The specular part's colour varies per texel too (a painted logo on a metal, a metallic
+texture's pattern): where a layer's material is textured, :attr:`AlbedoTexture.specular` holds
+its Fresnel reflectance at normal incidence composed texel by texel, glTF's
+``F0 = 0.04 (1 - m) + baseColorFactor x base colour texture x m``, ``m = metallicFactor x B``
+(``COLOR_0`` left out: it multiplies the base colour per vertex, and the sum does not factor).
+The fitted glossy transport is the bake's, with the per-vertex F0 (the one-ring averages);
+the renderers scale it per pixel by the texel's F0 over the interpolated vertices'
+(:func:`lobelight.render` reads :meth:`AlbedoTexture.specular_at`): exact at normal incidence,
+where Schlick's Fresnel term is F0 itself. The roughness stays per vertex.
 
 The images are kept as the textures are stored, 8-bit sRGB-encoded RGB, and decoded to linear
 values when they are read (the bilinear filter runs on linear values, as a GPU's sRGB textures
@@ -70,6 +80,8 @@ class AlbedoTexture:
         (``KHR_texture_transform``; the identity for none)
     nearest : (L,) bool: the layer is read at its nearest texel (the sampler's magnification
         filter), else bilinearly
+    specular : None, or L images of each layer's F0 (module docstring), each of its layer's
+        image's shape, uint8 sRGB-encoded RGB (layer 0's unused)
     """
 
     uvs: torch.Tensor
@@ -79,6 +91,7 @@ class AlbedoTexture:
     wrap: torch.Tensor
     transform: torch.Tensor
     nearest: torch.Tensor
+    specular: tuple[torch.Tensor, ...] | None = None
 
     def __post_init__(self) -> None:
         v = int(self.uvs.shape[0])
@@ -101,6 +114,14 @@ class AlbedoTexture:
                     f"albedo image {i}",
                     f"must be (H, W, 3) uint8, got {img.dtype} {tuple(img.shape)}",
                 )
+        if self.specular is not None and (
+            len(self.specular) != n
+            or any(
+                sp.dtype != torch.uint8 or sp.shape != img.shape
+                for sp, img in zip(self.specular, self.images, strict=True)
+            )
+        ):
+            raise InputError("albedo specular", "must be one uint8 image per layer, of its shape")
         if v and (int(self.layer.min()) < 0 or int(self.layer.max()) >= n):
             raise InputError("albedo layer", f"holds layers outside 0..{n - 1}")
         if self.wrap.numel() and (int(self.wrap.min()) < 0 or int(self.wrap.max()) > 2):
@@ -124,6 +145,7 @@ class AlbedoTexture:
             self.wrap,
             self.transform,
             self.nearest,
+            self.specular,
         )
 
     def at(self, corners: torch.Tensor, bary: torch.Tensor) -> torch.Tensor:
@@ -148,11 +170,29 @@ class AlbedoTexture:
             out[sel] = self.sample(i, uv[sel])
         return factor * out
 
-    def sample(self, i: int, uv: torch.Tensor) -> torch.Tensor:
+    def specular_at(self, corners: torch.Tensor, bary: torch.Tensor) -> torch.Tensor | None:
+        """The F0 of textured points (corners and barycentrics as :meth:`at`'s): (P, 3) linear
+        RGB, NaN where the point's layer is 0 (no texture: the per-vertex F0 holds); None
+        without :attr:`specular`."""
+        if self.specular is None:
+            return None
+        dev = self.uvs.device
+        c = corners.to(dev)
+        uv = (self.uvs[c] * bary.to(dev, torch.float32)[..., None]).sum(1)
+        layer = self.layer[c[:, 0]]
+        out = torch.full((c.shape[0], 3), float("nan"), device=dev)
+        for i in torch.unique(layer).tolist():
+            if i == 0:
+                continue
+            sel = layer == i
+            out[sel] = self.sample(i, uv[sel], specular=True)
+        return out
+
+    def sample(self, i: int, uv: torch.Tensor, *, specular: bool = False) -> torch.Tensor:
         """Layer ``i`` at ``uv`` (P, 2): (P, 3) linear RGB, bilinear between texel centres (or
         the nearest texel), the layer's transform applied first and indices beyond the edges
-        wrapped by its modes."""
-        img = self.images[i]
+        wrapped by its modes; ``specular``: of its F0 image."""
+        img = (self.specular if specular else self.images)[i]
         h, w = int(img.shape[0]), int(img.shape[1])
         a = self.transform[i].to(uv)
         uv = uv @ a[:, :2].T + a[:, 2]
@@ -193,14 +233,15 @@ def _on_uv0(tex: Texture | None) -> Texture | None:
     return tex if tex is not None and tex.tex_coord == 0 else None
 
 
-def _layer_of(mat) -> tuple[torch.Tensor, tuple[int, int], np.ndarray, bool, bool] | None:
+def _layer_of(mat) -> tuple | None:
     """A material's diffuse albedo texture as a layer, on the grid of its base colour texture
     (else of its metallic-roughness texture): ``base (1 - metallic)`` without the factors'
     base colour, composed texel by texel (the metallic-roughness texture read at the UVs of the
     grid's texel centres), re-encoded to 8-bit sRGB (an 8-bit base colour image without a
     metallic texture comes back to its own codes); its wrap codes, transform and filter, and
-    whether the metallic part is in it (else the per-vertex metallic multiplies the factor).
-    None where neither texture is on ``TEXCOORD_0``."""
+    whether the metallic part is in it (else the per-vertex metallic multiplies the factor);
+    and the layer's F0 image (module docstring; with the metallic-roughness texture on another
+    UV set, the factor's metallic). None where neither texture is on ``TEXCOORD_0``."""
     base, mr = _on_uv0(mat.base_color_texture), _on_uv0(mat.metallic_roughness_texture)
     grid = base if base is not None else mr
     if grid is None or (base is None and mat.base_color_texture is not None):
@@ -211,16 +252,19 @@ def _layer_of(mat) -> tuple[torch.Tensor, tuple[int, int], np.ndarray, bool, boo
         rgb = base.image[..., :3].detach().cpu().double()
     uv = None if mr is None else _texel_uvs(grid)
     with_metal = uv is not None or mat.metallic_roughness_texture is None
+    m = torch.full((h, w), float(mat.metallic), dtype=torch.float64)
     if uv is not None:
-        metal = sample_texture(mr, uv.to(mr.image))[..., 2].cpu().double()
-        rgb = rgb * (1 - mat.metallic * metal)[..., None]
-    elif mat.metallic_roughness_texture is None:
-        rgb = rgb * (1 - mat.metallic)
-    img = torch.round(srgb_encode(rgb) * 255).to(torch.uint8).contiguous()
+        m = m * sample_texture(mr, uv.to(mr.image))[..., 2].cpu().double()
+    diffuse = rgb * (1 - m)[..., None] if with_metal else rgb
+    base_full = rgb * torch.tensor(mat.base_color[:3], dtype=torch.float64)
+    f0 = 0.04 * (1 - m)[..., None] + base_full * m[..., None]
+    img, spec = (
+        torch.round(srgb_encode(x) * 255).to(torch.uint8).contiguous() for x in (diffuse, f0)
+    )
     s = grid.sampler
     wrap = (WRAP_MODES.index(s.wrap_s), WRAP_MODES.index(s.wrap_t))
     xf = np.array(grid.uv_transform if grid.uv_transform is not None else _IDENTITY, np.float32)
-    return img, wrap, xf, s.mag_filter == "nearest", with_metal
+    return img, wrap, xf, s.mag_filter == "nearest", with_metal, spec
 
 
 _IDENTITY = ((1.0, 0.0, 0.0), (0.0, 1.0, 0.0))
@@ -243,15 +287,17 @@ def albedo_texture(asset, diffuse: torch.Tensor, metallic: torch.Tensor) -> Albe
         return None
     dev = asset.uvs.device
     images = [torch.full((1, 1, 3), 255, dtype=torch.uint8)]
+    specular = [images[0]]
     wraps, xforms, nearest = [(0, 0)], [np.array(_IDENTITY, np.float32)], [False]
     of_material = torch.zeros(len(mats), dtype=torch.int64)
     metal_inside = torch.zeros(len(mats), dtype=torch.bool)
     for m, found in enumerate(layers):
         if found is not None:
-            img, wrap, xf, near, with_metal = found
+            img, wrap, xf, near, with_metal, spec = found
             of_material[m] = len(images)
             metal_inside[m] = with_metal
             images.append(img)
+            specular.append(spec)
             wraps.append(wrap)
             xforms.append(xf)
             nearest.append(near)
@@ -269,4 +315,5 @@ def albedo_texture(asset, diffuse: torch.Tensor, metallic: torch.Tensor) -> Albe
         wrap=torch.tensor(wraps, dtype=torch.int64),
         transform=torch.from_numpy(np.stack(xforms)),
         nearest=torch.tensor(nearest),
+        specular=tuple(specular),
     )

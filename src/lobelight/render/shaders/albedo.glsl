@@ -20,15 +20,22 @@ float albedo_wrap(float x, float mode, float n) {
     return clamp(x, 0.5 / n, 1.0 - 0.5 / n);
 }
 
-// the texture's albedo at uv of layer (before the per-vertex factor); call it in uniform
-// control flow (it takes derivatives)
-vec3 albedo_at(vec2 uv, int layer) {
+// the texture array tex's value at uv of layer, read as albedo_tex's layers are (the specular
+// textures' F0 layers share their layers' transforms and modes); call it in uniform control
+// flow (it takes derivatives)
+vec3 texture_at(sampler2DArray tex, vec2 uv, int layer) {
     vec3 q = vec3(uv, 1.0);
     vec2 t = vec2(dot(albedo_xform[2 * layer], q), dot(albedo_xform[2 * layer + 1], q));
     vec2 gx = dFdx(t) * albedo_grad_scale, gy = dFdy(t) * albedo_grad_scale;
     vec3 mode = albedo_mode[layer];
     t = vec2(albedo_wrap(t.x, mode.x, albedo_size.x), albedo_wrap(t.y, mode.y, albedo_size.y));
     if (mode.z > 0.5) t = (floor(t * albedo_size) + 0.5) / albedo_size;
-    vec3 a = textureGrad(albedo_tex, vec3(t, float(layer)), gx, gy).rgb;
+    return textureGrad(tex, vec3(t, float(layer)), gx, gy).rgb;
+}
+
+// the texture's albedo at uv of layer (before the per-vertex factor); layer 0 is white; call
+// it in uniform control flow
+vec3 albedo_at(vec2 uv, int layer) {
+    vec3 a = texture_at(albedo_tex, uv, layer);
     return layer == 0 ? vec3(1.0) : a;
 }

@@ -8,7 +8,8 @@
 // N_INDIRECT (how many of the last hold indirect glossy transport,
 // lobelight.model.Model.indirect_gaussians), HAS_SUN (the lighting has a sun) and SUN_GLOSSY (its
 // glossy reflection is shaded per pixel), ALBEDO_TEX (the diffuse albedo is read per pixel from
-// textures, albedo.glsl, and the diffuse transfer is per unit albedo) and DEPTH_ONLY (1: the
+// textures, albedo.glsl, and the diffuse transfer is per unit albedo), SPECULAR_TEX (the glossy
+// light is scaled per pixel by the textures' F0 over the vertices', render/_albedo.py) and DEPTH_ONLY (1: the
 // depth pre-pass, which projects the vertices and shades nothing) are defined by the loader, and the per-frame values (camera,
 // rotation, SH lighting, sun) come from frame.glsl's block. The torch path (render/_torch.py)
 // mirrors this file step by step.
@@ -28,6 +29,9 @@ in vec3 in_albedo;
 in vec2 in_uv;                 // lobelight.scene.AlbedoTexture: UV, layer, per-vertex factor
 in float in_layer;
 in vec3 in_factor;
+#if defined(SPECULAR_TEX) && SPECULAR_TEX
+in vec3 in_f0;                 // the bake's per-vertex F0 (render/_albedo.py specular_f0)
+#endif
 #endif
 #if SUN_GLOSSY
 in vec4 in_sb0;                // the sun's glossy BRDF (render/_sun_glossy.py): alpha, specular
@@ -53,6 +57,9 @@ out vec3 v_albedo;
 #if ALBEDO_TEX
 out vec2 v_uv;
 flat out int v_layer;
+#if defined(SPECULAR_TEX) && SPECULAR_TEX
+out vec3 v_f0;
+#endif
 out vec3 v_factor;
 #endif
 #if SUN_GLOSSY
@@ -151,6 +158,9 @@ void main() {
     v_uv = in_uv;
     v_layer = int(in_layer + 0.5);
     v_factor = in_factor;
+#if defined(SPECULAR_TEX) && SPECULAR_TEX
+    v_f0 = in_f0;
+#endif
 #endif
 #if SUN_GLOSSY
     v_sb0 = in_sb0;
@@ -215,6 +225,11 @@ in vec3 v_normal;
 #if ALBEDO_TEX
 in vec2 v_uv;
 flat in int v_layer;
+#if defined(SPECULAR_TEX) && SPECULAR_TEX
+in vec3 v_f0;
+// each layer's F0 (lobelight.scene.AlbedoTexture.specular), albedo_tex's layout
+uniform sampler2DArray specular_tex;
+#endif
 in vec3 v_factor;
 #endif
 #if HAS_SUN
@@ -447,6 +462,16 @@ void main() {
 #if ALBEDO_TEX
     // the transfer is per unit albedo: times the albedo read here
     vec3 albedo_px = v_factor * albedo_at(v_uv, v_layer);
+#endif
+#if defined(SPECULAR_TEX) && SPECULAR_TEX
+    // the glossy light's factor, the texel's F0 over the vertices' (render/_albedo.py
+    // specular_ratio), read in uniform control flow
+    vec3 f0_tex = texture_at(specular_tex, v_uv, v_layer);
+    vec3 spec_ratio = v_layer == 0 ? vec3(1.0) : f0_tex / max(v_f0, vec3(F0_MIN));
+#else
+    const vec3 spec_ratio = vec3(1.0);
+#endif
+#if ALBEDO_TEX
     vec3 c = diffuse_on * v_diffuse * albedo_px;
 #elif HAS_SUN
     vec3 albedo_px = v_albedo;
@@ -477,13 +502,14 @@ void main() {
 #if defined(SHARP) && SHARP
                 spec = sun_shape(spec, n, d);
 #endif
-                c += spec * vis;
+                c += spec * vis * spec_ratio;
             }
 #endif
         }
     }
 #endif
     if (glossy_on > 0.0) {
+        vec3 before = c;  // the glossy light below is scaled by spec_ratio
         // the pixel's own mirror direction, from its interpolated normal and view direction:
         // the blended offsets are re-based on it (lobelight.model.blend_lobes, frame=)
         vec3 mirror = 2.0 * dot(n, d) * n - d;
@@ -524,6 +550,7 @@ void main() {
             }
 #endif
         }
+        c = before + (c - before) * spec_ratio;
     }
     frag = vec4(c, 1.0);
 }
