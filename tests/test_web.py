@@ -23,7 +23,6 @@ from lobelight.errors import InputError
 from lobelight.geometry import sphere
 from lobelight.lobes import sh
 from lobelight.model import Model
-from lobelight.render import _reflection
 from lobelight.web._serve import make_server
 
 CHROMIUM = shutil.which("chromium") or shutil.which("chromium-browser")
@@ -432,12 +431,6 @@ def sharp_torus(indirect: bool = False) -> Model:
         mesh, sphere.geodesic_views(), g, diffuse, sc.materials, {"scene": "torus"},
         indirect_gaussians=int(indirect),
     )  # fmt: skip
-
-
-def test_the_sharp_constants_are_the_desktops():
-    # the defines the page's sharp programs get are the desktop renderer's
-    for name, value in web.SHARP_DEFINES.items():
-        assert getattr(_reflection, name) == value, name
 
 
 @needs_browser

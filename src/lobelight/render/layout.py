@@ -15,6 +15,8 @@ drift from the desktop's.
   :func:`tail_scale` (the sun's glossy reflection per pixel).
 - Records: :func:`kept_records` (the records some rendering sees: live at the view or at a
   geodesic neighbour).
+- The sharp reflection's constants, :data:`SHARP_DEFINES` (``reflection.glsl``'s defines:
+  ``OCCLUDED_FLOOR``, ``SHARP_NV_MIN``, ``SUN_RESOLVED``, ``INDIRECT_SCALE_MAX``).
 - Shader text: :func:`stage_sources` (a file's two stages in a dialect), :func:`load_shader`.
 """
 
@@ -33,6 +35,7 @@ from ._gl import (
 )
 from ._gl_albedo import MAX_ALBEDO_LAYERS, MAX_ALBEDO_SIZE, albedo_array, albedo_uniforms
 from ._gltf_out import kept_records
+from ._reflection import INDIRECT_SCALE_MAX, OCCLUDED_FLOOR, SHARP_NV_MIN, SUN_RESOLVED
 from ._sun_glossy import (
     sun_glossy_supported,
     sun_glossy_uniforms,
@@ -41,6 +44,14 @@ from ._sun_glossy import (
     tail_scale,
 )
 from ._sun_shadow import BLOCKER_SAMPLES, SHADOW_SAMPLES, disc_radius
+
+#: The sharp reflection's shader defines (render/_reflection.py), by name.
+SHARP_DEFINES = {
+    "OCCLUDED_FLOOR": OCCLUDED_FLOOR,
+    "SHARP_NV_MIN": SHARP_NV_MIN,
+    "SUN_RESOLVED": SUN_RESOLVED,
+    "INDIRECT_SCALE_MAX": INDIRECT_SCALE_MAX,
+}
 
 __all__ = [
     "BACKGROUND_RES",
@@ -51,6 +62,7 @@ __all__ = [
     "MAX_ALBEDO_SIZE",
     "SHADOW_RES",
     "SHADOW_SAMPLES",
+    "SHARP_DEFINES",
     "TEX_WIDTH",
     "albedo_array",
     "albedo_uniforms",

@@ -11,7 +11,6 @@
 
 from ._export import (
     MAX_BACKGROUND_RES,
-    SHARP_DEFINES,
     WEB_VERSION,
     WebFolder,
     dialect,
@@ -22,7 +21,6 @@ from ._serve import serve, tunnel_hint
 
 __all__ = [
     "MAX_BACKGROUND_RES",
-    "SHARP_DEFINES",
     "WEB_VERSION",
     "WebFolder",
     "dialect",

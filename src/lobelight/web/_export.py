@@ -35,6 +35,7 @@ from ..render.layout import (
     FRAME_LAYOUT,
     SHADOW_RES,
     SHADOW_SAMPLES,
+    SHARP_DEFINES,
     TEX_WIDTH,
     albedo_array,
     albedo_uniforms,
@@ -55,7 +56,6 @@ from ._format import read_data_file, write_data_file
 
 __all__ = [
     "MAX_BACKGROUND_RES",
-    "SHARP_DEFINES",
     "WEB_VERSION",
     "WebFolder",
     "dialect",
@@ -77,14 +77,6 @@ STILL_SAMPLES = 4
 SH_FIT_DIRECTIONS = 64
 #: The largest finite half float; brighter texels are clipped to it (the SH keep their light).
 HALF_MAX = 65504.0
-#: The sharp reflection's constants that reflection.glsl and prt.glsl read as defines: the
-#: desktop's values (render/_reflection.py; tests/test_web.py checks that they are equal).
-SHARP_DEFINES = {
-    "OCCLUDED_FLOOR": 0.05,
-    "SHARP_NV_MIN": 0.02,
-    "SUN_RESOLVED": 0.25,
-    "INDIRECT_SCALE_MAX": 4.0,
-}
 #: Files of the page copied from the package's assets.
 _PAGE_FILES = ("index.html", "viewer.js")
 #: The marker that a folder is one this module wrote (it may be replaced as a whole).
@@ -265,7 +257,7 @@ def _sharp_defines(model) -> dict:
     """The defines of a sharp material's programs: the vertex table's width (the page's
     textures of per-vertex and per-face values wrap at :data:`lobelight.render.layout.TEX_WIDTH`)
     and rows, the tiles' resolution, the mixture's and albedo table's sizes, and
-    :data:`SHARP_DEFINES`."""
+    :data:`lobelight.render.layout.SHARP_DEFINES`."""
     v = model.mesh.n_vertices
     return {
         "SHARP": 1,
