@@ -157,6 +157,16 @@ def test_indirect_light_on_a_rough_concave_corner_is_smooth():
     assert float(truth.mean()) > 0.3  # the walls send the floor a real share
     # unbiased on the whole: the 16-path estimate's noise summed over 81 vertices, ~2 %
     assert abs(float(ours.sum() / truth.sum()) - 1) < 0.05
-    # measured over six seeds: 6-10 times the converged light's detail (which holds its
-    # own noise, ~10 % of it); a Gaussian per view from its own 16 paths: 25-50 times
-    assert detail(ours) < 12 * detail(truth), (detail(ours), detail(truth))
+    own = radiance(
+        tr.indirect_lobes(
+            floor, views[j : j + 1], paths=16, generator=torch.Generator().manual_seed(10)
+        ),
+        0,
+    )
+    # measured over six seeds: 26-60 times the converged light's detail (which holds its own
+    # noise; the vertices at the walls' feet see the walls' light since their rays start off
+    # the walls, transport.vertex_origins, and the converged light is smooth there); a
+    # Gaussian per view from its own 16 paths: 150-230 times (sharing: 0.12-0.33 of that,
+    # seed by seed)
+    assert detail(ours) < 80 * detail(truth), (detail(ours), detail(truth))
+    assert detail(ours) < 0.5 * detail(own), (detail(ours), detail(own))

@@ -14,7 +14,7 @@ from .. import __version__
 from ..model import Model, per_unit_albedo
 from ..progress import resolve
 from ..scene import Scene
-from ..transport import BOUNCES, INDIRECT_PATHS
+from ..transport import BOUNCES, INDIRECT_PATHS, vertex_origins
 from ._auto import choose_gaussians
 from ._cluster import cluster
 from ._floodfill import fit_mesh
@@ -124,6 +124,8 @@ def fit_model(
         "relax": relax,
         "shadows": shadows,
         "seed": seed,
+        # vertices whose rays start at an exposed point of their faces (cached: no new rays)
+        "exposed_vertices": int(vertex_origins(scene.mesh.to(mf.gaussians.w.device)).n_exposed),
         **({} if client is None else {"cluster": _order(n_gaussians)}),
         "relative_l2_error_mean": float(err.clamp_min(0).sqrt().mean()) if err.numel() else 0.0,
         "flips_before": mf.flips_before,
