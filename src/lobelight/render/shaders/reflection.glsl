@@ -55,15 +55,22 @@ vec2 oct_encode(vec3 d) {
     return p;
 }
 
-// the visible fraction of vertex v's tile at direction d, bilinear and clamped to the tile
-// (lobelight.geometry.octahedral.bilinear)
-float tile_lookup(int v, vec3 d) {
+// the bilinear footprint of direction d in vertex v's tile, clamped to the tile
+// (lobelight.geometry.octahedral.bilinear): its first texel o in the atlas and the weights f
+void tile_footprint(int v, vec3 d, out ivec2 o, out vec2 f) {
     vec2 p = oct_encode(d);
     float r = float(VIS_RES);
     vec2 x = clamp((p + 1.0) * (0.5 * r) - 0.5, 0.0, r - 1.0);
     ivec2 x0 = min(ivec2(floor(x)), ivec2(VIS_RES - 2));
-    vec2 f = x - vec2(x0);
-    ivec2 o = ivec2(v % vis_per_row, v / vis_per_row) * VIS_RES + x0;
+    f = x - vec2(x0);
+    o = ivec2(v % vis_per_row, v / vis_per_row) * VIS_RES + x0;
+}
+
+// the visible fraction of vertex v's tile at direction d, bilinear
+float tile_lookup(int v, vec3 d) {
+    ivec2 o;
+    vec2 f;
+    tile_footprint(v, d, o, f);
     float a = texelFetch(vis_tex, o, 0).r;
     float b = texelFetch(vis_tex, o + ivec2(1, 0), 0).r;
     float c = texelFetch(vis_tex, o + ivec2(0, 1), 0).r;
@@ -71,15 +78,12 @@ float tile_lookup(int v, vec3 d) {
     return mix(mix(a, b, f.x), mix(c, e, f.x), f.y);
 }
 
-// the share of vertex v's hit-tile texels around direction d that find no hit, bilinear and
-// clamped to the tile (render/_reflection.py hit_free_fraction)
+// the share of vertex v's hit-tile texels around direction d that find no hit, bilinear
+// (render/_reflection.py hit_free_fraction)
 float hit_free(int v, vec3 d) {
-    vec2 p = oct_encode(d);
-    float r = float(VIS_RES);
-    vec2 x = clamp((p + 1.0) * (0.5 * r) - 0.5, 0.0, r - 1.0);
-    ivec2 x0 = min(ivec2(floor(x)), ivec2(VIS_RES - 2));
-    vec2 f = x - vec2(x0);
-    ivec2 o = ivec2(v % vis_per_row, v / vis_per_row) * VIS_RES + x0;
+    ivec2 o;
+    vec2 f;
+    tile_footprint(v, d, o, f);
     float a = texelFetch(hit_face_tex, o, 0).r < 0 ? 1.0 : 0.0;
     float b = texelFetch(hit_face_tex, o + ivec2(1, 0), 0).r < 0 ? 1.0 : 0.0;
     float c = texelFetch(hit_face_tex, o + ivec2(0, 1), 0).r < 0 ? 1.0 : 0.0;
