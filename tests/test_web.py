@@ -10,6 +10,7 @@ import os
 import shutil
 import threading
 import urllib.request
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -19,6 +20,7 @@ import trimesh
 import test_albedo_texture as checker
 from lobelight import envmap, fit, render, scene, web
 from lobelight.cli import main
+from lobelight.data import DEFAULT_ENVMAP, envmap_path
 from lobelight.errors import InputError
 from lobelight.geometry import sphere
 from lobelight.lobes import sh
@@ -201,6 +203,13 @@ def test_the_export_command_writes_the_folder(tmp_path):
     out = tmp_path / "web"
     assert main(["export", str(src), "--web", str(out), "--base-res", "16", "-q"]) == 0
     assert web.read_web(out).header["n_gaussians"] == 1
+    # a map given by its path is named by its file's stem: the page shows no folder of this
+    # machine
+    out2 = tmp_path / "web2"
+    env = envmap_path(DEFAULT_ENVMAP)
+    args = ["export", str(src), "--web", str(out2), "--env", str(env), "--base-res", "16", "-q"]
+    assert main(args) == 0
+    assert [e["name"] for e in web.read_web(out2).header["envs"]] == [Path(env).stem]
     # one of --gltf and --web; --gltf takes one map
     assert main(["export", str(src), "-q"]) == 2
     glb = tmp_path / "m.glb"

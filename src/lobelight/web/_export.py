@@ -19,7 +19,7 @@ import shutil
 import tempfile
 from dataclasses import dataclass
 from importlib import resources
-from pathlib import Path
+from pathlib import Path, PurePath
 
 import numpy as np
 import torch
@@ -395,7 +395,9 @@ def _env_file(model, lighting: Lighting, sun_glossy_spec: bool) -> tuple[dict, d
         "sh": _np(lighting.sh, "<f4"),
     }
     header = {
-        "name": lighting.name,
+        # the map's file name without its folder: the page shows it, and a folder of this
+        # machine means nothing where the page is opened
+        "name": PurePath(str(lighting.name)).stem or str(lighting.name),
         "prefiltered": uniforms,
         "base_res": pf.base_res,
         "sun": None,
