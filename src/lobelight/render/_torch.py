@@ -179,7 +179,7 @@ def _glossy(
         model, lighting, vd, sharp, pos, r, c, b, rot, sun_gl=sun_gl, caster=caster
     )
     found = weight > 0
-    vis = torch.where(found, hit_free_fraction(model.hits()[0].to(dev), c, r=r, bary=b), 1.0)
+    vis = torch.where(found, hit_free_fraction(model.hits()[0].to(dev), c, b, r), 1.0)
     acc = shade(sharp, lighting, r, nrm, nv, vis, rot, rest=sun_gl).to(dev)
     hit = seen / weight.clamp_min(DIVISOR_F32)[:, None]
     return acc + sharp.directional_albedo(nv) * (1 - vis)[:, None] * hit
