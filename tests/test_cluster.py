@@ -344,10 +344,15 @@ def test_bake_on_a_cluster_from_the_command_line_writes_the_local_model(client, 
 
 
 def test_bench_cluster_times_the_local_and_the_cluster_bakes():
-    """``lobelight bench cluster``'s record: a local run and one per worker count, each with
-    its chunks' stage timed, and the overhead and projection computed from them."""
+    """``lobelight bench cluster``'s record: per worker count a local run on as many threads
+    and the cluster run, each with its chunks' stage timed, and the overhead (cluster against
+    the local run on the same threads) and projection computed from them."""
     r = bench_cluster(scene="sphere:1", workers=(1,), indirect_paths=0, bounces=0)
-    assert [row["workers"] for row in r["runs"]] == [0, 1]
+    assert [(row["workers"], row["threads"]) for row in r["runs"]] == [(0, 1), (1, 1)]
+    local, one = r["runs"]
+    assert r["overhead"] == pytest.approx(
+        one["chunk_stage_seconds"] / local["chunk_stage_seconds"] - 1
+    )
     assert all(row["chunk_stage_seconds"] > 0 for row in r["runs"])
     assert r["chunks"] == math.ceil(r["vertices"] / r["batch"])
     assert r["projection"]["workers"] == 20 * (os.cpu_count() or 1)

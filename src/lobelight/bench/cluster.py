@@ -2,18 +2,21 @@
 process and on local workers, the cluster path's cost per chunk, and a projection of a large
 bake across machines.
 
-The same bake (one Gaussian per view: independent chunks) runs in this process, then on local
-clusters of 1, 2, ... worker processes of one thread each (:func:`lobelight.fit.cluster`). The
-chunks' stage (``fit`` in the bake's provenance: transport sampling and the fit, what the
-workers run) is timed apart from the interreflection, which stays on the client. From them:
+The same bake (one Gaussian per view: independent chunks) runs on local clusters of 1, 2, ...
+worker processes of one thread each (:func:`lobelight.fit.cluster`), and, for each of them, in
+this process with as many torch threads as the cluster has worker threads (at most this
+machine's cores), so that each cluster run is set against a single-process bake on the same
+cores. The chunks' stage (``fit`` in the bake's provenance: transport sampling and the fit,
+what the workers run) is timed apart from the interreflection, which stays on the client. From
+them:
 
 - ``chunks_per_second``: chunks over the chunks' stage's seconds, per run;
-- ``overhead_seconds_per_chunk``: the 1-worker run's chunk stage less the local one's, per chunk
-  (scheduling, shipping the chunk's inputs and result, the worker's plugin set-up);
-- ``overhead``: the cluster path's share beyond the local bake's work at the largest worker
-  count: ``workers x cluster seconds / local seconds - 1`` of the chunks' stage (0 when the
-  workers divide the local work perfectly; on a machine with fewer free cores than workers it
-  also holds the cores' contention);
+- ``overhead_seconds_per_chunk``: the 1-worker run's chunk stage less the one-thread local
+  one's, per chunk (scheduling, shipping the chunk's inputs and result, the worker's plugin
+  set-up);
+- ``overhead``: at the largest worker count, the cluster's chunk stage over the local one's on
+  the same number of threads, less 1 (0 when the cluster path costs nothing beyond the bake's
+  own work; negative where worker processes outrun one process's threads);
 - ``projection``: a bake of ``projected_vertices`` on ``machines`` machines of this one's cores,
   one worker per core: the local per-vertex chunk time divided over the workers, plus the
   client's interreflection at the local per-vertex rate (it does not shrink with workers).
@@ -24,6 +27,8 @@ from __future__ import annotations
 import math
 import os
 import time
+
+import torch
 
 from ..fit import cluster, fit_model
 from ..scene import load
@@ -41,11 +46,22 @@ def _bake(sc, *, client, indirect_paths: int, bounces: int) -> tuple[float, dict
     return time.perf_counter() - t0, m.provenance
 
 
-def _row(label: str, workers: int, wall: float, prov: dict, chunks: int) -> dict:
+def _local(sc, threads: int, *, indirect_paths: int, bounces: int) -> tuple[float, dict]:
+    """:func:`_bake` in this process on ``threads`` torch threads (restored after)."""
+    before = torch.get_num_threads()
+    torch.set_num_threads(threads)
+    try:
+        return _bake(sc, client=None, indirect_paths=indirect_paths, bounces=bounces)
+    finally:
+        torch.set_num_threads(before)
+
+
+def _row(label: str, workers: int, threads: int, wall: float, prov: dict, chunks: int) -> dict:
     stage = float(prov["seconds"]["fit"])
     return {
         "run": label,
         "workers": workers,
+        "threads": threads,
         "seconds": wall,
         "chunk_stage_seconds": stage,
         "interreflection_seconds": float(prov["seconds"].get("interreflection", 0.0)),
@@ -66,23 +82,31 @@ def bench_cluster(
     worker processes (module docstring); ``indirect_paths`` and ``bounces`` as the bake's."""
     sc = load(scene)
     v = sc.mesh.n_vertices
-    wall, prov = _bake(sc, client=None, indirect_paths=indirect_paths, bounces=bounces)
-    batch = int(prov["memory"]["batch"])
-    chunks = math.ceil(v / batch)
-    rows = [_row("local", 0, wall, prov, chunks)]
+    cores = os.cpu_count() or 1
+    kw = {"indirect_paths": indirect_paths, "bounces": bounces}
+    locals_ = {}  # threads -> row of the local bake on that many threads
+    rows = []
     starts = {}
-    for w in workers:
+    chunks = batch = None
+    for w in sorted(set(workers)):
+        threads = min(w, cores)
+        if threads not in locals_:
+            wall, prov = _local(sc, threads, **kw)
+            batch = int(prov["memory"]["batch"])
+            chunks = math.ceil(v / batch)
+            locals_[threads] = _row(f"local, {threads} thread(s)", 0, threads, wall, prov, chunks)
+            rows.append(locals_[threads])
         t0 = time.perf_counter()
         with cluster(workers=w) as client:
             starts[w] = time.perf_counter() - t0
-            wall, prov = _bake(sc, client=client, indirect_paths=indirect_paths, bounces=bounces)
-        rows.append(_row(f"{w} worker(s)", w, wall, prov, chunks))
-    local = rows[0]
-    one = next((r for r in rows if r["workers"] == 1), None)
-    most = max(rows[1:], key=lambda r: r["workers"]) if len(rows) > 1 else None
-    per_vertex = local["chunk_stage_seconds"] / v
-    client_per_vertex = local["interreflection_seconds"] / v
-    cores = os.cpu_count() or 1
+            wall, prov = _bake(sc, client=client, **kw)
+        rows.append(_row(f"{w} worker(s)", w, w, wall, prov, chunks))
+    clusters = [r for r in rows if r["workers"] > 0]
+    one = next((r for r in clusters if r["workers"] == 1), None)
+    most = max(clusters, key=lambda r: r["workers"]) if clusters else None
+    fastest = min(locals_.values(), key=lambda r: r["chunk_stage_seconds"])
+    per_vertex = fastest["chunk_stage_seconds"] / v
+    client_per_vertex = fastest["interreflection_seconds"] / v
     total_workers = machines * cores
     return {
         "benchmark": "cluster",
@@ -96,10 +120,12 @@ def bench_cluster(
         "cluster_start_seconds": starts,
         "overhead_seconds_per_chunk": None
         if one is None
-        else (one["chunk_stage_seconds"] - local["chunk_stage_seconds"]) / chunks,
+        else (one["chunk_stage_seconds"] - locals_[1]["chunk_stage_seconds"]) / chunks,
         "overhead": None
         if most is None
-        else most["workers"] * most["chunk_stage_seconds"] / local["chunk_stage_seconds"] - 1,
+        else most["chunk_stage_seconds"]
+        / locals_[min(most["workers"], cores)]["chunk_stage_seconds"]
+        - 1,
         "projection": {
             "vertices": projected_vertices,
             "machines": machines,
