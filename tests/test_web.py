@@ -528,6 +528,37 @@ def test_the_page_reads_albedo_textures_as_the_torch_path(browser, tmp_path):
 
 
 @needs_browser
+def test_the_page_reads_the_specular_colour_per_texel_as_the_torch_path(browser, tmp_path):
+    """A quad half metal, half dielectric by its metallic texture (tests/test_albedo_texture.py's
+    logo): the page's glossy light with the F0 texture array against the torch path's, and the
+    jump across the metal's edge, the texels' F0 ratio (per-vertex F0 gives none). Half-float
+    texels and the rasteriser's UVs against the rays' move a pixel's bilinear blend by a
+    fraction of the jump near the edge, so away from it 1 % of the brightest glossy pixel."""
+    size, cam = checker.SIZE, checker.CAMERA
+    p = tmp_path / "logo.glb"
+    checker._logo_glb(p)
+    m = fit.fit_model(scene.load(str(p)), 1, indirect_paths=0, bounces=0, progress=None)
+    lighting = render.Lighting(envmap.builtin(height=64), base_res=16)
+    web.export_web(m, tmp_path / "v", [lighting])
+    page = open_page(browser, tmp_path / "v")
+    got = render_in_page(page, cam, 0.0, size=(size, size), diffuse=False)[..., :3]
+    page.close()
+    r = render.Renderer(m, lighting, size, size, backend="torch", samples=1)
+    want = r.render(cam, diffuse=False, glossy=True, background=False).numpy()
+    u = checker._pixel_uv()[..., 0]
+    away = np.isfinite(u) & (np.abs(u - 0.5) > 0.05)
+    d = np.abs(got - want)[away]
+    assert d.max() < 0.01 * want[away].max()
+    # the jump across the edge: the two texels' F0 ratio (test_albedo_texture's bound, 5 %)
+    row = size // 2
+    left = int(np.nanargmax(np.where(u[row] < 0.5, u[row], np.nan)))
+    c = torch.tensor([[0, 1, 2], [0, 1, 2]])
+    b = torch.tensor([[0.8, 0.1, 0.1], [0.1, 0.1, 0.8]])  # a left and a right texel
+    f0 = m.albedo.specular_at(c, b).double().numpy()
+    np.testing.assert_allclose(got[row, left + 1] / got[row, left], f0[1] / f0[0], rtol=0.05)
+
+
+@needs_browser
 @pytest.mark.parametrize(
     ("hide", "says"),
     [

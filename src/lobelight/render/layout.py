@@ -7,7 +7,8 @@ drift from the desktop's.
   :func:`geodesic_tables` (``geodesic.glsl``'s planes and candidate cube), :data:`TEX_WIDTH`
   (the width long arrays wrap at), :data:`CAND_RES`, :data:`SHADOW_RES`,
   :data:`BACKGROUND_RES`; :func:`albedo_array` and :func:`albedo_uniforms` (``albedo.glsl``),
-  :data:`MAX_ALBEDO_SIZE`, :data:`MAX_ALBEDO_LAYERS`.
+  :data:`MAX_ALBEDO_SIZE`, :data:`MAX_ALBEDO_LAYERS`; :func:`specular_f0` and :data:`F0_MIN`
+  (the specular colour per texel: the bake's per-vertex F0 the texture is measured against).
 - Uniform blocks: :data:`FRAME_LAYOUT` (``frame.glsl``'s per-frame block, offsets in floats).
 - The sun: :func:`disc_radius`, :data:`SHADOW_SAMPLES`, :data:`BLOCKER_SAMPLES`
   (``shadow.glsl``, the percentage-closer soft shadow), :func:`sun_glossy_supported`,
@@ -20,6 +21,7 @@ drift from the desktop's.
 - Shader text: :func:`stage_sources` (a file's two stages in a dialect), :func:`load_shader`.
 """
 
+from ._albedo import F0_MIN, specular_f0
 from ._gl import (
     BACKGROUND_RES,
     CAND_RES,
@@ -57,6 +59,7 @@ __all__ = [
     "BACKGROUND_RES",
     "BLOCKER_SAMPLES",
     "CAND_RES",
+    "F0_MIN",
     "FRAME_LAYOUT",
     "MAX_ALBEDO_LAYERS",
     "MAX_ALBEDO_SIZE",
@@ -73,6 +76,7 @@ __all__ = [
     "geodesic_tables",
     "kept_records",
     "load_shader",
+    "specular_f0",
     "stage_sources",
     "sun_glossy_supported",
     "sun_glossy_uniforms",

@@ -32,6 +32,7 @@ from ..lobes import sh
 from ..render import Lighting, model_camera, sample_offsets
 from ..render.layout import (
     BLOCKER_SAMPLES,
+    F0_MIN,
     FRAME_LAYOUT,
     SHADOW_RES,
     SHADOW_SAMPLES,
@@ -45,6 +46,7 @@ from ..render.layout import (
     gaussian_records,
     geodesic_tables,
     kept_records,
+    specular_f0,
     stage_sources,
     sun_glossy_supported,
     sun_glossy_uniforms,
@@ -215,6 +217,8 @@ def _programs(model, n_sh: int, geo_defines: dict, key_args: tuple) -> dict[str,
         "SHARP": 0,
         "ALBEDO_TEX": int(model.albedo is not None),
         "ALBEDO_LAYERS": 1 if model.albedo is None else len(model.albedo.images),
+        "SPECULAR_TEX": int(specular_f0(model) is not None),
+        "F0_MIN": f"{F0_MIN:.6e}",
         "VERTEX_TABLE": 0,
         "TABLE_WIDTH": 4096,
         "TABLE_ROWS": 1,
@@ -270,16 +274,21 @@ def _sharp_defines(model) -> dict:
     }
 
 
-def _albedo(albedo) -> tuple[dict, dict[str, np.ndarray]]:
+def _albedo(model) -> tuple[dict, dict[str, np.ndarray]]:
     """The albedo textures' header (what ``albedo.glsl``'s uniforms hold) and arrays (the
-    layers and the per-vertex UVs, layers and factors)."""
+    layers and the per-vertex UVs, layers and factors); where the model has the specular
+    colour per texel (:func:`lobelight.render.layout.specular_f0`), its F0 layers
+    (``specular_layers``, the albedo layers' layout) and the bake's per-vertex F0 (``f0``)."""
+    albedo = model.albedo
     layers = albedo_array(albedo)  # (L, H, W, 3) float16
     u = albedo_uniforms(albedo)
+    f0 = specular_f0(model)
     header = {
         "layers": int(layers.shape[0]),
         "xform": u["albedo_xform"].astype(np.float64).reshape(-1).tolist(),
         "mode": u["albedo_mode"].astype(np.float64).reshape(-1).tolist(),
         "size": u["albedo_size"].astype(np.float64).tolist(),
+        "specular": f0 is not None,
     }
     arrays = {
         "albedo_layers": layers,
@@ -287,6 +296,9 @@ def _albedo(albedo) -> tuple[dict, dict[str, np.ndarray]]:
         "layer": _np(albedo.layer, "<f4"),
         "factor": _np(albedo.factor, "<f4"),
     }
+    if f0 is not None:
+        arrays["specular_layers"] = albedo_array(albedo, specular=True)
+        arrays["f0"] = _np(f0, "<f4")
     return header, arrays
 
 
@@ -341,7 +353,7 @@ def _model_file(model, float16: bool) -> tuple[dict, dict[str, np.ndarray], int]
     arrays.update(sharp_arrays)
     albedo_header = None
     if model.albedo is not None:
-        albedo_header, albedo_arrays = _albedo(model.albedo)
+        albedo_header, albedo_arrays = _albedo(model)
         arrays.update(albedo_arrays)
     cam = model_camera(model)
     spec = model.materials.specular
@@ -580,6 +592,12 @@ def _check_model_arrays(path: Path, h: dict, a: dict) -> None:
         layers = a.get("albedo_layers")
         if layers is None or layers.ndim != 4 or layers.shape[0] != at["layers"]:
             raise InputError(str(path), "its albedo layers do not match the header")
+        if at.get("specular"):
+            spec = a.get("specular_layers")
+            if spec is None or spec.shape != layers.shape:
+                raise InputError(str(path), "its specular layers do not match its albedo layers")
+            if "f0" not in a or a["f0"].shape != (v, 3):
+                raise InputError(str(path), f"array f0 missing or not of shape {(v, 3)}")
 
 
 def _check_sharp_arrays(path: Path, h: dict, a: dict) -> None:

@@ -164,7 +164,7 @@
   const PLANES_BINDING = 0, FRAME_BINDING = 1, SAMPLE_BINDING = 2;
   const UNITS = {
     gauss_tex: 0, diff_tex: 1, cand_tex: 2, atlas: 3, env: 4, image: 5, shadow_map: 6,
-    bounce_tex: 8, shadow_depth: 9, albedo_tex: 10,
+    specular_tex: 7, bounce_tex: 8, shadow_depth: 9, albedo_tex: 10,
     // a sharp material's per-pixel reflection (reflection.glsl) and the whole map's chain
     vis_tex: 11, face_tex: 12, pos_tex: 13, nrm_tex: 14, alb_tex: 15, hit_face_tex: 16,
     hit_dist_tex: 17, table0_tex: 18, table1_tex: 19, whole_atlas: 20,
@@ -213,10 +213,11 @@
                              "device's largest texture is " + this.maxTex + "².");
       }
       // prt.glsl's varyings: two vec4 per Gaussian, the diffuse light, position, normal and
-      // albedo, the sun's BRDF (three) and the albedo textures' UV, layer and factor (three)
-      // and a sharp material's triangle id
-      const need = 2 * h.n_gaussians + 4 + (h.sun_glossy ? 3 : 0) + (h.albedo_textures ? 3 : 0) +
-                   (h.sharp ? 1 : 0);
+      // albedo, the sun's BRDF (three), the albedo textures' UV, layer and factor (three), the
+      // bake's F0 where the specular colour is per texel, and a sharp material's triangle id
+      const at = h.albedo_textures;
+      const need = 2 * h.n_gaussians + 4 + (h.sun_glossy ? 3 : 0) + (at ? 3 : 0) +
+                   (at && at.specular ? 1 : 0) + (h.sharp ? 1 : 0);
       const have = gl.getParameter(gl.MAX_VARYING_VECTORS);
       if (need > have) {
         throw new LimitError("This model's " + h.n_gaussians + " Gaussians per view need " +
@@ -317,7 +318,8 @@
     }
 
     // the albedo textures (albedo.glsl): one mipmapped RGBA16F texture array, and the
-    // per-vertex UVs, layers and factors
+    // per-vertex UVs, layers and factors; where the specular colour is per texel, its F0
+    // layers in a second array of the same layout and the bake's per-vertex F0
     uploadAlbedo() {
       const gl = this.gl, a = this.a, al = a.albedo_layers;
       const [n, h, w] = al.shape;
@@ -325,6 +327,20 @@
         throw new LimitError("The model's albedo textures are " + w + " × " + h + " texels; " +
                              "this device's largest texture is " + this.maxTex + ".");
       }
+      this.albedoTex = this.layerTexture(al);
+      this.uvbo = this.buffer(gl.ARRAY_BUFFER, a.uvs.data);
+      this.lbo = this.buffer(gl.ARRAY_BUFFER, a.layer.data);
+      this.factorBo = this.buffer(gl.ARRAY_BUFFER, a.factor.data);
+      if (a.specular_layers) {
+        this.specularTex = this.layerTexture(a.specular_layers);
+        this.f0bo = this.buffer(gl.ARRAY_BUFFER, a.f0.data);
+      }
+    }
+
+    // a mipmapped, repeating RGBA16F texture array of (L, H, W, 3) half-float layers
+    layerTexture(al) {
+      const gl = this.gl;
+      const [n, h, w] = al.shape;
       const rgba = new Uint16Array(n * h * w * 4);
       for (let i = 0; i < n * h * w; ++i) {
         rgba[4 * i] = al.data[3 * i]; rgba[4 * i + 1] = al.data[3 * i + 1];
@@ -339,10 +355,7 @@
       gl.texParameteri(gl.TEXTURE_2D_ARRAY, gl.TEXTURE_MAG_FILTER, gl.LINEAR);
       gl.texParameteri(gl.TEXTURE_2D_ARRAY, gl.TEXTURE_WRAP_S, gl.REPEAT);
       gl.texParameteri(gl.TEXTURE_2D_ARRAY, gl.TEXTURE_WRAP_T, gl.REPEAT);
-      this.albedoTex = t;
-      this.uvbo = this.buffer(gl.ARRAY_BUFFER, a.uvs.data);
-      this.lbo = this.buffer(gl.ARRAY_BUFFER, a.layer.data);
-      this.factorBo = this.buffer(gl.ARRAY_BUFFER, a.factor.data);
+      return t;
     }
 
     // per-vertex tiles (V, R, R) laid out perRow to a row of one image (render/_gl.py's tile
@@ -445,6 +458,7 @@
         this.corner.in_factor = [this.buffer(gl.ARRAY_BUFFER, this.perCorner(a.factor.data, 3)),
                                  3];
       }
+      if (a.f0) this.corner.in_f0 = [this.buffer(gl.ARRAY_BUFFER, this.perCorner(a.f0.data, 3)), 3];
       this.nCorners = nc;
     }
 
@@ -561,6 +575,7 @@
           this.attribute(prog, "in_layer", this.lbo, 1);
           this.attribute(prog, "in_factor", this.factorBo, 3);
         }
+        if (this.specularTex) this.attribute(prog, "in_f0", this.f0bo, 3);
       }
       gl.bindBuffer(gl.ELEMENT_ARRAY_BUFFER, this.ibo);
       gl.bindVertexArray(null);
@@ -1009,6 +1024,9 @@
       this.bindTexture(UNITS.bounce_tex, gl.TEXTURE_2D, this.bounceTex);
       this.bindTexture(UNITS.atlas, gl.TEXTURE_2D, env.atlas);
       if (this.albedoTex) this.bindTexture(UNITS.albedo_tex, gl.TEXTURE_2D_ARRAY, this.albedoTex);
+      if (this.specularTex) {
+        this.bindTexture(UNITS.specular_tex, gl.TEXTURE_2D_ARRAY, this.specularTex);
+      }
       if (env.header.sun) {
         this.bindTexture(UNITS.shadow_map, gl.TEXTURE_2D, this.shadowTex);
         this.bindTexture(UNITS.shadow_depth, gl.TEXTURE_2D, this.shadowTex);
