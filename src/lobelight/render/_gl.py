@@ -39,7 +39,13 @@ from ..model import VISIBILITY_RES
 from ._albedo import F0_MIN, specular_f0
 from ._gl_albedo import albedo_array, albedo_uniforms
 from ._lighting import Lighting
-from ._reflection import INDIRECT_SCALE_MAX, OCCLUDED_FLOOR, SHARP_NV_MIN, SUN_RESOLVED
+from ._reflection import (
+    INDIRECT_SCALE_MAX,
+    OCCLUDED_FLOOR,
+    SHARP_NV_MIN,
+    SPREAD_GAUSSIAN,
+    SUN_RESOLVED,
+)
 from ._sun_glossy import (
     sun_glossy_supported,
     sun_glossy_uniforms,
@@ -638,6 +644,7 @@ class GLRenderer:
             "SHARP_NV_MIN": f"{SHARP_NV_MIN:.6e}",
             "SUN_RESOLVED": f"{SUN_RESOLVED:.6e}",
             "INDIRECT_SCALE_MAX": f"{INDIRECT_SCALE_MAX:.6e}",
+            "SPREAD_GAUSSIAN": SPREAD_GAUSSIAN,
             "SHADOW_SAMPLES": SHADOW_SAMPLES,
             "BLOCKER_SAMPLES": BLOCKER_SAMPLES,
             **geo_defines,

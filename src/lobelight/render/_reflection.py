@@ -32,7 +32,10 @@ triangle its ray along ``R``'s texel hits and how far away; the hit point is pla
 pixel itself, ``q = p + t R``, and projected onto that triangle; there the object's radiance
 towards the pixel is its direct sharp reflection for the view ``-R`` (as above, with the hit's
 own visible fraction ``V_hit`` read bilinearly from its corners' octahedral visibility tiles,
-:meth:`lobelight.model.Model.visibility`), its diffuse colour, the sun's light (shadowed) and
+:meth:`lobelight.model.Model.visibility`; each lookup widened by the spread of the directions
+the pixel's lobe sees the hit from, :func:`hit_spread`: the pixel integrates the hit's
+reflection over its lobe, and a curved hit surface widens that spread further), its diffuse
+colour, the sun's light (shadowed) and
 its indirect Gaussians, taken from the current view's, re-based on the hit's reflected
 direction and rescaled to the hit's occluded fraction ``(1 - V_hit) / (1 - v_fit)``
 (:func:`indirect_scale`; ``v_fit`` the stored views' visible fraction, their direct
@@ -63,8 +66,11 @@ __all__ = [
     "INDIRECT_SCALE_MAX",
     "OCCLUDED_FLOOR",
     "SHARP_NV_MIN",
+    "SPREAD_GAUSSIAN",
     "SUN_RESOLVED",
+    "face_curvature",
     "hit_free_fraction",
+    "hit_spread",
     "indirect_light",
     "indirect_scale",
     "lobe_points",
@@ -85,6 +91,10 @@ SHARP_NV_MIN = 0.02
 #: least this (the Gaussian narrower than twice the disc's RMS angle); a wider one sees a
 #: disc and the sun's shape alike (:func:`sun_sharp`).
 SUN_RESOLVED = 0.25
+#: The Gaussian of a sharp lobe's mixture (sharpest first) whose spread stands for the
+#: pixel's lobe where it sees the object (:func:`hit_spread`): the one of the lobe's
+#: half-maximum sharpness ``lam0`` (:data:`lobelight.brdf.MIXTURE`).
+SPREAD_GAUSSIAN = 1
 #: ``1 - v_fit`` floor of the rescaling's divisor.
 OCCLUDED_FLOOR = 0.05
 #: Shadow rays from a hit point are lifted off its triangle by this fraction of the mesh's
@@ -92,8 +102,11 @@ OCCLUDED_FLOOR = 0.05
 HIT_SHADOW_OFFSET = 1e-4
 
 
-def lobe_points(sharp: SharpLobe, r: torch.Tensor, n: torch.Tensor, nv: torch.Tensor):
-    """Where and how sharply :func:`shade` reads the lighting (module docstring).
+def lobe_points(sharp: SharpLobe, r: torch.Tensor, n: torch.Tensor, nv: torch.Tensor,
+                blur: torch.Tensor | None = None):  # fmt: skip
+    """Where and how sharply :func:`shade` reads the lighting (module docstring); ``blur``
+    (P,), where given, a variance added to every lookup's (a Gaussian spread of the
+    directions the lobe is seen from: :func:`hit_spread`).
 
     Returns
     -------
@@ -105,7 +118,7 @@ def lobe_points(sharp: SharpLobe, r: torch.Tensor, n: torch.Tensor, nv: torch.Te
     w = sharp.weights.to(r.device)
     m = w.shape[0]
     if not sharp.warp:
-        return r[None, :, None].expand(1, -1, m, 3), sharp.sharpness(nv), w
+        return r[None, :, None].expand(1, -1, m, 3), _blurred(sharp.sharpness(nv), blur), w
     lam0 = sharp.lam.to(r.device)  # (M,)
     c = nv.clamp_min(SHARP_NV_MIN)[:, None]  # (P, 1)
     lam = lam0 / c**2  # (P, M) the width across the plane of incidence
@@ -113,16 +126,52 @@ def lobe_points(sharp: SharpLobe, r: torch.Tensor, n: torch.Tensor, nv: torch.Te
     t = torch.nn.functional.normalize(n - (n * r).sum(-1, keepdim=True) * r, dim=-1)  # (P, 3)
     step = s[..., None] * t[:, None]  # (P, M, 3)
     d = torch.nn.functional.normalize(torch.stack([r[:, None] + step, r[:, None] - step]), dim=-1)
-    return d, lam, w
+    return d, _blurred(lam, blur), w
+
+
+def _blurred(lam: torch.Tensor, blur: torch.Tensor | None) -> torch.Tensor:
+    """Sharpness ``lam (P, M)`` of Gaussians convolved with one of variance ``blur (P,)``:
+    ``1 / (1 / lam + blur)`` (small-angle Gaussians' variances add)."""
+    if blur is None:
+        return lam
+    return 1 / (1 / lam.clamp_min(DIVISOR_F32) + blur[:, None])
+
+
+def hit_spread(sharp: SharpLobe, nv: torch.Tensor, dist: torch.Tensor,
+               curvature: torch.Tensor) -> torch.Tensor:  # fmt: skip
+    """The variance of the directions a hit's own reflection is seen from (P,): the pixel's
+    lobe spreads its rays about ``R`` by the variance of its core Gaussian (the mixture's
+    :data:`SPREAD_GAUSSIAN`, widened by ``1 / n.v`` for a microfacet lobe, its isotropic
+    equivalent); a flat mirror at the hit keeps that spread in the rays it reflects, and a
+    curved one turns them further, by twice its normal's turn over the footprint,
+    ``2 curvature dist`` per radian: ``var (1 + 2 curvature dist)^2``. ``nv (P,)`` the pixel's
+    ``n.v``, ``dist (P,)`` the hit's distance, ``curvature (P,)`` the hit's (radians per unit
+    length, :func:`face_curvature`)."""
+    var = 1 / float(sharp.lam[SPREAD_GAUSSIAN])
+    if sharp.warp:
+        var = var / nv.clamp_min(SHARP_NV_MIN)
+    return var * (1 + 2 * curvature * dist) ** 2
+
+
+def face_curvature(pos: torch.Tensor, nrm: torch.Tensor) -> torch.Tensor:
+    """A triangle's curvature (P,), radians per unit length: the mean over its edges of the
+    corners' normals' turn over the edge's length; ``pos, nrm (P, 3, 3)`` its corners'
+    positions and unit normals (zero on a flat triangle)."""
+    k = pos.new_zeros(pos.shape[0])
+    for i, j in ((0, 1), (1, 2), (2, 0)):
+        turn = (nrm[:, i] - nrm[:, j]).norm(dim=-1)
+        k = k + turn / (pos[:, i] - pos[:, j]).norm(dim=-1).clamp_min(DIVISOR_F32)
+    return k / 3
 
 
 def shade(sharp: SharpLobe, lighting, r: torch.Tensor, n: torch.Tensor, nv: torch.Tensor,
-          vis: torch.Tensor, rot, *, rest: bool) -> torch.Tensor:  # fmt: skip
+          vis: torch.Tensor, rot, *, rest: bool,
+          blur: torch.Tensor | None = None) -> torch.Tensor:  # fmt: skip
     """``E(n.v) sum_i a_i L(R; lam_i) V`` (module docstring: two lookups across the plane of
     incidence for a microfacet lobe): (P, 3) for reflected directions ``r (P, 3)`` about
     shading normals ``n (P, 3)``, ``nv (P,)``, visible fractions ``vis (P,)``; ``rest``: the
-    map without its sun."""
-    d, lam, w = lobe_points(sharp, r, n, nv)
+    map without its sun; ``blur`` as :func:`lobe_points`'."""
+    d, lam, w = lobe_points(sharp, r, n, nv, blur)
     look = lighting.lookup(d, lam.expand(d.shape[0], -1, -1), rot, rest=rest)  # (K, P, M, 3)
     mixed = (look.mean(0) * w[:, None]).sum(1)
     return sharp.directional_albedo(nv) * mixed * vis[:, None]
@@ -215,22 +264,25 @@ def _project(tri: torch.Tensor, q: torch.Tensor) -> torch.Tensor:
     return b / b.sum(-1, keepdim=True).clamp_min(DIVISOR_F32)
 
 
-def _hit_light(model, lighting, vd, sharp, tri, q, r, rot, *, sun_gl, caster):
+def _hit_light(model, lighting, vd, sharp, tri, q, r, rot, *, sun_gl, caster, spread):
     """The object's radiance towards ``-r`` at points ``q`` near triangles ``tri`` (module
-    docstring): (P, 3)."""
+    docstring), its own sharp reflection blurred by the pixel's lobe (:func:`hit_spread`,
+    ``spread (P, 2)`` the pixel's ``n.v`` and the hit's distance): (P, 3)."""
     mesh = model.mesh
     c = mesh.faces[tri]  # (P, 3)
     corner_pos = mesh.vertices[c]
+    corner_nrm = mesh.normals[c]
     b = _project(corner_pos, q)
     pos = (corner_pos * b[..., None]).sum(1)
-    n = torch.nn.functional.normalize((mesh.normals[c] * b[..., None]).sum(1), dim=-1)
+    n = torch.nn.functional.normalize((corner_nrm * b[..., None]).sum(1), dim=-1)
     v = -r
     nv = (n * v).sum(-1)
     rh = 2 * nv[:, None] * n - v
     nv = nv.clamp_min(0)
     vis = visible_fraction(model.visibility(), c, b, rh)
     albedo = sharp.directional_albedo(nv)
-    out = shade(sharp, lighting, rh, n, nv, vis, rot, rest=sun_gl)
+    blur = hit_spread(sharp, spread[:, 0], spread[:, 1], face_curvature(corner_pos, corner_nrm))
+    out = shade(sharp, lighting, rh, n, nv, vis, rot, rest=sun_gl, blur=blur)
     out += hit_diffuse_light(model, vd.diffuse, c, b)
     e, mu, sigma = blend_lobes(vd.e[c], vd.mu[c], vd.sigma[c], b, frame=(vd.mirror[c], rh))
     k = slice(model.n_gaussians - model.indirect_gaussians, None)
@@ -268,10 +320,11 @@ def _hit_sun(model, lighting, c, b, pos, n, v, rot, *, sun_gl, caster):
     return out
 
 
-def object_light(model, lighting, vd, sharp, pos, r, corners, bary, rot, *, sun_gl, caster):
+def object_light(model, lighting, vd, sharp, pos, r, nv, corners, bary, rot, *, sun_gl,
+                 caster):  # fmt: skip
     """The object's radiance seen along the reflected directions ``r (P, 3)`` from points
-    ``pos (P, 3)`` of triangles with ``corners (P, 3)`` and barycentrics ``bary (P, 3)``, from
-    the corners' hit tiles (module docstring).
+    ``pos (P, 3)`` (``n.v`` ``nv (P,)``) of triangles with ``corners (P, 3)`` and barycentrics
+    ``bary (P, 3)``, from the corners' hit tiles (module docstring).
 
     Returns
     -------
@@ -289,10 +342,13 @@ def object_light(model, lighting, vd, sharp, pos, r, corners, bary, rot, *, sun_
         h = ((f >= 0) & (bary[:, i] > 0)).nonzero().squeeze(-1)
         if h.numel() == 0:
             continue
-        q = pos[h] + dist[corners[h, i], texel[h]].float()[:, None] * r[h]
+        t = dist[corners[h, i], texel[h]].float()
+        q = pos[h] + t[:, None] * r[h]
+        spread = torch.stack([nv[h], t], -1)
         hit = _hit_light(
-            model, lighting, vd, sharp, f[h], q, r[h], rot, sun_gl=sun_gl, caster=caster
-        )
+            model, lighting, vd, sharp, f[h], q, r[h], rot, sun_gl=sun_gl, caster=caster,
+            spread=spread,
+        )  # fmt: skip
         light[h] += bary[h, i, None] * hit
         weight[h] += bary[h, i]
     return light, weight.clamp(0, 1)

@@ -176,7 +176,7 @@ def _glossy(
     # the object seen in the lobe where a corner's hit tile finds it; the environment in the
     # rest of it
     seen, weight = object_light(
-        model, lighting, vd, sharp, pos, r, c, b, rot, sun_gl=sun_gl, caster=caster
+        model, lighting, vd, sharp, pos, r, nv, c, b, rot, sun_gl=sun_gl, caster=caster
     )
     found = weight > 0
     vis = torch.where(found, hit_free_fraction(model.hits()[0].to(dev), c, b, r), 1.0)

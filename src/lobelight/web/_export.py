@@ -270,7 +270,7 @@ def _sharp_defines(model) -> dict:
         "VIS_RES": int(model.visibility().shape[-1]),
         "MIXTURE": MIXTURE,
         "ALBEDO_STEPS": ALBEDO_STEPS,
-        **{k: f"{x:.6e}" for k, x in SHARP_DEFINES.items()},
+        **{k: str(x) if isinstance(x, int) else f"{x:.6e}" for k, x in SHARP_DEFINES.items()},
     }
 
 

@@ -522,7 +522,7 @@ void main() {
         ivec3 cc;
         vec3 cb;
         corners(v_pos, cc, cb);
-        vec4 seen = object_light(v_pos, mirror, cc, cb);
+        vec4 seen = object_light(v_pos, mirror, nv, cc, cb);
         vec3 albedo = directional_albedo(nv);
         float vis = 1.0;
         vec3 hit = vec3(0.0);
@@ -531,7 +531,7 @@ void main() {
                   + cb.z * hit_free(cc.z, mirror);
             hit = seen.rgb / seen.a;
         }
-        vec3 env = sharp_lighting(rot_t * mirror, rot_t * across(n, mirror), nv);
+        vec3 env = sharp_lighting(rot_t * mirror, rot_t * across(n, mirror), nv, 0.0);
         c += albedo * (env * vis + (1.0 - vis) * hit);
         first = N_GAUSSIANS;
 #endif

@@ -141,14 +141,14 @@ vec3 across(vec3 n, vec3 r) {
 
 // sum_i a_i L(R; lam_i): the lighting of the atlas tex under the lobe's mixture at R, t the
 // plane of incidence's direction across R (both rotated); a microfacet lobe as two lookups of
-// sharpness lam_i / (n.v)^2 at R +- s_i t, s_i^2 = (1 - (n.v)^2) / lam_i (render/_reflection.py
-// shade, lobe_points)
-vec3 sharp_lighting_in(sampler2D tex, vec3 r, vec3 t, float nv) {
+// sharpness lam_i / (n.v)^2 at R +- s_i t, s_i^2 = (1 - (n.v)^2) / lam_i; each lookup's
+// variance grown by blur (render/_reflection.py shade, lobe_points)
+vec3 sharp_lighting_in(sampler2D tex, vec3 r, vec3 t, float nv, float blur) {
     vec3 acc = vec3(0.0);
     if (sharp_warp > 0.0) {
         float c = max(nv, SHARP_NV_MIN);
         for (int i = 0; i < MIXTURE; ++i) {
-            float lam = sharp_lam[i] / (c * c);
+            float lam = 1.0 / ((c * c) / sharp_lam[i] + blur);
             vec3 step = sqrt(max(1.0 - c * c, 0.0) / sharp_lam[i]) * t;
             acc += (0.5 * sharp_weight[i]) * (prefiltered_lookup_in(tex, normalize(r + step), lam)
                                               + prefiltered_lookup_in(tex, normalize(r - step), lam));
@@ -156,12 +156,24 @@ vec3 sharp_lighting_in(sampler2D tex, vec3 r, vec3 t, float nv) {
         return acc;
     }
     for (int i = 0; i < MIXTURE; ++i) {
-        acc += sharp_weight[i] * prefiltered_lookup_in(tex, r, sharp_lam[i]);
+        acc += sharp_weight[i] * prefiltered_lookup_in(tex, r, 1.0 / (1.0 / sharp_lam[i] + blur));
     }
     return acc;
 }
 
-vec3 sharp_lighting(vec3 r, vec3 t, float nv) { return sharp_lighting_in(atlas, r, t, nv); }
+vec3 sharp_lighting(vec3 r, vec3 t, float nv, float blur) {
+    return sharp_lighting_in(atlas, r, t, nv, blur);
+}
+
+// the variance of the directions a hit's own reflection is seen from: the pixel's lobe's
+// core Gaussian, grown by the hit's curvature over the distance (render/_reflection.py
+// hit_spread)
+float hit_spread(float nv, float dist, float curvature) {
+    float var = 1.0 / sharp_lam[SPREAD_GAUSSIAN];
+    if (sharp_warp > 0.0) var /= max(nv, SHARP_NV_MIN);
+    float g = 1.0 + 2.0 * curvature * dist;
+    return var * g * g;
+}
 
 #if HAS_SUN
 float sun_visibility(vec3 pos, vec3 n, vec3 ng);  // prt.glsl
@@ -178,10 +190,18 @@ ivec2 tile_texel(int v, vec3 d) {
     return ivec2(v % vis_per_row, v / vis_per_row) * VIS_RES + x;
 }
 
-// the object's radiance towards -r at point q near triangle f (render/_reflection.py
-// _hit_light): its direct sharp reflection, diffuse colour, indirect Gaussians (the current
-// view's, re-based on its reflected direction) and the sun's light
-vec3 hit_light(int f, vec3 q, vec3 r) {
+// a triangle's curvature, radians per unit length: the mean over its edges of the corners'
+// normals' turn over the edge's length (render/_reflection.py face_curvature)
+float face_curvature(vec3 p0, vec3 p1, vec3 p2, vec3 n0, vec3 n1, vec3 n2) {
+    return (length(n0 - n1) / max(length(p0 - p1), 1e-30) + length(n1 - n2) / max(length(p1 - p2), 1e-30)
+            + length(n2 - n0) / max(length(p2 - p0), 1e-30)) / 3.0;
+}
+
+// the object's radiance towards -r at point q near triangle f, dist from the pixel whose n.v
+// is nv_px (render/_reflection.py _hit_light): its direct sharp reflection (blurred by the
+// pixel's lobe, hit_spread), diffuse colour, indirect Gaussians (the current view's, re-based
+// on its reflected direction) and the sun's light
+vec3 hit_light(int f, vec3 q, vec3 r, float nv_px, float dist) {
     ivec3 c;
     vec3 b;
     triangle_at(f, q, c, b);
@@ -189,16 +209,19 @@ vec3 hit_light(int f, vec3 q, vec3 r) {
     vec3 p0 = texelFetch(pos_tex, t0, 0).xyz;
     vec3 p1 = texelFetch(pos_tex, t1, 0).xyz;
     vec3 p2 = texelFetch(pos_tex, t2, 0).xyz;
+    vec3 n0 = texelFetch(nrm_tex, t0, 0).xyz;
+    vec3 n1 = texelFetch(nrm_tex, t1, 0).xyz;
+    vec3 n2 = texelFetch(nrm_tex, t2, 0).xyz;
     vec3 pos = b.x * p0 + b.y * p1 + b.z * p2;
-    vec3 n = normalize(b.x * texelFetch(nrm_tex, t0, 0).xyz + b.y * texelFetch(nrm_tex, t1, 0).xyz
-                       + b.z * texelFetch(nrm_tex, t2, 0).xyz);
+    vec3 n = normalize(b.x * n0 + b.y * n1 + b.z * n2);
     vec3 v = -r;
     float nvs = dot(n, v);
     vec3 rh = 2.0 * nvs * n - v;
     float nv = max(nvs, 0.0);
     float vis = visible_fraction(c, b, rh);
     vec3 albedo = directional_albedo(nv);
-    vec3 light = albedo * sharp_lighting(rot_t * rh, rot_t * across(n, rh), nv) * vis;
+    float blur = hit_spread(nv_px, dist, face_curvature(p0, p1, p2, n0, n1, n2));
+    vec3 light = albedo * sharp_lighting(rot_t * rh, rot_t * across(n, rh), nv, blur) * vis;
 #if ALBEDO_TEX
     // the transfer is per unit albedo: the hit's vertices' own albedos (render/_albedo.py
     // hit_diffuse_light)
@@ -245,13 +268,13 @@ vec3 hit_light(int f, vec3 q, vec3 r) {
     return light;
 }
 
-// the object seen along r from point p of corners c and barycentrics b: the corners' hits'
-// light weighted by their barycentrics, summed (rgb), and the corners' weight (a)
+// the object seen along r from point p (n.v nv) of corners c and barycentrics b: the corners'
+// hits' light weighted by their barycentrics, summed (rgb), and the corners' weight (a)
 // (render/_reflection.py object_light). One call site of hit_light in
 // a loop over a bit mask of the corners with a hit: a loop over the three corners is unrolled
 // into three copies, and a rasteriser that runs both sides of a branch under a mask (llvmpipe)
 // runs every copy for every pixel
-vec4 object_light(vec3 p, vec3 r, ivec3 c, vec3 b) {
+vec4 object_light(vec3 p, vec3 r, float nv, ivec3 c, vec3 b) {
     ivec2 t0 = tile_texel(c.x, r), t1 = tile_texel(c.y, r), t2 = tile_texel(c.z, r);
     ivec3 f = ivec3(texelFetch(hit_face_tex, t0, 0).r, texelFetch(hit_face_tex, t1, 0).r,
                     texelFetch(hit_face_tex, t2, 0).r);
@@ -266,7 +289,7 @@ vec4 object_light(vec3 p, vec3 r, ivec3 c, vec3 b) {
         int face = i == 0 ? f.x : (i == 1 ? f.y : f.z);
         float weight = i == 0 ? b.x : (i == 1 ? b.y : b.z);
         float dist = texelFetch(hit_dist_tex, t, 0).r;
-        light += weight * hit_light(face, p + dist * r, r);
+        light += weight * hit_light(face, p + dist * r, r, nv, dist);
         w += weight;
     }
     return vec4(light, min(w, 1.0));
