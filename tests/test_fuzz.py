@@ -39,7 +39,7 @@ import OpenEXR
 import pytest
 import torch
 import trimesh
-from hypothesis import HealthCheck, Phase, given, settings
+from hypothesis import HealthCheck, Phase, example, given, settings
 from hypothesis import strategies as st
 
 from conftest import tiny_table_params
@@ -559,6 +559,8 @@ def _load_asset(path: Path):
 
 @fuzz(200)
 @given(ops=byte_ops)
+# found by the long run: a UV's top byte set to 0xFF, -1.7e38, overflowed the texture read
+@example(ops=[("set", -225, 255)])
 def test_fuzz_glb_bytes(gltf_files, ops):
     p = gltf_files["dir"] / "m.glb"  # beside albedo.png, which it names
     p.write_bytes(mutate_bytes(gltf_files["glb"], ops))

@@ -397,6 +397,22 @@ def test_sample_texture_bilinear_and_wraps(wrap):
     assert np.allclose(got.numpy(), want, atol=1e-5)  # float32 texels and weights
 
 
+@pytest.mark.parametrize("wrap", ["repeat", "clamp", "mirror"])
+def test_sample_texture_at_huge_uvs_is_finite(wrap):
+    """A UV a file may hold, -1.7e38 (float32, an even integer): times the texture's height it
+    overflows float32. It reads as its wrapped equivalent, 0 for repeat and mirror (a whole
+    number of periods) and the edge for clamp (which is where 0 reads)."""
+    img = np.random.default_rng(4).random((4, 4, 3))
+    t = _texture(img, wrap_s=wrap, wrap_t=wrap)
+    uv = torch.tensor([[0.3, -1.7014118e38], [1.7014118e38, 0.6]], dtype=torch.float32)
+    got = scene.sample_texture(t, uv)
+    want = scene.sample_texture(t, torch.tensor([[0.3, 0.0], [0.0, 0.6]]))
+    assert bool(torch.isfinite(got).all())
+    if wrap == "clamp":  # the far side's edge for +1.7e38
+        want[1] = scene.sample_texture(t, torch.tensor([[1.0, 0.6]]))[0]
+    torch.testing.assert_close(got, want)
+
+
 def test_sample_texture_texel_centres_and_nearest():
     img = np.arange(12, dtype=np.float64).reshape(3, 4, 1)
     t = _texture(img)

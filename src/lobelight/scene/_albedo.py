@@ -38,7 +38,7 @@ import numpy as np
 import torch
 
 from ..errors import InputError
-from ._gltf import Texture, sample_texture, wrap_texels
+from ._gltf import Texture, sample_texture, wrap_texels, wrap_uv
 
 __all__ = ["WRAP_MODES", "AlbedoTexture", "albedo_texture", "srgb_decode", "srgb_encode"]
 
@@ -196,9 +196,9 @@ class AlbedoTexture:
         h, w = int(img.shape[0]), int(img.shape[1])
         a = self.transform[i].to(uv)
         uv = uv @ a[:, :2].T + a[:, 2]
-        x = uv[:, 0] * w - 0.5  # texel centres at integer + 0.5
-        y = uv[:, 1] * h - 0.5
         ws, wt = (WRAP_MODES[int(m)] for m in self.wrap[i])
+        x = wrap_uv(uv[:, 0], ws) * w - 0.5  # texel centres at integer + 0.5
+        y = wrap_uv(uv[:, 1], wt) * h - 0.5
         table = _DECODE.to(uv.device)
         flat = img.to(uv.device).reshape(-1, 3).long()
 

@@ -62,6 +62,7 @@ __all__ = [
     "read_gltf",
     "sample_texture",
     "wrap_texels",
+    "wrap_uv",
 ]
 
 GLTF_SUFFIXES = (".gltf", ".glb")
@@ -817,6 +818,20 @@ def wrap_texels(i: torch.Tensor, n: int, mode: str) -> torch.Tensor:
     return torch.remainder(i, n)
 
 
+def wrap_uv(u: torch.Tensor, mode: str) -> torch.Tensor:
+    """Texture coordinates ``u`` moved by whole periods of the wrap ``mode`` into [0, 1)
+    (repeat), [0, 2) (mirror) or clamped to [-1, 2] (clamp): the same texels and weights,
+    in float64 while moving (exact for the UVs a texture is read at)."""
+    d = u.double()
+    if mode == "clamp":
+        d = d.clamp(-1.0, 2.0)
+    elif mode == "mirror":
+        d = d - 2.0 * torch.floor(d / 2.0)
+    else:
+        d = d - torch.floor(d)
+    return d.to(u.dtype)
+
+
 def sample_texture(
     texture: Texture, uv: torch.Tensor, *, filter: str | None = None
 ) -> torch.Tensor:
@@ -830,9 +845,11 @@ def sample_texture(
     if texture.uv_transform is not None:
         a = torch.tensor(texture.uv_transform, dtype=uv.dtype, device=uv.device)  # (2, 3)
         uv = uv @ a[:, :2].T + a[:, 2]
-    x = uv[..., 0] * w - 0.5  # texel centres at integer + 0.5
-    y = uv[..., 1] * h - 0.5
     s = texture.sampler
+    # into one period of the wrap first: a UV of 1e38 (a file may hold one) times the width
+    # overflows float32, and its texel index int64
+    x = wrap_uv(uv[..., 0], s.wrap_s) * w - 0.5  # texel centres at integer + 0.5
+    y = wrap_uv(uv[..., 1], s.wrap_t) * h - 0.5
     if (filter or s.mag_filter) == "nearest":
         ix = wrap_texels(torch.floor(x + 0.5).long(), w, s.wrap_s)
         iy = wrap_texels(torch.floor(y + 0.5).long(), h, s.wrap_t)
