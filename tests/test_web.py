@@ -160,6 +160,33 @@ def test_the_folder_reads_back_as_the_model(sky, tmp_path):
     torch.testing.assert_close(back, env_sh, rtol=0, atol=1e-5 * float(env_sh.abs().max()))
 
 
+def test_large_arrays_travel_gzipped_and_damaged_ones_are_refused():
+    """An array past GZIP_MIN_BYTES that compresses is stored gzipped and reads back exactly;
+    one that does not (random bytes) stays raw; a record whose gzip data is damaged, inflates
+    past its shape, or carries bytes after it gets one InputError naming it."""
+    from lobelight.web import _format
+
+    flat = np.zeros((64, 1024), np.uint8)
+    flat[:, ::7] = 255  # tiles of runs: compresses
+    rec = _format.encode_array(flat)
+    assert rec.get("gzip") is True and len(rec["b64"]) < 0.2 * flat.nbytes
+    np.testing.assert_array_equal(_format.decode_array(rec, "tiles"), flat)
+    noise = np.random.default_rng(0).integers(0, 256, (64, 1024), dtype=np.uint8)
+    raw = _format.encode_array(noise)
+    assert "gzip" not in raw
+    np.testing.assert_array_equal(_format.decode_array(raw, "noise"), noise)
+    small = np.arange(10, dtype="<f4")  # below the threshold: raw
+    assert "gzip" not in _format.encode_array(small)
+    packed = base64.b64decode(rec["b64"])
+    bad = {**rec, "b64": base64.b64encode(packed[:20] + b"x" * 40 + packed[60:]).decode()}
+    big = {**rec, "shape": [32, 1024]}  # inflates to twice its shape
+    extra = {**rec, "b64": base64.b64encode(packed + b"tail").decode()}
+    for r, says in ((bad, "gzip"), (big, "inflates"), (extra, "after")):
+        with pytest.raises(InputError, match=says) as e:
+            _format.decode_array(r, "model.js: vis_tiles")
+        assert "vis_tiles" in str(e.value)
+
+
 def test_the_folder_is_written_atomically_and_never_over_an_input(sky, tmp_path):
     m = analytic_model(1)
     out = tmp_path / "v"
@@ -500,6 +527,25 @@ def test_a_sharp_metal_is_shaded_per_pixel_as_the_torch_path(browser, tmp_path, 
 
 #: The 4-neighbours of a pixel, (dy, dx).
 NEIGHBOURS = ((0, 1), (0, -1), (1, 0), (-1, 0))
+
+
+@needs_browser
+def test_the_tile_atlas_fits_the_devices_largest_texture(browser, sky, tmp_path):
+    """The page lays the vertices' 32 x 32 tiles out in rows of the desktop's 4096 texels
+    (128 tiles), narrower on a device whose largest texture is smaller, and wider where the
+    rows would not fit: 50K vertices at SwiftShader's 8192 take 196 tiles across (6,272
+    texels) in 256 rows (8,192 texels), not 128 across in 391 rows (12,512 texels)."""
+    web.export_web(analytic_model(1), tmp_path / "v", [sky], base_res=32)
+    page = open_page(browser, tmp_path / "v")
+    per_row = "a => window.lobelight._tilesPerRow(...a)"
+    assert page.evaluate(per_row, [10_000, 32, 4096, 8192]) == 128
+    assert page.evaluate(per_row, [50_000, 32, 4096, 8192]) == 196
+    assert page.evaluate(per_row, [5_000, 32, 4096, 2048]) == 64
+    assert page.evaluate(per_row, [50, 32, 4096, 8192]) == 50
+    for nv, most in ((50_000, 8192), (60_000, 8192), (4_000, 2048)):
+        p = page.evaluate(per_row, [nv, 32, 4096, most])
+        assert p * 32 <= most and -(-nv // p) * 32 <= most
+    page.close()
 
 
 @needs_browser

@@ -22,7 +22,10 @@
   // ---------------------------------------------------------------------------------------
   // data
 
+  // base64 to bytes: the browser's own decoder where it has one (no intermediate string),
+  // else atob and a copy; either way a fresh buffer at offset 0, so typed views align
   function bytesOf(b64) {
+    if (typeof Uint8Array.fromBase64 === "function") return Uint8Array.fromBase64(b64);
     const s = atob(b64);
     const n = s.length;
     const out = new Uint8Array(n);
@@ -35,17 +38,35 @@
     "<i2": Int16Array, "<i4": Int32Array,
   };
 
-  function decode(rec) {
-    const bytes = bytesOf(rec.b64);
+  // one array record: its bytes inflated natively where the exporter gzipped them
+  // (lobelight/web/_format.py)
+  async function decode(rec) {
+    let bytes = bytesOf(rec.b64);
+    if (rec.gzip) {
+      const stream = new Blob([bytes]).stream().pipeThrough(new DecompressionStream("gzip"));
+      bytes = new Uint8Array(await new Response(stream).arrayBuffer());
+    }
     const T = ARRAY_TYPES[rec.dtype];
     if (!T) throw new Error("unknown array type " + rec.dtype);
     return { data: new T(bytes.buffer), shape: rec.shape };
   }
 
-  function decodeAll(doc) {
+  async function decodeAll(doc) {
+    const keys = Object.keys(doc.arrays);
+    const arrays = await Promise.all(keys.map(function (k) { return decode(doc.arrays[k]); }));
     const out = {};
-    for (const k in doc.arrays) out[k] = decode(doc.arrays[k]);
+    keys.forEach(function (k, i) { out[k] = arrays[i]; });
     return out;
+  }
+
+  // tiles of r x r texels per row of the tile atlas for nv vertices: the desktop's row (w
+  // texels across), narrowed to the device's largest texture (maxTex) and widened where its
+  // rows would not fit it (SwiftShader's 8192: 50K vertices take 12,576 rows at 4096 across)
+  function tilesPerRow(nv, r, w, maxTex) {
+    const most = Math.max(1, Math.floor(maxTex / r));  // tiles across the largest texture
+    let perRow = Math.max(1, Math.min(nv, Math.floor(w / r), most));
+    if (Math.ceil(nv / perRow) > most) perRow = Math.min(most, Math.ceil(nv / most));
+    return perRow;
   }
 
   function loadScript(src) {
@@ -174,14 +195,15 @@
   const CURVE_NEUTRAL = 2;
 
   class Viewer {
-    constructor(gl, model, shaders, options) {
+    // model: the model file's header and its decoded arrays (decodeAll)
+    constructor(gl, model, arrays, shaders, options) {
       this.gl = gl;
       this.h = model.header;
       FRAME = this.h.frame_layout;
       this.shaders = shaders;
       this.options = options;
       this.maxTex = Math.min(gl.getParameter(gl.MAX_TEXTURE_SIZE), options.maxTexture || 1e9);
-      this.a = decodeAll(model);
+      this.a = arrays;
       this.programs = {};
       this.envs = [];
       this.env = null;
@@ -387,18 +409,20 @@
     uploadSharp() {
       const gl = this.gl, a = this.a, h = this.h, r = h.sharp.vis_res, w = h.tex_width;
       const nv = h.n_vertices;
-      const perRow = Math.max(1, Math.min(nv, Math.floor(w / r)));
+      const perRow = tilesPerRow(nv, r, w, this.maxTex);
       this.visPerRow = perRow;
       const vis = this.tileAtlas(a.vis_tiles.data, perRow, r);
-      // the hit tiles, stored as their texels that see the object: -1 (none) elsewhere
-      const face = new Int32Array(nv * r * r).fill(-1), dist = new Uint16Array(nv * r * r);
-      const at = a.hit_index.data;
+      // the hit tiles, stored as their texels that see the object: placed straight into the
+      // atlas, -1 (none) elsewhere
+      const hf = { data: new Int32Array(vis.w * vis.h).fill(-1), w: vis.w, h: vis.h };
+      const hd = { data: new Uint16Array(vis.w * vis.h), w: vis.w, h: vis.h };
+      const at = a.hit_index.data, rr = r * r;
       for (let i = 0; i < at.length; ++i) {
-        face[at[i]] = a.hit_face.data[i];
-        dist[at[i]] = a.hit_dist.data[i];
+        const v = Math.floor(at[i] / rr), t = at[i] - v * rr, y = Math.floor(t / r);
+        const p = (Math.floor(v / perRow) * r + y) * vis.w + (v % perRow) * r + (t - y * r);
+        hf.data[p] = a.hit_face.data[i];
+        hd.data[p] = a.hit_dist.data[i];
       }
-      const hf = this.tileAtlas(face, perRow, r);
-      const hd = this.tileAtlas(dist, perRow, r);
       if (vis.w > this.maxTex || vis.h > this.maxTex) {
         throw new LimitError("This model's visibility tiles need an image of " + vis.w + " × " +
                              vis.h + " texels; this device's largest texture is " +
@@ -643,9 +667,9 @@
       gl.bindVertexArray(null);
     }
 
-    // one map: its chain's atlas, its background cube, its SH and sun
-    addEnv(doc) {
-      const gl = this.gl, h = doc.header, arrays = decodeAll(doc);
+    // one map: its chain's atlas, its background cube, its SH and sun (arrays: decodeAll's)
+    addEnv(doc, arrays) {
+      const gl = this.gl, h = doc.header;
       const at = arrays.atlas;
       const [ah, aw] = at.shape;
       if (aw > this.maxTex || ah > this.maxTex) {
@@ -1125,6 +1149,7 @@
     return btoa(s);
   }
   api._floats = decodeB64Floats;
+  api._tilesPerRow = tilesPerRow;
 
   // the interactive state: an orbit about the exported camera's target, a light turn about +y
   function makeOrbit(cam) {
@@ -1334,7 +1359,9 @@
     }
     let viewer;
     try {
-      viewer = new Viewer(gl, store.model, store.shaders, options);
+      const arrays = await decodeAll(store.model);
+      timings.decoded = performance.now();
+      viewer = new Viewer(gl, store.model, arrays, store.shaders, options);
       timings.model = performance.now();
     } catch (e) {
       showMessage(e.message);
@@ -1356,7 +1383,8 @@
     api.setEnv = async function (i) {
       if (!viewer.envs[i]) {
         for (let k = viewer.envs.length; k <= i; ++k) {
-          viewer.addEnv(await loadScript(viewer.h.envs[k].file));
+          const doc = await loadScript(viewer.h.envs[k].file);
+          viewer.addEnv(doc, await decodeAll(doc));
         }
       }
       viewer.useEnv(i);
