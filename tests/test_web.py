@@ -548,6 +548,19 @@ def test_the_tile_atlas_fits_the_devices_largest_texture(browser, sky, tmp_path)
     page.close()
 
 
+def _page_and_torch(browser, m, folder, cam, size, *, diffuse, glossy):
+    """``m`` exported under the built-in sky to ``folder`` and rendered at ``size`` squared by
+    the page's test hook and by the torch path, with the given parts: (got, want), (H, W, 3)."""
+    lighting = render.Lighting(envmap.builtin(height=64), base_res=16)
+    web.export_web(m, folder, [lighting])
+    page = open_page(browser, folder)
+    got = render_in_page(page, cam, 0.0, size=(size, size), diffuse=diffuse, glossy=glossy)
+    page.close()
+    r = render.Renderer(m, lighting, size, size, backend="torch", samples=1)
+    want = r.render(cam, diffuse=diffuse, glossy=glossy, background=False).numpy()
+    return got[..., :3], want
+
+
 @needs_browser
 def test_the_page_reads_albedo_textures_as_the_torch_path(browser, tmp_path):
     """A bilinear, repeating checker texture under a UV transform, magnified
@@ -561,13 +574,7 @@ def test_the_page_reads_albedo_textures_as_the_torch_path(browser, tmp_path):
     sc.albedo.transform = torch.tensor([[[1.5, 0.0, 0.25], [0.0, 1.5, -0.1]]] * 2)
     sc.albedo.wrap = torch.tensor([[0, 0], [2, 1]])
     m = fit.fit_model(sc, 1, indirect_paths=0, bounces=0, progress=None)
-    lighting = render.Lighting(envmap.builtin(height=64), base_res=16)
-    web.export_web(m, tmp_path / "v", [lighting])
-    page = open_page(browser, tmp_path / "v")
-    got = render_in_page(page, cam, 0.0, size=(size, size), glossy=False)[..., :3]
-    page.close()
-    r = render.Renderer(m, lighting, size, size, backend="torch", samples=1)
-    want = r.render(cam, diffuse=True, glossy=False, background=False).numpy()
+    got, want = _page_and_torch(browser, m, tmp_path / "v", cam, size, diffuse=True, glossy=False)
     inner = np.isfinite(checker._pixel_uv()).all(-1)
     d = np.abs(got - want)[inner]
     assert d.max() < 0.01 * want[inner].max()
@@ -584,13 +591,7 @@ def test_the_page_reads_the_specular_colour_per_texel_as_the_torch_path(browser,
     p = tmp_path / "logo.glb"
     checker._logo_glb(p)
     m = fit.fit_model(scene.load(str(p)), 1, indirect_paths=0, bounces=0, progress=None)
-    lighting = render.Lighting(envmap.builtin(height=64), base_res=16)
-    web.export_web(m, tmp_path / "v", [lighting])
-    page = open_page(browser, tmp_path / "v")
-    got = render_in_page(page, cam, 0.0, size=(size, size), diffuse=False)[..., :3]
-    page.close()
-    r = render.Renderer(m, lighting, size, size, backend="torch", samples=1)
-    want = r.render(cam, diffuse=False, glossy=True, background=False).numpy()
+    got, want = _page_and_torch(browser, m, tmp_path / "v", cam, size, diffuse=False, glossy=True)
     u = checker._pixel_uv()[..., 0]
     away = np.isfinite(u) & (np.abs(u - 0.5) > 0.05)
     d = np.abs(got - want)[away]
