@@ -1090,9 +1090,9 @@ class GLRenderer:
     def _data_texture(self, img: np.ndarray):
         import moderngl  # optional (the gl extra)
 
-        t = self.ctx.texture(
-            (img.shape[1], img.shape[0]), 4, img.astype(np.float32).tobytes(), dtype="f4"
-        )
+        # the array itself (its buffer): no copy where it is float32 and contiguous already
+        data = np.ascontiguousarray(img, dtype=np.float32)
+        t = self.ctx.texture((img.shape[1], img.shape[0]), 4, data, dtype="f4")
         t.filter = (moderngl.NEAREST, moderngl.NEAREST)
         return t
 
