@@ -258,26 +258,11 @@ def test_a_metallic_texture_shows_in_the_diffuse_albedo_per_pixel(tmp_path):
     texels) has glTF's diffuse albedo ``baseColorFactor x base x (1 - metallicFactor x B)`` at
     each pixel: its base colour on the left, none of it where the metal is; a per-vertex
     average of the metallic part would give both halves the same."""
-    mr = np.zeros((2, 2, 3), np.uint8)
-    mr[:, 1, 2] = 255  # B = 1 (metal) in the right column
-    mats = [
-        {"name": "logo", "pbrMetallicRoughness": {
-            "baseColorFactor": [*PAINTED_FACTOR, 1.0], "baseColorTexture": {"index": 0},
-            "metallicFactor": 1.0, "roughnessFactor": 0.5,
-            "metallicRoughnessTexture": {"index": 1}}},
-    ]  # fmt: skip
-    base = np.broadcast_to(np.uint8(PAINTED_SRGB), (2, 2, 3))
-    nearest = {"magFilter": 9728, "minFilter": 9728}
     p = tmp_path / "logo.glb"
-    write_glb(p, [_quad(0.0, material=0)], mats, [_png(base), _png(mr)], [nearest, nearest])
+    _logo_glb(p)  # the diffuse albedo does not depend on its roughness
     a = scene.load(str(p)).albedo
-    # the quad's corners 0, 1, 2 have UVs (0, 1), (1, 1), (1, 0): near corner 0 is the left
-    # column, near corner 2 the right one
-    c = torch.tensor([[0, 1, 2], [0, 1, 2]])
-    b = torch.tensor([[0.8, 0.1, 0.1], [0.1, 0.1, 0.8]])
-    got = a.at(c, b).double()
-    lin = srgb_decode(torch.tensor(PAINTED_SRGB, dtype=torch.float64) / 255)
-    want_left = torch.tensor(PAINTED_FACTOR, dtype=torch.float64) * lin
+    got = a.at(LOGO_CORNERS, LOGO_BARY).double()
+    want_left = _painted()
     # the left texel is the base colour's own 8-bit codes, decoded: float32 rounding
     torch.testing.assert_close(got[0], want_left, rtol=1e-5, atol=0)
     assert torch.equal(got[1], torch.zeros(3, dtype=torch.float64))
@@ -311,6 +296,19 @@ def _logo_glb(path, *, mag: int = 9728) -> None:
     write_glb(path, [_quad(0.0, material=0)], mats, [_png(base), _png(mr)], [s, s])
 
 
+#: Two points of the logo quad's first triangle, as (corners, barycentrics): the quad's
+#: corners 0, 1, 2 have UVs (0, 1), (1, 1), (1, 0), so near corner 0 is the left (dielectric)
+#: column and near corner 2 the right (metal) one.
+LOGO_CORNERS = torch.tensor([[0, 1, 2], [0, 1, 2]])
+LOGO_BARY = torch.tensor([[0.8, 0.1, 0.1], [0.1, 0.1, 0.8]])
+
+
+def _painted() -> torch.Tensor:
+    """The logo's painted base colour, linear: its factor times its decoded 8-bit texel."""
+    lin = srgb_decode(torch.tensor(PAINTED_SRGB, dtype=torch.float64) / 255)
+    return torch.tensor(PAINTED_FACTOR, dtype=torch.float64) * lin
+
+
 def test_a_metallic_texture_gives_each_texel_its_f0(tmp_path):
     """glTF's specular colour at normal incidence per texel: ``F0 = 0.04 (1 - m) + base m``
     with ``m = metallicFactor x B`` and ``base`` the base colour factor times its texture:
@@ -318,11 +316,8 @@ def test_a_metallic_texture_gives_each_texel_its_f0(tmp_path):
     p = tmp_path / "logo.glb"
     _logo_glb(p)
     a = scene.load(str(p)).albedo
-    c = torch.tensor([[0, 1, 2], [0, 1, 2]])
-    b = torch.tensor([[0.8, 0.1, 0.1], [0.1, 0.1, 0.8]])
-    got = a.specular_at(c, b).double()
-    lin = srgb_decode(torch.tensor(PAINTED_SRGB, dtype=torch.float64) / 255)
-    metal = torch.tensor(PAINTED_FACTOR, dtype=torch.float64) * lin
+    got = a.specular_at(LOGO_CORNERS, LOGO_BARY).double()
+    metal = _painted()
     # stored as 8-bit sRGB: half a code's step, relative, is about 2.4 x 0.5 / code (the
     # decode's slope): 2.1 % at 0.04 (code 57), under 1 % for the paint
     want0 = torch.full((3,), 0.04, dtype=torch.float64)
@@ -353,9 +348,7 @@ def test_the_glossy_light_follows_the_texels_f0(tmp_path, backend):
     left = int(np.nanargmax(np.where(u < 0.5, u, np.nan)))
     right = left + 1
     assert u[right] > 0.5
-    c = torch.tensor([[0, 1, 2], [0, 1, 2]])
-    b = torch.tensor([[0.8, 0.1, 0.1], [0.1, 0.1, 0.8]])  # a left and a right texel
-    f0 = sc.albedo.specular_at(c, b).double().numpy()
+    f0 = sc.albedo.specular_at(LOGO_CORNERS, LOGO_BARY).double().numpy()  # left, right
     want = f0[1] / f0[0]
     got = img[row, right] / img[row, left]
     # the two pixels' vertex blends differ by one pixel's step of 64 across the quad (under

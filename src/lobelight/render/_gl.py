@@ -39,13 +39,7 @@ from ..model import VISIBILITY_RES
 from ._albedo import F0_MIN, specular_f0
 from ._gl_albedo import albedo_array, albedo_uniforms
 from ._lighting import Lighting
-from ._reflection import (
-    INDIRECT_SCALE_MAX,
-    OCCLUDED_FLOOR,
-    SHARP_NV_MIN,
-    SPREAD_GAUSSIAN,
-    SUN_RESOLVED,
-)
+from ._reflection import SUN_RESOLVED, sharp_shader_defines
 from ._sun_glossy import (
     sun_glossy_supported,
     sun_glossy_uniforms,
@@ -640,11 +634,7 @@ class GLRenderer:
             "VIS_RES": VISIBILITY_RES,
             "MIXTURE": MIXTURE,
             "ALBEDO_STEPS": ALBEDO_STEPS,
-            "OCCLUDED_FLOOR": f"{OCCLUDED_FLOOR:.6e}",
-            "SHARP_NV_MIN": f"{SHARP_NV_MIN:.6e}",
-            "SUN_RESOLVED": f"{SUN_RESOLVED:.6e}",
-            "INDIRECT_SCALE_MAX": f"{INDIRECT_SCALE_MAX:.6e}",
-            "SPREAD_GAUSSIAN": SPREAD_GAUSSIAN,
+            **sharp_shader_defines(),
             "SHADOW_SAMPLES": SHADOW_SAMPLES,
             "BLOCKER_SAMPLES": BLOCKER_SAMPLES,
             **geo_defines,
@@ -1243,7 +1233,7 @@ class GLRenderer:
                 self.whole_atlas.use(_WHOLE_ATLAS_UNIT)
             if self.albedo_tex is not None:
                 self.albedo_tex.use(_ALBEDO_UNIT)
-            if self.albedo_tex is not None and self.specular_tex is not None:
+            if self.specular_tex is not None:  # set only beside albedo_tex
                 self.specular_tex.use(_ALBEDO_UNIT + 1)
             if self.sharp is not None:
                 self.vis_tex.use(_VIS_UNIT)

@@ -65,6 +65,7 @@ from ._sun_shadow import disc_radius, disc_visibility
 __all__ = [
     "INDIRECT_SCALE_MAX",
     "OCCLUDED_FLOOR",
+    "SHARP_DEFINES",
     "SHARP_NV_MIN",
     "SPREAD_GAUSSIAN",
     "SUN_RESOLVED",
@@ -76,6 +77,7 @@ __all__ = [
     "lobe_points",
     "object_light",
     "shade",
+    "sharp_shader_defines",
     "sun_sharp",
     "visible_fraction",
 ]
@@ -100,6 +102,21 @@ OCCLUDED_FLOOR = 0.05
 #: Shadow rays from a hit point are lifted off its triangle by this fraction of the mesh's
 #: diagonal (as the pixel's own, render/_torch.py).
 HIT_SHADOW_OFFSET = 1e-4
+#: The constants ``reflection.glsl`` takes as defines, by name: numbers, and the index
+#: ``SPREAD_GAUSSIAN`` (an int); :func:`sharp_shader_defines` writes them as shader text.
+SHARP_DEFINES = {
+    "OCCLUDED_FLOOR": OCCLUDED_FLOOR,
+    "SHARP_NV_MIN": SHARP_NV_MIN,
+    "SUN_RESOLVED": SUN_RESOLVED,
+    "INDIRECT_SCALE_MAX": INDIRECT_SCALE_MAX,
+    "SPREAD_GAUSSIAN": SPREAD_GAUSSIAN,
+}
+
+
+def sharp_shader_defines() -> dict[str, str | int]:
+    """:data:`SHARP_DEFINES` as a shader loader's defines: numbers in exponent notation,
+    the index as it is."""
+    return {k: x if isinstance(x, int) else f"{x:.6e}" for k, x in SHARP_DEFINES.items()}
 
 
 def lobe_points(sharp: SharpLobe, r: torch.Tensor, n: torch.Tensor, nv: torch.Tensor,

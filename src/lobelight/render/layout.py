@@ -18,7 +18,7 @@ drift from the desktop's.
   geodesic neighbour).
 - The sharp reflection's constants, :data:`SHARP_DEFINES` (``reflection.glsl``'s defines:
   ``OCCLUDED_FLOOR``, ``SHARP_NV_MIN``, ``SUN_RESOLVED``, ``INDIRECT_SCALE_MAX``,
-  ``SPREAD_GAUSSIAN``).
+  ``SPREAD_GAUSSIAN``) and :func:`sharp_shader_defines` (them as shader text).
 - Shader text: :func:`stage_sources` (a file's two stages in a dialect), :func:`load_shader`.
 """
 
@@ -38,13 +38,7 @@ from ._gl import (
 )
 from ._gl_albedo import MAX_ALBEDO_LAYERS, MAX_ALBEDO_SIZE, albedo_array, albedo_uniforms
 from ._gltf_out import kept_records
-from ._reflection import (
-    INDIRECT_SCALE_MAX,
-    OCCLUDED_FLOOR,
-    SHARP_NV_MIN,
-    SPREAD_GAUSSIAN,
-    SUN_RESOLVED,
-)
+from ._reflection import SHARP_DEFINES, sharp_shader_defines
 from ._sun_glossy import (
     sun_glossy_supported,
     sun_glossy_uniforms,
@@ -53,16 +47,6 @@ from ._sun_glossy import (
     tail_scale,
 )
 from ._sun_shadow import BLOCKER_SAMPLES, SHADOW_SAMPLES, disc_radius
-
-#: The sharp reflection's shader defines (render/_reflection.py), by name: numbers, and the
-#: index ``SPREAD_GAUSSIAN`` (an int).
-SHARP_DEFINES = {
-    "OCCLUDED_FLOOR": OCCLUDED_FLOOR,
-    "SHARP_NV_MIN": SHARP_NV_MIN,
-    "SUN_RESOLVED": SUN_RESOLVED,
-    "INDIRECT_SCALE_MAX": INDIRECT_SCALE_MAX,
-    "SPREAD_GAUSSIAN": SPREAD_GAUSSIAN,
-}
 
 __all__ = [
     "BACKGROUND_RES",
@@ -85,6 +69,7 @@ __all__ = [
     "geodesic_tables",
     "kept_records",
     "load_shader",
+    "sharp_shader_defines",
     "specular_f0",
     "stage_sources",
     "sun_glossy_supported",

@@ -46,6 +46,7 @@ from ..render.layout import (
     gaussian_records,
     geodesic_tables,
     kept_records,
+    sharp_shader_defines,
     specular_f0,
     stage_sources,
     sun_glossy_supported,
@@ -261,7 +262,7 @@ def _sharp_defines(model) -> dict:
     """The defines of a sharp material's programs: the vertex table's width (the page's
     textures of per-vertex and per-face values wrap at :data:`lobelight.render.layout.TEX_WIDTH`)
     and rows, the tiles' resolution, the mixture's and albedo table's sizes, and
-    :data:`lobelight.render.layout.SHARP_DEFINES`."""
+    :func:`lobelight.render.layout.sharp_shader_defines`."""
     v = model.mesh.n_vertices
     return {
         "SHARP": 1,
@@ -270,7 +271,7 @@ def _sharp_defines(model) -> dict:
         "VIS_RES": int(model.visibility().shape[-1]),
         "MIXTURE": MIXTURE,
         "ALBEDO_STEPS": ALBEDO_STEPS,
-        **{k: str(x) if isinstance(x, int) else f"{x:.6e}" for k, x in SHARP_DEFINES.items()},
+        **sharp_shader_defines(),
     }
 
 
