@@ -159,7 +159,18 @@ from ._base import (
     from_dict,
     register,
 )
-from ._sharp import ALBEDO_SAMPLES, ALBEDO_STEPS, MIXTURE, SHARP_LAM, SharpLobe, sharp_lobe
+from ._sharp import (
+    ALBEDO_SAMPLES,
+    ALBEDO_STEPS,
+    MIXTURE,
+    SHARP_LAM,
+    SPLIT_ALPHA_RANGE,
+    SPLIT_ALPHAS,
+    VARYING_ALPHA_REF,
+    SharpLobe,
+    schlick_split,
+    sharp_lobe,
+)
 from .gltf import DIELECTRIC_F0, GGXSchlick, metallic_roughness
 from .lafortune import Lafortune
 from .lambert import Lambert
@@ -179,6 +190,9 @@ __all__ = [
     "MIXTURE",
     "REGISTRY",
     "SHARP_LAM",
+    "SPLIT_ALPHAS",
+    "SPLIT_ALPHA_RANGE",
+    "VARYING_ALPHA_REF",
     "Beckmann",
     "BlinnPhong",
     "CosineLobe",
@@ -192,6 +206,7 @@ __all__ = [
     "from_dict",
     "metallic_roughness",
     "register",
+    "schlick_split",
     "sharp_lobe",
 ]
 

@@ -486,12 +486,17 @@ def _reflection(m) -> str:
     """How the renderers shade the model's direct glossy light: per pixel for a sharp lobe
     (``lobelight.brdf.sharp_lobe``), with the object it sees shaded where it is seen, with or
     without its visibility and hit tiles in the file."""
-    if sharp_lobe(m.materials.specular) is None:
+    sl = sharp_lobe(m.materials.specular)
+    if sl is None:
         return "fitted Gaussians"
+    where = "per pixel"
+    if sl.sharp is not None:
+        n, v = int(sl.sharp.sum()), sl.sharp.shape[0]
+        where = f"per pixel at {n} of {v} vertices (the sharp ones), fitted Gaussians at the rest"
     tiles, hits = m.visibility_held, m.hits_held
     if tiles is None or hits is None:
-        return "per pixel (visibility and hit tiles computed from the mesh on first render)"
-    return f"per pixel (visibility and hit tiles {tiles.shape[1]}x{tiles.shape[2]} stored)"
+        return f"{where} (visibility and hit tiles computed from the mesh on first render)"
+    return f"{where} (visibility and hit tiles {tiles.shape[1]}x{tiles.shape[2]} stored)"
 
 
 def _interreflection(provenance: dict, glossy: bool = True) -> dict:

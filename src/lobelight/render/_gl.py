@@ -29,7 +29,14 @@ import numpy as np
 import torch
 
 from .. import model as model_module
-from ..brdf import ALBEDO_STEPS, MIXTURE, sharp_lobe
+from ..brdf import (
+    ALBEDO_STEPS,
+    MIXTURE,
+    SPLIT_ALPHA_RANGE,
+    SPLIT_ALPHAS,
+    VARYING_ALPHA_REF,
+    sharp_lobe,
+)
 from ..envmap import Prefiltered
 from ..errors import InputError
 from ..geometry import sphere
@@ -103,6 +110,9 @@ _SHARP_UNITS = (
 _TABLE_LOBE_UNIT = _VIS_UNIT + 9
 #: Texture unit of the albedo textures (albedo.glsl), after the vertex table's at most six.
 _ALBEDO_UNIT = _TABLE_LOBE_UNIT + 6
+#: Texture units of a glTF lobe varying per vertex (reflection.glsl ``lobe_tex``,
+#: ``split_tex``), after the albedo textures' two.
+_LOBE_UNIT = _ALBEDO_UNIT + 2
 #: Colour target texel types: float32 (what ``read`` returns exactly) and half float (display).
 HDR_DTYPES = ("f4", "f2")
 #: Uniform-block bindings of the PRT programs: the geodesic planes, frame.glsl's two blocks.
@@ -624,6 +634,11 @@ class GLRenderer:
             "HAS_SUN": int(self.has_sun),
             "SUN_GLOSSY": int(self.sun_glossy),
             "SHARP": int(self.sharp is not None),
+            "SHARP_VARYING": int(self.sharp is not None and self.sharp.sharp is not None),
+            "VARYING_ALPHA_REF": f"{VARYING_ALPHA_REF:.6e}",
+            "SPLIT_ALPHAS": SPLIT_ALPHAS,
+            "SPLIT_ALPHA_MIN": f"{SPLIT_ALPHA_RANGE[0]:.6e}",
+            "SPLIT_ALPHA_MAX": f"{SPLIT_ALPHA_RANGE[1]:.6e}",
             "ALBEDO_TEX": int(model.albedo is not None),
             "ALBEDO_LAYERS": 1 if model.albedo is None else len(model.albedo.images),
             "SPECULAR_TEX": int(self._f0 is not None),
@@ -755,9 +770,27 @@ class GLRenderer:
         p["vis_per_row"].value = per_row
         p["face_width"].value = width
         p["sharp_weight"].value = tuple(float(x) for x in sh.weights)
-        p["sharp_lam"].value = tuple(float(x) for x in sh.lam)
         p["sharp_warp"].value = float(sh.warp)
-        p["sharp_albedo"].value = [tuple(float(c) for c in row) for row in sh.albedo]
+        self.lobe_tex = self.split_tex = None
+        if sh.sharp is None:
+            p["sharp_lam"].value = tuple(float(x) for x in sh.lam)
+            p["sharp_albedo"].value = [tuple(float(c) for c in row) for row in sh.albedo]
+            return
+        # a lobe per vertex: the mixture at the reference roughness, each vertex's roughness
+        # (negative where the Gaussians shade it) and F0, and the albedo's split table
+        ref = sh.lam[0] * (sh.alpha[0] / VARYING_ALPHA_REF) ** 2
+        p["sharp_lam"].value = tuple(float(x) for x in ref)
+        limg = np.zeros((pimg.shape[0], 4), np.float32)
+        sign = np.where(sh.sharp.cpu().numpy(), 1.0, -1.0)
+        limg[: verts.shape[0], 0] = sign * sh.alpha.cpu().numpy()
+        limg[: verts.shape[0], 1:] = sh.f0.cpu().numpy()
+        self.lobe_tex = self.ctx.texture(size, 4, limg.tobytes(), dtype="f4")
+        split = np.ascontiguousarray(sh.split.numpy().transpose(1, 0, 2))  # (S, T, 2)
+        self.split_tex = self.ctx.texture(
+            (split.shape[1], split.shape[0]), 2, split.tobytes(), dtype="f4"
+        )
+        for t in (self.lobe_tex, self.split_tex):
+            t.filter = (moderngl.NEAREST, moderngl.NEAREST)
 
     def _table_pass(self) -> None:
         """The vertex stage's results for this frame's view into the vertex table (one point
@@ -799,7 +832,8 @@ class GLRenderer:
         if self.sharp is None or not self.sun_glossy:
             return
         spread = float(lighting.sun.spread)
-        self.prog["sun_tail"].value = tail_scale(self._specular, spread)
+        if self.sharp.sharp is None:  # a lobe per vertex has its tail per point
+            self.prog["sun_tail"].value = tail_scale(self._specular, spread)
         if not bool((self.sharp.lam * spread**2 >= SUN_RESOLVED).any()):
             return
         atlas = atlas_image(lighting.prefiltered)[0]
@@ -838,6 +872,8 @@ class GLRenderer:
             ("pos_tex", _VIS_UNIT + 2),
             ("albedo_tex", _ALBEDO_UNIT),
             ("specular_tex", _ALBEDO_UNIT + 1),
+            ("lobe_tex", _LOBE_UNIT),
+            ("split_tex", _LOBE_UNIT + 1),
             *_SHARP_UNITS,
         )
         for prog in (p, *table):
@@ -1245,6 +1281,9 @@ class GLRenderer:
                 units += range(_TABLE_LOBE_UNIT, _TABLE_LOBE_UNIT + len(self.table_tex) - 2)
                 for unit, tex in zip(units, sharp_textures, strict=True):
                     tex.use(unit)
+                if self.lobe_tex is not None:
+                    self.lobe_tex.use(_LOBE_UNIT)
+                    self.split_tex.use(_LOBE_UNIT + 1)
             self.vao.render(moderngl.TRIANGLES)
             if self.has_sun:  # the unit's sampler would override other textures bound there
                 self.shadow_sampler.clear(_SHADOW_DEPTH_UNIT)
@@ -1300,8 +1339,10 @@ class GLRenderer:
 
     def _sharp_objects(self) -> tuple:
         """The GL objects of the sharp reflection's hit points (released with the renderer)."""
+        lobe = () if self.lobe_tex is None else (self.lobe_tex, self.split_tex)
         return (self.nrm_tex, self.alb_tex, self.hit_face_tex, self.hit_dist_tex,
-                *self.table_tex, self.table_fbo, self.table_vao, self.table_prog)  # fmt: skip
+                *self.table_tex, self.table_fbo, self.table_vao, self.table_prog,
+                *lobe)  # fmt: skip
 
     def release(self) -> None:
         self.make_current()

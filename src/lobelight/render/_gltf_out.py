@@ -345,7 +345,7 @@ def _lobes(doc: _Doc, model: Model, f16: bool) -> dict:
 def _tiles(doc: _Doc, model: Model) -> dict:
     """The visibility and hit tiles where the model holds them (or its material's lobe is
     shaded per pixel, for which they are computed as :meth:`Model.save` does)."""
-    if sharp_lobe(model.materials.specular) is not None:
+    if sharp_lobe(model.materials.specular, per_vertex=False) is not None:
         model.visibility()
         model.hits()
     out = {}
@@ -499,7 +499,7 @@ def export_gltf(model: Model, path, *, lighting=None, float16: bool = True) -> d
 
 def _sharp_record(model: Model) -> dict | None:
     """The material's sharp lobe as the renderers shade it per pixel (None for none)."""
-    s = sharp_lobe(model.materials.specular)
+    s = sharp_lobe(model.materials.specular, per_vertex=False)
     if s is None:
         return None
     return {"weights": s.weights.tolist(), "lam": s.lam.tolist(), "warp": bool(s.warp),

@@ -44,8 +44,11 @@ hits' light blended with the barycentrics of the corners that found one.
 
 Supported: the BRDFs the sun is shaded with per pixel (:attr:`lobelight.brdf.BRDF.sun_model`)
 with parameters constant over the mesh and a lobe at least as sharp as
-:data:`lobelight.brdf.SHARP_LAM`; other materials keep the fitted Gaussians.
-``shaders/reflection.glsl`` is the shader's twin.
+:data:`lobelight.brdf.SHARP_LAM`, and the glTF lobe (:class:`lobelight.brdf.GGXSchlick`) whose
+roughness and F0 vary per vertex: a pixel is shaded so in the share of its corners that are
+that sharp (their lobes blended, :meth:`lobelight.brdf.SharpLobe.at`), by the fitted Gaussians
+in the rest, and a hit by its own corners' lobes, sharp or not. Other materials keep the
+fitted Gaussians. ``shaders/reflection.glsl`` is the shader's twin.
 """
 
 from __future__ import annotations
@@ -136,7 +139,7 @@ def lobe_points(sharp: SharpLobe, r: torch.Tensor, n: torch.Tensor, nv: torch.Te
     m = w.shape[0]
     if not sharp.warp:
         return r[None, :, None].expand(1, -1, m, 3), _blurred(sharp.sharpness(nv), blur), w
-    lam0 = sharp.lam.to(r.device)  # (M,)
+    lam0 = sharp.lam.to(r.device)  # (M,), or (P, M) for a lobe per point
     c = nv.clamp_min(SHARP_NV_MIN)[:, None]  # (P, 1)
     lam = lam0 / c**2  # (P, M) the width across the plane of incidence
     s = ((1 - c**2).clamp_min(0) / lam0).sqrt()  # (P, M)
@@ -161,10 +164,11 @@ def hit_spread(sharp: SharpLobe, nv: torch.Tensor, dist: torch.Tensor,
     :data:`SPREAD_GAUSSIAN`, widened by ``1 / n.v`` for a microfacet lobe, its isotropic
     equivalent); a flat mirror at the hit keeps that spread in the rays it reflects, and a
     curved one turns them further, by twice its normal's turn over the footprint,
-    ``2 curvature dist`` per radian: ``var (1 + 2 curvature dist)^2``. ``nv (P,)`` the pixel's
+    ``2 curvature dist`` per radian: ``var (1 + 2 curvature dist)^2``. ``sharp`` the pixel's
+    lobe (one, or one per pixel: :meth:`lobelight.brdf.SharpLobe.at`), ``nv (P,)`` the pixel's
     ``n.v``, ``dist (P,)`` the hit's distance, ``curvature (P,)`` the hit's (radians per unit
     length, :func:`face_curvature`)."""
-    var = 1 / float(sharp.lam[SPREAD_GAUSSIAN])
+    var = 1 / sharp.lam[..., SPREAD_GAUSSIAN].to(nv.device)
     if sharp.warp:
         var = var / nv.clamp_min(SHARP_NV_MIN)
     return var * (1 + 2 * curvature * dist) ** 2
@@ -219,14 +223,16 @@ def sun_sharp(sharp: SharpLobe, lighting, r: torch.Tensor, n: torch.Tensor, nv: 
     disc = (lw / (2 * math.pi) * torch.exp(-0.5 * lw * chord)).mean(0) * w  # (P, M)
     albedo = sharp.directional_albedo(nv)
     e = sun.irradiance.to(d.device, d.dtype)
-    res = sharp.lam.to(d.device) * s2 >= SUN_RESOLVED  # (M,)
+    res = (sharp.lam.to(d.device) * s2 >= SUN_RESOLVED).expand_as(disc)  # (P, M)
     out = tail * (analytic - albedo * disc.sum(1)[:, None] * e)
-    out = out + albedo * disc[:, ~res].sum(1)[:, None] * e
-    if bool(res.any()):
-        dr, lr = d[:, :, res], lam[:, res].expand(d.shape[0], -1, -1)
+    out = out + albedo * (disc * ~res).sum(1)[:, None] * e
+    cols = res.any(0)  # the Gaussians that resolve the disc at some point
+    if bool(cols.any()):
+        dr, lr = d[:, :, cols], lam[:, cols].expand(d.shape[0], -1, -1)
         whole = lighting.lookup(dr, lr, rot, rest=False)  # (K, P, m, 3)
         rest = lighting.lookup(dr, lr, rot, rest=True)
-        out = out + albedo * ((whole - rest).mean(0) * w[res][:, None]).sum(1).clamp_min(0)
+        shape = (whole - rest).mean(0) * (w[cols] * res[:, cols])[..., None]
+        out = out + albedo * shape.sum(1).clamp_min(0)
     return out.clamp_min(0)
 
 
@@ -281,10 +287,10 @@ def _project(tri: torch.Tensor, q: torch.Tensor) -> torch.Tensor:
     return b / b.sum(-1, keepdim=True).clamp_min(DIVISOR_F32)
 
 
-def _hit_light(model, lighting, vd, sharp, tri, q, r, rot, *, sun_gl, caster, spread):
+def _hit_light(model, lighting, vd, sharp, tri, q, r, rot, *, sun_gl, caster, blur):
     """The object's radiance towards ``-r`` at points ``q`` near triangles ``tri`` (module
-    docstring), its own sharp reflection blurred by the pixel's lobe (:func:`hit_spread`,
-    ``spread (P, 2)`` the pixel's ``n.v`` and the hit's distance): (P, 3)."""
+    docstring), its own sharp reflection blurred by the pixel's lobe (:func:`hit_spread`;
+    ``blur`` the pixel's lobe, its ``n.v (P,)`` and the hit's distance ``(P,)``): (P, 3)."""
     mesh = model.mesh
     c = mesh.faces[tri]  # (P, 3)
     corner_pos = mesh.vertices[c]
@@ -297,9 +303,10 @@ def _hit_light(model, lighting, vd, sharp, tri, q, r, rot, *, sun_gl, caster, sp
     rh = 2 * nv[:, None] * n - v
     nv = nv.clamp_min(0)
     vis = visible_fraction(model.visibility(), c, b, rh)
-    albedo = sharp.directional_albedo(nv)
-    blur = hit_spread(sharp, spread[:, 0], spread[:, 1], face_curvature(corner_pos, corner_nrm))
-    out = shade(sharp, lighting, rh, n, nv, vis, rot, rest=sun_gl, blur=blur)
+    lobe = sharp.at(c, b)  # the hit's own lobe
+    albedo = lobe.directional_albedo(nv)
+    spread = hit_spread(*blur, face_curvature(corner_pos, corner_nrm))
+    out = shade(lobe, lighting, rh, n, nv, vis, rot, rest=sun_gl, blur=spread)
     out += hit_diffuse_light(model, vd.diffuse, c, b)
     e, mu, sigma = blend_lobes(vd.e[c], vd.mu[c], vd.sigma[c], b, frame=(vd.mirror[c], rh))
     k = slice(model.n_gaussians - model.indirect_gaussians, None)
@@ -341,7 +348,9 @@ def object_light(model, lighting, vd, sharp, pos, r, nv, corners, bary, rot, *, 
                  caster):  # fmt: skip
     """The object's radiance seen along the reflected directions ``r (P, 3)`` from points
     ``pos (P, 3)`` (``n.v`` ``nv (P,)``) of triangles with ``corners (P, 3)`` and barycentrics
-    ``bary (P, 3)``, from the corners' hit tiles (module docstring).
+    ``bary (P, 3)``, from the corners' hit tiles (module docstring). ``sharp`` the material's
+    lobe (:func:`lobelight.brdf.sharp_lobe`; one per vertex for a glTF lobe varying over the
+    mesh: the pixel's lobe from its sharp corners, each hit's from the hit's corners).
 
     Returns
     -------
@@ -354,6 +363,7 @@ def object_light(model, lighting, vd, sharp, pos, r, nv, corners, bary, rot, *, 
     face, dist = face.reshape(face.shape[0], -1), dist.reshape(dist.shape[0], -1)
     light = torch.zeros_like(pos)
     weight = torch.zeros(pos.shape[0], device=pos.device)
+    pixel = sharp.at(corners, bary, sharp_only=True)
     for i in range(3):  # the triangle's corners
         f = face[corners[:, i], texel].long()
         h = ((f >= 0) & (bary[:, i] > 0)).nonzero().squeeze(-1)
@@ -361,10 +371,10 @@ def object_light(model, lighting, vd, sharp, pos, r, nv, corners, bary, rot, *, 
             continue
         t = dist[corners[h, i], texel[h]].float()
         q = pos[h] + t[:, None] * r[h]
-        spread = torch.stack([nv[h], t], -1)
+        blur = (pixel.take(h), nv[h], t)
         hit = _hit_light(
             model, lighting, vd, sharp, f[h], q, r[h], rot, sun_gl=sun_gl, caster=caster,
-            spread=spread,
+            blur=blur,
         )  # fmt: skip
         light[h] += bary[h, i, None] * hit
         weight[h] += bary[h, i]

@@ -150,7 +150,9 @@ def _glossy(
     """The Gaussians' glossy light at points of corners ``c (p, 3)`` and barycentrics
     ``b (p, 3)``: (p, 3). With ``sharp`` (:func:`lobelight.brdf.sharp_lobe`) the direct
     part is the material's own lobe at the point's reflected direction, and the object seen
-    in it is shaded where it is seen (:mod:`._reflection`)."""
+    in it is shaded where it is seen (:mod:`._reflection`); a lobe per vertex
+    (:meth:`lobelight.brdf.SharpLobe.at`) does so at its sharp corners, the Gaussians at the
+    others, blended with the barycentrics."""
     dev = model.device
     # means blend as offsets from the corners' mirror directions, re-based on the point's own
     # (from its interpolated normal and its view direction)
@@ -161,17 +163,44 @@ def _glossy(
     view = torch.nn.functional.normalize(vd.eye - pos, dim=-1)
     r = mirror_direction(nrm, view)
     if sharp is None:
-        e, mu, sigma = blend_lobes(vd.e[c], vd.mu[c], vd.sigma[c], b, frame=(vd.mirror[c], r))
-        # the carried light times the lighting averaged under the lobe: the integral without
-        # forming the (up to 1e5) peak weight
-        acc = (e * lighting.lookup(mu, sigma.pow(-2), rot, rest=sun_gl).to(dev)).sum(1)
-        ni = model.indirect_gaussians
-        if sun_gl and ni:
-            # the sun's light reflected off the object into the indirect lobes
-            k = slice(model.n_gaussians - ni, None)
-            sd = lighting.sun_direction(rot).to(dev, torch.float32)
-            acc += sun_through(e[:, k], mu[:, k], sigma[:, k].pow(-2), sd, lighting.sun).sum(1)
-        return acc
+        return _fitted(model, lighting, vd, c, b, r, rot, sun_gl=sun_gl)
+    if sharp.sharp is None:
+        return _per_pixel(model, lighting, vd, sharp, c, b, pos, nrm, view, r, rot,
+                          sun_gl=sun_gl, caster=caster)  # fmt: skip
+    ws = (b * sharp.sharp.to(dev)[c]).sum(1)  # the sharp corners' share
+    out = torch.zeros_like(pos)
+    k = (ws < 1).nonzero().squeeze(-1)
+    if k.numel():
+        fit = _fitted(model, lighting, vd, c[k], b[k], r[k], rot, sun_gl=sun_gl)
+        out[k] = (1 - ws[k, None]) * fit
+    k = (ws > 0).nonzero().squeeze(-1)
+    if k.numel():
+        px = _per_pixel(model, lighting, vd, sharp, c[k], b[k], pos[k], nrm[k], view[k], r[k],
+                        rot, sun_gl=sun_gl, caster=caster)  # fmt: skip
+        out[k] += ws[k, None] * px
+    return out
+
+
+def _fitted(model, lighting, vd: VertexData, c, b, r, rot, *, sun_gl: bool) -> torch.Tensor:
+    """The fitted Gaussians' light at points of corners ``c (p, 3)``, barycentrics
+    ``b (p, 3)`` and reflected directions ``r (p, 3)``: (p, 3)."""
+    e, mu, sigma = blend_lobes(vd.e[c], vd.mu[c], vd.sigma[c], b, frame=(vd.mirror[c], r))
+    # the carried light times the lighting averaged under the lobe: the integral without
+    # forming the (up to 1e5) peak weight
+    acc = (e * lighting.lookup(mu, sigma.pow(-2), rot, rest=sun_gl).to(e.device)).sum(1)
+    ni = model.indirect_gaussians
+    if sun_gl and ni:
+        # the sun's light reflected off the object into the indirect lobes
+        k = slice(model.n_gaussians - ni, None)
+        sd = lighting.sun_direction(rot).to(e.device, torch.float32)
+        acc += sun_through(e[:, k], mu[:, k], sigma[:, k].pow(-2), sd, lighting.sun).sum(1)
+    return acc
+
+
+def _per_pixel(model, lighting, vd, sharp, c, b, pos, nrm, view, r, rot, *, sun_gl, caster):
+    """The sharp lobe's light at points (:mod:`._reflection`): (p, 3); ``sharp`` the
+    material's lobe (one per vertex: taken at the points' sharp corners)."""
+    dev = pos.device
     nv = (nrm * view).sum(-1).clamp_min(0)
     # the object seen in the lobe where a corner's hit tile finds it; the environment in the
     # rest of it
@@ -180,9 +209,10 @@ def _glossy(
     )
     found = weight > 0
     vis = torch.where(found, hit_free_fraction(model.hits()[0].to(dev), c, b, r), 1.0)
-    acc = shade(sharp, lighting, r, nrm, nv, vis, rot, rest=sun_gl).to(dev)
+    lobe = sharp.at(c, b, sharp_only=True)
+    acc = shade(lobe, lighting, r, nrm, nv, vis, rot, rest=sun_gl).to(dev)
     hit = seen / weight.clamp_min(DIVISOR_F32)[:, None]
-    return acc + sharp.directional_albedo(nv) * (1 - vis)[:, None] * hit
+    return acc + lobe.directional_albedo(nv) * (1 - vis)[:, None] * hit
 
 
 def sun_stage(
@@ -249,7 +279,20 @@ def _sun_specular(model, lighting, pos, n, eye, corners, b, rot) -> torch.Tensor
     nv = (n * view).sum(-1).clamp_min(0)
     tail = tail_scale(model.materials.specular, lighting.sun.spread)
     r = mirror_direction(n, view)
-    return sun_sharp(sharp, lighting, r, n, nv, rot, out, tail).to(pos.device)
+    if sharp.sharp is None:
+        return sun_sharp(sharp, lighting, r, n, nv, rot, out, tail).to(pos.device)
+    # a lobe per vertex: the sun's shape at the sharp corners' share, the analytic highlight
+    # at the others'
+    ws = (b[..., 0] * sharp.sharp.to(pos.device)[corners]).sum(1)
+    k = (ws > 0).nonzero().squeeze(-1)
+    if k.numel():
+        lobe = sharp.at(corners[k], b[k, :, 0], sharp_only=True)
+        # tail_scale per point: GGX's widened alpha'^2 = alpha^2 + spread^2 / 4
+        a2 = lobe.alpha.to(pos.device)[:, None] ** 2
+        tail = a2 / (a2 + float(lighting.sun.spread) ** 2 / 4)
+        shaped = sun_sharp(lobe, lighting, r[k], n[k], nv[k], rot, out[k], tail).to(pos.device)
+        out[k] = (1 - ws[k, None]) * out[k] + ws[k, None] * shaped
+    return out
 
 
 def render_torch(

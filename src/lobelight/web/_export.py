@@ -227,7 +227,7 @@ def _programs(model, n_sh: int, geo_defines: dict, key_args: tuple) -> dict[str,
         "BLOCKER_SAMPLES": BLOCKER_SAMPLES,
         **geo_defines,
     }
-    sharp = sharp_lobe(model.materials.specular) is not None
+    sharp = sharp_lobe(model.materials.specular, per_vertex=False) is not None
     if sharp:
         defines.update(_sharp_defines(model))
     frame = ("frame",)
@@ -308,7 +308,7 @@ def _sharp(model) -> tuple[dict | None, dict[str, np.ndarray]]:
     mixture, its directional albedo table, the tiles' resolution) and the arrays (the
     vertices' visibility and hit tiles, ``model.visibility()``, ``model.hits()``); None and
     nothing for another material."""
-    sl = sharp_lobe(model.materials.specular)
+    sl = sharp_lobe(model.materials.specular, per_vertex=False)
     if sl is None:
         return None, {}
     tiles = model.visibility().cpu().numpy().astype(np.uint8)  # (V, R, R)
@@ -444,7 +444,7 @@ def _sharp_sun(model, lighting: Lighting, shape, header: dict, arrays: dict) -> 
     where a Gaussian of the mixture resolves the sun's disc, the whole map's chain
     ``whole_atlas``, an atlas of the chain's layout (the chain itself is the map without the
     sun), as the desktop renderer uploads them."""
-    sl = sharp_lobe(model.materials.specular)
+    sl = sharp_lobe(model.materials.specular, per_vertex=False)
     if sl is None:
         return
     spread = float(lighting.sun.spread)

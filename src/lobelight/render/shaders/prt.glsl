@@ -421,7 +421,8 @@ uniform float sun_tail;         // the analytic highlight's tail factor (_sun_gl
 // lam at d, E lam' / (2 pi) exp(lam' (d.l - 1)), 1 / lam' = 1 / lam + sigma^2 / 2), S what they
 // read of the sun's own pixels (the whole chain less atlas) for the Gaussians that resolve the
 // disc (lam_i sigma^2 >= SUN_RESOLVED), D for the others. The world frame; lookups rotated.
-vec3 sun_shape(vec3 spec, vec3 n, vec3 d) {
+// lobe: the point's (reflection.glsl lobe_at), tail its tail factor.
+vec3 sun_shape(vec3 spec, vec3 n, vec3 d, Lobe lobe, float tail) {
     float nv = max(dot(n, d), 0.0);
     vec3 r = 2.0 * dot(n, d) * n - d;
     vec3 t = across(n, r);
@@ -431,23 +432,24 @@ vec3 sun_shape(vec3 spec, vec3 n, vec3 d) {
     float disc_all = 0.0, disc_res = 0.0;
     vec3 shape = vec3(0.0);
     for (int i = 0; i < MIXTURE; ++i) {
-        float lam = warp ? sharp_lam[i] / (c * c) : sharp_lam[i];
+        float lam_i = sharp_lam[i] * lobe.scale;
+        float lam = warp ? lam_i / (c * c) : lam_i;
         float lw = 1.0 / (1.0 / lam + 0.5 * s2);
-        vec3 step = warp ? sqrt(max(1.0 - c * c, 0.0) / sharp_lam[i]) * t : vec3(0.0);
+        vec3 step = warp ? sqrt(max(1.0 - c * c, 0.0) / lam_i) * t : vec3(0.0);
         vec3 p = normalize(r + step), q = normalize(r - step);
         vec3 a = p - sun_dir, b = q - sun_dir;
         float g = sharp_weight[i] * lw / (2.0 * PI)
                   * 0.5 * (exp(-0.5 * lw * dot(a, a)) + exp(-0.5 * lw * dot(b, b)));
         disc_all += g;
-        if (sharp_lam[i] * s2 < SUN_RESOLVED) continue;
+        if (lam_i * s2 < SUN_RESOLVED) continue;
         disc_res += g;
         vec3 rp = rot_t * p, rq = rot_t * q;
         shape += (0.5 * sharp_weight[i])
                  * (prefiltered_lookup_in(whole_atlas, rp, lam) - prefiltered_lookup(rp, lam)
                     + prefiltered_lookup_in(whole_atlas, rq, lam) - prefiltered_lookup(rq, lam));
     }
-    vec3 albedo = directional_albedo(nv);
-    vec3 out_ = sun_tail * (spec - albedo * disc_all * sun_e) + albedo * (disc_all - disc_res) * sun_e
+    vec3 albedo = directional_albedo(lobe, nv);
+    vec3 out_ = tail * (spec - albedo * disc_all * sun_e) + albedo * (disc_all - disc_res) * sun_e
                 + albedo * max(shape, 0.0);
     return max(out_, 0.0);
 }
@@ -481,6 +483,15 @@ void main() {
 #endif
     vec3 n = normalize(v_normal);
     vec3 d = normalize(eye - v_pos);
+#if defined(SHARP) && SHARP
+    // the pixel's lobe (reflection.glsl lobe_at) and the share of it shaded per pixel, from
+    // its sharp corners (render/_torch.py _glossy)
+    ivec3 cc;
+    vec3 cb;
+    corners(v_pos, cc, cb);
+    float share;
+    Lobe lobe = lobe_at(cc, cb, true, share);
+#endif
 #if SUN_GLOSSY
     bool sun_gl = glossy_on > 0.0;
 #else
@@ -500,7 +511,14 @@ void main() {
             if (sun_gl) {
                 vec3 spec = sun_brdf_cos(sun_dir, d, n) * sun_e;
 #if defined(SHARP) && SHARP
-                spec = sun_shape(spec, n, d);
+#if SHARP_VARYING
+                // tail_scale per point: GGX's widened alpha'^2 = alpha^2 + spread^2 / 4
+                float a2 = lobe.alpha * lobe.alpha;
+                float tail = a2 / max(a2 + 0.25 * sun_spread * sun_spread, 1e-30);
+#else
+                float tail = sun_tail;
+#endif
+                if (share > 0.0) spec = mix(spec, sun_shape(spec, n, d, lobe, tail), share);
 #endif
                 c += spec * vis * spec_ratio;
             }
@@ -513,40 +531,41 @@ void main() {
         // the pixel's own mirror direction, from its interpolated normal and view direction:
         // the blended offsets are re-based on it (lobelight.model.blend_lobes, frame=)
         vec3 mirror = 2.0 * dot(n, d) * n - d;
-        int first = 0;  // the first Gaussian shaded from the model
+        float fitted = 1.0;  // the fitted Gaussians' share of the pixel
 #if defined(SHARP) && SHARP
         // the material's own lobe at the pixel's reflected direction (reflection.glsl,
         // render/_reflection.py): the object where the corners' hit tiles find it, the
-        // environment in the rest of the lobe (the tiles' hit-free share around it)
-        float nv = max(dot(n, d), 0.0);
-        ivec3 cc;
-        vec3 cb;
-        corners(v_pos, cc, cb);
-        vec4 seen = object_light(v_pos, mirror, nv, cc, cb);
-        vec3 albedo = directional_albedo(nv);
-        float vis = 1.0;
-        vec3 hit = vec3(0.0);
-        if (seen.a > 0.0) {
-            vis = cb.x * hit_free(cc.x, mirror) + cb.y * hit_free(cc.y, mirror)
-                  + cb.z * hit_free(cc.z, mirror);
-            hit = seen.rgb / seen.a;
+        // environment in the rest of the lobe (the tiles' hit-free share around it); a lobe
+        // varying per vertex at its sharp corners' share, the Gaussians at the rest
+        fitted = 1.0 - share;
+        if (share > 0.0) {
+            float nv = max(dot(n, d), 0.0);
+            vec4 seen = object_light(v_pos, mirror, nv, cc, cb, lobe.scale);
+            vec3 albedo = directional_albedo(lobe, nv);
+            float vis = 1.0;
+            vec3 hit = vec3(0.0);
+            if (seen.a > 0.0) {
+                vis = cb.x * hit_free(cc.x, mirror) + cb.y * hit_free(cc.y, mirror)
+                      + cb.z * hit_free(cc.z, mirror);
+                hit = seen.rgb / seen.a;
+            }
+            vec3 env = sharp_lighting(rot_t * mirror, rot_t * across(n, mirror), nv, 0.0,
+                                      lobe.scale);
+            c += share * albedo * (env * vis + (1.0 - vis) * hit);
         }
-        vec3 env = sharp_lighting(rot_t * mirror, rot_t * across(n, mirror), nv, 0.0);
-        c += albedo * (env * vis + (1.0 - vis) * hit);
-        first = N_GAUSSIANS;
 #endif
-        for (int k = first; k < N_GAUSSIANS; ++k) {
+        for (int k = 0; k < N_GAUSSIANS && fitted > 0.0; ++k) {
             vec4 el = v_lobe[2 * k];
             vec4 ms = v_lobe[2 * k + 1];
             float say = el.w;  // the live corners' barycentric weight
             if (say < MIN_SAY) continue;
             float sigma = ms.w / say;
             vec3 mu = normalize(mirror + ms.xyz / say);
-            c += el.rgb * prefiltered_lookup(rot_t * mu, 1.0 / (sigma * sigma));
+            c += fitted * el.rgb * prefiltered_lookup(rot_t * mu, 1.0 / (sigma * sigma));
 #if SUN_GLOSSY
             // the sun's light reflected off the object into the indirect lobes
             if (sun_gl && sun_on > 0.0 && k >= N_GAUSSIANS - N_INDIRECT) {
-                c += el.rgb * sun_e * sun_through(mu, 1.0 / (sigma * sigma));
+                c += fitted * el.rgb * sun_e * sun_through(mu, 1.0 / (sigma * sigma));
             }
 #endif
         }

@@ -44,6 +44,25 @@ uniform float sharp_weight[MIXTURE];
 uniform float sharp_lam[MIXTURE];
 uniform float sharp_warp;         // 1: the sharpness divides by n.v (microfacet lobes)
 uniform vec3 sharp_albedo[ALBEDO_STEPS];
+#ifndef SHARP_VARYING
+#define SHARP_VARYING 0
+#endif
+#if SHARP_VARYING
+// a glTF lobe varying per vertex (lobelight.brdf.SharpLobe): sharp_lam is the mixture at
+// roughness VARYING_ALPHA_REF; each vertex's alpha and F0, face_width wide, alpha negative at
+// a vertex the Gaussians shade; the albedo's scale and bias of F0 over (n.v, log alpha)
+// (lobelight.brdf.schlick_split), ALBEDO_STEPS x SPLIT_ALPHAS
+uniform sampler2D lobe_tex;       // RGBA32F: alpha (signed), F0
+uniform sampler2D split_tex;      // RG32F
+#endif
+
+// a point's lobe (lobelight.brdf.SharpLobe.at): its sharpness factor over sharp_lam's, and
+// for a lobe varying per vertex its roughness and F0
+struct Lobe {
+    float scale;
+    float alpha;
+    vec3 f0;
+};
 
 // octahedral encoding of a unit direction (lobelight.geometry.octahedral.encode)
 vec2 oct_encode(vec3 d) {
@@ -126,11 +145,48 @@ float visible_fraction(ivec3 c, vec3 b, vec3 r) {
     return b.x * tile_lookup(c.x, r) + b.y * tile_lookup(c.y, r) + b.z * tile_lookup(c.z, r);
 }
 
-// E(n.v): linear in the table at n.v = (k + 0.5) / ALBEDO_STEPS, clamped at its ends
-vec3 directional_albedo(float nv) {
+// E(n.v) of lobe l: linear in the table at n.v = (k + 0.5) / ALBEDO_STEPS, clamped at its
+// ends; for a lobe varying per vertex f0 A + B, bilinear in n.v and log alpha
+// (lobelight.brdf.SharpLobe.directional_albedo)
+vec3 directional_albedo(Lobe l, float nv) {
     float x = clamp(clamp(nv, 0.0, 1.0) * float(ALBEDO_STEPS) - 0.5, 0.0, float(ALBEDO_STEPS - 1));
     int i = min(int(floor(x)), ALBEDO_STEPS - 2);
+#if SHARP_VARYING
+    float y = (log(max(l.alpha, SPLIT_ALPHA_MIN)) - log(SPLIT_ALPHA_MIN))
+              / (log(SPLIT_ALPHA_MAX) - log(SPLIT_ALPHA_MIN));
+    y = clamp(y * float(SPLIT_ALPHAS - 1), 0.0, float(SPLIT_ALPHAS - 1));
+    int j = min(int(floor(y)), SPLIT_ALPHAS - 2);
+    vec2 f = vec2(x - float(i), y - float(j));
+    vec2 ab = mix(mix(texelFetch(split_tex, ivec2(i, j), 0).rg,
+                      texelFetch(split_tex, ivec2(i + 1, j), 0).rg, f.x),
+                  mix(texelFetch(split_tex, ivec2(i, j + 1), 0).rg,
+                      texelFetch(split_tex, ivec2(i + 1, j + 1), 0).rg, f.x), f.y);
+    return l.f0 * ab.x + ab.y;
+#else
     return mix(sharp_albedo[i], sharp_albedo[i + 1], x - float(i));
+#endif
+}
+
+// the lobe at a point of corners c and barycentrics b (lobelight.brdf.SharpLobe.at): the
+// material's own, or for a lobe varying per vertex the corners' roughness blended as
+// variances and their F0 linearly, over the sharp corners alone with sharp_only; share: the
+// sharp corners' barycentric weight (1 for a material constant over the mesh)
+Lobe lobe_at(ivec3 c, vec3 b, bool sharp_only, out float share) {
+#if SHARP_VARYING
+    vec4 l0 = texelFetch(lobe_tex, at_face_width(c.x), 0);
+    vec4 l1 = texelFetch(lobe_tex, at_face_width(c.y), 0);
+    vec4 l2 = texelFetch(lobe_tex, at_face_width(c.z), 0);
+    vec3 s = vec3(l0.r > 0.0 ? 1.0 : 0.0, l1.r > 0.0 ? 1.0 : 0.0, l2.r > 0.0 ? 1.0 : 0.0);
+    share = dot(b, s);
+    vec3 w = sharp_only ? b * s : b;
+    w /= max(w.x + w.y + w.z, 1e-30);
+    float a2 = w.x * l0.r * l0.r + w.y * l1.r * l1.r + w.z * l2.r * l2.r;
+    vec3 f0 = w.x * l0.gba + w.y * l1.gba + w.z * l2.gba;
+    return Lobe(VARYING_ALPHA_REF * VARYING_ALPHA_REF / max(a2, 1e-30), sqrt(a2), f0);
+#else
+    share = 1.0;
+    return Lobe(1.0, 0.0, vec3(0.0));
+#endif
 }
 
 // the unit direction across r within the plane of r and n (zero where they are parallel)
@@ -142,34 +198,37 @@ vec3 across(vec3 n, vec3 r) {
 // sum_i a_i L(R; lam_i): the lighting of the atlas tex under the lobe's mixture at R, t the
 // plane of incidence's direction across R (both rotated); a microfacet lobe as two lookups of
 // sharpness lam_i / (n.v)^2 at R +- s_i t, s_i^2 = (1 - (n.v)^2) / lam_i; each lookup's
-// variance grown by blur (render/_reflection.py shade, lobe_points)
-vec3 sharp_lighting_in(sampler2D tex, vec3 r, vec3 t, float nv, float blur) {
+// variance grown by blur; lam_i = sharp_lam[i] scale (render/_reflection.py shade,
+// lobe_points)
+vec3 sharp_lighting_in(sampler2D tex, vec3 r, vec3 t, float nv, float blur, float scale) {
     vec3 acc = vec3(0.0);
     if (sharp_warp > 0.0) {
         float c = max(nv, SHARP_NV_MIN);
         for (int i = 0; i < MIXTURE; ++i) {
-            float lam = 1.0 / ((c * c) / sharp_lam[i] + blur);
-            vec3 step = sqrt(max(1.0 - c * c, 0.0) / sharp_lam[i]) * t;
+            float lam_i = sharp_lam[i] * scale;
+            float lam = 1.0 / ((c * c) / lam_i + blur);
+            vec3 step = sqrt(max(1.0 - c * c, 0.0) / lam_i) * t;
             acc += (0.5 * sharp_weight[i]) * (prefiltered_lookup_in(tex, normalize(r + step), lam)
                                               + prefiltered_lookup_in(tex, normalize(r - step), lam));
         }
         return acc;
     }
     for (int i = 0; i < MIXTURE; ++i) {
-        acc += sharp_weight[i] * prefiltered_lookup_in(tex, r, 1.0 / (1.0 / sharp_lam[i] + blur));
+        acc += sharp_weight[i]
+               * prefiltered_lookup_in(tex, r, 1.0 / (1.0 / (sharp_lam[i] * scale) + blur));
     }
     return acc;
 }
 
-vec3 sharp_lighting(vec3 r, vec3 t, float nv, float blur) {
-    return sharp_lighting_in(atlas, r, t, nv, blur);
+vec3 sharp_lighting(vec3 r, vec3 t, float nv, float blur, float scale) {
+    return sharp_lighting_in(atlas, r, t, nv, blur, scale);
 }
 
 // the variance of the directions a hit's own reflection is seen from: the pixel's lobe's
-// core Gaussian, grown by the hit's curvature over the distance (render/_reflection.py
-// hit_spread)
-float hit_spread(float nv, float dist, float curvature) {
-    float var = 1.0 / sharp_lam[SPREAD_GAUSSIAN];
+// core Gaussian (its sharpness factor scale), grown by the hit's curvature over the distance
+// (render/_reflection.py hit_spread)
+float hit_spread(float nv, float dist, float curvature, float scale) {
+    float var = 1.0 / (sharp_lam[SPREAD_GAUSSIAN] * scale);
     if (sharp_warp > 0.0) var /= max(nv, SHARP_NV_MIN);
     float g = 1.0 + 2.0 * curvature * dist;
     return var * g * g;
@@ -198,10 +257,11 @@ float face_curvature(vec3 p0, vec3 p1, vec3 p2, vec3 n0, vec3 n1, vec3 n2) {
 }
 
 // the object's radiance towards -r at point q near triangle f, dist from the pixel whose n.v
-// is nv_px (render/_reflection.py _hit_light): its direct sharp reflection (blurred by the
-// pixel's lobe, hit_spread), diffuse colour, indirect Gaussians (the current view's, re-based
-// on its reflected direction) and the sun's light
-vec3 hit_light(int f, vec3 q, vec3 r, float nv_px, float dist) {
+// is nv_px and lobe's sharpness factor scale_px (render/_reflection.py _hit_light): its direct
+// sharp reflection (its own lobe, blurred by the pixel's, hit_spread), diffuse colour,
+// indirect Gaussians (the current view's, re-based on its reflected direction) and the sun's
+// light
+vec3 hit_light(int f, vec3 q, vec3 r, float nv_px, float dist, float scale_px) {
     ivec3 c;
     vec3 b;
     triangle_at(f, q, c, b);
@@ -219,9 +279,12 @@ vec3 hit_light(int f, vec3 q, vec3 r, float nv_px, float dist) {
     vec3 rh = 2.0 * nvs * n - v;
     float nv = max(nvs, 0.0);
     float vis = visible_fraction(c, b, rh);
-    vec3 albedo = directional_albedo(nv);
-    float blur = hit_spread(nv_px, dist, face_curvature(p0, p1, p2, n0, n1, n2));
-    vec3 light = albedo * sharp_lighting(rot_t * rh, rot_t * across(n, rh), nv, blur) * vis;
+    float share;
+    Lobe lobe = lobe_at(c, b, false, share);
+    vec3 albedo = directional_albedo(lobe, nv);
+    float blur = hit_spread(nv_px, dist, face_curvature(p0, p1, p2, n0, n1, n2), scale_px);
+    vec3 light = albedo * sharp_lighting(rot_t * rh, rot_t * across(n, rh), nv, blur, lobe.scale)
+                 * vis;
 #if ALBEDO_TEX
     // the transfer is per unit albedo: the hit's vertices' own albedos (render/_albedo.py
     // hit_diffuse_light)
@@ -268,13 +331,14 @@ vec3 hit_light(int f, vec3 q, vec3 r, float nv_px, float dist) {
     return light;
 }
 
-// the object seen along r from point p (n.v nv) of corners c and barycentrics b: the corners'
-// hits' light weighted by their barycentrics, summed (rgb), and the corners' weight (a)
+// the object seen along r from point p (n.v nv, lobe's sharpness factor scale) of corners c
+// and barycentrics b: the corners' hits' light weighted by their barycentrics, summed (rgb),
+// and the corners' weight (a)
 // (render/_reflection.py object_light). One call site of hit_light in
 // a loop over a bit mask of the corners with a hit: a loop over the three corners is unrolled
 // into three copies, and a rasteriser that runs both sides of a branch under a mask (llvmpipe)
 // runs every copy for every pixel
-vec4 object_light(vec3 p, vec3 r, float nv, ivec3 c, vec3 b) {
+vec4 object_light(vec3 p, vec3 r, float nv, ivec3 c, vec3 b, float scale) {
     ivec2 t0 = tile_texel(c.x, r), t1 = tile_texel(c.y, r), t2 = tile_texel(c.z, r);
     ivec3 f = ivec3(texelFetch(hit_face_tex, t0, 0).r, texelFetch(hit_face_tex, t1, 0).r,
                     texelFetch(hit_face_tex, t2, 0).r);
@@ -289,7 +353,7 @@ vec4 object_light(vec3 p, vec3 r, float nv, ivec3 c, vec3 b) {
         int face = i == 0 ? f.x : (i == 1 ? f.y : f.z);
         float weight = i == 0 ? b.x : (i == 1 ? b.y : b.z);
         float dist = texelFetch(hit_dist_tex, t, 0).r;
-        light += weight * hit_light(face, p + dist * r, r, nv, dist);
+        light += weight * hit_light(face, p + dist * r, r, nv, dist, scale);
         w += weight;
     }
     return vec4(light, min(w, 1.0));
