@@ -18,7 +18,7 @@ import torch
 import trimesh
 
 import test_albedo_texture as checker
-from lobelight import envmap, fit, render, scene, web
+from lobelight import brdf, envmap, fit, render, scene, web
 from lobelight.cli import main
 from lobelight.data import DEFAULT_ENVMAP, envmap_path
 from lobelight.errors import InputError
@@ -437,13 +437,15 @@ def test_a_model_beyond_the_texture_limits_gets_a_clear_message(browser, sky, tm
     page.close()
 
 
-def sharp_torus(indirect: bool = False) -> Model:
+def sharp_torus(indirect: bool = False, varying: bool = False) -> Model:
     """A torus of a sharp metal (GGX alpha 0.03: :func:`lobelight.brdf.sharp_lobe` holds a
     mixture for it) with no fitted glossy transport and a constant diffuse transfer
     (tests/test_reflection.py's bare model): the desktop shades its direct light per pixel
     (reflection.glsl), its inner side sees the torus (hit tiles), and the hit points are
     shaded from the vertex table (their diffuse light). ``indirect``: a second, indirect
-    Gaussian about the normal (the vertex table's indirect lobes, read at the hit points)."""
+    Gaussian about the normal (the vertex table's indirect lobes, read at the hit points).
+    ``varying``: a glTF lobe whose roughness runs from 0.005 to 0.3 around the torus and
+    whose F0 changes across it (sharp at some vertices, shaded by the Gaussians at the rest)."""
     tm = trimesh.creation.torus(
         major_radius=1.0, minor_radius=0.45, major_sections=48, minor_sections=24
     )
@@ -460,16 +462,26 @@ def sharp_torus(indirect: bool = False) -> Model:
         g = fit.Gaussians(w, mu, torch.cat([g.lam, torch.full((v, 92, 1), 4.0)], 2))
     diffuse = torch.zeros(v, 25, 3)
     diffuse[:, 0] = 0.2
-    sc = scene.Scene(mesh, scene.uniform(mat, v), name="torus")
+    materials = scene.uniform(mat, v)
+    if varying:
+        x = mesh.vertices[:, 0]
+        alpha = 0.005 * (0.3 / 0.005) ** ((x - x.min()) / (x.max() - x.min()))
+        f0 = torch.stack([0.9 - 0.5 * (x > 0).float(), torch.full_like(x, 0.7), 0.3 + 0 * x], -1)
+        materials = scene.Materials(materials.diffuse, brdf.GGXSchlick(alpha=alpha, f0=f0))
     return Model(
-        mesh, sphere.geodesic_views(), g, diffuse, sc.materials, {"scene": "torus"},
+        mesh, sphere.geodesic_views(), g, diffuse, materials, {"scene": "torus"},
         indirect_gaussians=int(indirect),
     )  # fmt: skip
 
 
 @needs_browser
-@pytest.mark.parametrize(("sun", "indirect"), [(False, False), (True, True)])
-def test_a_sharp_metal_is_shaded_per_pixel_as_the_torch_path(browser, tmp_path, sun, indirect):
+@pytest.mark.parametrize(
+    ("sun", "indirect", "varying"),
+    [(False, False, False), (True, True, False), (True, False, True)],
+)
+def test_a_sharp_metal_is_shaded_per_pixel_as_the_torch_path(
+    browser, tmp_path, sun, indirect, varying
+):
     """A sharp metal's per-pixel reflection (reflection.glsl: visibility tiles, the object seen
     in the lobe through the hit tiles and the vertex table; with the sun, its shape through the
     whole map's chain, which this sun's disc resolves for the mixture's sharpest Gaussian;
@@ -485,8 +497,10 @@ def test_a_sharp_metal_is_shaded_per_pixel_as_the_torch_path(browser, tmp_path, 
     plus the reference's largest change to a 4-neighbour (the step it sits beside; the desktop
     shader on llvmpipe, which snaps to 1/256, meets 1e-2 without it). With the sun, the shadow
     map's penumbrae differ from the torch path's rays as the desktop shader's do (up to 0.05,
-    tests/test_sun.py): one pixel in 400 may exceed the neighbour bound (measured 3 in 85K)."""
-    m = sharp_torus(indirect)
+    tests/test_sun.py): one pixel in 400 may exceed the neighbour bound (measured 3 in 85K).
+    A glTF lobe varying per vertex (``lobe`` and ``split`` in the model file, the page's
+    ``lobe_at``) is held to the same bounds."""
+    m = sharp_torus(indirect, varying)
     # the built-in sky at 256 x 128: its sun's disc (spread 0.0095 rad) is resolved by the
     # mixture's sharpest Gaussian (lam sigma^2 >= SUN_RESOLVED), so whole_atlas is read
     lighting = render.Lighting(envmap.builtin(height=128), base_res=32, sun=sun)
@@ -494,6 +508,7 @@ def test_a_sharp_metal_is_shaded_per_pixel_as_the_torch_path(browser, tmp_path, 
     assert not info["notes"]
     folder = web.read_web(tmp_path / "v")
     assert ("whole_atlas" in folder.envs[0][1]) == sun
+    assert ("lobe" in folder.arrays) == varying
     page = open_page(browser, tmp_path / "v")
     assert not page.locator("#notes").is_visible()
     cam = render.Camera.look_at((0.0, 2.2, 2.6), (0.0, 0.0, 0.0), fov=45)

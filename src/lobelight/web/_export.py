@@ -25,7 +25,14 @@ import numpy as np
 import torch
 
 from .. import model as model_module
-from ..brdf import ALBEDO_STEPS, MIXTURE, sharp_lobe
+from ..brdf import (
+    ALBEDO_STEPS,
+    MIXTURE,
+    SPLIT_ALPHA_RANGE,
+    SPLIT_ALPHAS,
+    VARYING_ALPHA_REF,
+    sharp_lobe,
+)
 from ..envmap import EnvMap
 from ..errors import InputError
 from ..lobes import sh
@@ -227,7 +234,7 @@ def _programs(model, n_sh: int, geo_defines: dict, key_args: tuple) -> dict[str,
         "BLOCKER_SAMPLES": BLOCKER_SAMPLES,
         **geo_defines,
     }
-    sharp = sharp_lobe(model.materials.specular, per_vertex=False) is not None
+    sharp = sharp_lobe(model.materials.specular) is not None
     if sharp:
         defines.update(_sharp_defines(model))
     frame = ("frame",)
@@ -266,6 +273,11 @@ def _sharp_defines(model) -> dict:
     v = model.mesh.n_vertices
     return {
         "SHARP": 1,
+        "SHARP_VARYING": int(sharp_lobe(model.materials.specular).sharp is not None),
+        "VARYING_ALPHA_REF": f"{VARYING_ALPHA_REF:.6e}",
+        "SPLIT_ALPHAS": SPLIT_ALPHAS,
+        "SPLIT_ALPHA_MIN": f"{SPLIT_ALPHA_RANGE[0]:.6e}",
+        "SPLIT_ALPHA_MAX": f"{SPLIT_ALPHA_RANGE[1]:.6e}",
         "TABLE_WIDTH": TEX_WIDTH,
         "TABLE_ROWS": max(1, -(-v // TEX_WIDTH)),
         "VIS_RES": int(model.visibility().shape[-1]),
@@ -307,19 +319,26 @@ def _sharp(model) -> tuple[dict | None, dict[str, np.ndarray]]:
     """A sharp material's per-pixel reflection (``reflection.glsl``): the header (the lobe's
     mixture, its directional albedo table, the tiles' resolution) and the arrays (the
     vertices' visibility and hit tiles, ``model.visibility()``, ``model.hits()``); None and
-    nothing for another material."""
-    sl = sharp_lobe(model.materials.specular, per_vertex=False)
+    nothing for another material. A glTF lobe varying per vertex has the mixture at
+    :data:`lobelight.brdf.VARYING_ALPHA_REF` and no albedo table in the header, and two
+    arrays more, as the desktop renderer uploads them: ``lobe`` (V, 4), each vertex's
+    roughness (negative where the fitted Gaussians shade it) and F0, and ``split`` (S, T, 2),
+    :func:`lobelight.brdf.schlick_split` by roughness."""
+    sl = sharp_lobe(model.materials.specular)
     if sl is None:
         return None, {}
     tiles = model.visibility().cpu().numpy().astype(np.uint8)  # (V, R, R)
     face, dist = (t.cpu().numpy().reshape(-1) for t in model.hits())  # (V R R,) each
     hit = np.nonzero(face >= 0)[0]  # the texels that see the object: the rest find none
+    varying = sl.sharp is not None
+    lam = sl.lam[0] * (sl.alpha[0] / VARYING_ALPHA_REF) ** 2 if varying else sl.lam
     header = {
         "weights": [float(x) for x in sl.weights],
-        "lam": [float(x) for x in sl.lam],
+        "lam": [float(x) for x in lam],
         "warp": float(sl.warp),
-        "albedo": [[float(c) for c in row] for row in sl.albedo],
+        "albedo": [] if varying else [[float(c) for c in row] for row in sl.albedo],
         "vis_res": int(tiles.shape[-1]),
+        "varying": varying,
     }
     arrays = {
         "vis_tiles": tiles,
@@ -327,6 +346,11 @@ def _sharp(model) -> tuple[dict | None, dict[str, np.ndarray]]:
         "hit_face": face[hit].astype("<i4"),
         "hit_dist": dist[hit].astype("<f2"),
     }
+    if varying:
+        sign = np.where(sl.sharp.cpu().numpy(), 1.0, -1.0)
+        lobe = np.concatenate([(sign * sl.alpha.cpu().numpy())[:, None], sl.f0.cpu().numpy()], 1)
+        arrays["lobe"] = lobe.astype("<f4")
+        arrays["split"] = np.ascontiguousarray(sl.split.numpy().transpose(1, 0, 2)).astype("<f4")
     return header, arrays
 
 
@@ -444,11 +468,12 @@ def _sharp_sun(model, lighting: Lighting, shape, header: dict, arrays: dict) -> 
     where a Gaussian of the mixture resolves the sun's disc, the whole map's chain
     ``whole_atlas``, an atlas of the chain's layout (the chain itself is the map without the
     sun), as the desktop renderer uploads them."""
-    sl = sharp_lobe(model.materials.specular, per_vertex=False)
+    sl = sharp_lobe(model.materials.specular)
     if sl is None:
         return
     spread = float(lighting.sun.spread)
-    header["sun_tail"] = float(tail_scale(model.materials.specular, spread))
+    if sl.sharp is None:  # a lobe varying per vertex has its tail per point
+        header["sun_tail"] = float(tail_scale(model.materials.specular, spread))
     if not bool((sl.lam * spread**2 >= SHARP_DEFINES["SUN_RESOLVED"]).any()):
         return
     whole = _atlas(lighting.prefiltered)[0]
@@ -615,6 +640,13 @@ def _check_sharp_arrays(path: Path, h: dict, a: dict) -> None:
         raise InputError(str(path), "its hit tiles' arrays differ in length")
     if n[0] and int(a["hit_index"].max()) >= h["n_vertices"] * r * r:
         raise InputError(str(path), "a hit tile texel lies past the last tile")
+    if h["sharp"].get("varying"):
+        shapes = {"lobe": (h["n_vertices"], 4), "split": (SPLIT_ALPHAS, ALBEDO_STEPS, 2)}
+        for name, shape in shapes.items():
+            if name not in a or a[name].shape != shape:
+                raise InputError(str(path), f"array {name} missing or not of shape {shape}")
+        if not (np.isfinite(a["lobe"]).all() and np.isfinite(a["split"]).all()):
+            raise InputError(str(path), "its varying lobe's arrays hold non-finite values")
 
 
 def read_web(path) -> WebFolder:

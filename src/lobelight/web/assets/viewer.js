@@ -189,6 +189,8 @@
     // a sharp material's per-pixel reflection (reflection.glsl) and the whole map's chain
     vis_tex: 11, face_tex: 12, pos_tex: 13, nrm_tex: 14, alb_tex: 15, hit_face_tex: 16,
     hit_dist_tex: 17, table0_tex: 18, table1_tex: 19, whole_atlas: 20,
+    // a glTF lobe varying per vertex (after the vertex table's six units of table_lobe_tex)
+    lobe_tex: 27, split_tex: 28,
   };
   // the first unit of the vertex table's indirect Gaussians (the sampler array table_lobe_tex)
   const TABLE_LOBE_UNIT = 21;
@@ -442,6 +444,12 @@
       this.posTex = tex.pos;
       this.nrmTex = tex.nrm;
       this.albTex = tex.alb;
+      if (h.sharp.varying) {  // each vertex's roughness and F0, and the albedo's split table
+        const l = this.padded(a.lobe.data, 4, w, Float32Array);
+        this.lobeTex = this.dataTexture(w, l.rows, gl.RGBA32F, gl.RGBA, gl.FLOAT, l.data);
+        const [sa, st] = a.split.shape;
+        this.splitTex = this.dataTexture(st, sa, gl.RG32F, gl.RG, gl.FLOAT, a.split.data);
+      }
       // the vertex table's targets (prt.glsl VERTEX_TABLE), one RGBA32F texel per vertex
       const rows = Math.max(1, Math.ceil(nv / w));
       const n = 2 + 2 * h.indirect_gaussians;
@@ -627,7 +635,7 @@
       this.uniform(p.prt, "sharp_weight", "uniform1fv", s.weights);
       this.uniform(p.prt, "sharp_lam", "uniform1fv", s.lam);
       this.uniform(p.prt, "sharp_warp", "uniform1f", s.warp);
-      this.uniform(p.prt, "sharp_albedo", "uniform3fv", s.albedo.flat());
+      if (!s.varying) this.uniform(p.prt, "sharp_albedo", "uniform3fv", s.albedo.flat());
       this.uniform(p.table, "tex_width", "uniform1i", this.texWidth);
       p.tableVao = this.vertexArray(p.table, true);
     }
@@ -949,6 +957,10 @@
         this.bindTexture(TABLE_LOBE_UNIT + i - 2, T, this.tableTex[i]);
       }
       if (env.wholeAtlas) this.bindTexture(UNITS.whole_atlas, T, env.wholeAtlas);
+      if (this.lobeTex) {
+        this.bindTexture(UNITS.lobe_tex, T, this.lobeTex);
+        this.bindTexture(UNITS.split_tex, T, this.splitTex);
+      }
     }
 
     // with passTimes set (api.profile), the milliseconds since the last mark added to pass
