@@ -33,6 +33,7 @@ from .. import __version__
 from .._cache import UNREADABLE, cache_dir, regular_entry
 from .._io import atomic_writer
 from .._tol import DIVISOR_F32
+from .gltf import GGXSchlick
 
 __all__ = [
     "ALBEDO_SAMPLES",
@@ -211,8 +212,6 @@ def _varying(spec) -> SharpLobe | None:
     ``f0 A + B`` (:func:`schlick_split`)."""
     if not getattr(spec, "schlick", False) or not set(spec.per_element_params) <= {"alpha", "f0"}:
         return None
-    from .gltf import GGXSchlick
-
     p = spec.params
     alpha = p["alpha"].detach().reshape(-1).float().cpu().clamp_min(SPLIT_ALPHA_RANGE[0])
     ref = sharp_lobe(GGXSchlick(alpha=VARYING_ALPHA_REF, f0=1.0))
@@ -269,8 +268,6 @@ def schlick_split() -> torch.Tensor:
 
 def _measure_split() -> torch.Tensor:
     """:func:`schlick_split`'s measurement: (T, S, 2) float32."""
-    from .gltf import GGXSchlick
-
     t, s = ALBEDO_STEPS, ALBEDO_SAMPLES
     lo, hi = (math.log(a) for a in SPLIT_ALPHA_RANGE)
     alpha = torch.linspace(lo, hi, SPLIT_ALPHAS, dtype=torch.float64).exp()
