@@ -183,10 +183,11 @@ def test_reference_reports_progress_per_batch():
 
 def test_the_bake_flags_default_to_the_bake_s_interreflection():
     # the parser restates the defaults so that building it imports no torch
-    from lobelight import transport
+    from lobelight import fit, transport
 
     args = cli._parser().parse_args(["bake", "sphere:1"])
     assert args.bounces == transport.BOUNCES and args.indirect_paths == transport.INDIRECT_PATHS
+    assert args.refine == fit.REFINE_ROUNDS
 
 
 def test_sigterm_ends_a_bake_like_ctrl_c(tmp_path):

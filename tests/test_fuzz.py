@@ -1317,6 +1317,7 @@ def _within_stated_ranges(args) -> None:
         ("base_res", 1, _limits.MAX_BASE_RES), ("samples", 1, _limits.MAX_SAMPLES),
         ("spp", 1, _limits.MAX_SPP), ("bounces", 0, _limits.MAX_BOUNCES),
         ("indirect_paths", 0, _limits.MAX_INDIRECT_PATHS), ("seed", 0, _limits.MAX_SEED),
+        ("refine", 0, _limits.MAX_REFINE_ROUNDS),
         ("frames", 1, _limits.MAX_FRAMES), ("turntable", 1, _limits.MAX_FRAMES),
         ("repeats", 1, _limits.MAX_REPEATS),
     ]:  # fmt: skip

@@ -20,6 +20,7 @@ from ._limits import (
     MAX_EXPOSURE,
     MAX_FRAMES,
     MAX_INDIRECT_PATHS,
+    MAX_REFINE_ROUNDS,
     MAX_REPEATS,
     MAX_SAMPLES,
     MAX_SEED,
@@ -38,6 +39,8 @@ _MEMORY_GB = 4.0
 #: torch (tests/test_cli.py holds them equal).
 _BOUNCES = 4
 _INDIRECT_PATHS = 16
+#: A bake's rounds of mesh refinement, :data:`lobelight.fit.REFINE_ROUNDS` restated likewise.
+_REFINE_ROUNDS = 3
 
 
 class _UsageError(Exception):
@@ -313,6 +316,15 @@ def _add_bake(sub) -> None:
         default=_INDIRECT_PATHS,
         help="paths per vertex and view for indirect glossy, the light glossy surfaces reflect "
         f"off the object (0: direct glossy only; at most {MAX_INDIRECT_PATHS})",
+    )
+    b.add_argument(
+        "--refine",
+        type=bounded_int(0, MAX_REFINE_ROUNDS),
+        default=_REFINE_ROUNDS,
+        metavar="ROUNDS",
+        help="rounds of splitting the mesh's long edges whose ends see the environment "
+        "differently, so that per-vertex transport resolves a shadow's edge across a long "
+        f"triangle (0: the mesh as it is; at most {MAX_REFINE_ROUNDS})",
     )
     b.add_argument("--float16", action="store_true", help="store half floats (half the size)")
     b.add_argument(

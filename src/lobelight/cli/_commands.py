@@ -413,6 +413,7 @@ def run_bake(args) -> dict:
             checkpoint=ckpt,
             checkpoint_every=args.checkpoint_every,
             client=client,
+            refine=args.refine,
         )
     # the glTF materials the scene brought (and what overrode them), for `lobelight info`
     m.provenance["materials"] = [dict(r) for r in sc.material_records]

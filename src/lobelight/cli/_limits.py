@@ -25,6 +25,7 @@ __all__ = [
     "MAX_EXPOSURE",
     "MAX_FRAMES",
     "MAX_INDIRECT_PATHS",
+    "MAX_REFINE_ROUNDS",
     "MAX_RENDER_PIXELS",
     "MAX_REPEATS",
     "MAX_SAMPLES",
@@ -79,6 +80,9 @@ MAX_EXPOSURE = 64.0
 #: adds nothing), timed repeats, a Mitsuba path's depth.
 MAX_BOUNCES = 64
 MAX_INDIRECT_PATHS = 4096
+#: Rounds of a bake's mesh refinement (each may split a long edge once more; the refinement's
+#: vertex budget bounds them all).
+MAX_REFINE_ROUNDS = 8
 MAX_SEED = 2**63 - 1
 MAX_SPP = 1 << 20
 MAX_SAMPLES = 256

@@ -6,8 +6,9 @@
 - :func:`fit_mesh` fits a whole mesh by flood-fill wavefronts, with a relaxation pass against
   flipped Gaussians (:class:`MeshFit`), resumable from a checkpoint file.
 - :func:`fit_model` ``(scene, n_gaussians="auto", *, device, memory_gb=4, ...) ->
-  lobelight.model.Model`` does it all, with :func:`choose_gaussians` choosing the Gaussians per
-  view from the material, and the batch sizes derived from the memory budget
+  lobelight.model.Model`` does it all, on the mesh :func:`refine_scene` refines where an
+  edge's ends see the environment differently, with :func:`choose_gaussians` choosing the
+  Gaussians per view from the material, and the batch sizes derived from the memory budget
   (:data:`MEMORY_GB`).
 - ``fit_model(..., client=)`` runs the chunks of the bake on a Dask cluster (a
   ``distributed.Client``, or a scheduler's address; the optional ``[cluster]`` extra), and
@@ -23,11 +24,22 @@ from ._memory import MEMORY_GB
 from ._model import fit_model
 from ._objective import Weights, flip_count
 from ._optimize import LAM_RANGE, Gaussians, fit_batch, initial_guess
+from ._refine import (
+    REFINE_DIFFERENCE,
+    REFINE_MAX_GROWTH,
+    REFINE_MIN_EDGE,
+    REFINE_ROUNDS,
+    refine_scene,
+)
 
 __all__ = [
     "CONNECT_TIMEOUT",
     "LAM_RANGE",
     "MEMORY_GB",
+    "REFINE_DIFFERENCE",
+    "REFINE_MAX_GROWTH",
+    "REFINE_MIN_EDGE",
+    "REFINE_ROUNDS",
     "WORKER_ENVIRON",
     "FitData",
     "Gaussians",
@@ -45,5 +57,6 @@ __all__ = [
     "initial_guess",
     "lobe_estimate",
     "lobe_shape",
+    "refine_scene",
     "wavefronts",
 ]

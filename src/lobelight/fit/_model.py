@@ -20,6 +20,7 @@ from ._cluster import cluster
 from ._floodfill import fit_mesh
 from ._memory import MEMORY_GB
 from ._objective import Weights
+from ._refine import REFINE_ROUNDS, refine_scene
 
 __all__ = ["fit_model"]
 
@@ -42,6 +43,7 @@ def fit_model(
     shadows: bool = True,
     memory_gb: float = MEMORY_GB,
     client=None,
+    refine: int = REFINE_ROUNDS,
 ):
     """Fit the glossy transport of every vertex with ``n_gaussians`` Gaussians per view, and its
     SH diffuse transfer (:func:`fit_mesh`), and wrap the result as a model.
@@ -70,6 +72,10 @@ def fit_model(
     (:func:`fit_mesh`); with one Gaussian per view the model is the single-process bake's, bit
     for bit.
 
+    ``refine``: rounds of splitting the mesh's edges whose ends see the environment
+    differently (:func:`lobelight.fit.refine_scene`; 0: the scene's mesh as it is); the model
+    holds the refined mesh, and the provenance what was split.
+
     ``progress``: True reports each stage on stderr (bars on a terminal, plain lines
     elsewhere: :mod:`lobelight.progress`), None or False is silent, a callable
     ``progress(stage, done, total)`` is called after each chunk.
@@ -80,6 +86,7 @@ def fit_model(
     flip counts and timings
     """
     asked = n_gaussians
+    scene, refinement = refine_scene(scene, rounds=refine)
     if n_gaussians == "auto":
         n_gaussians, reason = choose_gaussians(scene.materials)
     elif isinstance(n_gaussians, bool) or n_gaussians not in (1, 2, 3):
@@ -126,6 +133,7 @@ def fit_model(
         "seed": seed,
         # vertices whose rays start at an exposed point of their faces (cached: no new rays)
         "exposed_vertices": int(vertex_origins(scene.mesh.to(mf.gaussians.w.device)).n_exposed),
+        "refinement": refinement,
         **({} if client is None else {"cluster": _order(n_gaussians)}),
         "relative_l2_error_mean": float(err.clamp_min(0).sqrt().mean()) if err.numel() else 0.0,
         "flips_before": mf.flips_before,
