@@ -73,7 +73,7 @@ def test_a_convex_mesh_is_left_as_it_is():
 def _sky_fraction(caster: RayCaster, points: torch.Tensor, n: int = 1024) -> torch.Tensor:
     """The fraction of the upper hemisphere's directions (uniform in solid angle, a fixed
     stratified set) in which points on the ground see the sky: (P,)."""
-    k = int(math.isqrt(n))
+    k = math.isqrt(n)
     g = (torch.arange(k) + 0.5) / k
     u, w = torch.meshgrid(g, g, indexing="ij")
     cos = u.flatten()  # uniform in solid angle over the hemisphere
