@@ -37,6 +37,8 @@ def test_bake_info_render_compare(tmp_path, capsys):
 
     code, info = run(capsys, "info", model)
     assert code == 0 and info["vertices"] == 42 and info["views"] == 92
+    # a convex sphere's edges see the same sky at both ends: the bake kept its mesh
+    assert info["refinement"] == "none needed (42 vertices as given)"
     # the built-in sphere is a GGX alpha 0.1 metal-like lobe: --gaussians auto (the default)
     # gives it two, and info says why
     assert info["n_gaussians"] == 2 and info["provenance"]["scene"] == "sphere1"

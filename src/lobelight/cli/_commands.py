@@ -456,6 +456,7 @@ def run_info(args) -> dict:
         "bytes": p.stat().st_size,
         "vertices": m.mesh.n_vertices,
         "faces": int(m.mesh.faces.shape[0]),
+        "refinement": _refinement(m.provenance.get("refinement")),
         "views": int(m.views.shape[0]),
         # how many and why the bake chose that many (older models' provenance does not say)
         **_glossy_summary(m, m.direct_gaussians, m.provenance.get("n_gaussians_choice")),
@@ -470,6 +471,20 @@ def run_info(args) -> dict:
         "interreflection": _interreflection(m.provenance, _has_glossy(m)),
         "provenance": m.provenance,
     }
+
+
+def _refinement(record: dict | None) -> str:
+    """What the bake did to the mesh (``lobelight.fit.refine_scene``'s record)."""
+    if not record:
+        return "not recorded"
+    before, after = record["vertices"]
+    if after == before:
+        return f"none needed ({before} vertices as given)"
+    rounds = record["rounds"]
+    return (
+        f"{before} -> {after} vertices: {rounds} round{'s' if rounds != 1 else ''} of splitting "
+        "edges whose ends see the environment differently"
+    )
 
 
 def _albedo(m) -> str:
