@@ -29,14 +29,7 @@ import numpy as np
 import torch
 
 from .. import model as model_module
-from ..brdf import (
-    ALBEDO_STEPS,
-    MIXTURE,
-    SPLIT_ALPHA_RANGE,
-    SPLIT_ALPHAS,
-    VARYING_ALPHA_REF,
-    sharp_lobe,
-)
+from ..brdf import ALBEDO_STEPS, MIXTURE, sharp_lobe
 from ..envmap import Prefiltered
 from ..errors import InputError
 from ..geometry import sphere
@@ -46,7 +39,7 @@ from ..model import VISIBILITY_RES
 from ._albedo import F0_MIN, specular_f0
 from ._gl_albedo import albedo_array, albedo_uniforms
 from ._lighting import Lighting
-from ._reflection import SUN_RESOLVED, sharp_shader_defines
+from ._reflection import SUN_RESOLVED, sharp_shader_defines, varying_lobe_arrays
 from ._sun_glossy import (
     sun_glossy_supported,
     sun_glossy_uniforms,
@@ -634,11 +627,6 @@ class GLRenderer:
             "HAS_SUN": int(self.has_sun),
             "SUN_GLOSSY": int(self.sun_glossy),
             "SHARP": int(self.sharp is not None),
-            "SHARP_VARYING": int(self.sharp is not None and self.sharp.sharp is not None),
-            "VARYING_ALPHA_REF": f"{VARYING_ALPHA_REF:.6e}",
-            "SPLIT_ALPHAS": SPLIT_ALPHAS,
-            "SPLIT_ALPHA_MIN": f"{SPLIT_ALPHA_RANGE[0]:.6e}",
-            "SPLIT_ALPHA_MAX": f"{SPLIT_ALPHA_RANGE[1]:.6e}",
             "ALBEDO_TEX": int(model.albedo is not None),
             "ALBEDO_LAYERS": 1 if model.albedo is None else len(model.albedo.images),
             "SPECULAR_TEX": int(self._f0 is not None),
@@ -649,7 +637,7 @@ class GLRenderer:
             "VIS_RES": VISIBILITY_RES,
             "MIXTURE": MIXTURE,
             "ALBEDO_STEPS": ALBEDO_STEPS,
-            **sharp_shader_defines(),
+            **sharp_shader_defines(self.sharp),
             "SHADOW_SAMPLES": SHADOW_SAMPLES,
             "BLOCKER_SAMPLES": BLOCKER_SAMPLES,
             **geo_defines,
@@ -778,14 +766,11 @@ class GLRenderer:
             return
         # a lobe per vertex: the mixture at the reference roughness, each vertex's roughness
         # (negative where the Gaussians shade it) and F0, and the albedo's split table
-        ref = sh.lam[0] * (sh.alpha[0] / VARYING_ALPHA_REF) ** 2
-        p["sharp_lam"].value = tuple(float(x) for x in ref)
+        lam, lobe, split = varying_lobe_arrays(sh)
+        p["sharp_lam"].value = tuple(lam)
         limg = np.zeros((pimg.shape[0], 4), np.float32)
-        sign = np.where(sh.sharp.cpu().numpy(), 1.0, -1.0)
-        limg[: verts.shape[0], 0] = sign * sh.alpha.cpu().numpy()
-        limg[: verts.shape[0], 1:] = sh.f0.cpu().numpy()
+        limg[: verts.shape[0]] = lobe
         self.lobe_tex = self.ctx.texture(size, 4, limg.tobytes(), dtype="f4")
-        split = np.ascontiguousarray(sh.split.numpy().transpose(1, 0, 2))  # (S, T, 2)
         self.split_tex = self.ctx.texture(
             (split.shape[1], split.shape[0]), 2, split.tobytes(), dtype="f4"
         )

@@ -55,10 +55,11 @@ from __future__ import annotations
 
 import math
 
+import numpy as np
 import torch
 
 from .._tol import DIVISOR_F32
-from ..brdf import SharpLobe
+from ..brdf import SPLIT_ALPHA_RANGE, SPLIT_ALPHAS, VARYING_ALPHA_REF, SharpLobe
 from ..geometry import octahedral
 from ..model import blend_lobes
 from ._albedo import hit_diffuse_light
@@ -82,6 +83,7 @@ __all__ = [
     "shade",
     "sharp_shader_defines",
     "sun_sharp",
+    "varying_lobe_arrays",
     "visible_fraction",
 ]
 
@@ -116,10 +118,30 @@ SHARP_DEFINES = {
 }
 
 
-def sharp_shader_defines() -> dict[str, str | int]:
+def sharp_shader_defines(sharp: SharpLobe | None = None) -> dict[str, str | int]:
     """:data:`SHARP_DEFINES` as a shader loader's defines: numbers in exponent notation,
-    the index as it is."""
-    return {k: x if isinstance(x, int) else f"{x:.6e}" for k, x in SHARP_DEFINES.items()}
+    the index as it is; with the material's lobe ``sharp``, also whether it varies per vertex
+    (``SHARP_VARYING``) and the split table's roughness axis."""
+    out = {k: x if isinstance(x, int) else f"{x:.6e}" for k, x in SHARP_DEFINES.items()}
+    if sharp is not None:
+        out["SHARP_VARYING"] = int(sharp.sharp is not None)
+        out["VARYING_ALPHA_REF"] = f"{VARYING_ALPHA_REF:.6e}"
+        out["SPLIT_ALPHAS"] = SPLIT_ALPHAS
+        out["SPLIT_ALPHA_MIN"] = f"{SPLIT_ALPHA_RANGE[0]:.6e}"
+        out["SPLIT_ALPHA_MAX"] = f"{SPLIT_ALPHA_RANGE[1]:.6e}"
+    return out
+
+
+def varying_lobe_arrays(sharp: SharpLobe) -> tuple[list[float], np.ndarray, np.ndarray]:
+    """What the shaders read of a lobe varying per vertex (``reflection.glsl`` ``lobe_at``):
+    the mixture's sharpness at :data:`lobelight.brdf.VARYING_ALPHA_REF` (M floats), each
+    vertex's roughness (negative where the fitted Gaussians shade it) and F0, ``(V, 4)``
+    float32, and the albedo's split table by roughness, ``(S, T, 2)`` float32."""
+    lam = sharp.lam[0] * (sharp.alpha[0] / VARYING_ALPHA_REF) ** 2
+    sign = torch.where(sharp.sharp, 1.0, -1.0)
+    lobe = torch.cat([(sign * sharp.alpha)[:, None], sharp.f0], 1).cpu().numpy()
+    split = sharp.split.permute(1, 0, 2).contiguous().cpu().numpy()
+    return [float(x) for x in lam], lobe.astype(np.float32), split.astype(np.float32)
 
 
 def lobe_points(sharp: SharpLobe, r: torch.Tensor, n: torch.Tensor, nv: torch.Tensor,

@@ -18,7 +18,9 @@ drift from the desktop's.
   geodesic neighbour).
 - The sharp reflection's constants, :data:`SHARP_DEFINES` (``reflection.glsl``'s defines:
   ``OCCLUDED_FLOOR``, ``SHARP_NV_MIN``, ``SUN_RESOLVED``, ``INDIRECT_SCALE_MAX``,
-  ``SPREAD_GAUSSIAN``) and :func:`sharp_shader_defines` (them as shader text).
+  ``SPREAD_GAUSSIAN``) and :func:`sharp_shader_defines` (them as shader text, with a glTF
+  lobe's that varies per vertex), and :func:`varying_lobe_arrays` (what the shaders read of
+  such a lobe).
 - Shader text: :func:`stage_sources` (a file's two stages in a dialect), :func:`load_shader`.
 """
 
@@ -38,7 +40,7 @@ from ._gl import (
 )
 from ._gl_albedo import MAX_ALBEDO_LAYERS, MAX_ALBEDO_SIZE, albedo_array, albedo_uniforms
 from ._gltf_out import kept_records
-from ._reflection import SHARP_DEFINES, sharp_shader_defines
+from ._reflection import SHARP_DEFINES, sharp_shader_defines, varying_lobe_arrays
 from ._sun_glossy import (
     sun_glossy_supported,
     sun_glossy_uniforms,
@@ -77,4 +79,5 @@ __all__ = [
     "sun_glossy_vertex_params",
     "sun_widened",
     "tail_scale",
+    "varying_lobe_arrays",
 ]

@@ -25,14 +25,7 @@ import numpy as np
 import torch
 
 from .. import model as model_module
-from ..brdf import (
-    ALBEDO_STEPS,
-    MIXTURE,
-    SPLIT_ALPHA_RANGE,
-    SPLIT_ALPHAS,
-    VARYING_ALPHA_REF,
-    sharp_lobe,
-)
+from ..brdf import ALBEDO_STEPS, MIXTURE, SPLIT_ALPHAS, sharp_lobe
 from ..envmap import EnvMap
 from ..errors import InputError
 from ..lobes import sh
@@ -61,6 +54,7 @@ from ..render.layout import (
     sun_glossy_vertex_params,
     sun_widened,
     tail_scale,
+    varying_lobe_arrays,
 )
 from ._format import read_data_file, write_data_file
 
@@ -273,17 +267,12 @@ def _sharp_defines(model) -> dict:
     v = model.mesh.n_vertices
     return {
         "SHARP": 1,
-        "SHARP_VARYING": int(sharp_lobe(model.materials.specular).sharp is not None),
-        "VARYING_ALPHA_REF": f"{VARYING_ALPHA_REF:.6e}",
-        "SPLIT_ALPHAS": SPLIT_ALPHAS,
-        "SPLIT_ALPHA_MIN": f"{SPLIT_ALPHA_RANGE[0]:.6e}",
-        "SPLIT_ALPHA_MAX": f"{SPLIT_ALPHA_RANGE[1]:.6e}",
         "TABLE_WIDTH": TEX_WIDTH,
         "TABLE_ROWS": max(1, -(-v // TEX_WIDTH)),
         "VIS_RES": int(model.visibility().shape[-1]),
         "MIXTURE": MIXTURE,
         "ALBEDO_STEPS": ALBEDO_STEPS,
-        **sharp_shader_defines(),
+        **sharp_shader_defines(sharp_lobe(model.materials.specular)),
     }
 
 
@@ -331,7 +320,7 @@ def _sharp(model) -> tuple[dict | None, dict[str, np.ndarray]]:
     face, dist = (t.cpu().numpy().reshape(-1) for t in model.hits())  # (V R R,) each
     hit = np.nonzero(face >= 0)[0]  # the texels that see the object: the rest find none
     varying = sl.sharp is not None
-    lam = sl.lam[0] * (sl.alpha[0] / VARYING_ALPHA_REF) ** 2 if varying else sl.lam
+    lam, lobe, split = varying_lobe_arrays(sl) if varying else (sl.lam, None, None)
     header = {
         "weights": [float(x) for x in sl.weights],
         "lam": [float(x) for x in lam],
@@ -347,10 +336,7 @@ def _sharp(model) -> tuple[dict | None, dict[str, np.ndarray]]:
         "hit_dist": dist[hit].astype("<f2"),
     }
     if varying:
-        sign = np.where(sl.sharp.cpu().numpy(), 1.0, -1.0)
-        lobe = np.concatenate([(sign * sl.alpha.cpu().numpy())[:, None], sl.f0.cpu().numpy()], 1)
-        arrays["lobe"] = lobe.astype("<f4")
-        arrays["split"] = np.ascontiguousarray(sl.split.numpy().transpose(1, 0, 2)).astype("<f4")
+        arrays["lobe"], arrays["split"] = lobe.astype("<f4"), split.astype("<f4")
     return header, arrays
 
 
