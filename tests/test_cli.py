@@ -33,6 +33,7 @@ def test_bake_info_render_compare(tmp_path, capsys):
     assert not list(tmp_path.glob("*.ckpt*"))  # the checkpoint is gone once the model is whole
     assert {"model", "vertices", "bytes", "relative_l2_error_mean", "seconds"} <= set(bake)
     assert bake["vertices"] == 42 and bake["bytes"] == model.stat().st_size
+    assert bake["refinement"] == "none needed (42 vertices as given)"
     assert bake["environment"] == str(env.resolve())
 
     code, info = run(capsys, "info", model)

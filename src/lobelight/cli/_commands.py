@@ -427,7 +427,8 @@ def run_bake(args) -> dict:
         "environment": sc.environment,
         "material": sc.materials.model,
         "materials": _material_rows(sc.material_records),
-        "vertices": sc.mesh.n_vertices,
+        "vertices": m.mesh.n_vertices,  # the bake mesh's (refined: "refinement")
+        "refinement": _refinement(m.provenance.get("refinement")),
         **_glossy_summary(m, m.provenance["n_gaussians"], m.provenance["n_gaussians_choice"]),
         "interreflection": _interreflection(m.provenance, _has_glossy(m)),
         "bytes": info["bytes"],
