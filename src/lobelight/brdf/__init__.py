@@ -170,6 +170,7 @@ from ._sharp import (
     SharpLobe,
     schlick_split,
     sharp_lobe,
+    varying_reference,
 )
 from .gltf import DIELECTRIC_F0, GGXSchlick, metallic_roughness
 from .lafortune import Lafortune
@@ -208,6 +209,7 @@ __all__ = [
     "register",
     "schlick_split",
     "sharp_lobe",
+    "varying_reference",
 ]
 
 # The registry: one line per model, in the order error messages list them.

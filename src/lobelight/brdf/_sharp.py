@@ -47,6 +47,7 @@ __all__ = [
     "SharpLobe",
     "schlick_split",
     "sharp_lobe",
+    "varying_reference",
 ]
 
 logger = logging.getLogger(__name__)
@@ -214,7 +215,7 @@ def _varying(spec) -> SharpLobe | None:
         return None
     p = spec.params
     alpha = p["alpha"].detach().reshape(-1).float().cpu().clamp_min(SPLIT_ALPHA_RANGE[0])
-    ref = sharp_lobe(GGXSchlick(alpha=VARYING_ALPHA_REF, f0=1.0))
+    ref = varying_reference()
     lam = ref.lam[None] * (VARYING_ALPHA_REF / alpha)[:, None] ** 2  # (V, M)
     sharp = lam[:, 1] >= SHARP_LAM
     if not bool(sharp.any()):
@@ -227,6 +228,12 @@ def _varying(spec) -> SharpLobe | None:
         weights=ref.weights, lam=lam, warp=True, albedo=None, split=schlick_split(),
         alpha=alpha, f0=f0.contiguous(), sharp=sharp,
     )  # fmt: skip
+
+
+def varying_reference() -> SharpLobe:
+    """The lobe a glTF lobe varying per vertex scales (:func:`_varying`): the glTF lobe at
+    :data:`VARYING_ALPHA_REF`, F0 1."""
+    return sharp_lobe(GGXSchlick(alpha=VARYING_ALPHA_REF, f0=1.0))
 
 
 @functools.cache

@@ -29,7 +29,6 @@ import dataclasses
 import torch
 
 from ..geometry import octahedral
-from ..geometry.raycast import RayCaster
 from ..model import visibility_tiles
 from ..scene import Materials, Mesh, Scene
 
@@ -103,7 +102,7 @@ def _edges_to_split(mesh: Mesh, edges: torch.Tensor, budget: int) -> torch.Tenso
     differ = torch.zeros(edges.shape[0], device=v.device)
     cand = long.nonzero().squeeze(-1)
     if cand.numel():
-        tiles = visibility_tiles(mesh, res=_RES, sub=_SUB, caster=RayCaster(mesh))
+        tiles = visibility_tiles(mesh, res=_RES, sub=_SUB)
         tiles = tiles.reshape(tiles.shape[0], -1)  # (V, D) uint8
         dirs = octahedral.texel_directions(_RES, device=v.device).reshape(-1, 3)  # (D, 3)
         above = (mesh.normals @ dirs.T) > 0  # (V, D)

@@ -59,7 +59,13 @@ import numpy as np
 import torch
 
 from .._tol import DIVISOR_F32
-from ..brdf import SPLIT_ALPHA_RANGE, SPLIT_ALPHAS, VARYING_ALPHA_REF, SharpLobe
+from ..brdf import (
+    SPLIT_ALPHA_RANGE,
+    SPLIT_ALPHAS,
+    VARYING_ALPHA_REF,
+    SharpLobe,
+    varying_reference,
+)
 from ..geometry import octahedral
 from ..model import blend_lobes
 from ._albedo import hit_diffuse_light
@@ -137,7 +143,7 @@ def varying_lobe_arrays(sharp: SharpLobe) -> tuple[list[float], np.ndarray, np.n
     the mixture's sharpness at :data:`lobelight.brdf.VARYING_ALPHA_REF` (M floats), each
     vertex's roughness (negative where the fitted Gaussians shade it) and F0, ``(V, 4)``
     float32, and the albedo's split table by roughness, ``(S, T, 2)`` float32."""
-    lam = sharp.lam[0] * (sharp.alpha[0] / VARYING_ALPHA_REF) ** 2
+    lam = varying_reference().lam
     sign = torch.where(sharp.sharp, 1.0, -1.0)
     lobe = torch.cat([(sign * sharp.alpha)[:, None], sharp.f0], 1).cpu().numpy()
     split = sharp.split.permute(1, 0, 2).contiguous().cpu().numpy()
@@ -366,13 +372,14 @@ def _hit_sun(model, lighting, c, b, pos, n, v, rot, *, sun_gl, caster):
     return out
 
 
-def object_light(model, lighting, vd, sharp, pos, r, nv, corners, bary, rot, *, sun_gl,
+def object_light(model, lighting, vd, sharp, pixel, pos, r, nv, corners, bary, rot, *, sun_gl,
                  caster):  # fmt: skip
     """The object's radiance seen along the reflected directions ``r (P, 3)`` from points
     ``pos (P, 3)`` (``n.v`` ``nv (P,)``) of triangles with ``corners (P, 3)`` and barycentrics
     ``bary (P, 3)``, from the corners' hit tiles (module docstring). ``sharp`` the material's
     lobe (:func:`lobelight.brdf.sharp_lobe`; one per vertex for a glTF lobe varying over the
-    mesh: the pixel's lobe from its sharp corners, each hit's from the hit's corners).
+    mesh: each hit's taken from the hit's corners), ``pixel`` the points' own
+    (``sharp.at(corners, bary, sharp_only=True)``), whose spread blurs the hits.
 
     Returns
     -------
@@ -385,7 +392,6 @@ def object_light(model, lighting, vd, sharp, pos, r, nv, corners, bary, rot, *, 
     face, dist = face.reshape(face.shape[0], -1), dist.reshape(dist.shape[0], -1)
     light = torch.zeros_like(pos)
     weight = torch.zeros(pos.shape[0], device=pos.device)
-    pixel = sharp.at(corners, bary, sharp_only=True)
     for i in range(3):  # the triangle's corners
         f = face[corners[:, i], texel].long()
         h = ((f >= 0) & (bary[:, i] > 0)).nonzero().squeeze(-1)
