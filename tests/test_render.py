@@ -5,6 +5,7 @@ from __future__ import annotations
 import dataclasses
 import math
 
+import numpy as np
 import pytest
 import torch
 
@@ -382,3 +383,36 @@ def test_mirror_frame_follows_the_reflection_inside_a_triangle():
     corner[:, 1] = 1.0
     _, at, _ = blend_lobes(e, mu, sigma, corner, frame=(base, base[:, 1]))
     torch.testing.assert_close(at[:, 0], base[:, 1], rtol=0, atol=1e-5)
+
+
+def test_tile_atlas_puts_each_vertex_tile_at_its_place():
+    # vertex v's tile sits at texel (v % per_row, v // per_row) * R, the shader's addressing
+    # (reflection.glsl tile_footprint); the rest of the last row is zeros; a dtype converts
+    from lobelight.render._gl import _tile_atlas
+
+    r, per_row = 4, 3
+    for v in (1, 3, 7):
+        tiles = torch.arange(v * r * r, dtype=torch.int32).reshape(v, r, r).numpy() + 1
+        atlas = _tile_atlas(tiles, per_row, np.float32)
+        assert atlas.dtype == np.float32 and atlas.flags.c_contiguous
+        assert atlas.shape == (-(-v // per_row) * r, per_row * r)
+        placed = np.zeros(atlas.shape, bool)
+        for i in range(v):
+            y, x = (i // per_row) * r, (i % per_row) * r
+            assert (atlas[y : y + r, x : x + r] == tiles[i]).all()
+            placed[y : y + r, x : x + r] = True
+        assert (atlas[~placed] == 0).all()
+
+
+def test_transfer_images_hold_the_records_at_one_width(model2):
+    # the records image is the records in order, zero-padded, at the width the three share
+    from lobelight.render._gl import _transfer_images, gaussian_records
+
+    gauss, diffuse, bounce, width = _transfer_images(model2, bounce=False)
+    assert gauss.shape[1] == diffuse.shape[1] == bounce.shape[1] == width
+    rec = gaussian_records(model2)
+    flat = gauss.reshape(-1, 4)
+    np.testing.assert_array_equal(flat[: rec.shape[0]], rec)
+    assert (flat[rec.shape[0] :] == 0).all()
+    d = diffuse.reshape(-1, 4)[: model2.diffuse.shape[0] * model2.diffuse.shape[1]]
+    np.testing.assert_array_equal(d[:, :3], model2.diffuse.reshape(-1, 3).numpy())

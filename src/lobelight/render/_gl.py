@@ -220,24 +220,34 @@ def gl_available() -> bool:
         return False
 
 
+def _wrap_size(texels: int, width: int = TEX_WIDTH) -> tuple[int, int]:
+    """``(H, W)`` of an image holding ``texels`` texels in rows of ``W >= width`` texels (wider
+    where ``H`` would pass GL's usual maximum texture height, 16384)."""
+    while -(-texels // width) > 16384:
+        width *= 2
+    return max(1, -(-texels // width)), width
+
+
 def _wrap(rows: np.ndarray, width: int = TEX_WIDTH) -> tuple[np.ndarray, int]:
     """Wrap ``(T, 4)`` texels into a ``(H, W, 4)`` image (zero-padded); returns it and W."""
     t = rows.shape[0]
-    while -(-t // width) > 16384:  # GL's usual maximum texture height
-        width *= 2
-    h = max(1, -(-t // width))
+    h, width = _wrap_size(t, width)
     out = np.zeros((h * width, 4), np.float32)
     out[:t] = rows
     return out.reshape(h, width, 4), width
 
 
-def _tile_atlas(tiles: np.ndarray, per_row: int) -> np.ndarray:
-    """Per-vertex ``(V, R, R)`` tiles laid out ``per_row`` to a row of a 2-D image."""
+def _tile_atlas(tiles: np.ndarray, per_row: int, dtype=None) -> np.ndarray:
+    """Per-vertex ``(V, R, R)`` tiles laid out ``per_row`` to a row of a 2-D image, as
+    ``dtype`` (the tiles' own by default): one copy, written in place (a sharp model's tiles
+    are its largest arrays after the Gaussians)."""
     v, r = tiles.shape[0], tiles.shape[1]
-    rows = -(-v // per_row)
-    atlas = np.zeros((rows * per_row, r, r), tiles.dtype)
-    atlas[:v] = tiles
-    return atlas.reshape(rows, per_row, r, r).transpose(0, 2, 1, 3).reshape(rows * r, per_row * r)
+    rows, full = -(-v // per_row), v // per_row
+    out = np.zeros((rows, r, per_row, r), tiles.dtype if dtype is None else dtype)
+    out[:full] = tiles[: full * per_row].reshape(full, per_row, r, r).transpose(0, 2, 1, 3)
+    if full < rows:  # the last row's tiles, the rest of it zeros
+        out[full, :, : v - full * per_row] = tiles[full * per_row :].transpose(1, 0, 2)
+    return out.reshape(rows * r, per_row * r)
 
 
 def atlas_image(pf: Prefiltered) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -268,22 +278,28 @@ def _rgb0(table: torch.Tensor) -> np.ndarray:
     return rows.reshape(-1, 4).detach().cpu().numpy()
 
 
-def gaussian_records(model) -> np.ndarray:
+def gaussian_records(model, width: int | None = None) -> np.ndarray:
     """Two texels per Gaussian ``(2 V J N, 4)``: record ``(v, j, k)`` is texels ``2r`` and
     ``2r + 1`` with ``r = (v J + j) N + k``, holding the light the lobe carries and its width
     ``(e, sigma)``, then its axis and whether the record's view is above the vertex's horizon
-    ``(mu, above)`` (prt.glsl's ``gaussian``)."""
+    ``(mu, above)`` (prt.glsl's ``gaussian``). With ``width``, the records come wrapped into
+    an ``(H, width, 4)`` image instead (zero-padded, :func:`_wrap`), filled in place."""
     g = model.gaussians
     v, j, n = g.lam.shape
+    t = 2 * v * j * n
     # one float32 buffer filled in place (a model's records are its largest array)
-    out = torch.empty(v, j, n, 2, 4, device=g.w.device)
+    h = 1 if width is None else _wrap_size(t, width)[0]
+    buf = torch.empty(t if width is None else h * width, 4, device=g.w.device)
+    buf[t:] = 0
+    out = buf[:t].view(v, j, n, 2, 4)
     out[..., 0, 3] = g.lam.rsqrt()
     # the light each lobe carries (prt.glsl blends it, not the peak weight)
     torch.mul(g.w, sg.integral(g.lam)[..., None], out=out[..., 0, :3])
     out[..., 1, :3] = g.mu
     # .w: the record's view is above the vertex's horizon (model.horizon_scale)
     out[..., 1, 3] = ((model.views[None] * model.mesh.normals[:, None]).sum(-1) > 0)[..., None]
-    return out.reshape(-1, 4).detach().cpu().numpy()
+    rec = buf.detach().cpu().numpy()
+    return rec if width is None else rec.reshape(h, width, 4)
 
 
 def _transfer_images(model, *, bounce: bool) -> tuple[np.ndarray, np.ndarray, np.ndarray, int]:
@@ -291,15 +307,17 @@ def _transfer_images(model, *, bounce: bool) -> tuple[np.ndarray, np.ndarray, np
     Gaussian records (:func:`gaussian_records`), the diffuse transfer ``(V, N_SH)`` RGB per
     texel, and the interreflected part of the transfer (``Model.bounce``; one vertex of zeros
     when ``bounce`` is false); returns them and ``W``."""
-    rec = gaussian_records(model)
-    img, width = _wrap(rec)
-    dimg, width2 = _wrap(_rgb0(model.diffuse), width)
-    if width2 != width:  # all share one width uniform; wrap again at the larger width
-        img, width = _wrap(rec, width2)
     table = model.bounce if bounce else torch.zeros_like(model.diffuse[:1])
-    bimg, width3 = _wrap(_rgb0(table), width)
-    if width3 != width:
-        raise InputError("model", "the bounce table exceeds the texture size")
+    g = model.gaussians.lam.shape
+    # all share one width uniform: the widest any of them needs
+    width = max(
+        _wrap_size(2 * g[0] * g[1] * g[2])[1],
+        _wrap_size(model.diffuse.shape[0] * model.diffuse.shape[1])[1],
+        _wrap_size(table.shape[0] * table.shape[1])[1],
+    )
+    img = gaussian_records(model, width)
+    dimg, _ = _wrap(_rgb0(model.diffuse), width)
+    bimg, _ = _wrap(_rgb0(table), width)
     return img, dimg, bimg, width
 
 
@@ -336,7 +354,7 @@ def upload_prefiltered(ctx, pf: Prefiltered):
     import moderngl  # optional (the gl extra)
 
     atlas, rows, res = atlas_image(pf)
-    tex = ctx.texture((atlas.shape[1], atlas.shape[0]), 4, atlas.tobytes(), dtype="f4")
+    tex = ctx.texture((atlas.shape[1], atlas.shape[0]), 4, np.ascontiguousarray(atlas), dtype="f4")
     tex.filter = (moderngl.LINEAR, moderngl.LINEAR)
     tex.repeat_x = tex.repeat_y = False
     return tex, atlas_uniforms(pf, atlas.shape, rows, res)
@@ -370,7 +388,7 @@ def upload_geodesic(ctx):
 
     block, img, defines = geodesic_tables()
     ubo = ctx.buffer(block.tobytes())
-    tex = ctx.texture((img.shape[1], img.shape[0]), 4, img.tobytes(), dtype="f4")
+    tex = ctx.texture((img.shape[1], img.shape[0]), 4, np.ascontiguousarray(img), dtype="f4")
     tex.filter = (moderngl.NEAREST, moderngl.NEAREST)
     return ubo, tex, defines
 
@@ -691,14 +709,18 @@ class GLRenderer:
 
         layers = albedo_array(albedo)  # (L, H, W, 3)
         n, h, w = layers.shape[:3]
-        self.albedo_tex = self.ctx.texture_array((w, h, n), 3, layers.tobytes(), dtype="f2")
+        self.albedo_tex = self.ctx.texture_array(
+            (w, h, n), 3, np.ascontiguousarray(layers), dtype="f2"
+        )
         self.albedo_tex.repeat_x = self.albedo_tex.repeat_y = True
         self.albedo_tex.build_mipmaps()
         self.albedo_tex.filter = (moderngl.LINEAR_MIPMAP_LINEAR, moderngl.LINEAR)
         set_uniforms(self.prog, albedo_uniforms(albedo))
         if self._f0 is not None:
             f0 = albedo_array(albedo, specular=True)
-            self.specular_tex = self.ctx.texture_array((w, h, n), 3, f0.tobytes(), dtype="f2")
+            self.specular_tex = self.ctx.texture_array(
+                (w, h, n), 3, np.ascontiguousarray(f0), dtype="f2"
+            )
             self.specular_tex.repeat_x = self.specular_tex.repeat_y = True
             self.specular_tex.build_mipmaps()
             self.specular_tex.filter = (moderngl.LINEAR_MIPMAP_LINEAR, moderngl.LINEAR)
@@ -713,9 +735,7 @@ class GLRenderer:
         v, r = tiles.shape[0], tiles.shape[1]
         per_row = max(1, min(v, _VIS_TEX_WIDTH // r))
         atlas = _tile_atlas(tiles, per_row)
-        self.vis_tex = self.ctx.texture(
-            (atlas.shape[1], atlas.shape[0]), 1, atlas.tobytes(), dtype="f1"
-        )
+        self.vis_tex = self.ctx.texture((atlas.shape[1], atlas.shape[0]), 1, atlas, dtype="f1")
         self.vis_tex.filter = (moderngl.NEAREST, moderngl.NEAREST)
         faces = model.mesh.faces.cpu().numpy().astype(np.int32)
         verts = model.mesh.vertices.detach().cpu().numpy().astype(np.float32)
@@ -725,27 +745,27 @@ class GLRenderer:
         pimg = np.zeros((-(-verts.shape[0] // width) * width, 3), np.float32)
         pimg[: verts.shape[0]] = verts
         self.face_tex = self.ctx.texture(
-            (width, fimg.shape[0] // width), 3, fimg.tobytes(), dtype="i4"
+            (width, fimg.shape[0] // width), 3, np.ascontiguousarray(fimg), dtype="i4"
         )
         self.pos_tex = self.ctx.texture(
-            (width, pimg.shape[0] // width), 3, pimg.tobytes(), dtype="f4"
+            (width, pimg.shape[0] // width), 3, np.ascontiguousarray(pimg), dtype="f4"
         )
         nimg = np.zeros_like(pimg)
         nimg[: verts.shape[0]] = model.mesh.normals.detach().cpu().numpy()
         aimg = np.zeros_like(pimg)
         aimg[: verts.shape[0]] = model.materials.diffuse.detach().cpu().numpy()
         size = (width, pimg.shape[0] // width)
-        self.nrm_tex = self.ctx.texture(size, 3, nimg.tobytes(), dtype="f4")
-        self.alb_tex = self.ctx.texture(size, 3, aimg.tobytes(), dtype="f4")
-        hit_face, hit_dist = (_tile_atlas(t.cpu().numpy(), per_row) for t in model.hits())
+        self.nrm_tex = self.ctx.texture(size, 3, np.ascontiguousarray(nimg), dtype="f4")
+        self.alb_tex = self.ctx.texture(size, 3, np.ascontiguousarray(aimg), dtype="f4")
+        face, dist = model.hits()
+        hit_face = _tile_atlas(face.cpu().numpy(), per_row, np.int32)
+        hit_dist = _tile_atlas(dist.cpu().numpy(), per_row, np.float16)
         self.hit_face_tex = self.ctx.texture(
-            (hit_face.shape[1], hit_face.shape[0]), 1, hit_face.astype(np.int32).tobytes(),
-            dtype="i4",
-        )  # fmt: skip
+            (hit_face.shape[1], hit_face.shape[0]), 1, hit_face, dtype="i4"
+        )
         self.hit_dist_tex = self.ctx.texture(
-            (hit_dist.shape[1], hit_dist.shape[0]), 1, hit_dist.astype(np.float16).tobytes(),
-            dtype="f2",
-        )  # fmt: skip
+            (hit_dist.shape[1], hit_dist.shape[0]), 1, hit_dist, dtype="f2"
+        )
         # the vertex table's targets (prt.glsl VERTEX_TABLE), one texel per vertex
         n_targets = 2 + 2 * model.indirect_gaussians
         self.table_tex = [self.ctx.texture(size, 4, dtype="f4") for _ in range(n_targets)]
@@ -770,9 +790,9 @@ class GLRenderer:
         p["sharp_lam"].value = tuple(lam)
         limg = np.zeros((pimg.shape[0], 4), np.float32)
         limg[: verts.shape[0]] = lobe
-        self.lobe_tex = self.ctx.texture(size, 4, limg.tobytes(), dtype="f4")
+        self.lobe_tex = self.ctx.texture(size, 4, np.ascontiguousarray(limg), dtype="f4")
         self.split_tex = self.ctx.texture(
-            (split.shape[1], split.shape[0]), 2, split.tobytes(), dtype="f4"
+            (split.shape[1], split.shape[0]), 2, np.ascontiguousarray(split), dtype="f4"
         )
         for t in (self.lobe_tex, self.split_tex):
             t.filter = (moderngl.NEAREST, moderngl.NEAREST)
@@ -802,7 +822,7 @@ class GLRenderer:
         self.whole_atlas = None
         self._upload_whole(lighting)
         self.env_cube = self.ctx.texture_cube(
-            (BACKGROUND_RES,) * 2, 3, _background(lighting).tobytes(), dtype="f4"
+            (BACKGROUND_RES,) * 2, 3, np.ascontiguousarray(_background(lighting)), dtype="f4"
         )
         self.env_cube.filter = (moderngl.LINEAR, moderngl.LINEAR)
 
@@ -824,7 +844,9 @@ class GLRenderer:
         atlas = atlas_image(lighting.prefiltered)[0]
         if atlas.shape != (self.atlas.height, self.atlas.width, 4):
             raise InputError("lighting", "the whole map's chain differs in layout from its rest's")
-        tex = self.ctx.texture((atlas.shape[1], atlas.shape[0]), 4, atlas.tobytes(), dtype="f4")
+        tex = self.ctx.texture(
+            (atlas.shape[1], atlas.shape[0]), 4, np.ascontiguousarray(atlas), dtype="f4"
+        )
         tex.filter = self.atlas.filter
         self.whole_atlas = tex
 
@@ -891,15 +913,15 @@ class GLRenderer:
         ctx, p, mesh = self.ctx, self.prog, model.mesh
         verts = mesh.vertices.detach().cpu().numpy().astype(np.float32)
         faces_np = mesh.faces.cpu().numpy().astype(np.uint32)
-        self.vbo = ctx.buffer(verts.tobytes())
-        self.ibo = ctx.buffer(faces_np.tobytes())
+        self.vbo = ctx.buffer(np.ascontiguousarray(verts))
+        self.ibo = ctx.buffer(np.ascontiguousarray(faces_np))
         normals = mesh.normals.detach().cpu().numpy().astype(np.float32)
-        self.nbo = ctx.buffer(normals.tobytes())
+        self.nbo = ctx.buffer(np.ascontiguousarray(normals))
         content = [(self.vbo, "3f", "in_pos"), (self.nbo, "3f", "in_normal")]
         self.abo = self.sbo = None  # per-vertex inputs of the sun's shading, when it has one
         if self.has_sun and model.albedo is None:  # else the sun reads the textures' albedo
             albedo = model.materials.diffuse.detach().cpu().numpy().astype(np.float32)
-            self.abo = ctx.buffer(albedo.tobytes())
+            self.abo = ctx.buffer(np.ascontiguousarray(albedo))
             content.append((self.abo, "3f", "in_albedo"))
         self.uvbo = None  # the albedo textures' per-vertex inputs, when the model has them
         if model.albedo is not None:
@@ -912,7 +934,7 @@ class GLRenderer:
             if self._f0 is not None:
                 attrs = np.concatenate([attrs, self._f0.cpu().numpy().astype(np.float32)], 1)
                 fmt, names = fmt + " 3f", (*names, "in_f0")
-            self.uvbo = ctx.buffer(np.ascontiguousarray(attrs, np.float32).tobytes())
+            self.uvbo = ctx.buffer(np.ascontiguousarray(attrs, np.float32))
             content.append((self.uvbo, fmt, *names))
         if self.sun_glossy:
             spec = self._specular
@@ -920,7 +942,7 @@ class GLRenderer:
             set_uniforms(p, sun_glossy_uniforms(spec))
             if p.get("sun_spread", None) is not None:  # compiled out without indirect lobes
                 p["sun_spread"].value = float(lighting.sun.spread)
-            self.sbo = ctx.buffer(sb.tobytes())
+            self.sbo = ctx.buffer(np.ascontiguousarray(sb))
             content.append((self.sbo, "4f 3f 3f", "in_sb0", "in_eta", "in_k"))
         self.vao = ctx.vertex_array(p, content, self.ibo, 4)
         self.table_vao = None
@@ -1019,10 +1041,10 @@ class GLRenderer:
             or float(pf.lambdas[0]) != self._atlas_uniforms["lam0"]
         ):
             return False
-        self.atlas.write(atlas_image(pf)[0].tobytes())
+        self.atlas.write(np.ascontiguousarray(atlas_image(pf)[0]))
         self._upload_whole(lighting)
         for face, data in enumerate(_background(lighting)):
-            self.env_cube.write(face, data.tobytes())
+            self.env_cube.write(face, np.ascontiguousarray(data))
         if self.has_sun:
             sun = lighting.sun
             self.frame_block.set("sun_e", [float(x) for x in sun.irradiance])
