@@ -193,6 +193,18 @@ def test_the_bake_flags_default_to_the_bake_s_interreflection():
     assert args.refine == fit.REFINE_ROUNDS
 
 
+def test_base_res_auto_is_the_default_where_a_model_is_rendered():
+    # the help states auto's range, restated so that building the parser imports no torch
+    from lobelight import render
+    from lobelight.cli._arguments import AUTO_BASE_RES_RANGE
+
+    assert AUTO_BASE_RES_RANGE == (render.AUTO_BASE_RES_MIN, render.AUTO_BASE_RES_MAX)
+    p = cli._parser()
+    for argv in (["render", "m.npz"], ["compare", "s.toml"], ["gallery", "run"]):
+        assert p.parse_args(argv).base_res == "auto"
+    assert p.parse_args(["render", "m.npz", "--base-res", "512"]).base_res == 512
+
+
 def test_sigterm_ends_a_bake_like_ctrl_c(tmp_path):
     """Batch schedulers stop jobs with SIGTERM: one line and exit 143, unwound like Ctrl-C (it
     used to kill the process silently), and nothing half-written is left."""

@@ -1322,6 +1322,8 @@ def _within_stated_ranges(args) -> None:
         ("repeats", 1, _limits.MAX_REPEATS),
     ]:  # fmt: skip
         value = getattr(args, name, None)
+        if name == "base_res" and value == "auto":
+            continue
         assert value is None or lo <= value <= hi, (name, value)
     for name in ("rotate", "memory_gb", "budget"):
         value = getattr(args, name, None)

@@ -26,6 +26,7 @@ from ._limits import (
     MAX_SEED,
     MAX_SIDE,
     MAX_SPP,
+    base_res_type,
     bounded_float,
     bounded_int,
     memory_bytes,
@@ -41,6 +42,9 @@ _BOUNCES = 4
 _INDIRECT_PATHS = 16
 #: A bake's rounds of mesh refinement, :data:`lobelight.fit.REFINE_ROUNDS` restated likewise.
 _REFINE_ROUNDS = 3
+#: ``--base-res auto``'s range, :data:`lobelight.render.AUTO_BASE_RES_MIN` and ``_MAX``
+#: restated likewise.
+AUTO_BASE_RES_RANGE = (256, 1024)
 
 
 class _UsageError(Exception):
@@ -216,13 +220,19 @@ def _backend(sp) -> None:
     )
 
 
-def _base_res(sp, default: int = 256) -> None:
+def _base_res(sp, default: int | str = "auto") -> None:
+    lo, hi = AUTO_BASE_RES_RANGE
+    auto = (
+        f"auto: the one the model's sharpest lobes need under the map, {lo} to {hi}; "
+        if default == "auto"
+        else ""
+    )
     sp.add_argument(
         "--base-res",
-        type=bounded_int(1, MAX_BASE_RES),
+        type=base_res_type if default == "auto" else bounded_int(1, MAX_BASE_RES),
         default=default,
-        help="face resolution of the sharpest prefiltered level (a power of two, at most "
-        f"{MAX_BASE_RES}: the largest whose chain fits half of this machine's memory)",
+        help=f"face resolution of the sharpest prefiltered level ({auto}a power of two, at "
+        f"most {MAX_BASE_RES}: the largest whose chain fits half of this machine's memory)",
     )
 
 

@@ -264,9 +264,11 @@ def _output_folder(path) -> Path:
     return out
 
 
-def _check_base_res(args) -> int:
-    """``--base-res``: a power of two (its range is the parser's)."""
+def _check_base_res(args) -> int | str:
+    """``--base-res``: ``auto`` or a power of two (its range is the parser's)."""
     n = args.base_res
+    if n == "auto":
+        return n
     if n & (n - 1):
         raise InputError("--base-res", f"must be a power of two, got {n}")
     return n

@@ -21,6 +21,7 @@ from ._limits import (
     MAX_DEPTH,
     MAX_SAMPLES,
     MAX_SPP,
+    base_res_type,
     bounded_int,
 )
 from ._size import check_image, parse_size
@@ -118,10 +119,11 @@ def _add_run_settings(g) -> None:
     )
     g.add_argument(
         "--base-res",
-        type=bounded_int(1, MAX_BASE_RES),
-        default=256,
-        help=f"face resolution of the sharpest prefiltered level (a power of two, at most "
-        f"{MAX_BASE_RES}: the largest whose chain fits half of this machine's memory)",
+        type=base_res_type,
+        default="auto",
+        help="face resolution of the sharpest prefiltered level (auto: the one each bake's "
+        f"sharpest lobes need under its map; a power of two, at most {MAX_BASE_RES}: the "
+        "largest whose chain fits half of this machine's memory)",
     )
     g.add_argument(
         "--sun",

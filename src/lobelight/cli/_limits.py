@@ -121,6 +121,19 @@ def bounded_int(lo: int, hi: int) -> Callable[[str], int]:
     return parse
 
 
+def base_res_type(text: str) -> int | str:
+    """An argparse type: ``auto`` or a whole number 1..MAX_BASE_RES (a power of two, checked by
+    the command)."""
+    if text == "auto":
+        return text
+    try:
+        return bounded_int(1, MAX_BASE_RES)(text)
+    except argparse.ArgumentTypeError:
+        raise argparse.ArgumentTypeError(
+            f"expected 'auto' or a whole number 1..{MAX_BASE_RES}, got {text[:40]!r}"
+        ) from None
+
+
 def bounded_float(lo: float, hi: float, *, lo_open: bool = False) -> Callable[[str], float]:
     """An argparse type: a number in ``[lo, hi]`` (``(lo, hi]`` with ``lo_open``); ``hi`` may
     be ``inf``, NaN never passes."""

@@ -16,7 +16,8 @@ a view along the normal (any model, measured alike):
 - its **width**, as the equivalent GGX ``alpha``: ``tan(theta / 2)`` of the light-weighted
   median angle ``theta`` between the sampled light directions and the mirror direction (exact
   for GGX, whose half vectors have median ``tan theta_h = alpha``; a Phong exponent ``e`` comes
-  out near ``1.4 / sqrt(e)``);
+  out near ``0.59 / sqrt(e)``, a Gaussian of ``sigma = 1 / sqrt(e)`` whose median angle is
+  ``sigma sqrt(2 ln 2)``);
 - its **tail**: the ratio of the 90th to the 50th percentile of that angle, 1.82 for a round
   (von Mises-Fisher, Phong) lobe, 2.3-3.8 for GGX up to α 0.25;
 - its **share**: the specular albedo against specular plus diffuse albedo (luminance).

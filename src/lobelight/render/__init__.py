@@ -11,7 +11,8 @@
 - Backends: ``"gl"`` runs ``shaders/prt.glsl`` through moderngl (EGL headless; Mesa llvmpipe on
   a CPU, the NVIDIA driver on a GPU); ``"torch"`` does the same stages in torch on any device
   (``_torch.py``, by ray casting), and is what the shaders are tested against.
-- :class:`Lighting` an environment ready to render: prefiltered chain, SH projection, rotation.
+- :class:`Lighting` an environment ready to render: prefiltered chain, SH projection, rotation;
+  :func:`auto_base_res` the chain's base resolution a model's sharpest lobes need.
 - :func:`tonemap` exposure, ``"neutral"`` (Khronos PBR Neutral, :func:`neutral`, the default),
   ``"srgb"`` or ``"aces"``, to 8-bit; :func:`auto_exposure` (with a curve: the highlights' rule);
   :func:`save_image` (``.png``/``.jpg`` tone-mapped, ``.exr``/``.hdr`` linear), atomically;
@@ -37,7 +38,15 @@ from ..geometry.camera import Camera
 from ._gl import create_context, gl_available, load_shader, stage_sources
 from ._gl_sgbrdf import GLSGBRDFRenderer
 from ._gltf_out import GLTF_EXTENSION, export_gltf, fallback_material, import_gltf
-from ._lighting import Lighting, as_rotation
+from ._lighting import (
+    AUTO_BASE_BLUR,
+    AUTO_BASE_RES_MAX,
+    AUTO_BASE_RES_MIN,
+    AUTO_SHARP_QUANTILE,
+    Lighting,
+    as_rotation,
+    auto_base_res,
+)
 from ._renderer import Renderer, sample_offsets
 from ._tonemap import (
     CURVES,
@@ -52,6 +61,10 @@ from ._turntable import orbit, turntable
 from ._window import Orbit, model_camera, require_display, view
 
 __all__ = [
+    "AUTO_BASE_BLUR",
+    "AUTO_BASE_RES_MAX",
+    "AUTO_BASE_RES_MIN",
+    "AUTO_SHARP_QUANTILE",
     "CURVES",
     "DEFAULT_CURVE",
     "GLTF_EXTENSION",
@@ -61,6 +74,7 @@ __all__ = [
     "Orbit",
     "Renderer",
     "as_rotation",
+    "auto_base_res",
     "auto_exposure",
     "check_output_path",
     "create_context",

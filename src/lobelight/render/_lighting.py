@@ -24,10 +24,34 @@ import math
 import torch
 
 from ..envmap import ChainBuilder, EnvMap, Prefiltered, Sun, extract_sun, prefilter
+from ..envmap._prefilter import TEXELS_PER_SIGMA
 from ..errors import InputError
+from ..fit import lobe_shape
 from ..lobes import sh
 
-__all__ = ["Lighting", "as_rotation"]
+__all__ = [
+    "AUTO_BASE_BLUR",
+    "AUTO_BASE_RES_MAX",
+    "AUTO_BASE_RES_MIN",
+    "AUTO_SHARP_QUANTILE",
+    "Lighting",
+    "as_rotation",
+    "auto_base_res",
+]
+
+#: The chain's base resolution for every model whose lobes it resolves there: every rough,
+#: plastic and GGX alpha 0.03 gallery scene scores the same at 1024 (docs/results.md).
+AUTO_BASE_RES_MIN = 256
+#: The largest base resolution chosen by default (two chains of about 135 MB each); larger
+#: ones only when asked for.
+AUTO_BASE_RES_MAX = 1024
+#: The share of a model's glossy vertices whose lobe the chain must resolve: the sharpest
+#: tenth decides (a mirror-like visor on a rough helmet).
+AUTO_SHARP_QUANTILE = 0.1
+#: The base level's Gaussian at most this share of the sharp lobe's (:func:`auto_base_res`).
+AUTO_BASE_BLUR = 0.5
+# Vertices measured (evenly spread), as the Gaussians' rule measures them.
+_AUTO_VERTICES = 256
 
 
 def as_rotation(r, *, device=None) -> torch.Tensor:
@@ -48,6 +72,53 @@ def as_rotation(r, *, device=None) -> torch.Tensor:
     ):
         raise InputError("light_rotation", "must be a rotation (orthogonal, determinant +1)")
     return m
+
+
+def auto_base_res(model, env: EnvMap) -> int:
+    """The chain's base resolution that resolves ``model``'s sharp lobes under ``env``.
+
+    A lobe sharper than the chain's base level is read there, widened by the base level's own
+    Gaussian (standard deviation ``sigma_0 = 2.5`` texels, ``5 / res`` radians at a face's
+    centre): a mirror-like surface (GGX alpha 0.001-0.01) reflects a soft copy of the map. Each
+    glossy vertex's lobe, for a view along its normal, is taken as the Gaussian of the same peak
+    density ``p`` (the BRDF times the cosine at the mirror direction over the lobe's albedo,
+    :func:`lobelight.fit.lobe_shape`): ``sigma = 1 / sqrt(2 pi p)``, exactly ``sqrt(2) alpha``
+    for GGX and ``1 / sqrt(e)`` for a Phong lobe. The sharpest tenth of the vertices
+    (:data:`AUTO_SHARP_QUANTILE`) decides: the answer is the smallest power of two from
+    :data:`AUTO_BASE_RES_MIN` whose ``sigma_0`` is at most :data:`AUTO_BASE_BLUR` of their
+    ``sigma`` (the lobe's peak lowered by at most ``1 - 1 / (1 + 0.5^2) = 20 %``), within a
+    cap: at most :data:`AUTO_BASE_RES_MAX` and at most four texels per texel of the map's own
+    (a lat-long map ``W`` wide has about ``W / 4`` per cube face; a small map's cap may be below
+    :data:`AUTO_BASE_RES_MIN`, and is then the answer). Past the map's pixels a finer chain
+    still follows the bilinear interpolant the path tracer reads, and stops gaining soon after
+    (docs/method.md). A material without a glossy lobe takes the smallest.
+
+    Parameters
+    ----------
+    model : lobelight.model.Model;  env : the EnvMap to prefilter
+    """
+    native = env.data.shape[-2] // 4 if env.layout == "latlong" else env.data.shape[1]
+    cap = 2 ** int(math.log2(max(8, min(AUTO_BASE_RES_MAX, 4 * native))))
+    res = min(AUTO_BASE_RES_MIN, cap)
+    mats = model.materials
+    v = mats.n_vertices
+    if mats.specular is None or v == 0:
+        return res
+    count = min(v, _AUTO_VERTICES)
+    vidx = torch.div(torch.arange(count) * v, count, rounding_mode="floor")
+    vidx = vidx.to(mats.diffuse.device)
+    albedo = lobe_shape(mats, vidx)["albedo"]
+    n = torch.tensor([0.0, 0.0, 1.0], device=vidx.device).expand(count, 3)
+    peak = mats.specular.take(vidx).eval(n, n, n).mean(-1)  # (B,) f cos at the mirror
+    glossy = (albedo > 0) & (peak > 0)
+    if not bool(glossy.any()):
+        return res
+    sigma = (2 * math.pi * peak[glossy] / albedo[glossy]).rsqrt()
+    sigma = float(torch.quantile(sigma.float(), AUTO_SHARP_QUANTILE))
+    # sigma_0 = 2 TEXELS_PER_SIGMA / res (lam_0 = (res / (2 TEXELS_PER_SIGMA))^2)
+    while res < cap and 2 * TEXELS_PER_SIGMA / res > AUTO_BASE_BLUR * sigma:
+        res *= 2
+    return res
 
 
 class Lighting:

@@ -12,7 +12,7 @@ from ..errors import InputError
 from ..geometry.camera import Camera
 from ..geometry.raycast import RayCaster
 from ._gl import GLRenderer
-from ._lighting import Lighting, as_rotation
+from ._lighting import Lighting, as_rotation, auto_base_res
 from ._torch import render_torch
 
 __all__ = ["Renderer", "sample_offsets"]
@@ -58,7 +58,9 @@ class Renderer:
     env : EnvMap or Lighting
     width, height : image size in pixels
     backend : ``"gl"`` (shaders through moderngl/EGL) or ``"torch"`` (the same stages in torch)
-    base_res : face resolution of the sharpest prefiltered level (when ``env`` is an EnvMap)
+    base_res : face resolution of the sharpest prefiltered level (when ``env`` is an EnvMap),
+        or ``"auto"``: the one the model's sharpest lobes need under that map
+        (:func:`lobelight.render.auto_base_res`)
     sun : shade the map's sun per pixel with shadows (when ``env`` is an EnvMap; see
         :class:`Lighting`)
     device : torch device of the torch path and of the prefiltering
@@ -81,7 +83,7 @@ class Renderer:
         height: int = 512,
         *,
         backend: str = "gl",
-        base_res: int = 128,
+        base_res: int | str = "auto",
         device=None,
         ctx=None,
         sun: bool = False,
@@ -156,14 +158,19 @@ class Renderer:
             gl.release()
         self.lighting = lighting
 
-    def _as_lighting(self, env, base_res: int, sun: bool, *, rebuilt: bool = False) -> Lighting:
+    def _as_lighting(
+        self, env, base_res: int | str, sun: bool, *, rebuilt: bool = False
+    ) -> Lighting:
         """``env`` as the model's Lighting: a Lighting as it is, an EnvMap prepared at
-        ``base_res`` with ``sun`` on the model's device (``rebuilt``: its chains by the
-        renderer's ChainBuilders); InputError unless its SH order is the model's."""
+        ``base_res`` (``"auto"``: :func:`auto_base_res`) with ``sun`` on the model's device
+        (``rebuilt``: its chains by the renderer's ChainBuilders); InputError unless its SH
+        order is the model's."""
         model = self.model
         if isinstance(env, Lighting):
             lighting = env
         elif isinstance(env, EnvMap):
+            if base_res == "auto":
+                base_res = auto_base_res(model, env)
             if rebuilt and (self._builders is None or self._builders[0].base_res != base_res):
                 self._builders = tuple(
                     ChainBuilder(base_res=base_res, device=model.device) for _ in range(2)

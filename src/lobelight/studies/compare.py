@@ -54,7 +54,15 @@ from ..geometry.raycast import RayCaster
 from ..lobes import sh
 from ..progress import resolve
 from ..reference import paths as reference
-from ..render import Lighting, Renderer, as_rotation, auto_exposure, gl_available, save_image
+from ..render import (
+    Lighting,
+    Renderer,
+    as_rotation,
+    auto_base_res,
+    auto_exposure,
+    gl_available,
+    save_image,
+)
 from ..transport import Transport
 from .score import noise_psnr, psnr, psnr_display, relative_l2
 
@@ -176,7 +184,7 @@ def compare(
     spp: int = 1024,
     light_rotation=None,
     backend: str = "auto",
-    base_res: int = 256,
+    base_res: int | str = "auto",
     baselines: tuple[str, ...] = ("linear",),
     out=None,
     device=None,
@@ -192,6 +200,8 @@ def compare(
     env : EnvMap (default the scene's);  spp : reference samples per pixel (its own noise
         bounds the scores: ``reference_noise_psnr``)
     backend : "gl", "torch" or "auto" (gl when a context can be made)
+    base_res : the prefiltered chain's base resolution, or ``"auto"``
+        (:func:`lobelight.render.auto_base_res`)
     out : folder for the images (PNG, tone-mapped with the reference's exposure) and
         ``compare.json``; nothing is written when None
     sun : shade the map's sun per pixel with shadows (:class:`Lighting`: its diffuse light,
@@ -224,6 +234,8 @@ def compare(
     if model is None:
         model = fit_model(scene, n_gaussians, device=device, progress=progress)
         timings["fit"] = time.perf_counter() - t0
+    if base_res == "auto":
+        base_res = auto_base_res(model, env)
     lighting = Lighting(
         env, base_res=base_res, device=model.device, sun=sun, sh_order=model.sh_order
     )

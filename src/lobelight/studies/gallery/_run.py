@@ -19,7 +19,7 @@ from ..._tol import DIVISOR_F64
 from ...errors import InputError
 from ...fit import fit_model
 from ...progress import resolve
-from ...render import Lighting, Renderer, gl_available, save_image
+from ...render import Lighting, Renderer, auto_base_res, gl_available, save_image
 from ..score import highpass_energy, noise_highpass_energy, noise_psnr_display
 from . import _references
 from ._references import load_reference, reference_status
@@ -190,7 +190,7 @@ def run(
     n_gaussians: int | str | None = None,
     samples: int = 16,
     backend: str = "auto",
-    base_res: int = 256,
+    base_res: int | str = "auto",
     sun: bool = True,
     device=None,
     fit_options: dict[str, Any] | None = None,
@@ -219,7 +219,9 @@ def run(
         own, :attr:`GalleryScene.gaussians`, else ``fit_model``'s default);  fit_options : more
         keyword arguments of ``fit_model``
     backend : "gl", "torch" or "auto" (gl where a context opens)
-    base_res : face resolution of the sharpest prefiltered level;  sun : shade the map's sun
+    base_res : face resolution of the sharpest prefiltered level, or ``"auto"`` (per bake and
+        map, :func:`lobelight.render.auto_base_res`; each scene records the one it used);
+        sun : shade the map's sun
         per pixel (:class:`lobelight.render.Lighting`)
 
     Returns
@@ -285,7 +287,7 @@ def run(
         "levels": levels,
         "progress": progress,
     }
-    lightings: dict[str, Lighting] = {}
+    lightings: dict[tuple, Any] = {}  # _lighting's
     for bake, group in groups.items():
         note(f"bake {bake}")
         m, mesh, record = _bake(
@@ -336,13 +338,17 @@ def _row(name: str, e: dict[str, Any]) -> dict[str, Any]:
 
 
 def _lighting(sc: GalleryScene, m, data, lightings, *, base_res, sun) -> Lighting:
-    """The scene's :class:`Lighting`, made once per map."""
-    key = str(find_map(sc, data))
+    """The scene's :class:`Lighting`, made once per map and base resolution (``"auto"``:
+    the model's, :func:`lobelight.render.auto_base_res`); ``lightings`` holds the maps read,
+    keyed ``(path,)``, and the lightings made, keyed ``(path, base_res)``."""
+    path = str(find_map(sc, data))
+    env = lightings.get((path,))
+    if env is None:
+        env = lightings[(path,)] = envmap.load(path)
+    res = auto_base_res(m, env) if base_res == "auto" else base_res
+    key = (path, res)
     if key not in lightings:
-        env = envmap.load(key)
-        lightings[key] = Lighting(
-            env, base_res=base_res, device=m.device, sun=sun, sh_order=m.sh_order
-        )
+        lightings[key] = Lighting(env, base_res=res, device=m.device, sun=sun, sh_order=m.sh_order)
     return lightings[key]
 
 
@@ -429,6 +435,7 @@ def _scene(
         "envmap": sc.envmap,
         "material": sc.material,
         "vertices": m.mesh.n_vertices,
+        "base_res": lighting.base_res,
         "fit_error": record.get("fit_error"),
         "gaussians": record.get("gaussians"),
         "bake_seconds": record.get("seconds"),

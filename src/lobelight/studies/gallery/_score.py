@@ -58,6 +58,7 @@ LEGEND = {
     "highpass_ratio_detail": "[low, high]: highpass_ratio against the reference's detail alone "
     "(its energy less its noise's, at each end of reference_noise_highpass); wide where the "
     "reference is mostly noise at the pixel scale",
+    "base_res": "face resolution of the prefiltered chain's sharpest level our frame used",
     "frame_seconds": "seconds of one of our frames at the scene's size and samples per pixel "
     "(median of warm frames; not the bake, not the renderer's set-up)",
     "equal_quality": "Mitsuba at our psnr_display: samples per pixel and seconds (crossing of "
