@@ -10,8 +10,7 @@ import pytest
 import torch
 
 from lobelight import brdf
-from lobelight.envmap import EnvMap
-from lobelight.envmap._prefilter import TEXELS_PER_SIGMA
+from lobelight.envmap import TEXELS_PER_SIGMA, EnvMap
 from lobelight.render import (
     AUTO_BASE_BLUR,
     AUTO_BASE_RES_MAX,

@@ -9,7 +9,8 @@
 - :func:`extract_sun` a compact bright source (a sun, a lamp, a window) split off a map
   (:class:`Sun`), found by its concentration, for per-pixel shading with soft shadows.
 - :func:`prefilter` -> :class:`Prefiltered`, whose ``integrate(mu, lam)`` approximates
-  ``int exp(lam (mu.w - 1)) L(w) dw`` with one interpolated lookup per lobe.
+  ``int exp(lam (mu.w - 1)) L(w) dw`` with one interpolated lookup per lobe; its sharpest
+  level's Gaussian is :data:`TEXELS_PER_SIGMA` texels wide at a base face's centre.
 - :class:`ChainBuilder` the same chain rebuilt from one map after another (a dynamic
   environment each frame); on CUDA one graph launch per map.
 """
@@ -18,10 +19,11 @@ from ._builtin import builtin
 from ._chain_builder import ChainBuilder
 from ._envmap import EnvMap
 from ._io import load, save
-from ._prefilter import Prefiltered, clear_memory_caches, prefilter
+from ._prefilter import TEXELS_PER_SIGMA, Prefiltered, clear_memory_caches, prefilter
 from ._sun import Sun, extract_sun
 
 __all__ = [
+    "TEXELS_PER_SIGMA",
     "ChainBuilder",
     "EnvMap",
     "Prefiltered",

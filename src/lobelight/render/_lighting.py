@@ -23,8 +23,15 @@ import math
 
 import torch
 
-from ..envmap import ChainBuilder, EnvMap, Prefiltered, Sun, extract_sun, prefilter
-from ..envmap._prefilter import TEXELS_PER_SIGMA
+from ..envmap import (
+    TEXELS_PER_SIGMA,
+    ChainBuilder,
+    EnvMap,
+    Prefiltered,
+    Sun,
+    extract_sun,
+    prefilter,
+)
 from ..errors import InputError
 from ..fit import lobe_shape
 from ..lobes import sh
