@@ -49,8 +49,9 @@ __all__ = [
 #: The chain's base resolution for every model whose lobes it resolves there: every rough,
 #: plastic and GGX alpha 0.03 gallery scene scores the same at 1024 (docs/results.md).
 AUTO_BASE_RES_MIN = 256
-#: The largest base resolution chosen by default (two chains of about 135 MB each); larger
-#: ones only when asked for.
+#: The largest base resolution chosen by default (a chain of 403 MB at 1024: four phases of
+#: six 1024² RGB float32 faces and the mips below; with a sun two chains); larger ones only
+#: when asked for.
 AUTO_BASE_RES_MAX = 1024
 #: The share of a model's glossy vertices whose lobe the chain must resolve: the sharpest
 #: tenth decides (a mirror-like visor on a rough helmet).
