@@ -99,3 +99,14 @@ def model_sharp_small():
     model.materials = Materials(model.materials.diffuse, brdf.GGX(alpha=0.004, specular=0.9))
     # a 128-wide map: the cap (128) is below the smallest, so the chain stays small
     return model, _map(128)
+
+
+def test_the_machine_s_memory_caps_the_resolution(monkeypatch):
+    # a machine whose memory share holds no chain above 256 gets 256 for a mirror, as the
+    # command line's --base-res maximum says
+    from lobelight import _memory
+
+    budget = 6 * 256**2 * _memory.PREFILTER_BYTES_PER_TEXEL / _memory.MEMORY_SHARE
+    monkeypatch.setattr(_memory, "memory_bytes", lambda: int(budget * 1.5))
+    assert _memory.max_base_res() == 256
+    assert auto_base_res(_model(brdf.GGX(alpha=0.002, specular=0.9)), _map(1024)) == 256

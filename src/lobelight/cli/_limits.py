@@ -2,11 +2,13 @@
 time (one line, exit 2, before any work) and its help states the range.
 
 Sizes that cost memory have a maximum derived from this machine's memory
-(:func:`memory_bytes`): a command plans for at most :data:`MEMORY_SHARE` of it, at the bytes per
-pixel (:data:`RENDER_BYTES_PER_PIXEL`) and per texel of the sharpest prefiltered level
-(:data:`PREFILTER_BYTES_PER_TEXEL`) the renderers take at their peak (the torch renderer, the
-larger of the two; ``docs/benchmarks.md``). The other counts are bounded by what their types
-hold or by what can finish: a seed within 63 bits, exposures within float32's range.
+(:func:`lobelight._memory.memory_bytes`): a command plans for at most
+:data:`~lobelight._memory.MEMORY_SHARE` of it, at the bytes per pixel
+(:data:`RENDER_BYTES_PER_PIXEL`) and per texel of the sharpest prefiltered level
+(:data:`~lobelight._memory.PREFILTER_BYTES_PER_TEXEL`) the renderers take at their peak (the
+torch renderer, the larger of the two; ``docs/benchmarks.md``). The other counts are bounded by
+what their types hold or by what can finish: a seed within 63 bits, exposures within float32's
+range.
 
 Building these imports no torch (the parser's rule).
 """
@@ -15,8 +17,14 @@ from __future__ import annotations
 
 import argparse
 import math
-import os
 from collections.abc import Callable
+
+from .._memory import (
+    MEMORY_SHARE,
+    PREFILTER_BYTES_PER_TEXEL,
+    max_base_res,
+    memory_bytes,
+)
 
 __all__ = [
     "MAX_BASE_RES",
@@ -41,24 +49,8 @@ __all__ = [
     "pixels_help",
 ]
 
-#: The share of the machine's memory a command plans for.
-MEMORY_SHARE = 0.5
 #: Bytes a rendered pixel takes at the renderers' peak (4 samples per pixel, the default).
 RENDER_BYTES_PER_PIXEL = 400
-#: Bytes a texel of the sharpest prefiltered level takes while the chain is built (its six
-#: faces counted one by one; the coarser levels and the working buffers included).
-PREFILTER_BYTES_PER_TEXEL = 400
-#: The memory assumed where the platform does not say (bytes).
-FALLBACK_MEMORY = 8 << 30
-
-
-def memory_bytes() -> int:
-    """This machine's physical memory in bytes (``sysconf``), else :data:`FALLBACK_MEMORY`."""
-    try:
-        n = os.sysconf("SC_PHYS_PAGES") * os.sysconf("SC_PAGE_SIZE")
-    except (AttributeError, ValueError, OSError):
-        return FALLBACK_MEMORY
-    return n if n > 0 else FALLBACK_MEMORY
 
 
 def _budget() -> float:
@@ -71,7 +63,7 @@ MAX_SIDE = 16384
 #: :data:`RENDER_BYTES_PER_PIXEL`, and no more than a MAX_SIDE square.
 MAX_RENDER_PIXELS = int(min(MAX_SIDE**2, _budget() // RENDER_BYTES_PER_PIXEL))
 #: The largest ``--base-res`` (a power of two) whose chain fits this machine's memory share.
-MAX_BASE_RES = 1 << max(int(math.log2(math.sqrt(_budget() / (6 * PREFILTER_BYTES_PER_TEXEL)))), 1)
+MAX_BASE_RES = max_base_res()
 #: The most stops of ``--exposure`` either way: 2**64 times the brightest radiance a map may
 #: hold stays within float32, and beyond it every pixel is black or white.
 MAX_EXPOSURE = 64.0

@@ -23,6 +23,7 @@ import math
 
 import torch
 
+from .._memory import max_base_res
 from ..envmap import (
     TEXELS_PER_SIGMA,
     ChainBuilder,
@@ -95,7 +96,9 @@ def auto_base_res(model, env: EnvMap) -> int:
     (:data:`AUTO_SHARP_QUANTILE`) decides: the answer is the smallest power of two from
     :data:`AUTO_BASE_RES_MIN` whose ``sigma_0`` is at most :data:`AUTO_BASE_BLUR` of their
     ``sigma`` (the lobe's peak lowered by at most ``1 - 1 / (1 + 0.5^2) = 20 %``), within a
-    cap: at most :data:`AUTO_BASE_RES_MAX` and at most four texels per texel of the map's own
+    cap: at most :data:`AUTO_BASE_RES_MAX`, at most the largest whose chain fits this machine's
+    memory share (:func:`lobelight._memory.max_base_res`, as ``--base-res``'s maximum), and at
+    most four texels per texel of the map's own
     (a lat-long map ``W`` wide has about ``W / 4`` per cube face; a small map's cap may be below
     :data:`AUTO_BASE_RES_MIN`, and is then the answer). Past the map's pixels a finer chain
     still follows the bilinear interpolant the path tracer reads, and stops gaining soon after
@@ -106,7 +109,7 @@ def auto_base_res(model, env: EnvMap) -> int:
     model : lobelight.model.Model;  env : the EnvMap to prefilter
     """
     native = env.data.shape[-2] // 4 if env.layout == "latlong" else env.data.shape[1]
-    cap = 2 ** int(math.log2(max(8, min(AUTO_BASE_RES_MAX, 4 * native))))
+    cap = 2 ** int(math.log2(max(8, min(AUTO_BASE_RES_MAX, max_base_res(), 4 * native))))
     res = min(AUTO_BASE_RES_MIN, cap)
     mats = model.materials
     v = mats.n_vertices
