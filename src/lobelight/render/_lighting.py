@@ -47,8 +47,9 @@ __all__ = [
     "auto_base_res",
 ]
 
-#: The chain's base resolution for every model whose lobes it resolves there: every rough,
-#: plastic and GGX alpha 0.03 gallery scene scores the same at 1024 (docs/results.md).
+#: The chain's base resolution for every model whose lobes it resolves there: the GGX alpha
+#: 0.03 teapot and bunny score the same at 1024 (docs/method.md); rough and plastic lobes are
+#: wider still.
 AUTO_BASE_RES_MIN = 256
 #: The largest base resolution chosen by default (a chain of 403 MB at 1024: four phases of
 #: six 1024² RGB float32 faces and the mips below; with a sun two chains); larger ones only
@@ -98,11 +99,11 @@ def auto_base_res(model, env: EnvMap) -> int:
     ``sigma`` (the lobe's peak lowered by at most ``1 - 1 / (1 + 0.5^2) = 20 %``), within a
     cap: at most :data:`AUTO_BASE_RES_MAX`, at most the largest whose chain fits this machine's
     memory share (:func:`lobelight._memory.max_base_res`, as ``--base-res``'s maximum), and at
-    most four texels per texel of the map's own
-    (a lat-long map ``W`` wide has about ``W / 4`` per cube face; a small map's cap may be below
-    :data:`AUTO_BASE_RES_MIN`, and is then the answer). Past the map's pixels a finer chain
-    still follows the bilinear interpolant the path tracer reads, and stops gaining soon after
-    (docs/method.md). A material without a glossy lobe takes the smallest.
+    most four texels per texel of the map's own (a lat-long map ``W`` wide has about ``W / 4``
+    per cube face; a small map's cap may be below :data:`AUTO_BASE_RES_MIN`, and is then the
+    answer). Past the map's pixels a finer chain still follows the bilinear interpolant the path
+    tracer reads, and stops gaining soon after (docs/method.md). A material without a glossy
+    lobe takes the smallest.
 
     Parameters
     ----------
