@@ -238,3 +238,29 @@ def test_bench_start_runs_the_command_and_accounts_for_each_run(tmp_path):
     # the cold run wrote what the warm ones read: the candidate table and the chain
     assert list((tmp_path / "cache" / "geometry").glob("triangle-candidates-*.npz"))
     assert list((tmp_path / "cache" / "prefilter").glob("*.npz"))
+
+
+def test_bench_start_children_keep_the_bytecode_cache(tmp_path, monkeypatch):
+    """A start is measured as an installed package starts: a PYTHONDONTWRITEBYTECODE set
+    around the benchmark would make every child compile lobelight's modules again."""
+    from lobelight.bench import start
+
+    seen = []
+
+    def fake_run(python, args, env, work, *, timed):
+        seen.append(dict(env))
+        names = ("lighting", "sun", "sh_projection", "chain", "background", "candidates")
+        parts = dict.fromkeys((*names, "sharp_lobe", "gl_context", "gl_programs", "rest"), 0.0)
+        parts.update(sh_cube=0.0, chain_cube=0.0)
+        return {"wall": 1.0, "cpu": 1.0, "load_1min_before": 0.0,
+                "phases": dict.fromkeys(PHASES, 0.1), "setup_parts": parts}  # fmt: skip
+
+    monkeypatch.setenv("PYTHONDONTWRITEBYTECODE", "1")
+    monkeypatch.setattr(start, "_run", fake_run)
+    monkeypatch.setattr(start, "_model", lambda folder, vertices: (folder / "m.npz", 0.0))
+    monkeypatch.setattr(start, "_vertices", lambda model: 300)
+    (tmp_path / "m.npz").write_bytes(b"x")
+    start.bench_start(vertices=300, runs=1, size=32, env="builtin", folder=tmp_path)
+    assert len(seen) == 3
+    assert all("PYTHONDONTWRITEBYTECODE" not in env for env in seen)
+    assert all(env["LOBELIGHT_CACHE"] == str(tmp_path / "cache") for env in seen)
