@@ -42,6 +42,24 @@ def test_progress_off_a_terminal_is_plain_lines_at_most_every_interval(monkeypat
     assert out.getvalue().splitlines()[-1] == "lobelight: relax: 0/3 chunks (0 %)"
 
 
+def test_progress_of_a_stage_with_a_bound_promises_no_share_or_time_left(monkeypatch):
+    """The reordering's sweeps are counted against a bound it rarely reaches: its lines say
+    "of at most" and give no share or time left, and its end says the sweeps it made."""
+    clock = _Clock()
+    monkeypatch.setattr(progress.time, "monotonic", clock)
+    out = io.StringIO()
+    rep = progress.Reporter(out, interval=5.0)
+    for done in range(1, 4):
+        clock.t += 6.0
+        rep("reorder", done, 64)
+    rep("reorder", 4, 4)
+    lines = out.getvalue().splitlines()
+    assert lines[0] == "lobelight: reorder: sweep 1 of at most 64"
+    assert lines[1] == "lobelight: reorder: sweep 2 of at most 64, 6 s elapsed"
+    assert lines[-1] == "lobelight: reorder: 4 sweeps, done in 12.0 s"
+    assert "%" not in out.getvalue() and "left" not in out.getvalue()
+
+
 def test_progress_argument_forms():
     assert progress.resolve(None) is None and progress.resolve(False) is None
     assert isinstance(progress.resolve(True), progress.Reporter)

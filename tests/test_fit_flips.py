@@ -149,8 +149,13 @@ def test_mesh_reordering_mends_swapped_views_and_a_vertex_swapped_as_a_whole():
         torch.where(s, g.lam.flip(2), g.lam),
     )
     assert fit.count_flips(mesh, bad) > 200
-    fixed = _relax.reorder_mesh(mesh, bad, NBR)
+    calls = []
+    fixed = _relax.reorder_mesh(mesh, bad, NBR, progress=lambda *a: calls.append(a))
     assert _same(fixed, g)
+    # one call per sweep made, the last one closing the stage at the sweeps it made
+    stages, done, totals = zip(*calls)
+    assert set(stages) == {"reorder"} and done == tuple(range(1, len(calls) + 1))
+    assert totals[:-1] == (64,) * (len(calls) - 1) and totals[-1] == done[-1] < 64
 
 
 def test_relaxation_reduces_flips_on_a_sphere():

@@ -41,8 +41,11 @@ class Reporter:
     #: what a stage counts, when not chunks of work
     UNITS: ClassVar[dict[str, str]] = {
         "frames": "frame", "turntable": "frame", "lobe tables": "fit", "reference": "spp",
-        "reference, glossy": "spp",
+        "reference, glossy": "spp", "reorder": "sweep",
     }  # fmt: skip
+    #: stages whose total is only a bound (they may end sooner, their last call ``done ==
+    #: total`` with the count they reached): no share or time left is estimated for them
+    AT_MOST: ClassVar[frozenset[str]] = frozenset({"reorder"})
 
     def __init__(
         self, stream: TextIO | None = None, *, interval: float = 5.0, bars: bool | None = None
@@ -97,12 +100,19 @@ class Reporter:
         self._last[stage] = now
         unit = self.UNITS.get(stage, "chunk")
         elapsed = now - start
-        text = f"lobelight: {stage}: {done}/{total} {unit}s"
-        if total > 0:
+        bound = stage in self.AT_MOST
+        if bound:
+            count = f"{done} {unit}s" if end else f"{unit} {done} of at most {total}"
+            text = f"lobelight: {stage}: {count}"
+        else:
+            text = f"lobelight: {stage}: {done}/{total} {unit}s"
+        if total > 0 and not bound:
             text += f" ({100 * done / total:.0f} %)"
         if end:
             text += f", done in {elapsed:.1f} s"
             del self._started[stage], self._last[stage]
+        elif bound:
+            text += f", {elapsed:.0f} s elapsed" if elapsed > 0 else ""
         elif done > 0 and elapsed > 0:
             left = elapsed * (total - done) / done
             text += f", {elapsed:.0f} s elapsed, about {left:.0f} s left"

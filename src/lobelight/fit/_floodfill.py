@@ -387,7 +387,9 @@ def _relaxation(bake: Bake, chunks: list[Chunk], start, ckpt, progress, run) -> 
     neighbour is final (the refit moves lobes, and adds flips on its own)."""
     run("relax", bake, chunks, start, ckpt, progress, force_last=False)
     st = bake.state
-    g = reorder_mesh(bake.mesh, st.gaussians(), bake.nbr_views, weights=bake.weights)
+    g = reorder_mesh(
+        bake.mesh, st.gaussians(), bake.nbr_views, weights=bake.weights, progress=progress
+    )
     st.w.copy_(g.w), st.mu.copy_(g.mu), st.lam.copy_(g.lam)
     bake.flips_after = _flips(bake.mesh, g)
 

@@ -33,6 +33,7 @@ import torch
 from .._tol import SHARPNESS_MIN
 from ..lobes import sg
 from ..model import LIVE_FLOOR
+from ..progress import ProgressFn
 from ..scene import Mesh
 from ._objective import Weights, _pair_diffs, flipped_views, mean_term, sigma_term
 from ._optimize import Gaussians, _permuted, _swap_gain
@@ -135,6 +136,7 @@ def reorder_mesh(
     live_fraction: float = 0.05,
     sweeps: int = 64,
     chunk: int = 2048,
+    progress: ProgressFn | None = None,
 ) -> Gaussians:
     """Reorder the Gaussians of every (vertex, view) where that lowers the module's objective.
 
@@ -148,6 +150,9 @@ def reorder_mesh(
     sweeps : at most this many sweeps (each moves a set of non-interacting nodes)
     chunk : vertices per batch of the gain computation (bounds memory: ~chunk x Q x J x N x 40
         bytes)
+    progress : called ``progress("reorder", k, sweeps)`` after sweep ``k``, and with ``done ==
+        total`` (the sweeps made) when the reordering ends: a sweep weighs every order of
+        every (vertex, view), N! - 1 of them, so with three lobes it takes minutes
 
     Returns
     -------
@@ -168,7 +173,10 @@ def reorder_mesh(
     w, mu, lam = g.w.clone(), g.mu.clone(), g.lam.clone()
     live = live_gaussians(g, live_fraction)
     prev = None
-    for _ in range(sweeps):
+    made = 0
+    for made in range(1, sweeps + 1):
+        if progress is not None and made > 1:
+            progress("reorder", made - 1, sweeps)
         energy = 0.0
         gain = torch.empty(v, j, dtype=mu.dtype, device=dev)
         which = torch.empty(v, j, dtype=torch.long, device=dev)
@@ -226,4 +234,6 @@ def reorder_mesh(
             break
         perm = torch.where(move[..., None], perms[which], ident)  # (V, J, N)
         w, mu, lam, live = (_permuted(x, perm) for x in (w, mu, lam, live))
+    if progress is not None:
+        progress("reorder", made, made)
     return Gaussians(w, mu, lam)
