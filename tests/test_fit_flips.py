@@ -153,7 +153,7 @@ def test_mesh_reordering_mends_swapped_views_and_a_vertex_swapped_as_a_whole():
     fixed = _relax.reorder_mesh(mesh, bad, NBR, progress=lambda *a: calls.append(a))
     assert _same(fixed, g)
     # one call per sweep made, the last one closing the stage at the sweeps it made
-    stages, done, totals = zip(*calls)
+    stages, done, totals = zip(*calls, strict=True)
     assert set(stages) == {"reorder"} and done == tuple(range(1, len(calls) + 1))
     assert totals[:-1] == (64,) * (len(calls) - 1) and totals[-1] == done[-1] < 64
 
