@@ -5,7 +5,9 @@ Long calls (a bake, a reference render, a turntable) take ``progress=``:
 - ``True`` (the default of the public entry points): a :class:`Reporter` on stderr;
 - ``None`` or ``False``: silent;
 - any callable ``progress(stage: str, done: int, total: int)``: called after each chunk of
-  work, with ``done == total`` when a stage ends.
+  work, with ``done == total`` when a stage ends. A stage whose total is only a bound
+  (:attr:`Reporter.AT_MOST`: the Gaussians' reordering, which stops when a sweep gains nothing)
+  ends with ``done == total`` at the count it reached.
 
 :func:`resolve` turns the argument into a callable or None. A :class:`Reporter` draws tqdm bars
 when its stream is a terminal; on a file, a pipe or a CI log it writes one line when a stage
