@@ -60,6 +60,13 @@ def test_progress_of_a_stage_with_a_bound_promises_no_share_or_time_left(monkeyp
     assert "%" not in out.getvalue() and "left" not in out.getvalue()
 
 
+def test_progress_counts_samples_per_pixel_as_spp(monkeypatch):
+    monkeypatch.setattr(progress.time, "monotonic", _Clock())
+    out = io.StringIO()
+    progress.Reporter(out)("reference", 64, 64)
+    assert out.getvalue().startswith("lobelight: reference: 64/64 spp (100 %), done in")
+
+
 def test_progress_argument_forms():
     assert progress.resolve(None) is None and progress.resolve(False) is None
     assert isinstance(progress.resolve(True), progress.Reporter)

@@ -45,6 +45,8 @@ class Reporter:
         "frames": "frame", "turntable": "frame", "lobe tables": "fit", "reference": "spp",
         "reference, glossy": "spp", "reorder": "sweep",
     }  # fmt: skip
+    #: units whose plural is the word itself (samples per pixel)
+    SAME_PLURAL: ClassVar[frozenset[str]] = frozenset({"spp"})
     #: stages whose total is only a bound (they may end sooner, their last call ``done ==
     #: total`` with the count they reached): no share or time left is estimated for them
     AT_MOST: ClassVar[frozenset[str]] = frozenset({"reorder"})
@@ -101,13 +103,14 @@ class Reporter:
             return
         self._last[stage] = now
         unit = self.UNITS.get(stage, "chunk")
+        units = unit if unit in self.SAME_PLURAL else unit + "s"
         elapsed = now - start
         bound = stage in self.AT_MOST
         if bound:
-            count = f"{done} {unit}s" if end else f"{unit} {done} of at most {total}"
+            count = f"{done} {units}" if end else f"{unit} {done} of at most {total}"
             text = f"lobelight: {stage}: {count}"
         else:
-            text = f"lobelight: {stage}: {done}/{total} {unit}s"
+            text = f"lobelight: {stage}: {done}/{total} {units}"
         if total > 0 and not bound:
             text += f" ({100 * done / total:.0f} %)"
         if end:
