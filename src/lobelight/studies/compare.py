@@ -416,7 +416,7 @@ def _say_plan(progress, model, kw, baselines, ours_s: float):
         "(its seconds follow from its first batches)"
     )
     for name in baselines:
-        cost = {"linear": "seconds", "no_visibility": "fits a model without visibility",
+        cost = {"linear": "a few seconds", "no_visibility": "fits a model without visibility",
                 "sh10": "gathers the transport again"}[name]  # fmt: skip
         if name in est:
             # a floor, not a forecast: the baselines' work per vertex is not the fit's
