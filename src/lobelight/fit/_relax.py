@@ -119,6 +119,12 @@ def vertex_flips(
     return _flipped(g.mu, live, nbr.mu, nbr_live, nbr_mask, pair_ok).sum(1)
 
 
+def _with_neighbours(moved: torch.Tensor, nbrs: torch.Tensor, nmask: torch.Tensor) -> torch.Tensor:
+    """The vertices (V,) bool that moved or have a neighbour that did (ids ``nbrs`` (V, Q),
+    ``nmask`` (V, Q) which slots are real; the mesh's adjacency is symmetric)."""
+    return moved | (moved[nbrs] & nmask).any(1)
+
+
 def _beaten(rank, node, other, other_node, ok) -> torch.Tensor:
     """Nodes (V, J) some interacting node beats: a higher gain, or an equal gain and a lower
     index. ``other``/``other_node`` (V, J, K) are the K interacting nodes' gains and indices."""
@@ -174,25 +180,30 @@ def reorder_mesh(
     live = live_gaussians(g, live_fraction)
     prev = None
     made = 0
+    # Each vertex's share of the objective and its best moves, kept between sweeps: they
+    # depend on the vertex's own lobes and its neighbours', so after a sweep only the vertices
+    # that moved and their neighbours are weighed again (the rest would come out the same)
+    energy_v = torch.zeros(v, dtype=torch.float64, device=dev)
+    gain = torch.zeros(v, j, dtype=mu.dtype, device=dev)
+    which = torch.zeros(v, j, dtype=torch.long, device=dev)
+    vgain = torch.zeros(v, dtype=mu.dtype, device=dev)
+    vwhich = torch.zeros(v, dtype=torch.long, device=dev)
+    dirty = torch.ones(v, dtype=torch.bool, device=dev)
     for made in range(1, sweeps + 1):
         if progress is not None and made > 1:
             progress("reorder", made - 1, sweeps)
-        energy = 0.0
-        gain = torch.empty(v, j, dtype=mu.dtype, device=dev)
-        which = torch.empty(v, j, dtype=torch.long, device=dev)
-        vgain = torch.empty(v, dtype=mu.dtype, device=dev)
-        vwhich = torch.empty(v, dtype=torch.long, device=dev)
-        for s in range(0, v, chunk):  # bounded memory
-            ids = slice(s, min(s + chunk, v))
+        todo = torch.nonzero(dirty).flatten()
+        for s in range(0, todo.numel(), chunk):  # bounded memory
+            ids = todo[s : s + chunk]
             sub = Gaussians(w[ids], mu[ids], lam[ids])
             q, m = nbrs[ids], nmask[ids]
             nbr_mu, nbr_live = mu[q], live[q]  # (B, Q, J, N, 3), (B, Q, J, N)
             f0 = _flipped(mu[ids], live[ids], nbr_mu, nbr_live, m)
-            energy += float(
-                weights.beta * mean_term(sub.mu, nbr_views).sum()
-                + weights.gamma * sigma_term(sub.lam, nbr_views).sum()
-                + flip_weight * f0.sum() / (2 * j)  # each pair seen from both ends
-            )
+            energy_v[ids] = (
+                weights.beta * mean_term(sub.mu, nbr_views)
+                + weights.gamma * sigma_term(sub.lam, nbr_views)
+                + flip_weight * f0.sum(1) / (2 * j)  # each pair seen from both ends
+            ).double()
             per, whole = [], []
             for p in perms:  # N! - 1 <= 5 orders
                 f1 = _flipped(mu[ids][:, :, p], live[ids][:, :, p], nbr_mu, nbr_live, m)
@@ -202,6 +213,7 @@ def reorder_mesh(
                 whole.append(flip_weight * (f0 - f1).sum(1) / j)
             gain[ids], which[ids] = torch.stack(per).max(0)
             vgain[ids], vwhich[ids] = torch.stack(whole).max(0)
+        energy = float(energy_v.sum())
         # the gains of one sweep add up exactly in the flip count, and to first order in M
         # and V (two views moving beside a third both change its neighbours' average); a
         # sweep that did not lower the objective is undone, and the pass ends
@@ -220,6 +232,7 @@ def reorder_mesh(
             vmove = vwant & ~_beaten(vrank, ids_v, vrank[nbrs], ids_v[nbrs], nmask)
             perm = torch.where(vmove[:, None], perms[vwhich], ident)[:, None].expand(v, j, n)
             w, mu, lam, live = (_permuted(x, perm) for x in (w, mu, lam, live))
+            dirty = _with_neighbours(vmove, nbrs, nmask)
             continue
         want = gain > MIN_GAIN
         rank = torch.where(want, gain, torch.full_like(gain, -1.0))
@@ -234,6 +247,7 @@ def reorder_mesh(
             break
         perm = torch.where(move[..., None], perms[which], ident)  # (V, J, N)
         w, mu, lam, live = (_permuted(x, perm) for x in (w, mu, lam, live))
+        dirty = _with_neighbours(move.any(1), nbrs, nmask)
     if progress is not None:
         progress("reorder", made, made)
     return Gaussians(w, mu, lam)
