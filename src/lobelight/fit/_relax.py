@@ -157,8 +157,9 @@ def reorder_mesh(
     chunk : vertices per batch of the gain computation (bounds memory: ~chunk x Q x J x N x 40
         bytes)
     progress : called ``progress("reorder", k, sweeps)`` after sweep ``k``, and with ``done ==
-        total`` (the sweeps made) when the reordering ends: a sweep weighs every order of
-        every (vertex, view), N! - 1 of them, so with three lobes it takes minutes
+        total`` (the sweeps made) when the reordering ends: the first sweep weighs every order
+        of every (vertex, view), N! - 1 of them (later ones what moved and its neighbours),
+        so with three lobes it takes minutes
 
     Returns
     -------
