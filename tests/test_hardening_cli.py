@@ -27,7 +27,7 @@ import pytest
 import torch
 import trimesh
 
-from lobelight import _cache, _io, cli, model, scene
+from lobelight import _cache, _io, _memory, cli, model, scene
 from lobelight.cli import _commands, _limits
 from lobelight.errors import InputError, Terminated
 from lobelight.fit import Gaussians, MeshFit
@@ -295,14 +295,14 @@ def test_size_flags_state_their_maximum_in_their_help(capsys):
 def test_memory_derived_limits_follow_the_machine():
     # the pixel cap is the memory share over the bytes a pixel takes, the base resolution the
     # largest power of two whose six faces fit it (closed forms of the module's constants)
-    budget = _limits.MEMORY_SHARE * _limits.memory_bytes()
+    budget = _memory.MEMORY_SHARE * _memory.memory_bytes()
     assert _limits.MAX_RENDER_PIXELS == int(
         min(_limits.MAX_SIDE**2, budget // _limits.RENDER_BYTES_PER_PIXEL)
     )
     r = _limits.MAX_BASE_RES
     assert r & (r - 1) == 0
-    assert 6 * r * r * _limits.PREFILTER_BYTES_PER_TEXEL <= budget
-    assert 6 * (2 * r) ** 2 * _limits.PREFILTER_BYTES_PER_TEXEL > budget
+    assert 6 * r * r * _memory.PREFILTER_BYTES_PER_TEXEL <= budget
+    assert 6 * (2 * r) ** 2 * _memory.PREFILTER_BYTES_PER_TEXEL > budget
 
 
 # --------------------------------------------------------------------------------------------

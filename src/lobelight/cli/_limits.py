@@ -19,12 +19,7 @@ import argparse
 import math
 from collections.abc import Callable
 
-from .._memory import (
-    MEMORY_SHARE,
-    PREFILTER_BYTES_PER_TEXEL,
-    max_base_res,
-    memory_bytes,
-)
+from .._memory import MEMORY_SHARE, max_base_res, memory_bytes
 
 __all__ = [
     "MAX_BASE_RES",
@@ -40,12 +35,9 @@ __all__ = [
     "MAX_SEED",
     "MAX_SIDE",
     "MAX_SPP",
-    "MEMORY_SHARE",
-    "PREFILTER_BYTES_PER_TEXEL",
     "RENDER_BYTES_PER_PIXEL",
     "bounded_float",
     "bounded_int",
-    "memory_bytes",
     "pixels_help",
 ]
 

@@ -5,8 +5,9 @@ from __future__ import annotations
 
 import re
 
+from .._memory import MEMORY_SHARE, memory_bytes
 from ..errors import InputError
-from ._limits import MAX_RENDER_PIXELS, MAX_SIDE, MEMORY_SHARE, memory_bytes, pixels_help
+from ._limits import MAX_RENDER_PIXELS, MAX_SIDE, pixels_help
 
 __all__ = ["MAX_PIXELS", "check_frames", "check_image", "check_pixels", "parse_size"]
 
