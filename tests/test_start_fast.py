@@ -417,3 +417,63 @@ def test_the_start_benchmarks_child_writes_its_record_as_the_process_ends(model_
     record = json.loads(times.read_text())
     assert t0 <= record["start"] <= record["end"] <= time.time()
     assert record["timers"]["model_read"]["calls"] == 1
+
+
+# --------------------------------------------------------------------------------------------
+# the imports of the program's start, without the garbage collector
+
+
+def test_the_programs_imports_run_uncollected_and_are_frozen_after(tmp_path):
+    # the program's own door: while torch and the commands load the collector is off (no
+    # collection at all), afterwards it is on again with what they made frozen
+    code = """
+        import gc, sys
+        import lobelight.cli as cli
+        collections = []
+        gc.callbacks.append(lambda phase, info: phase == "start" and collections.append(1))
+        import importlib
+        real = importlib.import_module
+        def watched(name, *a):
+            if name == "lobelight.cli._commands":
+                before = len(collections)
+                module = real(name, *a)
+                print("during", gc.isenabled(), len(collections) - before, flush=True)
+                return module
+            return real(name, *a)
+        cli.importlib.import_module = watched
+        sys.argv = ["lobelight", "info", sys.argv[1]]
+        import atexit
+        atexit.register(lambda: print("after", gc.isenabled(), gc.get_freeze_count() > 10**5,
+                                      flush=True))
+        sys.exit(cli.main())
+    """
+    p = _run(code, str(tmp_path / "missing.npz"), tmp_path=tmp_path)
+    assert p.returncode == 2, p.stderr
+    assert p.stdout.splitlines() == ["during False 0", "after True True"]
+
+
+def test_main_with_arguments_leaves_the_callers_collector_as_it_was(tmp_path):
+    # a program that embeds the command line: no freeze, the collector's state its own
+    code = """
+        import gc, sys
+        from lobelight.cli import main
+        gc.disable()
+        frozen = gc.get_freeze_count()
+        code = main(["info", sys.argv[1]])
+        print(code, gc.isenabled(), gc.get_freeze_count() == frozen)
+    """
+    p = _run(code, str(tmp_path / "missing.npz"), tmp_path=tmp_path)
+    assert p.stdout.split() == ["2", "False", "True"], p.stderr
+
+
+def test_imports_uncollected_restores_a_disabled_collector(tmp_path):
+    code = """
+        import gc
+        from lobelight.cli._process import imports_uncollected
+        gc.disable()
+        with imports_uncollected():
+            pass
+        print(gc.isenabled(), gc.get_freeze_count() > 0)
+    """
+    p = _run(code, tmp_path=tmp_path)
+    assert p.stdout.split() == ["False", "True"], p.stderr

@@ -23,6 +23,7 @@ no write replaces one (:func:`lobelight._io.protect_inputs`).
 
 from __future__ import annotations
 
+import contextlib
 import importlib
 import json
 import math
@@ -42,7 +43,7 @@ from .._cache import MAX_MB_ENV, cache_dir, cache_max_bytes, check_environment
 from .._io import protect_inputs
 from ..errors import MAX_QUOTED, InputError, Terminated, one_line, shorten
 from ._arguments import _parser, _UsageError
-from ._process import end_process, tune
+from ._process import end_process, imports_uncollected, tune
 
 __all__ = ["main", "tune"]
 
@@ -140,6 +141,7 @@ def main(argv: list[str] | None = None) -> int:
 
 
 def _main(argv: list[str] | None) -> int:
+    own_process = argv is None
     argv = _join_signed(list(sys.argv[1:] if argv is None else argv))
     json_mode = "--json" in argv
     debug = "--debug" in argv
@@ -150,7 +152,7 @@ def _main(argv: list[str] | None) -> int:
     except Exception:  # the parser's own failure: the one door below
         return _unexpected(json_mode, debug)
     try:
-        summary = _run(args)
+        summary = _run(args, own_process)
     except InputError as e:
         return _fail(args.json, e.what, e.problem, 2)
     except (KeyboardInterrupt, Terminated) as e:
@@ -170,15 +172,18 @@ def _main(argv: list[str] | None) -> int:
     return 0
 
 
-def _run(args) -> dict:
+def _run(args, own_process: bool = False) -> dict:
     """The command ``args`` name, after the checks every command shares (the environment's
     settings, the device, the ray engine), with its outputs kept off its inputs
-    (:func:`lobelight._io.protect_inputs`)."""
+    (:func:`lobelight._io.protect_inputs`). In a process of its own (``own_process``) the
+    commands' imports run without the garbage collector (:func:`._process.imports_uncollected`);
+    a program that embeds the command line keeps its collector as it is."""
     check_environment()
     _no_cap_as_a_number()
     # the commands (and torch) load once the line is parsed: --help and a mistyped
     # command answer at once
-    commands = importlib.import_module("lobelight.cli._commands")
+    with imports_uncollected() if own_process else contextlib.nullcontext():
+        commands = importlib.import_module("lobelight.cli._commands")
     # the process is ours: its allocator and OpenMP settings (:mod:`._process`), made
     # once torch is loaded, so that the short spin reaches only the runtimes loaded later
     tune()

@@ -16,6 +16,13 @@ embeds lobelight may call :func:`lobelight.cli.tune` once, early, for the same e
   workers sleep sooner. It reads the setting when it loads, so this runs after torch is
   imported (torch's own runtime keeps its default) and before the first compiled kernel.
 
+- :func:`imports_uncollected`: importing torch and the commands creates hundreds of thousands
+  of objects, and the cyclic garbage collector, triggered by their count, walks all of them
+  again and again (hundreds of collections, a sizeable part of a short command's start, most
+  of it in full ones). Those objects are modules, functions and types that live as long as
+  the process: the imports run with the collector off, and ``gc.freeze`` then moves what they
+  made out of its reach, so later collections walk only what the command makes.
+
 And one for a process that has done its work: :func:`end_process` ends it at once (the
 interpreter's teardown of a process that imported torch, sympy and a GL driver is a sizeable
 part of a short command's wall time), once everything that matters at exit has happened.
@@ -24,14 +31,16 @@ part of a short command's wall time), once everything that matters at exit has h
 from __future__ import annotations
 
 import atexit
+import contextlib
 import ctypes
 import ctypes.util
 import functools
+import gc
 import os
 import sys
 import threading
 
-__all__ = ["end_process", "keep_freed_memory", "short_openmp_spin", "tune"]
+__all__ = ["end_process", "imports_uncollected", "keep_freed_memory", "short_openmp_spin", "tune"]
 
 # glibc's mallopt parameters (malloc.h)
 _M_TRIM_THRESHOLD = -1
@@ -70,6 +79,26 @@ def tune() -> None:
     """Both settings above: for a process that bakes, fits and shades (the command line's)."""
     short_openmp_spin()
     keep_freed_memory()
+
+
+@contextlib.contextmanager
+def imports_uncollected():
+    """Run the block (the imports of a process's start) with the cyclic garbage collector off,
+    then freeze what exists (``gc.freeze``: later collections skip it) and restore the
+    collector's state.
+
+    Process-wide: objects alive at the end of the block are never collected, so a cycle made
+    unreachable after it stays in memory. Use it only in a process that is the caller's own,
+    around imports of modules that live as long as it does.
+    """
+    enabled = gc.isenabled()
+    gc.disable()
+    try:
+        yield
+    finally:
+        gc.freeze()
+        if enabled:
+            gc.enable()
 
 
 def end_process(code: int) -> None:
