@@ -47,7 +47,7 @@ from ._sun_glossy import (
     sun_widened,
     tail_scale,
 )
-from ._sun_shadow import BLOCKER_SAMPLES, SHADOW_SAMPLES, disc_radius, sun_frame
+from ._sun_shadow import BLOCKER_SAMPLES, SHADOW_SAMPLES, disc_radius, sample_taps, sun_frame
 from ._tonemap import CURVES, DEFAULT_CURVE
 
 __all__ = [
@@ -1106,6 +1106,8 @@ class GLRenderer:
         stride = self._sample_stride // 4
         rec = np.zeros((off.shape[0], stride), np.float32)
         rec[:, :2] = [self._jitter(o) for o in off]  # a loop over samples, not pixels
+        taps = [sample_taps(i, off.shape[0]) for i in range(off.shape[0])]
+        rec[:, 2:4] = [(t.start, t.step) for t in taps]  # frame.glsl's tap_first, tap_step
         if self.sample_ubo is not None:
             self.sample_ubo.release()
         self.sample_ubo = self.ctx.buffer(rec.tobytes())

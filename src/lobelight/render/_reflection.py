@@ -70,7 +70,7 @@ from ..geometry import octahedral
 from ..model import blend_lobes
 from ._albedo import hit_diffuse_light
 from ._sun_glossy import sun_glossy, sun_through
-from ._sun_shadow import disc_radius, disc_visibility
+from ._sun_shadow import ALL_TAPS, disc_radius, disc_visibility
 
 __all__ = [
     "INDIRECT_SCALE_MAX",
@@ -315,7 +315,7 @@ def _project(tri: torch.Tensor, q: torch.Tensor) -> torch.Tensor:
     return b / b.sum(-1, keepdim=True).clamp_min(DIVISOR_F32)
 
 
-def _hit_light(model, lighting, vd, sharp, tri, q, r, rot, *, sun_gl, caster, blur):
+def _hit_light(model, lighting, vd, sharp, tri, q, r, rot, *, sun_gl, caster, blur, taps):
     """The object's radiance towards ``-r`` at points ``q`` near triangles ``tri`` (module
     docstring), its own sharp reflection blurred by the pixel's lobe (:func:`hit_spread`;
     ``blur`` the pixel's lobe, its ``n.v (P,)`` and the hit's distance ``(P,)``): (P, 3)."""
@@ -341,11 +341,12 @@ def _hit_light(model, lighting, vd, sharp, tri, q, r, rot, *, sun_gl, caster, bl
     e = e[:, k] * indirect_scale(e[:, : model.direct_gaussians].sum(1), albedo, vis)[:, None, None]
     out += indirect_light(model, lighting, e, mu[:, k], sigma[:, k], rot, sun_gl=sun_gl)
     if lighting.sun is not None:
-        out += _hit_sun(model, lighting, c, b, pos, n, v, rot, sun_gl=sun_gl, caster=caster)
+        out += _hit_sun(model, lighting, c, b, pos, n, v, rot, sun_gl=sun_gl, caster=caster,
+                        taps=taps)  # fmt: skip
     return out
 
 
-def _hit_sun(model, lighting, c, b, pos, n, v, rot, *, sun_gl, caster):
+def _hit_sun(model, lighting, c, b, pos, n, v, rot, *, sun_gl, caster, taps):
     """The sun's light leaving hit points towards ``v (P, 3)``: its diffuse part, and its glossy
     part where it is shaded per pixel, times the disc's visible fraction: (P, 3)."""
     l = lighting.sun_direction(rot).to(pos.device, torch.float32)
@@ -358,9 +359,8 @@ def _hit_sun(model, lighting, c, b, pos, n, v, rot, *, sun_gl, caster):
     ng = torch.nn.functional.normalize(
         torch.linalg.cross(t[:, 1] - t[:, 0], t[:, 2] - t[:, 0]), dim=-1
     )
-    vis = disc_visibility(
-        caster, pos[lit], ng, l, disc_radius(lighting.sun), offset=HIT_SHADOW_OFFSET
-    )
+    vis = disc_visibility(caster, pos[lit], ng, l, disc_radius(lighting.sun),
+                          offset=HIT_SHADOW_OFFSET, taps=taps)  # fmt: skip
     albedo = (model.materials.diffuse.to(pos.device)[c[lit]] * b[lit][..., None]).sum(1)
     light = albedo / math.pi * (lighting.sun.irradiance.to(pos.device) * cos[lit, None])
     if sun_gl:
@@ -373,13 +373,14 @@ def _hit_sun(model, lighting, c, b, pos, n, v, rot, *, sun_gl, caster):
 
 
 def object_light(model, lighting, vd, sharp, pixel, pos, r, nv, corners, bary, rot, *, sun_gl,
-                 caster):  # fmt: skip
+                 caster, taps=ALL_TAPS):  # fmt: skip
     """The object's radiance seen along the reflected directions ``r (P, 3)`` from points
     ``pos (P, 3)`` (``n.v`` ``nv (P,)``) of triangles with ``corners (P, 3)`` and barycentrics
     ``bary (P, 3)``, from the corners' hit tiles (module docstring). ``sharp`` the material's
     lobe (:func:`lobelight.brdf.sharp_lobe`; one per vertex for a glTF lobe varying over the
     mesh: each hit's taken from the hit's corners), ``pixel`` the points' own
-    (``sharp.at(corners, bary, sharp_only=True)``), whose spread blurs the hits.
+    (``sharp.at(corners, bary, sharp_only=True)``), whose spread blurs the hits; the hits' sun
+    shadows take the directions over its disc in ``taps`` (the sample's share).
 
     Returns
     -------
@@ -402,7 +403,7 @@ def object_light(model, lighting, vd, sharp, pixel, pos, r, nv, corners, bary, r
         blur = (pixel.take(h), nv[h], t)
         hit = _hit_light(
             model, lighting, vd, sharp, f[h], q, r[h], rot, sun_gl=sun_gl, caster=caster,
-            blur=blur,
+            blur=blur, taps=taps,
         )  # fmt: skip
         light[h] += bary[h, i, None] * hit
         weight[h] += bary[h, i]

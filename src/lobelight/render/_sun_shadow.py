@@ -5,7 +5,10 @@ A sun (:class:`lobelight.envmap.Sun`) is shadowed as a uniform disc of angular r
 ``SHADOW_SAMPLES`` fixed directions over it: point ``i`` of a Vogel (Fibonacci) spiral, at
 ``sqrt((i + 1/2) / N)`` of the disc's radius and ``i`` golden angles round, in the tangent frame
 of :func:`sun_frame` (the shadow map's). Stratified and deterministic: every frame and both
-renderers see the same points.
+renderers see the same points. A pixel's samples share them out (:func:`sample_taps`): sample
+``i`` of ``S`` takes every ``S``-th direction from the ``i``-th, so the pixel, the mean of its
+samples, still sees every direction once (for ``S`` up to ``SHADOW_SAMPLES``) at a
+``S``-th of the cost per sample: the samples already average the shadow over the pixel.
 
 - torch (:func:`disc_visibility`): one shadow ray along each direction, ``l + tan(r) (x u + y v)``
   normalised; the visibility is the fraction that escape.
@@ -35,11 +38,13 @@ import torch
 from ..envmap import Sun
 
 __all__ = [
+    "ALL_TAPS",
     "BLOCKER_SAMPLES",
     "SHADOW_SAMPLES",
     "disc_points",
     "disc_radius",
     "disc_visibility",
+    "sample_taps",
     "sun_frame",
 ]
 
@@ -47,6 +52,8 @@ __all__ = [
 SHADOW_SAMPLES = 32
 #: Taps of the shader's blocker search.
 BLOCKER_SAMPLES = 16
+#: Every direction: the share of a pixel's only sample.
+ALL_TAPS = slice(0, None, 1)
 #: The golden angle, radians: the spiral's turn from one point to the next.
 _GOLDEN = math.pi * (3.0 - math.sqrt(5.0))
 #: A disc narrower than this (radians) is shadowed by one ray to its centre in torch.
@@ -66,6 +73,18 @@ def disc_points(n: int, *, dtype=torch.float64, device=None) -> torch.Tensor:
     r = ((i + 0.5) / n).sqrt()
     a = i * _GOLDEN
     return torch.stack([r * a.cos(), r * a.sin()], -1)
+
+
+def sample_taps(i: int, n: int) -> slice:
+    """The directions over the disc that sample ``i`` of a pixel's ``n`` takes, as a slice of
+    the spiral's ``SHADOW_SAMPLES`` points: every ``min(n, SHADOW_SAMPLES)``-th from
+    ``i mod`` that (the shader's ``tap_first``, ``tap_step``). Together a pixel's samples take
+    each direction once where ``n`` divides ``SHADOW_SAMPLES``, and each at least once for
+    any ``n``."""
+    if not 0 <= i < n:
+        raise ValueError(f"sample {i} of {n}")
+    step = min(n, SHADOW_SAMPLES)
+    return slice(i % step, None, step)
 
 
 def sun_frame(l) -> np.ndarray:
@@ -91,14 +110,22 @@ def disc_directions(l: torch.Tensor, radius: float, n: int = SHADOW_SAMPLES) -> 
 
 
 def disc_visibility(
-    caster, pos: torch.Tensor, ng: torch.Tensor, l: torch.Tensor, radius: float, *, offset: float
+    caster,
+    pos: torch.Tensor,
+    ng: torch.Tensor,
+    l: torch.Tensor,
+    radius: float,
+    *,
+    offset: float,
+    taps: slice = ALL_TAPS,
 ) -> torch.Tensor:
     """The visible fraction of a disc of angular ``radius`` about ``l (3,)`` at points ``pos
     (P, 3)`` on triangles of geometric normals ``ng (P, 3)``: ``(P,)`` float32 on ``pos``'s
-    device, one shadow ray per direction of :func:`disc_directions` from the point lifted off
-    its triangle by ``offset`` (the caster's :meth:`~lobelight.geometry.raycast.RayCaster.spawn`);
-    one ray to the centre for a disc under ``_HARD_RADIUS``."""
-    dirs = l[None] if radius < _HARD_RADIUS else disc_directions(l, radius)  # (n, 3)
+    device, one shadow ray per direction of :func:`disc_directions` in ``taps`` (a sample's
+    share, :func:`sample_taps`) from the point lifted off its triangle by ``offset`` (the
+    caster's :meth:`~lobelight.geometry.raycast.RayCaster.spawn`); one ray to the centre for a
+    disc under ``_HARD_RADIUS``."""
+    dirs = l[None] if radius < _HARD_RADIUS else disc_directions(l, radius)[taps]  # (n, 3)
     vis = torch.zeros(pos.shape[0], device=pos.device)
     for d in dirs:  # one batch of P rays per direction: the memory of one ray per point
         ray = d.expand_as(ng)

@@ -42,7 +42,7 @@ from ._reflection import (
     sun_sharp,
 )
 from ._sun_glossy import sun_glossy, sun_glossy_supported, sun_through, tail_scale
-from ._sun_shadow import disc_radius, disc_visibility
+from ._sun_shadow import ALL_TAPS, disc_radius, disc_visibility, sample_taps
 
 __all__ = ["VertexData", "pixel_stage", "render_torch", "sun_stage", "vertex_stage"]
 
@@ -108,9 +108,11 @@ def pixel_stage(
     diffuse: bool = True,
     glossy: bool = True,
     caster: RayCaster | None = None,
+    taps: slice = ALL_TAPS,
 ) -> torch.Tensor:
     """Radiance at surface points given by triangle ids ``tri (P,)`` and barycentrics ``(P, 3)``
-    (with the lighting's sun: ``caster`` casts its shadow rays).
+    (with the lighting's sun: ``caster`` casts its shadow rays, towards the directions over its
+    disc in ``taps``, the sample's share: :func:`lobelight.render._sun_shadow.sample_taps`).
 
     Returns
     -------
@@ -133,19 +135,19 @@ def pixel_stage(
         if diffuse:
             acc += diffuse_light(model, vd.diffuse, c, b)
         if glossy:
-            g = _glossy(model, lighting, vd, c, b, rot, sun_gl=sun_gl, sharp=sharp, caster=caster)
+            g = _glossy(model, lighting, vd, c, b, rot, sun_gl=sun_gl, sharp=sharp, caster=caster,
+                        taps=taps)  # fmt: skip
             ratio = specular_ratio(model, c, b)  # the texels' F0 (glTF textures)
             acc += g if ratio is None else g * ratio.to(dev)
         out[s : s + PIXEL_BATCH] = acc
     if (diffuse or sun_gl) and lighting.sun is not None:
-        out += sun_stage(
-            model, lighting, tri, bary, rot, caster, diffuse=diffuse, glossy=sun_gl, eye=vd.eye
-        )
+        out += sun_stage(model, lighting, tri, bary, rot, caster, diffuse=diffuse, glossy=sun_gl,
+                         eye=vd.eye, taps=taps)  # fmt: skip
     return out
 
 
 def _glossy(
-    model, lighting, vd: VertexData, c, b, rot, *, sun_gl: bool, sharp, caster
+    model, lighting, vd: VertexData, c, b, rot, *, sun_gl: bool, sharp, caster, taps
 ) -> torch.Tensor:
     """The Gaussians' glossy light at points of corners ``c (p, 3)`` and barycentrics
     ``b (p, 3)``: (p, 3). With ``sharp`` (:func:`lobelight.brdf.sharp_lobe`) the direct
@@ -166,7 +168,7 @@ def _glossy(
         return _fitted(model, lighting, vd, c, b, r, rot, sun_gl=sun_gl)
     if sharp.sharp is None:
         return _per_pixel(model, lighting, vd, sharp, c, b, pos, nrm, view, r, rot,
-                          sun_gl=sun_gl, caster=caster)  # fmt: skip
+                          sun_gl=sun_gl, caster=caster, taps=taps)  # fmt: skip
     ws = (b * sharp.sharp.to(dev)[c]).sum(1)  # the sharp corners' share
     out = torch.zeros_like(pos)
     k = (ws < 1).nonzero().squeeze(-1)
@@ -176,7 +178,7 @@ def _glossy(
     k = (ws > 0).nonzero().squeeze(-1)
     if k.numel():
         px = _per_pixel(model, lighting, vd, sharp, c[k], b[k], pos[k], nrm[k], view[k], r[k],
-                        rot, sun_gl=sun_gl, caster=caster)  # fmt: skip
+                        rot, sun_gl=sun_gl, caster=caster, taps=taps)  # fmt: skip
         out[k] += ws[k, None] * px
     return out
 
@@ -197,7 +199,8 @@ def _fitted(model, lighting, vd: VertexData, c, b, r, rot, *, sun_gl: bool) -> t
     return acc
 
 
-def _per_pixel(model, lighting, vd, sharp, c, b, pos, nrm, view, r, rot, *, sun_gl, caster):
+def _per_pixel(model, lighting, vd, sharp, c, b, pos, nrm, view, r, rot, *, sun_gl, caster,
+               taps):  # fmt: skip
     """The sharp lobe's light at points (:mod:`._reflection`): (p, 3); ``sharp`` the
     material's lobe (one per vertex: taken at the points' sharp corners)."""
     dev = pos.device
@@ -205,9 +208,8 @@ def _per_pixel(model, lighting, vd, sharp, c, b, pos, nrm, view, r, rot, *, sun_
     lobe = sharp.at(c, b, sharp_only=True)
     # the object seen in the lobe where a corner's hit tile finds it; the environment in the
     # rest of it
-    seen, weight = object_light(
-        model, lighting, vd, sharp, lobe, pos, r, nv, c, b, rot, sun_gl=sun_gl, caster=caster
-    )
+    seen, weight = object_light(model, lighting, vd, sharp, lobe, pos, r, nv, c, b, rot,
+                                sun_gl=sun_gl, caster=caster, taps=taps)  # fmt: skip
     found = weight > 0
     vis = torch.where(found, hit_free_fraction(model.hits()[0].to(dev), c, b, r), 1.0)
     acc = shade(lobe, lighting, r, nrm, nv, vis, rot, rest=sun_gl).to(dev)
@@ -226,9 +228,11 @@ def sun_stage(
     diffuse: bool = True,
     glossy: bool = False,
     eye: torch.Tensor | None = None,
+    taps: slice = ALL_TAPS,
 ) -> torch.Tensor:
     """The sun's light at surface points, ``(albedo / pi + f_s(l, v)) E max(n.l, 0) V``: (P, 3),
-    its diffuse and (``glossy``, seen from ``eye``) glossy parts.
+    its diffuse and (``glossy``, seen from ``eye``) glossy parts; ``V`` from the directions
+    over the disc in ``taps`` (the sample's share).
 
     ``n`` is the interpolated vertex normal (as the shader's), ``V`` the visible fraction of the
     sun's disc: shadow rays over it from the point lifted off the triangle's plane
@@ -254,7 +258,7 @@ def sun_stage(
         )
         # the visible fraction of the disc (on the device: Warp's rays stay there)
         radius = disc_radius(lighting.sun)
-        vis = disc_visibility(caster, pos[lit], ng, l, radius, offset=_SHADOW_OFFSET)
+        vis = disc_visibility(caster, pos[lit], ng, l, radius, offset=_SHADOW_OFFSET, taps=taps)
         e = lighting.sun.irradiance.to(dev)
         if diffuse:
             out[lit] = albedo[lit] / math.pi * e * (cos[lit] * vis)[:, None]
@@ -334,7 +338,7 @@ def render_torch(
     caster = RayCaster(model.mesh, offset=0.0) if caster is None else caster
     vd = vertex_stage(model, lighting, camera.origin, rot)  # the same for every sample
     img = cov = None
-    for offset in off:
+    for i, offset in enumerate(off):
         o, d = camera.rays(width, height, offsets=offset.expand(height, width, 2))  # (H, W, 3)
         if px is not None:
             o, d = o[px[:, 0], px[:, 1]], d[px[:, 0], px[:, 1]]
@@ -347,7 +351,7 @@ def render_torch(
             one[~hit.to(dev)] = lighting.background(d[~hit].to(dev), rot).to(dev, torch.float32)
         one[hit.to(dev)] = pixel_stage(
             model, lighting, vd, tri[hit], bary[hit], rot, diffuse=diffuse, glossy=glossy,
-            caster=caster,
+            caster=caster, taps=sample_taps(i, off.shape[0]),
         )  # fmt: skip
         if img is None:
             img, cov = one, hit.float()

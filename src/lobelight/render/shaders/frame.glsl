@@ -19,6 +19,8 @@ layout(std140) uniform Frame {
 };
 
 // The sample's shift from the pixel centre in NDC units (Renderer's supersampling; zero for one
-// sample per pixel): one record per sample in a buffer written when the samples change, bound
-// by range for each sample's pass
-layout(std140) uniform Sample { vec2 jitter; };
+// sample per pixel), and the directions over the sun's disc its soft shadow takes (every
+// tap_step-th from tap_first: render/_sun_shadow.py sample_taps; 0 and 1 for one sample per
+// pixel): one record per sample in a buffer written when the samples change, bound by range
+// for each sample's pass
+layout(std140) uniform Sample { vec2 jitter; float tap_first; float tap_step; };

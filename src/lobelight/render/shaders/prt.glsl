@@ -252,7 +252,8 @@ vec2 disc_point(int i, int n) {
 
 // the visible fraction of the sun's disc at pos (world; n its shading normal) on a triangle of
 // normal ng (the shadow map's frame, on the viewer's side): percentage-closer soft shadows over
-// the directions of the torch path's rays (render/_sun_shadow.py)
+// the directions of the torch path's rays (render/_sun_shadow.py), those of this sample's share
+// (frame.glsl's tap_first and tap_step: a pixel's samples together take every direction)
 float sun_visibility(vec3 pos, vec3 n, vec3 ng) {
     // pos in the map's [-1, 1]^3 frame
     vec3 q = shadow_frame * (pos - shadow_center) * shadow_scale;
@@ -289,7 +290,9 @@ float sun_visibility(vec3 pos, vec3 n, vec3 ng) {
     // the penumbra's radius in map coordinates: tan(r) times the blockers' mean height
     float w = blockers > 0 ? sun_tan * height / float(blockers) : 0.0;
     float vis = 0.0;
-    for (int i = 0; i < SHADOW_SAMPLES; ++i) {
+    float taps = 0.0;
+    for (int i = int(tap_first); i < SHADOW_SAMPLES; i += max(int(tap_step), 1)) {
+        taps += 1.0;
         vec2 p = disc_point(i, SHADOW_SAMPLES);
         if (ng.z + sun_tan * dot(ng.xy, p) <= 0.0) continue;
         // the ray towards direction i, placed by the blockers' mean height, is moved to the
@@ -300,7 +303,7 @@ float sun_visibility(vec3 pos, vec3 n, vec3 ng) {
         if (h > 0.0) wi = sun_tan * h;
         vis += texture(shadow_map, vec3(uv + wi * p, z + wi * dot(dz, p)));
     }
-    return vis / float(SHADOW_SAMPLES);
+    return vis / taps;
 }
 #endif
 #if SUN_GLOSSY

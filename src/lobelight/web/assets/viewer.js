@@ -334,7 +334,8 @@
       this.frameUbo = gl.createBuffer();
       gl.bindBuffer(gl.UNIFORM_BUFFER, this.frameUbo);
       gl.bufferData(gl.UNIFORM_BUFFER, this.frameData.byteLength, gl.DYNAMIC_DRAW);
-      this.sampleUbo = this.buffer(gl.UNIFORM_BUFFER, new Float32Array(4));  // jitter 0
+      // jitter 0, every direction over the sun's disc (setJitter)
+      this.sampleUbo = this.buffer(gl.UNIFORM_BUFFER, new Float32Array([0, 0, 0, 1]));
       this.center = h.center;
       this.radius = h.radius;
       this.shadowRes = h.shadow.res;
@@ -575,7 +576,9 @@
       const sampleSize = gl.getActiveUniformBlockParameter(
         p.prt, gl.getUniformBlockIndex(p.prt, "Sample"), gl.UNIFORM_BLOCK_DATA_SIZE);
       gl.bindBuffer(gl.UNIFORM_BUFFER, this.sampleUbo);
-      gl.bufferData(gl.UNIFORM_BUFFER, new Float32Array(Math.max(4, sampleSize / 4)), gl.STATIC_DRAW);
+      const sample = new Float32Array(Math.max(4, sampleSize / 4));
+      sample[3] = 1;  // setJitter's tap_step for one sample per pixel
+      gl.bufferData(gl.UNIFORM_BUFFER, sample, gl.STATIC_DRAW);
       this.uniform(p.prt, "tex_width", "uniform1i", this.texWidth);
       const at = this.h.albedo_textures;
       if (at) {
@@ -1000,7 +1003,7 @@
       this.mark("table");
       const offsets = opts.offsets && opts.offsets.length > 1 ? opts.offsets : null;
       if (!offsets) {
-        this.setJitter(opts.offsets ? opts.offsets[0] : [0.5, 0.5], t);
+        this.setJitter(opts.offsets ? opts.offsets[0] : [0.5, 0.5], t, 0, 1);
         this.drawSample(t, opts.background);
         return;
       }
@@ -1008,8 +1011,8 @@
       gl.bindFramebuffer(gl.FRAMEBUFFER, t.fbo);
       gl.clearColor(0, 0, 0, 0);
       gl.clear(gl.COLOR_BUFFER_BIT);
-      for (const o of offsets) {
-        this.setJitter(o, t);
+      for (const [i, o] of offsets.entries()) {
+        this.setJitter(o, t, i, offsets.length);
         this.drawSample(pass, opts.background);
         gl.bindFramebuffer(gl.FRAMEBUFFER, t.fbo);
         gl.viewport(0, 0, t.w, t.h);
@@ -1027,12 +1030,15 @@
       }
     }
 
-    // the NDC shift that puts the sample at offset o under the pixel centre (GL's y runs up)
-    setJitter(o, t) {
+    // the NDC shift that puts the sample at offset o under the pixel centre (GL's y runs up),
+    // and the directions over the sun's disc that sample i of n takes (frame.glsl's tap_first
+    // and tap_step, render/_sun_shadow.py sample_taps)
+    setJitter(o, t, i, n) {
       const gl = this.gl;
+      const step = Math.min(n, this.h.shadow.samples);
       gl.bindBuffer(gl.UNIFORM_BUFFER, this.sampleUbo);
-      gl.bufferSubData(gl.UNIFORM_BUFFER, 0,
-                       new Float32Array([2 * (0.5 - o[0]) / t.w, 2 * (o[1] - 0.5) / t.h]));
+      gl.bufferSubData(gl.UNIFORM_BUFFER, 0, new Float32Array(
+        [2 * (0.5 - o[0]) / t.w, 2 * (o[1] - 0.5) / t.h, i % step, step]));
     }
 
     // one sample of every pixel into t: the object's depth, its shading where the depth is
