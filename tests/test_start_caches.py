@@ -223,6 +223,14 @@ def test_render_modules_import_without_trimesh_or_scipy():
     assert out.stdout.strip() == "[]"
 
 
+def test_the_commands_import_without_the_gltf_library():
+    # pygltflib (and dataclasses-json's schemas under it) is imported when a glTF file is read
+    # or written, not by every command's start
+    code = "import sys, lobelight.cli._commands; print('pygltflib' in sys.modules)"
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert out.stdout.strip() == "False"
+
+
 @pytest.mark.slow  # five renders in new processes: about a minute on a busy 2-core machine
 @pytest.mark.skipif(not gl_available(), reason="no headless OpenGL context (EGL)")
 def test_bench_start_runs_the_command_and_accounts_for_each_run(tmp_path):

@@ -39,10 +39,9 @@ import math
 import struct
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
-import pygltflib
 import torch
 from PIL import Image
 
@@ -57,6 +56,9 @@ from ..lobes.sg import Gaussians
 from ..model import Model
 from ..scene import WRAP_MODES, AlbedoTexture, Materials, Mesh
 from ._lighting import Lighting
+
+if TYPE_CHECKING:
+    import pygltflib
 
 __all__ = [
     "GLTF_EXTENSION",
@@ -97,6 +99,14 @@ _F0_DIELECTRIC = 0.04
 _RGBD_RANGE = 255.0
 
 
+def _pygltflib():
+    """pygltflib, imported when a glTF file is written or read: its import (dataclasses-json's
+    schemas) would otherwise be part of every command's start."""
+    import pygltflib
+
+    return pygltflib
+
+
 # --------------------------------------------------------------------------------------------
 # writing
 
@@ -106,11 +116,12 @@ class _Doc:
     """The document being built: accessors, buffer views and images, with the binary chunk
     kept as a list of byte strings (streamed to the file, never concatenated)."""
 
-    gltf: pygltflib.GLTF2 = field(default_factory=pygltflib.GLTF2)
+    gltf: pygltflib.GLTF2 = field(default_factory=lambda: _pygltflib().GLTF2())
     chunks: list[bytes] = field(default_factory=list)
     size: int = 0
 
     def view(self, data: bytes, target: int | None = None) -> int:
+        pygltflib = _pygltflib()
         pad = -self.size % 4
         if pad:
             self.chunks.append(b"\0" * pad)
@@ -127,6 +138,7 @@ class _Doc:
     def accessor(self, arr: np.ndarray, kind: str, ctype: int, *, name: str | None = None,
                  target: int | None = None, minmax: bool = False) -> int:  # fmt: skip
         """An accessor of ``arr`` (count rows of ``kind``), stored as ``ctype``."""
+        pygltflib = _pygltflib()
         a = np.ascontiguousarray(arr, dtype=_DTYPE[ctype]).reshape(-1, _NCOMP[kind])
         acc = pygltflib.Accessor(
             bufferView=self.view(a.tobytes(), target), componentType=ctype, count=len(a),
@@ -152,6 +164,7 @@ class _Doc:
         return {"accessor": self.accessor(a, kind, _FLOAT, name=name), "encoding": "float32"}
 
     def image(self, png: bytes, name: str | None = None) -> int:
+        pygltflib = _pygltflib()
         self.gltf.images.append(
             pygltflib.Image(bufferView=self.view(png), mimeType="image/png", name=name)
         )
@@ -263,6 +276,7 @@ def _mesh(doc: _Doc, model: Model, base: torch.Tensor) -> dict[str, int]:
 
 def _albedo_textures(doc: _Doc, albedo: AlbedoTexture) -> list[dict]:
     """Each albedo layer as a PNG image, a sampler and a texture; the extension's records."""
+    pygltflib = _pygltflib()
     layers = []
     for i, img in enumerate(albedo.images):
         ws, wt = (int(c) for c in albedo.wrap[i])
@@ -293,6 +307,7 @@ def _albedo_textures(doc: _Doc, albedo: AlbedoTexture) -> list[dict]:
 def _primitives(doc: _Doc, model: Model, attrs: dict, metal: float, rough: float, ext: dict):
     """One primitive per albedo layer (a face's layer is its first corner's), each with its
     material; the faces' order where the grouping changes it."""
+    pygltflib = _pygltflib()
     faces = model.mesh.faces.cpu()
     group = torch.zeros(faces.shape[0], dtype=torch.int64)
     if model.albedo is not None:
@@ -412,6 +427,7 @@ def _lighting_of(lighting) -> Lighting | None:
 
 def _write_glb(path: Path, doc: _Doc) -> int:
     """The GLB container: header, JSON chunk (pygltflib's document), binary chunk streamed."""
+    pygltflib = _pygltflib()
     doc.gltf.buffers = [pygltflib.Buffer(byteLength=doc.size + (-doc.size % 4))]
     js = doc.gltf.to_json(separators=(",", ":")).encode()
     js += b" " * (-len(js) % 4)
@@ -448,6 +464,7 @@ def export_gltf(model: Model, path, *, lighting=None, float16: bool = True) -> d
         naming ``path``: not ``.glb``, its folder missing, or a file read as an input; or the
         model's light beyond half floats with ``float16``.
     """
+    pygltflib = _pygltflib()
     p = Path(path)
     if p.suffix.lower() != ".glb":
         raise InputError(str(p), "a glTF export is a binary .glb file")
@@ -517,6 +534,7 @@ def _need(cond: bool, name: str, problem: str) -> None:
 
 def _parse_glb(data: bytes, name: str) -> tuple[pygltflib.GLTF2, memoryview]:
     """The document and the binary chunk of a GLB container."""
+    pygltflib = _pygltflib()
     _need(len(data) >= 20 and data[:4] == b"glTF", name, "not a binary glTF (.glb) file")
     version, total = struct.unpack_from("<II", data, 4)
     _need(version == 2 and total <= len(data), name, "not a whole glTF 2.0 binary")

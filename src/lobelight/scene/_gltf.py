@@ -43,7 +43,6 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
-import pygltflib
 import torch
 from PIL import Image
 
@@ -237,6 +236,9 @@ class _Document:
             raise InputError(self.name, "file is empty")
         self.blob: bytes | None = None
         text = self._split_glb(data) if data[:4] == _GLB_MAGIC else data
+        # imported here, not with the module: its import would be part of every command's start
+        import pygltflib
+
         try:
             doc = json.loads(text.decode("utf-8"))
             if not isinstance(doc, dict):
