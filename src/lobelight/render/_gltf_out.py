@@ -33,6 +33,7 @@ write holds the arrays once.
 
 from __future__ import annotations
 
+import importlib
 import io
 import json
 import math
@@ -100,11 +101,9 @@ _RGBD_RANGE = 255.0
 
 
 def _pygltflib():
-    """pygltflib, imported when a glTF file is written or read: its import (dataclasses-json's
-    schemas) would otherwise be part of every command's start."""
-    import pygltflib
-
-    return pygltflib
+    """pygltflib, imported when a glTF file is written or read rather than with this module:
+    its import (dataclasses-json's schemas) would otherwise be part of every command's start."""
+    return importlib.import_module("pygltflib")
 
 
 # --------------------------------------------------------------------------------------------

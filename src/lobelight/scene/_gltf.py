@@ -33,6 +33,7 @@ from __future__ import annotations
 
 import base64
 import binascii
+import importlib
 import io
 import json
 import math
@@ -237,7 +238,7 @@ class _Document:
         self.blob: bytes | None = None
         text = self._split_glb(data) if data[:4] == _GLB_MAGIC else data
         # imported here, not with the module: its import would be part of every command's start
-        import pygltflib
+        pygltflib = importlib.import_module("pygltflib")
 
         try:
             doc = json.loads(text.decode("utf-8"))
