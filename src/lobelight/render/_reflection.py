@@ -29,9 +29,11 @@ the lobe sees the environment and where the object; 1 where no corner finds a hi
 lobe does not see of the environment is the object itself, shaded where it is seen
 (:func:`object_light`): each corner's hit tile (:meth:`lobelight.model.Model.hits`) names the
 triangle its ray along ``R``'s texel hits and how far away; the hit point is placed from the
-pixel itself, ``q = p + t R``, and projected onto that triangle; there the object's radiance
-towards the pixel is its direct sharp reflection for the view ``-R`` (as above, with the hit's
-own visible fraction ``V_hit`` read bilinearly from its corners' octahedral visibility tiles,
+pixel itself, ``q = p + t R`` with ``t`` where the pixel's ray meets that triangle's plane (the
+tile's distance where the ray runs nearly along the plane), and projected onto the triangle;
+there the object's radiance towards the pixel is its direct sharp reflection for the view
+``-R`` (as above, with the hit's own visible fraction ``V_hit`` read bilinearly from its
+corners' octahedral visibility tiles,
 :meth:`lobelight.model.Model.visibility`; each lookup widened by the spread of the directions
 the pixel's lobe sees the hit from, :func:`hit_spread`: the pixel integrates the hit's
 reflection over its lobe, and a curved hit surface widens that spread further), its diffuse
@@ -110,12 +112,17 @@ SUN_RESOLVED = 0.25
 SPREAD_GAUSSIAN = 1
 #: ``1 - v_fit`` floor of the rescaling's divisor.
 OCCLUDED_FLOOR = 0.05
+#: The pixel's reflected ray meets the plane of the triangle its corner's hit tile names where
+#: it crosses the plane at least this steeply (the cosine between ray and plane normal); a ray
+#: more nearly along the plane keeps the tile's distance.
+HIT_PLANE_COS_MIN = 0.1
 #: Shadow rays from a hit point are lifted off its triangle by this fraction of the mesh's
 #: diagonal (as the pixel's own, render/_torch.py).
 HIT_SHADOW_OFFSET = 1e-4
 #: The constants ``reflection.glsl`` takes as defines, by name: numbers, and the index
 #: ``SPREAD_GAUSSIAN`` (an int); :func:`sharp_shader_defines` writes them as shader text.
 SHARP_DEFINES = {
+    "HIT_PLANE_COS_MIN": HIT_PLANE_COS_MIN,
     "OCCLUDED_FLOOR": OCCLUDED_FLOOR,
     "SHARP_NV_MIN": SHARP_NV_MIN,
     "SUN_RESOLVED": SUN_RESOLVED,
@@ -315,6 +322,22 @@ def _project(tri: torch.Tensor, q: torch.Tensor) -> torch.Tensor:
     return b / b.sum(-1, keepdim=True).clamp_min(DIVISOR_F32)
 
 
+def _plane_distance(mesh, tri, p, r, t):
+    """How far the rays from ``p (P, 3)`` along ``r (P, 3)`` go to the planes of triangles
+    ``tri (P,)``: ``(P,)``; the tiles' distances ``t (P,)`` where a ray runs nearly along its
+    plane (:data:`HIT_PLANE_COS_MIN`) or meets it behind ``p``. A tile's texel is 6 degrees
+    wide and its distance the ray's from the corner along the texel's centre: the hit point
+    placed by the pixel's own ray moves over the triangle as the pixel's reflection does,
+    where a distance held over the texel would place it in blocks."""
+    v = mesh.vertices[mesh.faces[tri]]  # (P, 3, 3)
+    n = torch.linalg.cross(v[:, 1] - v[:, 0], v[:, 2] - v[:, 0])
+    n = n / n.norm(dim=-1, keepdim=True).clamp_min(DIVISOR_F32)
+    rn = (r * n).sum(-1)
+    t_plane = ((v[:, 0] - p) * n).sum(-1) / torch.where(rn.abs() > 0, rn, 1.0)
+    steep = rn.abs() >= HIT_PLANE_COS_MIN * r.norm(dim=-1)
+    return torch.where(steep & (t_plane > 0), t_plane, t)
+
+
 def _hit_light(model, lighting, vd, sharp, tri, q, r, rot, *, sun_gl, caster, blur, taps):
     """The object's radiance towards ``-r`` at points ``q`` near triangles ``tri`` (module
     docstring), its own sharp reflection blurred by the pixel's lobe (:func:`hit_spread`;
@@ -398,7 +421,7 @@ def object_light(model, lighting, vd, sharp, pixel, pos, r, nv, corners, bary, r
         h = ((f >= 0) & (bary[:, i] > 0)).nonzero().squeeze(-1)
         if h.numel() == 0:
             continue
-        t = dist[corners[h, i], texel[h]].float()
+        t = _plane_distance(model.mesh, f[h], pos[h], r[h], dist[corners[h, i], texel[h]].float())
         q = pos[h] + t[:, None] * r[h]
         blur = (pixel.take(h), nv[h], t)
         hit = _hit_light(

@@ -112,6 +112,20 @@ float hit_free(int v, vec3 d) {
 
 ivec2 at_face_width(int i) { return ivec2(i % face_width, i / face_width); }
 
+// how far the ray from p along r goes to the plane of triangle f: t (the tile's distance) where
+// the ray runs nearly along the plane or meets it behind p (render/_reflection.py
+// _plane_distance)
+float plane_distance(int f, vec3 p, vec3 r, float t) {
+    ivec3 c = texelFetch(face_tex, at_face_width(f), 0).xyz;
+    vec3 p0 = texelFetch(pos_tex, at_face_width(c.x), 0).xyz;
+    vec3 p1 = texelFetch(pos_tex, at_face_width(c.y), 0).xyz;
+    vec3 p2 = texelFetch(pos_tex, at_face_width(c.z), 0).xyz;
+    vec3 n = cross(p1 - p0, p2 - p0);
+    float rn = dot(r, n);
+    float tp = dot(p0 - p, n) / (rn != 0.0 ? rn : 1.0);
+    return abs(rn) >= HIT_PLANE_COS_MIN * length(r) * length(n) && tp > 0.0 ? tp : t;
+}
+
 // the corners of triangle f and the barycentrics of p projected onto it, clamped to it
 // (render/_reflection.py _project)
 void triangle_at(int f, vec3 p, out ivec3 c, out vec3 b) {
@@ -352,7 +366,7 @@ vec4 object_light(vec3 p, vec3 r, float nv, ivec3 c, vec3 b, float scale) {
         ivec2 t = i == 0 ? t0 : (i == 1 ? t1 : t2);
         int face = i == 0 ? f.x : (i == 1 ? f.y : f.z);
         float weight = i == 0 ? b.x : (i == 1 ? b.y : b.z);
-        float dist = texelFetch(hit_dist_tex, t, 0).r;
+        float dist = plane_distance(face, p, r, texelFetch(hit_dist_tex, t, 0).r);
         light += weight * hit_light(face, p + dist * r, r, nv, dist, scale);
         w += weight;
     }
