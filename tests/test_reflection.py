@@ -530,15 +530,22 @@ def test_shaders_match_the_torch_path_on_a_sun_s_shape():
 
 def test_a_hit_is_placed_where_the_pixels_ray_meets_the_hit_triangles_plane():
     # a triangle in the plane z = 1 seen from the origin: the ray's own distance to the plane,
-    # whatever the tile's; the tile's distance kept for a ray nearly along the plane (its
-    # crossing far off the triangle) or one leaving the plane behind it
+    # whatever the tile's; the tile's distance kept for a ray nearly along the plane, one
+    # leaving the plane behind it, and one crossing the plane off the triangle (at (4, 0, 1),
+    # barycentrics (-0.5, 1.25, 0.25): another triangle is hit there)
     v = torch.tensor([[-1.0, -1.0, 1.0], [3.0, -1.0, 1.0], [-1.0, 3.0, 1.0]])
     mesh = scene.mesh_from_arrays(v, torch.tensor([[0, 1, 2]]), name="tri")
     a = math.radians(30.0)
     r = torch.tensor(
-        [[0.0, 0.0, 1.0], [math.sin(a), 0.0, math.cos(a)], [1.0, 0.0, 0.05], [0.0, 0.0, -1.0]]
+        [
+            [0.0, 0.0, 1.0],
+            [math.sin(a), 0.0, math.cos(a)],
+            [1.0, 0.0, 0.05],
+            [0.0, 0.0, -1.0],
+            [4.0 / math.sqrt(17.0), 0.0, 1.0 / math.sqrt(17.0)],
+        ]
     )
-    p = torch.zeros(4, 3)
-    tile = torch.full((4,), 0.7)
-    t = _reflection._plane_distance(mesh, torch.zeros(4, dtype=torch.long), p, r, tile)
-    torch.testing.assert_close(t, torch.tensor([1.0, 1.0 / math.cos(a), 0.7, 0.7]))
+    p = torch.zeros(5, 3)
+    tile = torch.full((5,), 0.7)
+    t = _reflection._plane_distance(mesh, torch.zeros(5, dtype=torch.long), p, r, tile)
+    torch.testing.assert_close(t, torch.tensor([1.0, 1.0 / math.cos(a), 0.7, 0.7, 0.7]))

@@ -30,7 +30,8 @@ lobe does not see of the environment is the object itself, shaded where it is se
 (:func:`object_light`): each corner's hit tile (:meth:`lobelight.model.Model.hits`) names the
 triangle its ray along ``R``'s texel hits and how far away; the hit point is placed from the
 pixel itself, ``q = p + t R`` with ``t`` where the pixel's ray meets that triangle's plane (the
-tile's distance where the ray runs nearly along the plane), and projected onto the triangle;
+tile's distance where the ray runs nearly along the plane or crosses it off the triangle), and
+projected onto the triangle;
 there the object's radiance towards the pixel is its direct sharp reflection for the view
 ``-R`` (as above, with the hit's own visible fraction ``V_hit`` read bilinearly from its
 corners' octahedral visibility tiles,
@@ -116,6 +117,8 @@ OCCLUDED_FLOOR = 0.05
 #: it crosses the plane at least this steeply (the cosine between ray and plane normal); a ray
 #: more nearly along the plane keeps the tile's distance.
 HIT_PLANE_COS_MIN = 0.1
+#: ... and where that crossing lies on the triangle or near it: no barycentric below minus this.
+HIT_PLANE_MARGIN = 0.25
 #: Shadow rays from a hit point are lifted off its triangle by this fraction of the mesh's
 #: diagonal (as the pixel's own, render/_torch.py).
 HIT_SHADOW_OFFSET = 1e-4
@@ -123,6 +126,7 @@ HIT_SHADOW_OFFSET = 1e-4
 #: ``SPREAD_GAUSSIAN`` (an int); :func:`sharp_shader_defines` writes them as shader text.
 SHARP_DEFINES = {
     "HIT_PLANE_COS_MIN": HIT_PLANE_COS_MIN,
+    "HIT_PLANE_MARGIN": HIT_PLANE_MARGIN,
     "OCCLUDED_FLOOR": OCCLUDED_FLOOR,
     "SHARP_NV_MIN": SHARP_NV_MIN,
     "SUN_RESOLVED": SUN_RESOLVED,
@@ -325,17 +329,24 @@ def _project(tri: torch.Tensor, q: torch.Tensor) -> torch.Tensor:
 def _plane_distance(mesh, tri, p, r, t):
     """How far the rays from ``p (P, 3)`` along ``r (P, 3)`` go to the planes of triangles
     ``tri (P,)``: ``(P,)``; the tiles' distances ``t (P,)`` where a ray runs nearly along its
-    plane (:data:`HIT_PLANE_COS_MIN`) or meets it behind ``p``. A tile's texel is 6 degrees
+    plane (:data:`HIT_PLANE_COS_MIN`), meets it behind ``p``, or crosses it off the triangle
+    (:data:`HIT_PLANE_MARGIN`: the ray hits another triangle there). A tile's texel is 6 degrees
     wide and its distance the ray's from the corner along the texel's centre: the hit point
     placed by the pixel's own ray moves over the triangle as the pixel's reflection does,
     where a distance held over the texel would place it in blocks."""
     v = mesh.vertices[mesh.faces[tri]]  # (P, 3, 3)
-    n = torch.linalg.cross(v[:, 1] - v[:, 0], v[:, 2] - v[:, 0])
-    n = n / n.norm(dim=-1, keepdim=True).clamp_min(DIVISOR_F32)
+    e1, e2 = v[:, 1] - v[:, 0], v[:, 2] - v[:, 0]
+    n = torch.linalg.cross(e1, e2)
+    nn = (n * n).sum(-1).clamp_min(DIVISOR_F32)
     rn = (r * n).sum(-1)
     t_plane = ((v[:, 0] - p) * n).sum(-1) / torch.where(rn.abs() > 0, rn, 1.0)
-    steep = rn.abs() >= HIT_PLANE_COS_MIN * r.norm(dim=-1)
-    return torch.where(steep & (t_plane > 0), t_plane, t)
+    steep = rn.abs() >= HIT_PLANE_COS_MIN * r.norm(dim=-1) * nn.sqrt()
+    # the crossing's barycentrics: on the triangle or near it
+    w = p + t_plane[:, None] * r - v[:, 0]
+    b1 = (torch.linalg.cross(w, e2) * n).sum(-1) / nn
+    b2 = (torch.linalg.cross(e1, w) * n).sum(-1) / nn
+    near = torch.stack([1 - b1 - b2, b1, b2], -1).amin(-1) >= -HIT_PLANE_MARGIN
+    return torch.where(steep & (t_plane > 0) & near, t_plane, t)
 
 
 def _hit_light(model, lighting, vd, sharp, tri, q, r, rot, *, sun_gl, caster, blur, taps):

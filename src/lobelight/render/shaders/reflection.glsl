@@ -120,10 +120,17 @@ float plane_distance(int f, vec3 p, vec3 r, float t) {
     vec3 p0 = texelFetch(pos_tex, at_face_width(c.x), 0).xyz;
     vec3 p1 = texelFetch(pos_tex, at_face_width(c.y), 0).xyz;
     vec3 p2 = texelFetch(pos_tex, at_face_width(c.z), 0).xyz;
-    vec3 n = cross(p1 - p0, p2 - p0);
+    vec3 e1 = p1 - p0, e2 = p2 - p0;
+    vec3 n = cross(e1, e2);
+    float nn = max(dot(n, n), 1e-30);
     float rn = dot(r, n);
     float tp = dot(p0 - p, n) / (rn != 0.0 ? rn : 1.0);
-    return abs(rn) >= HIT_PLANE_COS_MIN * length(r) * length(n) && tp > 0.0 ? tp : t;
+    // the crossing's barycentrics: on the triangle or near it
+    vec3 w = p + tp * r - p0;
+    float b1 = dot(cross(w, e2), n) / nn;
+    float b2 = dot(cross(e1, w), n) / nn;
+    bool near = min(min(1.0 - b1 - b2, b1), b2) >= -HIT_PLANE_MARGIN;
+    return abs(rn) >= HIT_PLANE_COS_MIN * length(r) * sqrt(nn) && tp > 0.0 && near ? tp : t;
 }
 
 // the corners of triangle f and the barycentrics of p projected onto it, clamped to it
