@@ -112,14 +112,10 @@ float hit_free(int v, vec3 d) {
 
 ivec2 at_face_width(int i) { return ivec2(i % face_width, i / face_width); }
 
-// how far the ray from p along r goes to the plane of triangle f: t (the tile's distance) where
-// the ray runs nearly along the plane or meets it behind p (render/_reflection.py
-// _plane_distance)
-float plane_distance(int f, vec3 p, vec3 r, float t) {
-    ivec3 c = texelFetch(face_tex, at_face_width(f), 0).xyz;
-    vec3 p0 = texelFetch(pos_tex, at_face_width(c.x), 0).xyz;
-    vec3 p1 = texelFetch(pos_tex, at_face_width(c.y), 0).xyz;
-    vec3 p2 = texelFetch(pos_tex, at_face_width(c.z), 0).xyz;
+// how far the ray from p along r goes to the plane of triangle (p0, p1, p2): t (the tile's
+// distance) where the ray runs nearly along the plane, meets it behind p, or crosses it off the
+// triangle (render/_reflection.py _plane_distance)
+float plane_distance(vec3 p0, vec3 p1, vec3 p2, vec3 p, vec3 r, float t) {
     vec3 e1 = p1 - p0, e2 = p2 - p0;
     vec3 n = cross(e1, e2);
     float nn = max(dot(n, n), 1e-30);
@@ -133,19 +129,23 @@ float plane_distance(int f, vec3 p, vec3 r, float t) {
     return abs(rn) >= HIT_PLANE_COS_MIN * length(r) * sqrt(nn) && tp > 0.0 && near ? tp : t;
 }
 
-// the corners of triangle f and the barycentrics of p projected onto it, clamped to it
+// the barycentrics of p projected onto triangle (p0, p1, p2), clamped to it
 // (render/_reflection.py _project)
-void triangle_at(int f, vec3 p, out ivec3 c, out vec3 b) {
-    c = texelFetch(face_tex, at_face_width(f), 0).xyz;
-    vec3 p0 = texelFetch(pos_tex, at_face_width(c.x), 0).xyz;
-    vec3 p1 = texelFetch(pos_tex, at_face_width(c.y), 0).xyz;
-    vec3 p2 = texelFetch(pos_tex, at_face_width(c.z), 0).xyz;
+vec3 projected(vec3 p0, vec3 p1, vec3 p2, vec3 p) {
     vec3 n = cross(p1 - p0, p2 - p0);
     float inv = 1.0 / max(dot(n, n), 1e-30);
     float b1 = dot(cross(p - p0, p2 - p0), n) * inv;
     float b2 = dot(cross(p1 - p0, p - p0), n) * inv;
-    b = max(vec3(1.0 - b1 - b2, b1, b2), 0.0);
-    b /= max(b.x + b.y + b.z, 1e-30);
+    vec3 b = max(vec3(1.0 - b1 - b2, b1, b2), 0.0);
+    return b / max(b.x + b.y + b.z, 1e-30);
+}
+
+// the corners of triangle f and the barycentrics of p projected onto it
+void triangle_at(int f, vec3 p, out ivec3 c, out vec3 b) {
+    c = texelFetch(face_tex, at_face_width(f), 0).xyz;
+    b = projected(texelFetch(pos_tex, at_face_width(c.x), 0).xyz,
+                  texelFetch(pos_tex, at_face_width(c.y), 0).xyz,
+                  texelFetch(pos_tex, at_face_width(c.z), 0).xyz, p);
 }
 
 #ifdef GL_ES
@@ -277,19 +277,21 @@ float face_curvature(vec3 p0, vec3 p1, vec3 p2, vec3 n0, vec3 n1, vec3 n2) {
             + length(n2 - n0) / max(length(p2 - p0), 1e-30)) / 3.0;
 }
 
-// the object's radiance towards -r at point q near triangle f, dist from the pixel whose n.v
-// is nv_px and lobe's sharpness factor scale_px (render/_reflection.py _hit_light): its direct
+// the object's radiance towards -r at the hit on triangle f of the ray from pixel point p along
+// r (dist the tile's distance: plane_distance), the pixel's n.v nv_px and its lobe's sharpness
+// factor scale_px (render/_reflection.py object_light, _hit_light): its direct
 // sharp reflection (its own lobe, blurred by the pixel's, hit_spread), diffuse colour,
 // indirect Gaussians (the current view's, re-based on its reflected direction) and the sun's
 // light
-vec3 hit_light(int f, vec3 q, vec3 r, float nv_px, float dist, float scale_px) {
-    ivec3 c;
-    vec3 b;
-    triangle_at(f, q, c, b);
+vec3 hit_light(int f, vec3 p, float dist, vec3 r, float nv_px, float scale_px) {
+    ivec3 c = texelFetch(face_tex, at_face_width(f), 0).xyz;
     ivec2 t0 = at_face_width(c.x), t1 = at_face_width(c.y), t2 = at_face_width(c.z);
     vec3 p0 = texelFetch(pos_tex, t0, 0).xyz;
     vec3 p1 = texelFetch(pos_tex, t1, 0).xyz;
     vec3 p2 = texelFetch(pos_tex, t2, 0).xyz;
+    // the hit where the pixel's ray meets the triangle's plane, projected onto the triangle
+    dist = plane_distance(p0, p1, p2, p, r, dist);
+    vec3 b = projected(p0, p1, p2, p + dist * r);
     vec3 n0 = texelFetch(nrm_tex, t0, 0).xyz;
     vec3 n1 = texelFetch(nrm_tex, t1, 0).xyz;
     vec3 n2 = texelFetch(nrm_tex, t2, 0).xyz;
@@ -373,8 +375,7 @@ vec4 object_light(vec3 p, vec3 r, float nv, ivec3 c, vec3 b, float scale) {
         ivec2 t = i == 0 ? t0 : (i == 1 ? t1 : t2);
         int face = i == 0 ? f.x : (i == 1 ? f.y : f.z);
         float weight = i == 0 ? b.x : (i == 1 ? b.y : b.z);
-        float dist = plane_distance(face, p, r, texelFetch(hit_dist_tex, t, 0).r);
-        light += weight * hit_light(face, p + dist * r, r, nv, dist, scale);
+        light += weight * hit_light(face, p, texelFetch(hit_dist_tex, t, 0).r, r, nv, scale);
         w += weight;
     }
     return vec4(light, min(w, 1.0));
