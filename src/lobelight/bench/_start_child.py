@@ -98,6 +98,9 @@ _wrap(lobelight.render.Renderer, "render", "frame")
 _wrap(lobelight.render, "save_image", "save")
 _wrap(lobelight.render, "auto_exposure", "exposure")
 _P_IMPORTS = time.perf_counter()
+# ... and then, as the command line does, freezes what they made and collects again
+gc.freeze()
+gc.enable()
 
 
 def _gl_hooks() -> None:

@@ -313,16 +313,22 @@ def indirect_light(model, lighting, e, mu, sigma, rot, *, sun_gl: bool):
     return acc
 
 
-def _project(tri: torch.Tensor, q: torch.Tensor) -> torch.Tensor:
-    """Barycentrics ``(P, 3)`` of points ``q (P, 3)`` projected onto triangles ``tri (P, 3, 3)``,
-    clamped to the triangle (a hit placed from the pixel may fall just past its edge)."""
+def _barycentrics(tri: torch.Tensor, q: torch.Tensor) -> torch.Tensor:
+    """Barycentrics ``(P, 3)`` of points ``q (P, 3)`` projected onto the planes of triangles
+    ``tri (P, 3, 3)``, unclamped (negative off the triangle)."""
     a = tri[:, 0]
     e1, e2, w = tri[:, 1] - a, tri[:, 2] - a, q - a
     n = torch.linalg.cross(e1, e2)
     inv = 1 / (n * n).sum(-1).clamp_min(DIVISOR_F32)
     b1 = (torch.linalg.cross(w, e2) * n).sum(-1) * inv
     b2 = (torch.linalg.cross(e1, w) * n).sum(-1) * inv
-    b = torch.stack([1 - b1 - b2, b1, b2], -1).clamp_min(0)
+    return torch.stack([1 - b1 - b2, b1, b2], -1)
+
+
+def _project(tri: torch.Tensor, q: torch.Tensor) -> torch.Tensor:
+    """Barycentrics ``(P, 3)`` of points ``q (P, 3)`` projected onto triangles ``tri (P, 3, 3)``,
+    clamped to the triangle (a hit placed from the pixel may fall just past its edge)."""
+    b = _barycentrics(tri, q).clamp_min(0)
     return b / b.sum(-1, keepdim=True).clamp_min(DIVISOR_F32)
 
 
@@ -335,17 +341,12 @@ def _plane_distance(mesh, tri, p, r, t):
     placed by the pixel's own ray moves over the triangle as the pixel's reflection does,
     where a distance held over the texel would place it in blocks."""
     v = mesh.vertices[mesh.faces[tri]]  # (P, 3, 3)
-    e1, e2 = v[:, 1] - v[:, 0], v[:, 2] - v[:, 0]
-    n = torch.linalg.cross(e1, e2)
-    nn = (n * n).sum(-1).clamp_min(DIVISOR_F32)
+    n = torch.linalg.cross(v[:, 1] - v[:, 0], v[:, 2] - v[:, 0])
     rn = (r * n).sum(-1)
     t_plane = ((v[:, 0] - p) * n).sum(-1) / torch.where(rn.abs() > 0, rn, 1.0)
-    steep = rn.abs() >= HIT_PLANE_COS_MIN * r.norm(dim=-1) * nn.sqrt()
-    # the crossing's barycentrics: on the triangle or near it
-    w = p + t_plane[:, None] * r - v[:, 0]
-    b1 = (torch.linalg.cross(w, e2) * n).sum(-1) / nn
-    b2 = (torch.linalg.cross(e1, w) * n).sum(-1) / nn
-    near = torch.stack([1 - b1 - b2, b1, b2], -1).amin(-1) >= -HIT_PLANE_MARGIN
+    steep = rn.abs() >= HIT_PLANE_COS_MIN * r.norm(dim=-1) * n.norm(dim=-1)
+    # the crossing on the triangle or near it
+    near = _barycentrics(v, p + t_plane[:, None] * r).amin(-1) >= -HIT_PLANE_MARGIN
     return torch.where(steep & (t_plane > 0) & near, t_plane, t)
 
 

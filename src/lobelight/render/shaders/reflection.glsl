@@ -112,31 +112,33 @@ float hit_free(int v, vec3 d) {
 
 ivec2 at_face_width(int i) { return ivec2(i % face_width, i / face_width); }
 
+// the barycentrics of p projected onto the plane of triangle (p0, p1, p2), unclamped
+// (render/_reflection.py _barycentrics)
+vec3 barycentrics(vec3 p0, vec3 p1, vec3 p2, vec3 p) {
+    vec3 n = cross(p1 - p0, p2 - p0);
+    float inv = 1.0 / max(dot(n, n), 1e-30);
+    float b1 = dot(cross(p - p0, p2 - p0), n) * inv;
+    float b2 = dot(cross(p1 - p0, p - p0), n) * inv;
+    return vec3(1.0 - b1 - b2, b1, b2);
+}
+
 // how far the ray from p along r goes to the plane of triangle (p0, p1, p2): t (the tile's
 // distance) where the ray runs nearly along the plane, meets it behind p, or crosses it off the
 // triangle (render/_reflection.py _plane_distance)
 float plane_distance(vec3 p0, vec3 p1, vec3 p2, vec3 p, vec3 r, float t) {
-    vec3 e1 = p1 - p0, e2 = p2 - p0;
-    vec3 n = cross(e1, e2);
-    float nn = max(dot(n, n), 1e-30);
+    vec3 n = cross(p1 - p0, p2 - p0);
     float rn = dot(r, n);
     float tp = dot(p0 - p, n) / (rn != 0.0 ? rn : 1.0);
-    // the crossing's barycentrics: on the triangle or near it
-    vec3 w = p + tp * r - p0;
-    float b1 = dot(cross(w, e2), n) / nn;
-    float b2 = dot(cross(e1, w), n) / nn;
-    bool near = min(min(1.0 - b1 - b2, b1), b2) >= -HIT_PLANE_MARGIN;
-    return abs(rn) >= HIT_PLANE_COS_MIN * length(r) * sqrt(nn) && tp > 0.0 && near ? tp : t;
+    // the crossing on the triangle or near it
+    vec3 b = barycentrics(p0, p1, p2, p + tp * r);
+    bool near = min(min(b.x, b.y), b.z) >= -HIT_PLANE_MARGIN;
+    return abs(rn) >= HIT_PLANE_COS_MIN * length(r) * length(n) && tp > 0.0 && near ? tp : t;
 }
 
 // the barycentrics of p projected onto triangle (p0, p1, p2), clamped to it
 // (render/_reflection.py _project)
 vec3 projected(vec3 p0, vec3 p1, vec3 p2, vec3 p) {
-    vec3 n = cross(p1 - p0, p2 - p0);
-    float inv = 1.0 / max(dot(n, n), 1e-30);
-    float b1 = dot(cross(p - p0, p2 - p0), n) * inv;
-    float b2 = dot(cross(p1 - p0, p - p0), n) * inv;
-    vec3 b = max(vec3(1.0 - b1 - b2, b1, b2), 0.0);
+    vec3 b = max(barycentrics(p0, p1, p2, p), 0.0);
     return b / max(b.x + b.y + b.z, 1e-30);
 }
 
