@@ -268,9 +268,12 @@ def test_the_interreflected_transfer_sees_the_sun(model2, small_env):
     torch.testing.assert_close(got, ref, rtol=1e-3, atol=1e-5)
 
 
-def test_constant_environment_gives_the_lobe_integrals(model2):
+def test_constant_environment_gives_the_lobe_integrals(model2, monkeypatch):
     # under L = 1 the glossy part at a vertex is sum_k w_k 2 pi / lam_k (1 - e^{-2 lam_k})
-    # exactly and the diffuse part is sqrt(4 pi) times the transfer's first coefficient
+    # exactly and the diffuse part is sqrt(4 pi) times the transfer's first coefficient: the
+    # Gaussians' integration, without the lobe visibility correction's factor on their light
+    # (tests/test_lobe_visibility.py)
+    monkeypatch.setattr(render._torch, "lobe_visibility_applies", lambda model: False)
     env = envmap.EnvMap(torch.ones(6, 16, 16, 3), layout="cubemap", name="white")
     light = render.Lighting(env, base_res=16)
     m = model2

@@ -215,12 +215,17 @@ class Model:
         return self
 
     def save(self, path, *, float16: bool = False, drop: bool = True) -> dict[str, Any]:
-        """Write the model to ``path`` (see :func:`save`); returns sizes. A material whose lobe
-        the renderers shade per pixel (:func:`lobelight.brdf.sharp_lobe`) has its visibility
-        and hit tiles (:meth:`visibility`, :meth:`hits`) written too, so that no renderer
-        computes them again."""
-        if sharp_lobe(self.materials.specular) is not None:
+        """Write the model to ``path`` (see :func:`save`); returns sizes. A material whose BRDF
+        the renderers evaluate per pixel (:attr:`lobelight.brdf.BRDF.sun_model`) has its
+        visibility tiles (:meth:`visibility`) written too, and one whose lobe they shade per
+        pixel (:func:`lobelight.brdf.sharp_lobe`) its hit tiles (:meth:`hits`), so that no
+        renderer computes them again: a sharp lobe reads both per pixel, a rough one's direct
+        Gaussians are corrected per vertex with the visibility tiles
+        (``lobelight.render._lobe_visibility``)."""
+        spec = self.materials.specular
+        if spec is not None and spec.sun_model is not None:
             self.visibility()
+        if sharp_lobe(spec) is not None:
             self.hits()
         return write(
             path,

@@ -39,6 +39,8 @@ from ..model import VISIBILITY_RES
 from ._albedo import F0_MIN, specular_f0
 from ._gl_albedo import albedo_array, albedo_uniforms
 from ._lighting import Lighting
+from ._lobe_visibility import lobe_visibility_applies
+from ._lobe_visibility import shader_defines as lobe_visibility_defines
 from ._reflection import SUN_RESOLVED, sharp_shader_defines, varying_lobe_arrays
 from ._sun_glossy import (
     sun_glossy_supported,
@@ -106,6 +108,8 @@ _ALBEDO_UNIT = _TABLE_LOBE_UNIT + 6
 #: Texture units of a glTF lobe varying per vertex (reflection.glsl ``lobe_tex``,
 #: ``split_tex``), after the albedo textures' two.
 _LOBE_UNIT = _ALBEDO_UNIT + 2
+#: The shader files the lobe visibility correction's vertex stage includes, in order.
+LOBE_VISIBILITY_INCLUDE = ("frame", "geodesic", "prefiltered", "tiles", "brdf", "lobe_visibility")
 #: Colour target texel types: float32 (what ``read`` returns exactly) and half float (display).
 HDR_DTYPES = ("f4", "f2")
 #: Uniform-block bindings of the PRT programs: the geodesic planes, frame.glsl's two blocks.
@@ -621,6 +625,9 @@ class GLRenderer:
         self.sun_glossy = self.has_sun and sun_glossy_supported(spec)
         # a sharp lobe's direct light per pixel (render/_reflection.py)
         self.sharp = sharp_lobe(spec)
+        # a rough lobe's direct Gaussians corrected for what the object blocks
+        # (render/_lobe_visibility.py)
+        self.lobe_vis = lobe_visibility_applies(model)
         # the interreflected part of the transfer, lit by the sun as well (Model.bounce)
         self.has_bounce = model.bounce is not None and self.has_sun
         self.lighting = lighting
@@ -650,6 +657,9 @@ class GLRenderer:
             "SPECULAR_TEX": int(self._f0 is not None),
             "F0_MIN": f"{F0_MIN:.6e}",
             "VERTEX_TABLE": 0,
+            "LOBE_VIS": int(self.lobe_vis),
+            "LOBE_VIS_PASS": 0,
+            **lobe_visibility_defines(),
             "TABLE_WIDTH": _VIS_TEX_WIDTH,
             "TABLE_ROWS": max(1, -(-model.mesh.n_vertices // _VIS_TEX_WIDTH)),
             "VIS_RES": VISIBILITY_RES,
@@ -661,7 +671,8 @@ class GLRenderer:
             **geo_defines,
         }
         include = ("frame", "prefiltered")
-        include += ("reflection",) if self.sharp else ()
+        include += ("brdf",) if self.sun_glossy else ()
+        include += ("tiles", "reflection") if self.sharp else ()
         include += ("albedo",) if model.albedo is not None else ()
         self.prog = _program(
             ctx,
@@ -683,6 +694,14 @@ class GLRenderer:
                 ctx, "prt", {**prt_defines, "DEPTH_ONLY": 0, "VERTEX_TABLE": 1}, ("frame",),
                 ("frame", "geodesic"),
             )  # fmt: skip
+        # each vertex's factor on its direct Gaussians' light, once per frame
+        self.lv_prog = None
+        if self.lobe_vis:
+            vertex, _ = stage_sources(
+                "prt", {**prt_defines, "DEPTH_ONLY": 0, "LOBE_VIS": 0, "LOBE_VIS_PASS": 1},
+                vertex_include=LOBE_VISIBILITY_INCLUDE,
+            )  # fmt: skip
+            self.lv_prog = ctx.program(vertex_shader=vertex, varyings=["v_rho"])
         self.bg_prog = _program(ctx, "background", {"N_SH": n_sh}, ("frame",), ("frame",))
         self.tm_prog = _program(ctx, "tonemap")
         self.acc_prog = _program(ctx, "accumulate")
@@ -697,6 +716,8 @@ class GLRenderer:
         self.bounce_tex = self._data_texture(bounce)
         if self.sharp is not None:
             self._upload_sharp(model)
+        if self.lv_prog is not None:
+            self._upload_lobe_visibility(model)
         self.albedo_tex = self.specular_tex = None
         if model.albedo is not None:
             self._upload_albedo(model.albedo)
@@ -725,10 +746,9 @@ class GLRenderer:
             self.specular_tex.build_mipmaps()
             self.specular_tex.filter = (moderngl.LINEAR_MIPMAP_LINEAR, moderngl.LINEAR)
 
-    def _upload_sharp(self, model) -> None:
-        """The per-pixel reflection's inputs (reflection.glsl): the vertices' visibility tiles,
-        the triangles' corners and the vertices' positions as textures, and the material's
-        lobe mixture and albedo table as uniforms."""
+    def _upload_visibility(self, model) -> int:
+        """The vertices' visibility tiles as one R8 atlas (tiles.glsl); returns the tiles per
+        row."""
         import moderngl  # optional (the gl extra)
 
         tiles = model.visibility().cpu().numpy()  # (V, R, R) uint8
@@ -737,6 +757,21 @@ class GLRenderer:
         atlas = _tile_atlas(tiles, per_row)
         self.vis_tex = self.ctx.texture((atlas.shape[1], atlas.shape[0]), 1, atlas, dtype="f1")
         self.vis_tex.filter = (moderngl.NEAREST, moderngl.NEAREST)
+        return per_row
+
+    def _upload_lobe_visibility(self, model) -> None:
+        """The lobe visibility correction's inputs (lobe_visibility.glsl): the visibility
+        tiles; and its output, a buffer of one float32 RGB factor per vertex."""
+        self.lv_prog["vis_per_row"].value = self._upload_visibility(model)
+        self.rho_buf = self.ctx.buffer(reserve=12 * model.mesh.n_vertices)
+
+    def _upload_sharp(self, model) -> None:
+        """The per-pixel reflection's inputs (reflection.glsl): the vertices' visibility tiles,
+        the triangles' corners and the vertices' positions as textures, and the material's
+        lobe mixture and albedo table as uniforms."""
+        import moderngl  # optional (the gl extra)
+
+        per_row = self._upload_visibility(model)
         faces = model.mesh.faces.cpu().numpy().astype(np.int32)
         verts = model.mesh.vertices.detach().cpu().numpy().astype(np.float32)
         width = _VIS_TEX_WIDTH
@@ -814,6 +849,25 @@ class GLRenderer:
                 self.bounce_tex.use(8)
             self.table_vao.render(moderngl.POINTS, vertices=self._n_vertices)
 
+    def _lobe_visibility_pass(self) -> None:
+        """Each vertex's factor on its direct Gaussians' light for this frame's view and
+        lighting into ``rho_buf``, by transform feedback of the correction's vertex stage
+        (one vertex per vertex: the vertex stage runs many vertices at once, where a point per
+        vertex would shade a block of pixels for one), read by the shading pass's vertices."""
+        import moderngl  # optional (the gl extra)
+
+        with self._section("lobe visibility"):
+            # a draw needs a complete framebuffer bound, though this one rasterises nothing
+            self.fbo.use()
+            self.gauss_tex.use(0)
+            self.diff_tex.use(1)
+            self.cand_tex.use(2)
+            self.atlas.use(3)
+            if self.has_bounce:
+                self.bounce_tex.use(8)
+            self.vis_tex.use(_VIS_UNIT)
+            self.lv_vao.transform(self.rho_buf, mode=moderngl.POINTS, vertices=self._n_vertices)
+
     def _upload_lighting(self, lighting: Lighting, pf: Prefiltered) -> None:
         """The chain's atlas and the background's cube map."""
         import moderngl  # optional (the gl extra)
@@ -857,7 +911,10 @@ class GLRenderer:
         p["tex_width"].value = tex_width
         set_uniforms(p, self._atlas_uniforms)
         p["Planes"].binding = _PLANES_BINDING
-        table = () if self.table_prog is None else (self.table_prog,)
+        table = tuple(t for t in (self.table_prog, self.lv_prog) if t is not None)
+        if self.lv_prog is not None:
+            set_uniforms(self.lv_prog, self._atlas_uniforms)
+            set_uniforms(self.lv_prog, sun_glossy_uniforms(self._specular))
         for t in table:
             t["tex_width"].value = tex_width
             t["Planes"].binding = _PLANES_BINDING
@@ -944,7 +1001,21 @@ class GLRenderer:
                 p["sun_spread"].value = float(lighting.sun.spread)
             self.sbo = ctx.buffer(np.ascontiguousarray(sb))
             content.append((self.sbo, "4f 3f 3f", "in_sb0", "in_eta", "in_k"))
-        self.vao = ctx.vertex_array(p, content, self.ibo, 4)
+        shading = content
+        if self.lv_prog is not None:  # the correction pass's factors (prt.glsl in_rho)
+            shading = [*content, (self.rho_buf, "3f", "in_rho")]
+        self.vao = ctx.vertex_array(p, shading, self.ibo, 4)
+        self.lv_vao = None
+        if self.lv_prog is not None:
+            # the BRDF as it is (the sun's shading reads it widened by the disc)
+            lv = sun_glossy_vertex_params(self._specular, mesh.n_vertices)
+            self.lvbo = ctx.buffer(np.ascontiguousarray(lv))
+            base = [c for c in content if c[0] is not self.sbo]
+            self.lv_vao = ctx.vertex_array(
+                self.lv_prog,
+                [*base, (self.lvbo, "4f 3f 3f", "in_sb0", "in_eta", "in_k")],
+                skip_errors=True,
+            )
         self.table_vao = None
         if self.table_prog is not None:
             self.table_vao = ctx.vertex_array(self.table_prog, content, skip_errors=True)
@@ -1212,6 +1283,8 @@ class GLRenderer:
             self._shadow_pass()
         if self.sharp is not None and glossy:
             self._table_pass()
+        if self.lv_prog is not None and glossy:
+            self._lobe_visibility_pass()
         n = self.offsets.shape[0]
         if n == 1:
             self._draw_sample(out, 0, background)
@@ -1346,6 +1419,10 @@ class GLRenderer:
         img = torch.from_numpy(img.copy())
         return img[..., :3].contiguous(), img[..., 3].contiguous()
 
+    def _lobe_visibility_objects(self) -> tuple:
+        """The GL objects of the lobe visibility correction (released with the renderer)."""
+        return (self.vis_tex, self.rho_buf, self.lv_vao, self.lvbo, self.lv_prog)
+
     def _sharp_objects(self) -> tuple:
         """The GL objects of the sharp reflection's hit points (released with the renderer)."""
         lobe = () if self.lobe_tex is None else (self.lobe_tex, self.split_tex)
@@ -1400,6 +1477,7 @@ class GLRenderer:
             self.acc_prog,
             *((self.vis_tex, self.face_tex, self.pos_tex) if self.sharp is not None else ()),
             *(self._sharp_objects() if self.sharp is not None else ()),
+            *(self._lobe_visibility_objects() if self.lv_prog is not None else ()),
         ):
             o.release()
         self.frame_block.release()

@@ -35,6 +35,7 @@ from ..lobes import sg
 from ..model import blend_lobes
 from ._albedo import diffuse_albedo, diffuse_light, specular_ratio
 from ._lighting import Lighting
+from ._lobe_visibility import lobe_visibility, lobe_visibility_applies
 from ._reflection import (
     hit_free_fraction,
     object_light,
@@ -48,6 +49,8 @@ __all__ = ["VertexData", "pixel_stage", "render_torch", "sun_stage", "vertex_sta
 
 #: Pixels shaded per batch (bounds memory at ~1 KB per pixel).
 PIXEL_BATCH = 1 << 16
+#: Vertices corrected per batch (:mod:`._lobe_visibility`: ~4 KB per vertex).
+VERTEX_BATCH = 1 << 13
 #: Shadow-ray origins are lifted off the triangle by this fraction of the mesh's diagonal.
 _SHADOW_OFFSET = 1e-4
 
@@ -92,9 +95,17 @@ def vertex_stage(model, lighting: Lighting, eye, rot: torch.Tensor) -> VertexDat
         # the sun's light bounced off the object: its direct light is shaded per pixel
         diffuse = diffuse + (model.bounce * lighting.sun_sh_rotated(rot).to(dev)).sum(-2)
     mirror = mirror_direction(mesh.normals.to(dev), view)  # (V, 3)
-    return VertexData(
-        g.w * sg.integral(g.lam)[..., None], g.mu, g.lam.rsqrt(), diffuse, mirror, eye
-    )
+    e = g.w * sg.integral(g.lam)[..., None]
+    if lobe_visibility_applies(model):
+        # the direct lobes' light corrected for what the object blocks (_lobe_visibility.py)
+        nd = model.direct_gaussians
+        for s in range(0, e.shape[0], VERTEX_BATCH):
+            k = slice(s, s + VERTEX_BATCH)
+            vid = torch.arange(s, s + e[k].shape[0], device=dev)
+            rho = lobe_visibility(model, lighting, vid, view[k], e[k, :nd], g.mu[k, :nd],
+                                  g.lam[k, :nd], rot, rest=lighting.sun is not None)  # fmt: skip
+            e[k, :nd] *= rho[:, None]
+    return VertexData(e, g.mu, g.lam.rsqrt(), diffuse, mirror, eye)
 
 
 def pixel_stage(

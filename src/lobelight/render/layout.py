@@ -21,6 +21,10 @@ drift from the desktop's.
   ``SPREAD_GAUSSIAN``) and :func:`sharp_shader_defines` (them as shader text, with a glTF
   lobe's that varies per vertex), and :func:`varying_lobe_arrays` (what the shaders read of
   such a lobe).
+- The lobe visibility correction (``lobe_visibility.glsl``): :func:`lobe_visibility_applies`
+  (whether a model's direct Gaussians are corrected), :func:`lobe_visibility_defines` (its
+  constants as shader defines) and :data:`LOBE_VISIBILITY_INCLUDE` (the files its vertex
+  stage includes).
 - Shader text: :func:`stage_sources` (a file's two stages in a dialect), :func:`load_shader`.
 """
 
@@ -29,6 +33,7 @@ from ._gl import (
     BACKGROUND_RES,
     CAND_RES,
     FRAME_LAYOUT,
+    LOBE_VISIBILITY_INCLUDE,
     SHADOW_RES,
     TEX_WIDTH,
     atlas_image,
@@ -40,6 +45,8 @@ from ._gl import (
 )
 from ._gl_albedo import MAX_ALBEDO_LAYERS, MAX_ALBEDO_SIZE, albedo_array, albedo_uniforms
 from ._gltf_out import kept_records
+from ._lobe_visibility import lobe_visibility_applies
+from ._lobe_visibility import shader_defines as lobe_visibility_defines
 from ._reflection import SHARP_DEFINES, sharp_shader_defines, varying_lobe_arrays
 from ._sun_glossy import (
     sun_glossy_supported,
@@ -56,6 +63,7 @@ __all__ = [
     "CAND_RES",
     "F0_MIN",
     "FRAME_LAYOUT",
+    "LOBE_VISIBILITY_INCLUDE",
     "MAX_ALBEDO_LAYERS",
     "MAX_ALBEDO_SIZE",
     "SHADOW_RES",
@@ -71,6 +79,8 @@ __all__ = [
     "geodesic_tables",
     "kept_records",
     "load_shader",
+    "lobe_visibility_applies",
+    "lobe_visibility_defines",
     "sharp_shader_defines",
     "specular_f0",
     "stage_sources",

@@ -34,6 +34,7 @@ from ..render.layout import (
     BLOCKER_SAMPLES,
     F0_MIN,
     FRAME_LAYOUT,
+    LOBE_VISIBILITY_INCLUDE,
     SHADOW_RES,
     SHADOW_SAMPLES,
     SHARP_DEFINES,
@@ -46,6 +47,8 @@ from ..render.layout import (
     gaussian_records,
     geodesic_tables,
     kept_records,
+    lobe_visibility_applies,
+    lobe_visibility_defines,
     sharp_shader_defines,
     specular_f0,
     stage_sources,
@@ -189,11 +192,34 @@ def _atlas(pf) -> tuple[np.ndarray, dict]:
     return _f16(atlas[..., :3]), uniforms
 
 
-def _sun_vertex_params(spec, spread: float, n_vertices: int) -> np.ndarray:
-    """:func:`lobelight.render.layout.sun_glossy_vertex_params` of the lobe widened by the
-    disc, ``(V, 10)`` float32, or its first row ``(1, 10)`` when every vertex has the same."""
-    out = sun_glossy_vertex_params(sun_widened(spec, spread), n_vertices).astype("<f4")
+def _sun_vertex_params(spec, spread: float | None, n_vertices: int) -> np.ndarray:
+    """:func:`lobelight.render.layout.sun_glossy_vertex_params` of the lobe (widened by the
+    sun's disc of RMS angle ``spread``; as it is for None), ``(V, 10)`` float32, or its first
+    row ``(1, 10)`` when every vertex has the same."""
+    lobe = spec if spread is None else sun_widened(spec, spread)
+    out = sun_glossy_vertex_params(lobe, n_vertices).astype("<f4")
     return out[:1] if bool((out == out[:1]).all()) else out
+
+
+def _lobe_visibility(model) -> tuple[dict | None, dict[str, np.ndarray]]:
+    """The lobe visibility correction (``lobe_visibility.glsl``) where it applies: the header
+    (the tiles' resolution, the BRDF's shader switches) and the arrays (the vertices'
+    visibility tiles ``vis_tiles`` and the BRDF's parameters as they are, ``lv_params``);
+    None and nothing for another material."""
+    if not lobe_visibility_applies(model):
+        return None, {}
+    spec = model.materials.specular
+    tiles = model.visibility().cpu().numpy().astype(np.uint8)  # (V, R, R)
+    u = sun_glossy_uniforms(spec)
+    header = {
+        "vis_res": int(tiles.shape[-1]),
+        "brdf": {"model": int(u["sun_model"]), "fresnel": float(u["sun_fresnel"])},
+    }
+    arrays = {
+        "vis_tiles": tiles,
+        "lv_params": _sun_vertex_params(spec, None, model.mesh.n_vertices),
+    }
+    return header, arrays
 
 
 def shader_variant(has_sun: bool, sun_glossy: bool, bounce: bool, levels: int) -> str:
@@ -231,14 +257,24 @@ def _programs(model, n_sh: int, geo_defines: dict, key_args: tuple) -> dict[str,
     sharp = sharp_lobe(model.materials.specular) is not None
     if sharp:
         defines.update(_sharp_defines(model))
+    lobe_vis = lobe_visibility_applies(model)
+    defines.update(LOBE_VIS=int(lobe_vis), LOBE_VIS_PASS=0, **lobe_visibility_defines())
+    if lobe_vis:
+        defines["VIS_RES"] = int(model.visibility().shape[-1])
     frame = ("frame",)
-    include = ("frame", "prefiltered") + (("reflection",) if sharp else ())
+    include = ("frame", "prefiltered") + (("brdf",) if sun_glossy else ())
+    include += ("tiles", "reflection") if sharp else ()
     include += ("albedo",) if model.albedo is not None else ()
     table = {}
     if sharp:  # the vertex stage's results per vertex, read at the hit points
         table_defines = {**defines, "DEPTH_ONLY": 0, "VERTEX_TABLE": 1}
         table["table"] = list(
             stage_sources("prt", table_defines, frame, ("frame", "geodesic"), dialect=es)
+        )
+    if lobe_vis:  # each vertex's factor on its direct Gaussians' light, by transform feedback
+        lv_defines = {**defines, "DEPTH_ONLY": 0, "LOBE_VIS": 0, "LOBE_VIS_PASS": 1}
+        table["lobevis"] = list(
+            stage_sources("prt", lv_defines, frame, LOBE_VISIBILITY_INCLUDE, dialect=es)
         )
     return {
         **table,
@@ -362,6 +398,8 @@ def _model_file(model, float16: bool) -> tuple[dict, dict[str, np.ndarray], int]
         arrays["bounce"] = _f16(_np(model.bounce, np.float64), float16)
     sharp_header, sharp_arrays = _sharp(model)
     arrays.update(sharp_arrays)
+    lv_header, lv_arrays = _lobe_visibility(model)
+    arrays.update(lv_arrays)
     albedo_header = None
     if model.albedo is not None:
         albedo_header, albedo_arrays = _albedo(model)
@@ -396,6 +434,7 @@ def _model_file(model, float16: bool) -> tuple[dict, dict[str, np.ndarray], int]
         "samples": sample_offsets(STILL_SAMPLES).tolist(),
         "notes": [],
         "sharp": sharp_header,
+        "lobe_visibility": lv_header,
         "albedo_textures": albedo_header,
         "name": str((model.provenance or {}).get("scene", "model")),
     }
@@ -595,6 +634,7 @@ def _check_model_arrays(path: Path, h: dict, a: dict) -> None:
     if "bounce" in a and a["bounce"].shape != (v, s, 3):
         raise InputError(str(path), f"array bounce has shape {a['bounce'].shape}")
     _check_sharp_arrays(path, h, a)
+    _check_lobe_visibility_arrays(path, h, a)
     at = h.get("albedo_textures")
     if at is not None:
         shapes = {"uvs": (v, 2), "layer": (v,), "factor": (v, 3)}
@@ -610,6 +650,21 @@ def _check_model_arrays(path: Path, h: dict, a: dict) -> None:
                 raise InputError(str(path), "its specular layers do not match its albedo layers")
             if "f0" not in a or a["f0"].shape != (v, 3):
                 raise InputError(str(path), f"array f0 missing or not of shape {(v, 3)}")
+
+
+def _check_lobe_visibility_arrays(path: Path, h: dict, a: dict) -> None:
+    """The lobe visibility correction's tiles and BRDF parameters against the header."""
+    lv = h.get("lobe_visibility")
+    if lv is None:
+        return
+    r, v = int(lv["vis_res"]), h["n_vertices"]
+    if "vis_tiles" not in a or a["vis_tiles"].shape != (v, r, r):
+        raise InputError(str(path), f"array vis_tiles missing or not of shape (V, {r}, {r})")
+    p = a.get("lv_params")
+    if p is None or p.ndim != 2 or p.shape[1] != 10 or p.shape[0] not in (1, v):
+        raise InputError(str(path), "array lv_params missing or not of shape (1 or V, 10)")
+    if not np.isfinite(p).all():
+        raise InputError(str(path), "its lv_params hold non-finite values")
 
 
 def _check_sharp_arrays(path: Path, h: dict, a: dict) -> None:

@@ -33,10 +33,15 @@ in vec3 in_factor;
 in vec3 in_f0;                 // the bake's per-vertex F0 (render/_albedo.py specular_f0)
 #endif
 #endif
-#if SUN_GLOSSY
-in vec4 in_sb0;                // the sun's glossy BRDF (render/_sun_glossy.py): alpha, specular
-in vec3 in_eta;                // conductor index eta + i k
-in vec3 in_k;
+#if SUN_GLOSSY || LOBE_VIS_PASS
+in vec4 in_sb0;                // the BRDF (render/_sun_glossy.py): alpha, specular (the sun's
+in vec3 in_eta;                // widened by its disc; the correction pass's as it is), conductor
+in vec3 in_k;                  // index eta + i k
+#endif
+#if LOBE_VIS
+// the factor on this vertex's direct Gaussians' light this frame (lobe_visibility.glsl), from
+// the correction pass's transform feedback
+in vec3 in_rho;
 #endif
 
 uniform sampler2D gauss_tex;   // RGBA32F, 2 texels per record (e.rgb, sigma), (mu.xyz, 0)
@@ -62,7 +67,11 @@ out vec3 v_f0;
 #endif
 out vec3 v_factor;
 #endif
-#if SUN_GLOSSY
+#if LOBE_VIS_PASS
+// the correction pass (LOBE_VIS_PASS): each vertex's factor, captured by transform feedback
+out vec3 v_rho;
+#endif
+#if SUN_GLOSSY || LOBE_VIS_PASS
 out vec4 v_sb0;
 out vec3 v_eta;
 out vec3 v_k;
@@ -130,6 +139,9 @@ void main() {
         }
         // the light averaged over the records above the horizon (model.horizon_scale)
         e = dot(in_normal, d) > 0.0 && above >= MIN_SAY ? e / above : e;
+#if LOBE_VIS
+        if (k < N_GAUSSIANS - N_INDIRECT) e *= in_rho;  // what the object blocks of the lighting
+#endif
         bool ok = say >= MIN_SAY;
         float live = ok && (e.r + e.g + e.b) / 3.0 >= FLOOR ? 1.0 : 0.0;
         // the mean as an offset from this vertex's mirror direction (divide first: no underflow)
@@ -162,12 +174,15 @@ void main() {
     v_f0 = in_f0;
 #endif
 #endif
-#if SUN_GLOSSY
+#if SUN_GLOSSY || LOBE_VIS_PASS
     v_sb0 = in_sb0;
     v_eta = in_eta;
     v_k = in_k;
 #endif
 
+#if LOBE_VIS_PASS
+    v_rho = lobe_visibility(v, in_normal, d, v_lobe, in_sb0, in_eta, in_k);
+#endif
 #if VERTEX_TABLE
     // one point per vertex, at its texel of the vertex table (reflection.glsl)
     vec2 texel = vec2(v % TABLE_WIDTH, v / TABLE_WIDTH) + 0.5;
@@ -182,6 +197,13 @@ void main() {
 #elif defined FRAGMENT_SHADER && DEPTH_ONLY
 
 void main() {}
+
+#elif defined FRAGMENT_SHADER && LOBE_VIS_PASS
+
+// the correction pass writes its transform feedback and rasterises nothing
+out vec4 frag;
+
+void main() { frag = vec4(0.0); }
 
 #elif defined FRAGMENT_SHADER && VERTEX_TABLE
 
@@ -313,96 +335,14 @@ in vec3 v_k;
 
 // the sun's glossy reflection per pixel (render/_sun_glossy.py): then the Gaussians' lighting is
 // the map without the sun; the BRDFs are lobelight.brdf's
-uniform int sun_model;            // 0 GGX, 1 Beckmann, 2 modified Phong, 3 Blinn-Phong
-uniform float sun_fresnel;        // 1 conductor Fresnel, 2 Schlick's (F0 in v_eta), 0 none
 uniform float sun_spread;         // the sun disc's RMS angle (radians)
 #endif
 
 const float PI = 3.14159265358979;
 
 #if SUN_GLOSSY
-// microfacet distribution at a half vector with cosine c to the normal (brdf/microfacet.py's
-// _Microfacet._D)
-float mf_d(float c, float a) {
-    float c2 = c * c;
-    float s2 = max(1.0 - c2, 0.0);
-    float r;
-    if (sun_model == 1) {
-        r = exp(-(s2 / (a * a)) / c2) / (PI * a * a * c2 * c2);
-    } else {
-        float t = s2 / (a * a) + c2;
-        r = 1.0 / (PI * a * a * t * t);
-    }
-    return r * c > 1e-20 ? r : 0.0;
-}
-
-// Smith's masking of direction v (cosine vz to the normal) for the microfacet normal m
-float mf_g1(float vz, float vm, float a) {
-    float xy = a * a * max(1.0 - vz * vz, 0.0);
-    if (vm * vz <= 0.0) return 0.0;
-    if (xy == 0.0) return 1.0;
-    float tan2 = xy / (vz * vz);
-    if (sun_model == 1) {
-        float b = inversesqrt(tan2);
-        return b >= 1.6 ? 1.0 : (3.535 * b + 2.181 * b * b) / (1.0 + 2.276 * b + 2.577 * b * b);
-    }
-    return 2.0 / (1.0 + sqrt(1.0 + tan2));
-}
-
-// unpolarised conductor Fresnel (brdf.microfacet, _fresnel_conductor)
-vec3 fresnel_conductor(float c, vec3 eta, vec3 k) {
-    float c2 = c * c;
-    float s2 = 1.0 - c2;
-    float s4 = s2 * s2;
-    vec3 t1 = eta * eta - k * k - s2;
-    vec3 a2pb2 = sqrt(max(t1 * t1 + 4.0 * k * k * eta * eta, 0.0));
-    vec3 a = sqrt(max(0.5 * (a2pb2 + t1), 0.0));
-    vec3 term1 = a2pb2 + c2;
-    vec3 term2 = 2.0 * c * a;
-    vec3 rs = (term1 - term2) / (term1 + term2);
-    vec3 term3 = a2pb2 * c2 + s4;
-    vec3 term4 = term2 * s2;
-    vec3 rp = rs * (term3 - term4) / (term3 + term4);
-    return 0.5 * (rs + rp);
-}
-
-// pos(a.w)^e for unit vectors, from the half squared chord (brdf._base._cospow: precise near
-// the peak)
-float cospow(vec3 a, vec3 w, float e) {
-    if (dot(a, w) <= 0.0) return 0.0;
-    vec3 d = a - w;
-    float h = min(0.5 * dot(d, d), 1.0 - 1.2e-7);
-    float lg = h < 1e-3 ? -h * (1.0 + h * (0.5 + h / 3.0)) : log(1.0 - h);
-    return exp(e * lg);
-}
-
-// f_s(l, v) max(n.l, 0) (0 where l or v is below the horizon)
-vec3 sun_brdf_cos(vec3 l, vec3 v, vec3 n) {
-    float zi = dot(n, l), zo = dot(n, v);
-    if (zi <= 0.0 || zo <= 0.0) return vec3(0.0);
-    if (sun_model == 2) {  // modified Phong: ks (e + 2) / (2 pi) pos(r.l)^e
-        float e = v_sb0.x;
-        vec3 r = 2.0 * zo * n - v;
-        return v_sb0.yzw * ((e + 2.0) / (2.0 * PI) * cospow(r, l, e) * zi);
-    }
-    if (sun_model == 3) {  // Blinn-Phong: ks c(e) pos(n.h)^e
-        float e = v_sb0.x;
-        float c = (e + 2.0) * (e + 4.0) / (8.0 * PI * (exp2(-0.5 * e) + e));
-        return v_sb0.yzw * (c * cospow(n, normalize(l + v), e) * zi);
-    }
-    float a = max(v_sb0.x, 1e-4);
-    vec3 h = normalize(l + v);
-    float ch = dot(n, h), oh = dot(v, h);
-    float val = mf_d(ch, a) * mf_g1(zo, oh, a) * mf_g1(zi, dot(l, h), a) / (4.0 * zo);
-    vec3 f = v_sb0.yzw;
-    if (sun_fresnel > 1.5) {  // Schlick's, F0 + (1 - F0) (1 - v.h)^5 (brdf/gltf.py)
-        float m = clamp(1.0 - oh, 0.0, 1.0);
-        f *= v_eta + (1.0 - v_eta) * (m * m * m * m * m);
-    } else if (sun_fresnel > 0.0) {
-        f *= fresnel_conductor(oh, v_eta, v_k);
-    }
-    return f * val;
-}
+// the sun's BRDF at this pixel: the vertices' parameters widened by its disc
+vec3 sun_brdf_cos(vec3 l, vec3 v, vec3 n) { return brdf_cos(l, v, n, v_sb0, v_eta, v_k); }
 
 // what the sun sends through an indirect Gaussian of sharpness lam, per unit carried light
 // (render/_sun_glossy.py sun_through: the lobe widened by the disc, its integral kept)

@@ -329,6 +329,7 @@
       this.nIndices = a.faces.data.length;
       if (a.albedo_layers) this.uploadAlbedo();
       if (h.sharp) this.uploadSharp();
+      if (h.lobe_visibility) this.uploadLobeVisibility();
       this.quad = this.buffer(gl.ARRAY_BUFFER, new Float32Array([-1, -1, 1, -1, -1, 1, 1, 1]));
       this.frameData = new Float32Array(FRAME.sh_light + 8 * h.n_sh);
       this.frameUbo = gl.createBuffer();
@@ -495,6 +496,28 @@
       this.nCorners = nc;
     }
 
+    // the lobe visibility correction (render/_gl.py _upload_lobe_visibility): the visibility
+    // tiles as a texture, the BRDF's parameters as they are (a buffer, or one row for every
+    // vertex), and the buffer of each vertex's factor the pass writes by transform feedback
+    uploadLobeVisibility() {
+      const gl = this.gl, a = this.a, h = this.h, r = h.lobe_visibility.vis_res;
+      const nv = h.n_vertices;
+      const perRow = tilesPerRow(nv, r, h.tex_width, this.maxTex);
+      this.visPerRow = perRow;
+      const vis = this.tileAtlas(a.vis_tiles.data, perRow, r);
+      if (vis.w > this.maxTex || vis.h > this.maxTex) {
+        throw new LimitError("This model's visibility tiles need an image of " + vis.w + " × " +
+                             vis.h + " texels; this device's largest texture is " +
+                             this.maxTex + ".");
+      }
+      this.visTex = this.dataTexture(vis.w, vis.h, gl.R8, gl.RED, gl.UNSIGNED_BYTE, vis.data);
+      this.rhoBuf = gl.createBuffer();
+      gl.bindBuffer(gl.ARRAY_BUFFER, this.rhoBuf);
+      gl.bufferData(gl.ARRAY_BUFFER, 12 * nv, gl.DYNAMIC_COPY);
+      gl.bindBuffer(gl.ARRAY_BUFFER, null);
+      this.rhoFeedback = gl.createTransformFeedback();
+    }
+
     // per-vertex values (`size` each) repeated at each triangle corner
     perCorner(src, size) {
       const f = this.a.faces.data, out = new Float32Array(f.length * size);
@@ -505,7 +528,7 @@
       return out;
     }
 
-    compile(name, stages) {
+    compile(name, stages, varyings) {
       const gl = this.gl;
       const prog = gl.createProgram();
       const kinds = [gl.VERTEX_SHADER, gl.FRAGMENT_SHADER];
@@ -519,6 +542,8 @@
         }
         gl.attachShader(prog, s);
       }
+      // a transform feedback's outputs are named before the link
+      if (varyings) gl.transformFeedbackVaryings(prog, varyings, gl.INTERLEAVED_ATTRIBS);
       gl.linkProgram(prog);
       if (!gl.getProgramParameter(prog, gl.LINK_STATUS)) {
         throw new Error("The " + name + " program does not link here:\n" +
@@ -567,6 +592,7 @@
                           "table"]) {
         if (src[name]) p[name] = this.compile(name, src[name]);
       }
+      if (src.lobevis) p.lobevis = this.compile("lobevis", src.lobevis, ["v_rho"]);
       const size = gl.getActiveUniformBlockParameter(
         p.prt, gl.getUniformBlockIndex(p.prt, "Frame"), gl.UNIFORM_BLOCK_DATA_SIZE);
       if (size !== this.frameData.byteLength) {
@@ -589,6 +615,7 @@
       }
       p.vao = this.h.sharp ? this.cornerArray(p.prt) : this.vertexArray(p.prt, true);
       if (this.h.sharp) this.sharpUniforms(p);
+      if (p.lobevis) this.lobeVisibilityUniforms(p);
       p.depthVao = this.vertexArray(p.depth, false);
       p.shadowVao = this.vertexArray(p.shadow, false);
       p.bgVao = this.quadArray(p.background);
@@ -611,6 +638,7 @@
           this.attribute(prog, "in_factor", this.factorBo, 3);
         }
         if (this.specularTex) this.attribute(prog, "in_f0", this.f0bo, 3);
+        if (this.rhoBuf) this.attribute(prog, "in_rho", this.rhoBuf, 3);  // prt.glsl LOBE_VIS
       }
       gl.bindBuffer(gl.ELEMENT_ARRAY_BUFFER, this.ibo);
       gl.bindVertexArray(null);
@@ -643,6 +671,26 @@
       p.tableVao = this.vertexArray(p.table, true);
     }
 
+    // the lobe visibility correction's uniforms and vertex array (render/_gl.py's lv_vao):
+    // the per-vertex buffers with the BRDF's parameters as they are
+    lobeVisibilityUniforms(p) {
+      const gl = this.gl, lv = this.h.lobe_visibility, prog = p.lobevis;
+      this.uniform(prog, "tex_width", "uniform1i", this.texWidth);
+      this.uniform(prog, "vis_per_row", "uniform1i", this.visPerRow);
+      this.uniform(prog, "sun_model", "uniform1i", lv.brdf.model);
+      this.uniform(prog, "sun_fresnel", "uniform1f", lv.brdf.fresnel);
+      p.lvVao = this.vertexArray(prog, true);
+      // a buffer even where every vertex has the same: a constant attribute value is the
+      // context's, not the vertex array's, and the sun's shading sets its own
+      let sp = this.a.lv_params;
+      if (sp.shape[0] === 1) {
+        const nv = this.h.n_vertices, rows = new Float32Array(10 * nv);
+        for (let v = 0; v < nv; ++v) rows.set(sp.data.subarray(0, 10), 10 * v);
+        sp = { data: rows, shape: [nv, 10] };
+      }
+      this.brdfAttributes(sp, prog, p.lvVao, "lvBuffer", this, false);
+    }
+
     quadArray(prog) {
       const gl = this.gl, vao = gl.createVertexArray();
       gl.bindVertexArray(vao);
@@ -654,7 +702,16 @@
     // the sun's glossy BRDF per vertex (render/_sun_glossy.py): a buffer, or constant
     // attribute values when every vertex has the same
     sunAttributes(env, prog, vao) {
-      const gl = this.gl, sp = env.arrays.sun_params;
+      const corners = !!(this.h.sharp && vao === env.programs.vao);
+      this.brdfAttributes(env.arrays.sun_params, prog, vao,
+                          corners ? "sunCornerBuffer" : "sunBuffer", env, corners);
+    }
+
+    // a BRDF's parameters per vertex sp ((V or 1, 10): in_sb0, in_eta, in_k) as prog's
+    // attributes in vao: a buffer kept as owner[key] (repeated per corner for the unindexed
+    // draw), or constant attribute values when every vertex has the same
+    brdfAttributes(sp, prog, vao, key, owner, corners) {
+      const gl = this.gl;
       gl.bindVertexArray(vao);
       const names = [["in_sb0", 4, 0], ["in_eta", 3, 4], ["in_k", 3, 7]];
       if (sp.shape[0] === 1) {
@@ -666,13 +723,11 @@
           gl.vertexAttrib4f(loc, v[0], v[1], v[2], size === 4 ? v[3] : 1);
         }
       } else {
-        const corners = !!(this.h.sharp && vao === env.programs.vao);
-        const key = corners ? "sunCornerBuffer" : "sunBuffer";
-        if (!env[key]) {
-          env[key] = this.buffer(gl.ARRAY_BUFFER, corners ? this.perCorner(sp.data, 10) : sp.data);
+        if (!owner[key]) {
+          owner[key] = this.buffer(gl.ARRAY_BUFFER, corners ? this.perCorner(sp.data, 10) : sp.data);
         }
         for (const [name, size, off] of names) {
-          this.attribute(prog, name, env[key], size, 40, 4 * off);
+          this.attribute(prog, name, owner[key], size, 40, 4 * off);
         }
       }
       gl.bindVertexArray(null);
@@ -727,6 +782,14 @@
       this.uniform(p.prt, "n_levels", "uniform1i", pf.n_levels);
       this.uniform(p.prt, "lam0", "uniform1f", pf.lam0);
       this.uniform(p.prt, "log_rho", "uniform1f", pf.log_rho);
+      if (p.lobevis) {  // the correction's lookups read the same chain
+        this.uniform(p.lobevis, "atlas_size", "uniform2fv", pf.atlas_size);
+        this.uniform(p.lobevis, "level_y", "uniform1fv", pf.level_y);
+        this.uniform(p.lobevis, "level_res", "uniform1fv", pf.level_res);
+        this.uniform(p.lobevis, "n_levels", "uniform1i", pf.n_levels);
+        this.uniform(p.lobevis, "lam0", "uniform1f", pf.lam0);
+        this.uniform(p.lobevis, "log_rho", "uniform1f", pf.log_rho);
+      }
       env.programs = p;
       this.envs.push(env);
       return env;
@@ -948,6 +1011,32 @@
       gl.bindVertexArray(null);
     }
 
+    // each vertex's factor on its direct Gaussians' light for this frame's view and lighting
+    // into rhoBuf, by transform feedback of the correction's vertex stage, nothing rasterised
+    // (render/_gl.py _lobe_visibility_pass)
+    lobeVisibilityPass(p) {
+      const gl = this.gl;
+      this.bindTexture(UNITS.gauss_tex, gl.TEXTURE_2D, this.gaussTex);
+      this.bindTexture(UNITS.diff_tex, gl.TEXTURE_2D, this.diffTex);
+      this.bindTexture(UNITS.cand_tex, gl.TEXTURE_2D, this.candTex);
+      this.bindTexture(UNITS.bounce_tex, gl.TEXTURE_2D, this.bounceTex);
+      this.bindTexture(UNITS.atlas, gl.TEXTURE_2D, this.env.atlas);
+      this.bindTexture(UNITS.vis_tex, gl.TEXTURE_2D, this.visTex);
+      gl.useProgram(p.lobevis);
+      gl.bindVertexArray(p.lvVao);
+      gl.enable(gl.RASTERIZER_DISCARD);
+      gl.bindTransformFeedback(gl.TRANSFORM_FEEDBACK, this.rhoFeedback);
+      gl.bindBufferBase(gl.TRANSFORM_FEEDBACK_BUFFER, 0, this.rhoBuf);
+      gl.beginTransformFeedback(gl.POINTS);
+      gl.drawArrays(gl.POINTS, 0, this.h.n_vertices);
+      gl.endTransformFeedback();
+      // unbound before the shading pass reads the buffer as a vertex attribute
+      gl.bindBufferBase(gl.TRANSFORM_FEEDBACK_BUFFER, 0, null);
+      gl.bindTransformFeedback(gl.TRANSFORM_FEEDBACK, null);
+      gl.disable(gl.RASTERIZER_DISCARD);
+      gl.bindVertexArray(null);
+    }
+
     // the sharp reflection's textures on their units (render/_gl.py _draw_sample)
     bindSharp(env) {
       const gl = this.gl, T = gl.TEXTURE_2D;
@@ -1001,6 +1090,8 @@
       this.mark("shadow");
       if (p.table && opts.glossy) this.tablePass(p);
       this.mark("table");
+      if (p.lobevis && opts.glossy) this.lobeVisibilityPass(p);
+      this.mark("lobe visibility");
       const offsets = opts.offsets && opts.offsets.length > 1 ? opts.offsets : null;
       if (!offsets) {
         this.setJitter(opts.offsets ? opts.offsets[0] : [0.5, 0.5], t, 0, 1);
