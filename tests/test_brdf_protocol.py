@@ -313,7 +313,7 @@ def test_half_vector_lobes():
 
 def _shader_models() -> dict[str, int]:
     """``sun_model`` ids by name, from the shader's own comment on the uniform."""
-    text = (Path(lobelight.__file__).parent / "render" / "shaders" / "prt.glsl").read_text()
+    text = (Path(lobelight.__file__).parent / "render" / "shaders" / "brdf.glsl").read_text()
     line = next(ln for ln in text.splitlines() if "uniform int sun_model;" in ln)
     return {name.strip(): int(i) for i, name in re.findall(r"(\d) ([A-Za-z -]+)", line)}
 

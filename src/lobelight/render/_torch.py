@@ -49,7 +49,7 @@ __all__ = ["VertexData", "pixel_stage", "render_torch", "sun_stage", "vertex_sta
 
 #: Pixels shaded per batch (bounds memory at ~1 KB per pixel).
 PIXEL_BATCH = 1 << 16
-#: Vertices corrected per batch (:mod:`._lobe_visibility`: ~4 KB per vertex).
+#: Vertices corrected per batch (:mod:`._lobe_visibility`: about 16 KB per vertex, 128 MB).
 VERTEX_BATCH = 1 << 13
 #: Shadow-ray origins are lifted off the triangle by this fraction of the mesh's diagonal.
 _SHADOW_OFFSET = 1e-4
