@@ -143,3 +143,17 @@ def test_shaders_match_the_torch_path_with_the_correction(monkeypatch):
     assert float(rel.max()) <= 1e-3, float(rel.max())
     change = (plain - ref).abs().amax(-1) / ref.amax(-1).clamp_min(1e-6)
     assert float(change.max()) > 0.2, float(change.max())
+
+
+def test_only_models_with_visibility_and_a_per_pixel_brdf_are_corrected():
+    m = _corner_model()
+    assert lv.lobe_visibility_applies(m)
+    # fitted without visibility (compare's no_visibility baseline): left as fitted
+    blind = Model(m.mesh, m.views, m.gaussians, m.diffuse, m.materials, {"shadows": False})
+    assert not lv.lobe_visibility_applies(blind)
+    # no per-pixel formula for the BRDF (anisotropic GGX), or a sharp lobe (shaded per pixel)
+    v = m.mesh.n_vertices
+    for spec in (brdf.GGX(alpha_u=0.1, alpha_v=0.3), brdf.GGX(alpha=0.03)):
+        other = Model(m.mesh, m.views, m.gaussians, m.diffuse, Materials(torch.zeros(v, 3), spec),
+                      {})  # fmt: skip
+        assert not lv.lobe_visibility_applies(other)

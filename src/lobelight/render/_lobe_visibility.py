@@ -90,13 +90,17 @@ def lattice(n: int = SAMPLES, device=None) -> torch.Tensor:
 
 
 def lobe_visibility_applies(model) -> bool:
-    """Whether the renderers correct the model's direct Gaussians (module docstring)."""
+    """Whether the renderers correct the model's direct Gaussians (module docstring): not for
+    a model fitted without visibility (``shadows=False`` in its provenance, e.g. the
+    ``no_visibility`` baseline of :func:`lobelight.studies.compare`), whose transport is meant
+    to ignore what the object blocks."""
     spec = model.materials.specular
     return (
         spec is not None
         and model.direct_gaussians > 0
         and sun_glossy_supported(spec)
         and sharp_lobe(spec) is None
+        and (model.provenance or {}).get("shadows", True) is not False
     )
 
 
