@@ -650,3 +650,38 @@ def test_a_browser_without_webgl2_or_float_targets_gets_a_clear_message(
     assert not status["ok"] and says in status["message"]
     assert page.locator("#message").is_visible()
     page.close()
+
+
+@needs_browser
+def test_the_page_corrects_a_rough_lobe_cut_by_the_object_as_the_torch_path(
+    browser, tmp_path, monkeypatch
+):
+    """A metal box corner whose analytic Gaussians ignore the walls (tests/
+    test_lobe_visibility.py): the page's correction (its tiles' atlas, the transform feedback
+    pass) against the torch path's on sampled interior pixels, 1e-2 relative as above; the
+    correction changes those pixels by far more."""
+    from test_lobe_visibility import _corner_model, _map
+
+    m = _corner_model()
+    lighting = render.Lighting(_map(), base_res=64)
+    web.export_web(m, tmp_path / "v", [lighting])
+    assert web.read_web(tmp_path / "v").header["lobe_visibility"]["vis_res"] == 32
+    page = open_page(browser, tmp_path / "v")
+    cam = render.Camera.look_at((1.9, 1.3, 2.1), (0.3, 0.2, 0.3), fov=40)
+    w, h = 4 * W, 4 * H
+    img = render_in_page(page, cam, 0.0, size=(w, h))
+    page.close()
+    px = interior(img[..., 3] > 0.5)
+    rows, cols = np.nonzero(px)
+    pick = torch.randperm(rows.size, generator=torch.Generator().manual_seed(3))[:400].numpy()
+    at = torch.from_numpy(np.stack([rows[pick], cols[pick]], -1))
+    with render.Renderer(m, lighting, w, h, backend="torch", samples=1) as tr:
+        ref, hit = tr.render_pixels(cam, at)
+        monkeypatch.setattr(render._torch, "lobe_visibility_applies", lambda model: False)
+        plain, _ = tr.render_pixels(cam, at)
+    assert bool(hit.all())
+    got, ref = img[rows[pick], cols[pick], :3], ref.numpy()
+    rel = np.abs(got - ref).max(-1) / np.maximum(ref.max(-1), 1e-6)
+    assert float(rel.max()) <= 1e-2, float(rel.max())
+    change = np.abs(plain.numpy() - ref).max(-1) / np.maximum(ref.max(-1), 1e-6)
+    assert float(change.max()) > 0.2, float(change.max())
