@@ -776,19 +776,14 @@
       }
       const p = this.programsFor(h.variant, env);
       const pf = h.prefiltered;
-      this.uniform(p.prt, "atlas_size", "uniform2fv", pf.atlas_size);
-      this.uniform(p.prt, "level_y", "uniform1fv", pf.level_y);
-      this.uniform(p.prt, "level_res", "uniform1fv", pf.level_res);
-      this.uniform(p.prt, "n_levels", "uniform1i", pf.n_levels);
-      this.uniform(p.prt, "lam0", "uniform1f", pf.lam0);
-      this.uniform(p.prt, "log_rho", "uniform1f", pf.log_rho);
-      if (p.lobevis) {  // the correction's lookups read the same chain
-        this.uniform(p.lobevis, "atlas_size", "uniform2fv", pf.atlas_size);
-        this.uniform(p.lobevis, "level_y", "uniform1fv", pf.level_y);
-        this.uniform(p.lobevis, "level_res", "uniform1fv", pf.level_res);
-        this.uniform(p.lobevis, "n_levels", "uniform1i", pf.n_levels);
-        this.uniform(p.lobevis, "lam0", "uniform1f", pf.lam0);
-        this.uniform(p.lobevis, "log_rho", "uniform1f", pf.log_rho);
+      // the shading's lookups, and the rough lobe's correction's, read the same chain
+      for (const prog of p.lobevis ? [p.prt, p.lobevis] : [p.prt]) {
+        this.uniform(prog, "atlas_size", "uniform2fv", pf.atlas_size);
+        this.uniform(prog, "level_y", "uniform1fv", pf.level_y);
+        this.uniform(prog, "level_res", "uniform1fv", pf.level_res);
+        this.uniform(prog, "n_levels", "uniform1i", pf.n_levels);
+        this.uniform(prog, "lam0", "uniform1f", pf.lam0);
+        this.uniform(prog, "log_rho", "uniform1f", pf.log_rho);
       }
       env.programs = p;
       this.envs.push(env);
