@@ -39,6 +39,7 @@ from ..model import VISIBILITY_RES
 from ._albedo import F0_MIN, specular_f0
 from ._gl_albedo import albedo_array, albedo_uniforms
 from ._lighting import Lighting
+from ._lobe_visibility import SAMPLES as LOBE_VISIBILITY_SAMPLES
 from ._lobe_visibility import lobe_visibility_applies
 from ._lobe_visibility import shader_defines as lobe_visibility_defines
 from ._reflection import SUN_RESOLVED, sharp_shader_defines, varying_lobe_arrays
@@ -915,6 +916,7 @@ class GLRenderer:
         if self.lv_prog is not None:
             set_uniforms(self.lv_prog, self._atlas_uniforms)
             set_uniforms(self.lv_prog, sun_glossy_uniforms(self._specular))
+            self.lv_prog["lv_samples"].value = LOBE_VISIBILITY_SAMPLES
         for t in table:
             t["tex_width"].value = tex_width
             t["Planes"].binding = _PLANES_BINDING

@@ -62,6 +62,9 @@ __all__ = [
 
 #: Quadrature directions per vertex.
 SAMPLES = 128
+#: The directions of the web page's frames drawn while the view moves (as it draws fewer pixels
+#: then): the still frame takes :data:`SAMPLES`.
+MOVING_SAMPLES = 32
 #: The proposal's sharpness is this share of the widest live direct lobe's: wider than every
 #: lobe, so that it covers both the material's lobe and a fitted lobe's spill.
 LAM_SCALE = 0.5
@@ -74,7 +77,6 @@ RHO_MAX = 4.0
 def shader_defines() -> dict[str, str | int]:
     """The constants of ``lobe_visibility.glsl``."""
     return {
-        "LV_SAMPLES": SAMPLES,
         "LV_LAM_SCALE": f"{LAM_SCALE:.6e}",
         "LV_LAM_MIN": f"{LAM_MIN:.6e}",
         "LV_RHO_MAX": f"{RHO_MAX:.6e}",

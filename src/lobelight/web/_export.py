@@ -49,6 +49,7 @@ from ..render.layout import (
     kept_records,
     lobe_visibility_applies,
     lobe_visibility_defines,
+    lobe_visibility_samples,
     sharp_shader_defines,
     specular_f0,
     stage_sources,
@@ -214,6 +215,10 @@ def _lobe_visibility(model) -> tuple[dict | None, dict[str, np.ndarray]]:
     header = {
         "vis_res": int(tiles.shape[-1]),
         "brdf": {"model": int(u["sun_model"]), "fresnel": float(u["sun_fresnel"])},
+        # the quadrature's directions: a still frame's, and those of a frame drawn while the
+        # view moves
+        "samples": lobe_visibility_samples()[0],
+        "moving_samples": lobe_visibility_samples()[1],
     }
     arrays = {
         "vis_tiles": tiles,

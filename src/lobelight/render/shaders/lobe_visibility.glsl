@@ -1,9 +1,13 @@
 // The direct Gaussians of a rough lobe corrected per vertex for what the object blocks of the
 // lighting (render/_lobe_visibility.py, whose formulas these are): the light they carry scaled
-// by rho = Q[f cos V L] / Q[G L] per channel, Q one fixed quadrature of LV_SAMPLES directions
+// by rho = Q[f cos V L] / Q[G L] per channel, Q one fixed quadrature of lv_samples directions
 // drawn from a spherical Gaussian around the lobes. Included in prt.glsl's vertex stage of
 // the correction pass (LOBE_VIS_PASS, captured by transform feedback) after frame.glsl,
-// prefiltered.glsl, tiles.glsl and brdf.glsl; LV_SAMPLES, LV_LAM_SCALE, LV_LAM_MIN and LV_RHO_MAX are defined by the loader.
+// prefiltered.glsl, tiles.glsl and brdf.glsl; LV_LAM_SCALE, LV_LAM_MIN and LV_RHO_MAX are defined by the loader.
+
+// the quadrature's directions (_lobe_visibility.py SAMPLES; the web page's frames drawn while
+// the view moves take MOVING_SAMPLES)
+uniform int lv_samples;
 
 // rho at vertex v (unit normal n, unit view d) whose Gaussians are the vertex stage's
 // (prt.glsl v_lobe: carried light and live flag, then the live mean's offset from the mirror
@@ -36,9 +40,10 @@ vec3 lobe_visibility(int v, vec3 n, vec3 d, vec4 lobes[2 * N_GAUSSIANS], vec4 sb
     vec3 t1 = normalize(cross(axis, c));
     vec3 t2 = cross(c, t1);
     vec3 num = vec3(0.0), den = vec3(0.0);
-    for (int s = 0; s < LV_SAMPLES; ++s) {
+    float n_s = float(lv_samples);
+    for (int s = 0; s < lv_samples; ++s) {
         // a Fibonacci lattice of the unit square (_lobe_visibility.py lattice)
-        float u1 = (float(s) + 0.5) / float(LV_SAMPLES);
+        float u1 = (float(s) + 0.5) / n_s;
         float u2 = fract(float(s) * 0.6180339887498949);
         float ct = clamp(1.0 + log(1.0 - u1 * om) / lp, -1.0, 1.0);
         float st = sqrt(max(1.0 - ct * ct, 0.0));
@@ -47,7 +52,7 @@ vec3 lobe_visibility(int v, vec3 n, vec3 d, vec4 lobes[2 * N_GAUSSIANS], vec4 sb
         float pdf = lp / (6.283185307179586 * om) * exp(lp * (ct - 1.0));
         // the lighting over the sample's share of the sphere, 1 / (S pdf)
         vec3 light = prefiltered_lookup(rot_t * dir,
-                                        6.283185307179586 * float(LV_SAMPLES) * pdf) / pdf;
+                                        6.283185307179586 * n_s * pdf) / pdf;
         vec3 g = vec3(0.0);
         for (int i = 0; i < ND; ++i) g += w[i] * exp(lam[i] * (dot(dir, mu[i]) - 1.0));
         num += brdf_cos(dir, d, n, sb0, eta, k) * tile_lookup(v, dir) * light;

@@ -679,6 +679,7 @@
       this.uniform(prog, "vis_per_row", "uniform1i", this.visPerRow);
       this.uniform(prog, "sun_model", "uniform1i", lv.brdf.model);
       this.uniform(prog, "sun_fresnel", "uniform1f", lv.brdf.fresnel);
+      this.uniform(prog, "lv_samples", "uniform1i", lv.samples);
       p.lvVao = this.vertexArray(prog, true);
       // a buffer even where every vertex has the same: a constant attribute value is the
       // context's, not the vertex array's, and the sun's shading sets its own
@@ -1009,8 +1010,10 @@
     // each vertex's factor on its direct Gaussians' light for this frame's view and lighting
     // into rhoBuf, by transform feedback of the correction's vertex stage, nothing rasterised
     // (render/_gl.py _lobe_visibility_pass)
-    lobeVisibilityPass(p) {
-      const gl = this.gl;
+    lobeVisibilityPass(p, moving) {
+      const gl = this.gl, lv = this.h.lobe_visibility;
+      // fewer directions while the view moves, as fewer pixels then (MOVING_SAMPLES)
+      this.uniform(p.lobevis, "lv_samples", "uniform1i", moving ? lv.moving_samples : lv.samples);
       this.bindTexture(UNITS.gauss_tex, gl.TEXTURE_2D, this.gaussTex);
       this.bindTexture(UNITS.diff_tex, gl.TEXTURE_2D, this.diffTex);
       this.bindTexture(UNITS.cand_tex, gl.TEXTURE_2D, this.candTex);
@@ -1085,7 +1088,7 @@
       this.mark("shadow");
       if (p.table && opts.glossy) this.tablePass(p);
       this.mark("table");
-      if (p.lobevis && opts.glossy) this.lobeVisibilityPass(p);
+      if (p.lobevis && opts.glossy) this.lobeVisibilityPass(p, opts.moving);
       this.mark("lobe visibility");
       const offsets = opts.offsets && opts.offsets.length > 1 ? opts.offsets : null;
       if (!offsets) {
@@ -1381,7 +1384,7 @@
       const cam = orbitCamera(state.orbit, w, h);
       viewer.draw(t, cam, rotationY(state.light), {
         diffuse: state.parts !== "glossy", glossy: state.parts !== "diffuse",
-        background: state.background, offsets: offsets,
+        background: state.background, offsets: offsets, moving: !offsets,
       });
       viewer.present(t, state.exposure);
     }
@@ -1573,7 +1576,7 @@
       const t = v.movingTarget(canvas.width, canvas.height, still ? 1 : scale || 1);
       v.draw(t, orbitCamera(s.orbit, t.w, t.h), rotationY(s.light),
              { diffuse: shown.diffuse, glossy: shown.glossy, background: shown.background,
-               offsets: still ? v.h.samples : null });
+               offsets: still ? v.h.samples : null, moving: !still });
       v.present(t, s.exposure);
       gl.readPixels(0, 0, 1, 1, gl.RGBA, gl.UNSIGNED_BYTE, px);
       s.orbit.yaw += 0.01;
