@@ -1,7 +1,8 @@
 // The BRDFs the renderers evaluate per pixel (lobelight.brdf's; render/_sun_glossy.py): the
 // sun's glossy reflection and the lobe visibility correction (render/_lobe_visibility.py)
 // read them through brdf_cos with a vertex's parameters. Included in fragment shaders by
-// render/_gl.py's _program(..., include=["brdf"]).
+// render/_gl.py's _program(..., include=["brdf"]), and in the lobe visibility pass's vertex
+// stage (LOBE_VISIBILITY_INCLUDE).
 
 uniform int sun_model;            // 0 GGX, 1 Beckmann, 2 modified Phong, 3 Blinn-Phong
 uniform float sun_fresnel;        // 1 conductor Fresnel, 2 Schlick's (F0 in eta), 0 none

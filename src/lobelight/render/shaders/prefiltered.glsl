@@ -1,7 +1,7 @@
 // Integration of a spherical Gaussian against the lighting by the Gaussian-prefiltered chain
 // (lobelight.envmap.Prefiltered, laid out by render/_gl.py's atlas). Included in fragment
-// shaders by render/_gl.py's _program(..., include=["prefiltered"]); MAX_LEVELS is defined by
-// the loader.
+// shaders by render/_gl.py's _program(..., include=["prefiltered"]), and in the lobe
+// visibility pass's vertex stage (LOBE_VISIBILITY_INCLUDE); MAX_LEVELS is defined by the loader.
 
 uniform sampler2D atlas;          // every prefiltered level's six faces with seamless borders
 uniform vec2 atlas_size;
