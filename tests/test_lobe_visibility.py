@@ -91,6 +91,10 @@ def test_corrected_lobe_matches_monte_carlo_where_a_wall_cuts_it(view_deg):
     err = float(((corrected - truth).abs() / truth).max())
     before = float(((gauss - truth).abs() / truth).max())
     assert before > 0.25, before  # the wall hides the glow: the Gaussian is far too bright
+    # measured 1.7 % (20 degrees) and 2.9 % (50 degrees), the Monte Carlo's own noise under
+    # 0.03 %: what is left is the quadrature's (128 directions, each the chain's average over its
+    # share of the sphere, blurring the glow across the wall's edge); 5 % bounds it with margin
+    # and lies far below the uncorrected error
     assert err < 0.05, (err, before, corrected, truth)
 
 

@@ -66,6 +66,7 @@ __all__ = [
     "euler_to_matrix",
     "face_planes",
     "fibonacci",
+    "fibonacci_lattice",
     "frame",
     "gauss_legendre",
     "geodesic_edges",
@@ -446,6 +447,19 @@ def fibonacci(
     dirs = torch.stack([r * phi.sin(), y, r * phi.cos()], -1)
     w = torch.full((n,), (2 if hemisphere else 4) * math.pi / n, dtype=dtype, device=device)
     return dirs.to(dtype), w
+
+
+def fibonacci_lattice(
+    n: int, *, dtype: torch.dtype = torch.float32, device: Any = None
+) -> torch.Tensor:
+    """The ``n``-point Fibonacci lattice of the unit square, ``(n, 2)``:
+    ``((i + 1/2) / n, frac(i / phi))`` with ``phi`` the golden ratio (computed in float64), the
+    fixed, evenly spread points that map to :func:`fibonacci`'s directions and drive the
+    deterministic quadratures of the SG-BRDF fit and the renderers' lobe visibility."""
+    if n < 1:
+        raise InputError("n", f"must be a positive number of points, got {n}")
+    i = torch.arange(n, dtype=torch.float64, device=device)
+    return torch.stack([(i + 0.5) / n, torch.frac(i * ((math.sqrt(5) - 1) / 2))], -1).to(dtype)
 
 
 @dispatch

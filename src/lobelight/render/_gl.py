@@ -843,12 +843,17 @@ class GLRenderer:
             self.table_fbo.use()
             ctx.viewport = (0, 0, *self.table_size)
             ctx.disable(moderngl.DEPTH_TEST | moderngl.BLEND)
-            self.gauss_tex.use(0)
-            self.diff_tex.use(1)
-            self.cand_tex.use(2)
-            if self.has_bounce:
-                self.bounce_tex.use(8)
+            self._use_vertex_stage_textures()
             self.table_vao.render(moderngl.POINTS, vertices=self._n_vertices)
+
+    def _use_vertex_stage_textures(self) -> None:
+        """The textures prt.glsl's vertex stage reads (the records, the diffuse transfer, the
+        view triangles' candidates, the bounce's transfer) on their units."""
+        self.gauss_tex.use(0)
+        self.diff_tex.use(1)
+        self.cand_tex.use(2)
+        if self.has_bounce:
+            self.bounce_tex.use(8)
 
     def _lobe_visibility_pass(self) -> None:
         """Each vertex's factor on its direct Gaussians' light for this frame's view and
@@ -860,12 +865,8 @@ class GLRenderer:
         with self._section("lobe visibility"):
             # a draw needs a complete framebuffer bound, though this one rasterises nothing
             self.fbo.use()
-            self.gauss_tex.use(0)
-            self.diff_tex.use(1)
-            self.cand_tex.use(2)
+            self._use_vertex_stage_textures()
             self.atlas.use(3)
-            if self.has_bounce:
-                self.bounce_tex.use(8)
             self.vis_tex.use(_VIS_UNIT)
             self.lv_vao.transform(self.rho_buf, mode=moderngl.POINTS, vertices=self._n_vertices)
 

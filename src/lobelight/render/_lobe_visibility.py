@@ -44,7 +44,7 @@ import math
 import torch
 
 from ..brdf import sharp_lobe
-from ..geometry import octahedral
+from ..geometry import octahedral, sphere
 from ..lobes import sg
 from ..model import LIVE_FLOOR
 from ._sun_glossy import sun_glossy_supported
@@ -52,9 +52,9 @@ from ._sun_glossy import sun_glossy_supported
 __all__ = [
     "LAM_MIN",
     "LAM_SCALE",
+    "MOVING_SAMPLES",
     "RHO_MAX",
     "SAMPLES",
-    "lattice",
     "lobe_visibility",
     "lobe_visibility_applies",
     "shader_defines",
@@ -81,14 +81,6 @@ def shader_defines() -> dict[str, str | int]:
         "LV_LAM_MIN": f"{LAM_MIN:.6e}",
         "LV_RHO_MAX": f"{RHO_MAX:.6e}",
     }
-
-
-def lattice(n: int = SAMPLES, device=None) -> torch.Tensor:
-    """``(n, 2)`` points of the unit square, a Fibonacci lattice:
-    ``((i + 0.5) / n, frac(i phi))``, ``phi`` the golden ratio's fractional part."""
-    i = torch.arange(n, dtype=torch.float64, device=device)
-    golden = (math.sqrt(5.0) - 1.0) / 2.0
-    return torch.stack([(i + 0.5) / n, torch.frac(i * golden)], -1).float()
 
 
 def lobe_visibility_applies(model) -> bool:
@@ -134,7 +126,7 @@ def lobe_visibility(model, lighting, vid, view, e, mu, lam, rot, *, rest: bool) 
     lam_min = torch.where(live, lam, torch.full_like(lam, math.inf)).amin(1)  # (V',)
     any_live = torch.isfinite(lam_min)
     lp = torch.where(any_live, lam_min * LAM_SCALE, 1.0).clamp_min(LAM_MIN)[:, None]  # (V', 1)
-    u = lattice(SAMPLES, dev)  # (S, 2)
+    u = sphere.fibonacci_lattice(SAMPLES, device=dev)  # (S, 2)
     om = -torch.expm1(-2 * lp)  # 1 - exp(-2 lam)
     cos_t = (1 + torch.log1p(-u[:, 0] * om) / lp).clamp(-1, 1)  # (V', S)
     sin_t = (1 - cos_t * cos_t).clamp_min(0).sqrt()

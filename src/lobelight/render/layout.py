@@ -23,7 +23,8 @@ drift from the desktop's.
   such a lobe).
 - The lobe visibility correction (``lobe_visibility.glsl``): :func:`lobe_visibility_applies`
   (whether a model's direct Gaussians are corrected), :func:`lobe_visibility_defines` (its
-  constants as shader defines), :func:`lobe_visibility_samples` (its directions) and
+  constants as shader defines), :data:`LOBE_VISIBILITY_SAMPLES` and
+  :data:`LOBE_VISIBILITY_MOVING_SAMPLES` (its directions for a still and a moving frame) and
   :data:`LOBE_VISIBILITY_INCLUDE` (the files its vertex stage includes).
 - Shader text: :func:`stage_sources` (a file's two stages in a dialect), :func:`load_shader`.
 """
@@ -45,7 +46,9 @@ from ._gl import (
 )
 from ._gl_albedo import MAX_ALBEDO_LAYERS, MAX_ALBEDO_SIZE, albedo_array, albedo_uniforms
 from ._gltf_out import kept_records
-from ._lobe_visibility import MOVING_SAMPLES, SAMPLES, lobe_visibility_applies
+from ._lobe_visibility import MOVING_SAMPLES as LOBE_VISIBILITY_MOVING_SAMPLES
+from ._lobe_visibility import SAMPLES as LOBE_VISIBILITY_SAMPLES
+from ._lobe_visibility import lobe_visibility_applies
 from ._lobe_visibility import shader_defines as lobe_visibility_defines
 from ._reflection import SHARP_DEFINES, sharp_shader_defines, varying_lobe_arrays
 from ._sun_glossy import (
@@ -57,13 +60,6 @@ from ._sun_glossy import (
 )
 from ._sun_shadow import BLOCKER_SAMPLES, SHADOW_SAMPLES, disc_radius
 
-
-def lobe_visibility_samples() -> tuple[int, int]:
-    """The lobe visibility correction's directions: a still frame's and those of a frame drawn
-    while the view moves (``lobe_visibility.glsl``'s ``lv_samples``)."""
-    return SAMPLES, MOVING_SAMPLES
-
-
 __all__ = [
     "BACKGROUND_RES",
     "BLOCKER_SAMPLES",
@@ -71,6 +67,8 @@ __all__ = [
     "F0_MIN",
     "FRAME_LAYOUT",
     "LOBE_VISIBILITY_INCLUDE",
+    "LOBE_VISIBILITY_MOVING_SAMPLES",
+    "LOBE_VISIBILITY_SAMPLES",
     "MAX_ALBEDO_LAYERS",
     "MAX_ALBEDO_SIZE",
     "SHADOW_RES",
@@ -88,7 +86,6 @@ __all__ = [
     "load_shader",
     "lobe_visibility_applies",
     "lobe_visibility_defines",
-    "lobe_visibility_samples",
     "sharp_shader_defines",
     "specular_f0",
     "stage_sources",

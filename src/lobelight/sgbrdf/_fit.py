@@ -194,14 +194,6 @@ def is_isotropic(brdf: BRDF) -> bool:
 # samples
 
 
-def _lattice(n: int, *, dtype: torch.dtype, device: Any) -> torch.Tensor:
-    """``(n, 2)`` Fibonacci lattice in the unit square: ``((i + 1/2)/n, frac(i / golden))``."""
-    i = torch.arange(n, dtype=torch.float64, device=device)
-    u0 = (i + 0.5) / n
-    u1 = torch.frac(i * ((math.sqrt(5) - 1) / 2))
-    return torch.stack([u0, u1], -1).to(dtype)
-
-
 def _frame_tensors(like: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
     n = torch.tensor([0.0, 0.0, 1.0], dtype=like.dtype, device=like.device)
     t = torch.tensor([1.0, 0.0, 0.0], dtype=like.dtype, device=like.device)
@@ -223,7 +215,7 @@ def brdf_samples(brdf: BRDF, views: torch.Tensor, /, *, samples: int = FIT_SAMPL
     """
     samples = check_int(samples, "samples", minimum=1)
     n, t = _frame_tensors(views)
-    u = _lattice(samples, dtype=views.dtype, device=views.device)  # (S, 2)
+    u = sphere.fibonacci_lattice(samples, dtype=views.dtype, device=views.device)  # (S, 2)
     return brdf.sample(views.unsqueeze(1), n, u.unsqueeze(0), t)  # (M, S, 3), (M, S, 3), (M, S)
 
 

@@ -35,6 +35,8 @@ from ..render.layout import (
     F0_MIN,
     FRAME_LAYOUT,
     LOBE_VISIBILITY_INCLUDE,
+    LOBE_VISIBILITY_MOVING_SAMPLES,
+    LOBE_VISIBILITY_SAMPLES,
     SHADOW_RES,
     SHADOW_SAMPLES,
     SHARP_DEFINES,
@@ -49,7 +51,6 @@ from ..render.layout import (
     kept_records,
     lobe_visibility_applies,
     lobe_visibility_defines,
-    lobe_visibility_samples,
     sharp_shader_defines,
     specular_f0,
     stage_sources,
@@ -217,8 +218,8 @@ def _lobe_visibility(model) -> tuple[dict | None, dict[str, np.ndarray]]:
         "brdf": {"model": int(u["sun_model"]), "fresnel": float(u["sun_fresnel"])},
         # the quadrature's directions: a still frame's, and those of a frame drawn while the
         # view moves
-        "samples": lobe_visibility_samples()[0],
-        "moving_samples": lobe_visibility_samples()[1],
+        "samples": LOBE_VISIBILITY_SAMPLES,
+        "moving_samples": LOBE_VISIBILITY_MOVING_SAMPLES,
     }
     arrays = {
         "vis_tiles": tiles,

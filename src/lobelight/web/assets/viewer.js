@@ -413,9 +413,7 @@
     uploadSharp() {
       const gl = this.gl, a = this.a, h = this.h, r = h.sharp.vis_res, w = h.tex_width;
       const nv = h.n_vertices;
-      const perRow = tilesPerRow(nv, r, w, this.maxTex);
-      this.visPerRow = perRow;
-      const vis = this.tileAtlas(a.vis_tiles.data, perRow, r);
+      const vis = this.uploadVisibility(r), perRow = this.visPerRow;
       // the hit tiles, stored as their texels that see the object: placed straight into the
       // atlas, -1 (none) elsewhere
       const hf = { data: new Int32Array(vis.w * vis.h).fill(-1), w: vis.w, h: vis.h };
@@ -427,12 +425,6 @@
         hf.data[p] = a.hit_face.data[i];
         hd.data[p] = a.hit_dist.data[i];
       }
-      if (vis.w > this.maxTex || vis.h > this.maxTex) {
-        throw new LimitError("This model's visibility tiles need an image of " + vis.w + " × " +
-                             vis.h + " texels; this device's largest texture is " +
-                             this.maxTex + ".");
-      }
-      this.visTex = this.dataTexture(vis.w, vis.h, gl.R8, gl.RED, gl.UNSIGNED_BYTE, vis.data);
       this.hitFaceTex = this.dataTexture(hf.w, hf.h, gl.R32I, gl.RED_INTEGER, gl.INT, hf.data);
       this.hitDistTex = this.dataTexture(hd.w, hd.h, gl.R16F, gl.RED, gl.HALF_FLOAT, hd.data);
       const faces = this.padded(new Int32Array(a.faces.data.buffer), 3, w, Int32Array);
@@ -496,21 +488,27 @@
       this.nCorners = nc;
     }
 
-    // the lobe visibility correction (render/_gl.py _upload_lobe_visibility): the visibility
-    // tiles as a texture, the BRDF's parameters as they are (a buffer, or one row for every
-    // vertex), and the buffer of each vertex's factor the pass writes by transform feedback
-    uploadLobeVisibility() {
-      const gl = this.gl, a = this.a, h = this.h, r = h.lobe_visibility.vis_res;
-      const nv = h.n_vertices;
-      const perRow = tilesPerRow(nv, r, h.tex_width, this.maxTex);
-      this.visPerRow = perRow;
-      const vis = this.tileAtlas(a.vis_tiles.data, perRow, r);
+    // the vertices' visibility tiles (R x R each) as one R8 texture, tiles laid out to fit the
+    // device (render/_gl.py _upload_visibility): sets visTex and visPerRow, returns the atlas
+    uploadVisibility(r) {
+      const gl = this.gl, nv = this.h.n_vertices;
+      this.visPerRow = tilesPerRow(nv, r, this.h.tex_width, this.maxTex);
+      const vis = this.tileAtlas(this.a.vis_tiles.data, this.visPerRow, r);
       if (vis.w > this.maxTex || vis.h > this.maxTex) {
         throw new LimitError("This model's visibility tiles need an image of " + vis.w + " × " +
                              vis.h + " texels; this device's largest texture is " +
                              this.maxTex + ".");
       }
       this.visTex = this.dataTexture(vis.w, vis.h, gl.R8, gl.RED, gl.UNSIGNED_BYTE, vis.data);
+      return vis;
+    }
+
+    // the lobe visibility correction (render/_gl.py _upload_lobe_visibility): the visibility
+    // tiles as a texture, the BRDF's parameters as they are (a buffer, or one row for every
+    // vertex), and the buffer of each vertex's factor the pass writes by transform feedback
+    uploadLobeVisibility() {
+      const gl = this.gl, nv = this.h.n_vertices;
+      this.uploadVisibility(this.h.lobe_visibility.vis_res);
       this.rhoBuf = gl.createBuffer();
       gl.bindBuffer(gl.ARRAY_BUFFER, this.rhoBuf);
       gl.bufferData(gl.ARRAY_BUFFER, 12 * nv, gl.DYNAMIC_COPY);
@@ -997,10 +995,7 @@
       gl.viewport(0, 0, this.tableSize[0], this.tableSize[1]);
       gl.disable(gl.DEPTH_TEST);
       gl.disable(gl.BLEND);
-      this.bindTexture(UNITS.gauss_tex, gl.TEXTURE_2D, this.gaussTex);
-      this.bindTexture(UNITS.diff_tex, gl.TEXTURE_2D, this.diffTex);
-      this.bindTexture(UNITS.cand_tex, gl.TEXTURE_2D, this.candTex);
-      this.bindTexture(UNITS.bounce_tex, gl.TEXTURE_2D, this.bounceTex);
+      this.bindVertexStage();
       gl.useProgram(p.table);
       gl.bindVertexArray(p.tableVao);
       gl.drawArrays(gl.POINTS, 0, this.h.n_vertices);
@@ -1014,10 +1009,7 @@
       const gl = this.gl, lv = this.h.lobe_visibility;
       // fewer directions while the view moves, as fewer pixels then (MOVING_SAMPLES)
       this.uniform(p.lobevis, "lv_samples", "uniform1i", moving ? lv.moving_samples : lv.samples);
-      this.bindTexture(UNITS.gauss_tex, gl.TEXTURE_2D, this.gaussTex);
-      this.bindTexture(UNITS.diff_tex, gl.TEXTURE_2D, this.diffTex);
-      this.bindTexture(UNITS.cand_tex, gl.TEXTURE_2D, this.candTex);
-      this.bindTexture(UNITS.bounce_tex, gl.TEXTURE_2D, this.bounceTex);
+      this.bindVertexStage();
       this.bindTexture(UNITS.atlas, gl.TEXTURE_2D, this.env.atlas);
       this.bindTexture(UNITS.vis_tex, gl.TEXTURE_2D, this.visTex);
       gl.useProgram(p.lobevis);
@@ -1033,6 +1025,16 @@
       gl.bindTransformFeedback(gl.TRANSFORM_FEEDBACK, null);
       gl.disable(gl.RASTERIZER_DISCARD);
       gl.bindVertexArray(null);
+    }
+
+    // the textures prt.glsl's vertex stage reads on their units (render/_gl.py
+    // _use_vertex_stage_textures)
+    bindVertexStage() {
+      const gl = this.gl;
+      this.bindTexture(UNITS.gauss_tex, gl.TEXTURE_2D, this.gaussTex);
+      this.bindTexture(UNITS.diff_tex, gl.TEXTURE_2D, this.diffTex);
+      this.bindTexture(UNITS.cand_tex, gl.TEXTURE_2D, this.candTex);
+      this.bindTexture(UNITS.bounce_tex, gl.TEXTURE_2D, this.bounceTex);
     }
 
     // the sharp reflection's textures on their units (render/_gl.py _draw_sample)
