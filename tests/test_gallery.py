@@ -29,6 +29,7 @@ from lobelight.studies.gallery import (
     MAPS,
     MATERIALS,
     SCENES,
+    SHARP_REFERENCE_SAMPLES,
     GalleryScene,
     Reference,
     ReferenceSettings,
@@ -50,6 +51,7 @@ from lobelight.studies.gallery import (
     render_references,
     run,
     scene_hash,
+    scene_settings,
     score,
     select,
     spp_levels,
@@ -549,6 +551,45 @@ def test_manifest_checksum_finds_a_corrupt_reference_and_it_is_rendered_again(
     entry = manifest["entries"]["ball-diffuse-sky"]
     assert entry["settings"] == settings.to_dict() and entry["variant"] == "stub"
     assert float(load_reference(refs, BALL, data_dir).image.mean()) == pytest.approx(0.5)
+
+
+def test_a_scene_with_more_reference_samples_is_rendered_and_checked_with_them(
+    data_dir, tmp_path, monkeypatch
+):
+    # the sharp metals' references take SHARP_REFERENCE_SAMPLES times the settings' samples:
+    # rendered so, recorded so, and a reference of the settings' samples alone is stale
+    refs = tmp_path / "refs"
+    settings = ReferenceSettings(spp=4, pass_spp=2, width=16, height=12)
+    more = dataclasses.replace(BALL, reference_samples=SHARP_REFERENCE_SAMPLES)
+    assert SHARP_REFERENCE_SAMPLES > 1
+    assert scene_hash(more, data_dir) == scene_hash(BALL, data_dir)  # the same picture
+    assert scene_settings(settings, BALL) == settings
+    want = scene_settings(settings, more)
+    assert want.spp == 4 * SHARP_REFERENCE_SAMPLES and want.pass_spp == 2
+    _synthetic(refs, more, data_dir, settings)  # at the settings' samples: too few
+    assert reference_status(refs, more, data_dir, settings)[0] == "stale"
+    assert reference_status(refs, BALL, data_dir, settings) == ("ok", "")
+    spps = []
+
+    class FakeMitsuba:
+        __version__ = "0-test"
+
+    def fake_render(mi, variant, scene, s, progress):
+        spps.append(s.spp)
+        img = np.full((s.height, s.width, 3), 0.5, np.float32)
+        return img, np.zeros_like(img)
+
+    monkeypatch.setattr(_references, "_mitsuba", lambda v: (FakeMitsuba, "stub", ""))
+    monkeypatch.setattr(_references, "_render_mitsuba", fake_render)
+    out = render_references([more], data=data_dir, refs=refs, settings=settings)
+    assert out["rendered"] == [more.name] and spps == [want.spp]
+    assert reference_status(refs, more, data_dir, settings) == ("ok", "")
+    entry = json.loads((refs / "manifest.json").read_text())["entries"][more.name]
+    assert entry["settings"] == want.to_dict()
+    # the gallery's sharp metals, and only they, take more
+    for sc in SCENES:
+        sharp = sc.material == MATERIALS["sharp_metal"]
+        assert sc.reference_samples == (SHARP_REFERENCE_SAMPLES if sharp else 1), sc.name
 
 
 class FakeMitsuba:

@@ -68,7 +68,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def _add_reference_settings(r) -> None:
     d = gallery.ReferenceSettings()
     spp = bounded_int(1, MAX_SPP)
-    r.add_argument("--spp", type=spp, default=d.spp, help=f"samples per pixel (1..{MAX_SPP})")
+    r.add_argument(
+        "--spp",
+        type=spp,
+        default=d.spp,
+        help=f"samples per pixel (1..{MAX_SPP}); the sharp metals' references take "
+        f"{gallery.SHARP_REFERENCE_SAMPLES} times as many",
+    )
     r.add_argument(
         "--pass-spp", type=spp, default=d.pass_spp, help=f"samples per render pass (1..{MAX_SPP})"
     )

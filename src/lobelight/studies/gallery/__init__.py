@@ -17,7 +17,8 @@ with the sources and licences of its files); a glTF asset ``NAME/NAME.glb`` from
 and checksum; the ``.glb`` files are fetched data, not kept in git).
 
 - :func:`render_references` renders each scene's reference with Mitsuba 3's ``path``
-  integrator (:func:`lobelight.reference.mitsuba.scene_dict`: ``max_depth`` 8, 1024 spp, 512²,
+  integrator (:func:`lobelight.reference.mitsuba.scene_dict`: ``max_depth`` 8, 1024 spp, or
+  16,384 for the sharp metals (:data:`SHARP_REFERENCE_SAMPLES`, :func:`scene_settings`), 512²,
   box pixel filter, ``llvm_ad_rgb`` else ``scalar_rgb``) and its mask, the pixels fully
   covered by the object (:func:`coverage_mask`), into a references folder with a checked
   manifest (:mod:`._references`); only stale, corrupt or missing entries are rendered.
@@ -57,6 +58,7 @@ _HOMES = {
     "Reference": "._references",
     "ReferenceSettings": "._settings",
     "SCENES": "._scenes",
+    "SHARP_REFERENCE_SAMPLES": "._settings",
     "SWEEP_MAX_SPP": "._settings",
     "TABLE": "._run",
     "VARIANTS": "._settings",
@@ -78,6 +80,7 @@ _HOMES = {
     "render_references": "._references",
     "run": "._run",
     "scene_hash": "._scenes",
+    "scene_settings": "._references",
     "score": "._score",
     "select": "._scenes",
     "spp_levels": "._sweep",

@@ -13,6 +13,7 @@ image up to noise.
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import tempfile
 import time
@@ -55,6 +56,7 @@ __all__ = [
     "read_manifest",
     "reference_status",
     "render_references",
+    "scene_settings",
     "write_reference",
 ]
 
@@ -145,12 +147,21 @@ def _exposure(image: np.ndarray, mask: np.ndarray) -> float:
         return 0.0
 
 
+def scene_settings(settings: ReferenceSettings, scene: GalleryScene) -> ReferenceSettings:
+    """The settings ``scene``'s reference is rendered with: ``settings`` with the scene's
+    :attr:`~lobelight.studies.gallery.GalleryScene.reference_samples` times their samples per
+    pixel."""
+    if scene.reference_samples == 1:
+        return settings
+    return dataclasses.replace(settings, spp=settings.spp * scene.reference_samples)
+
+
 def reference_status(
     refs, scene: GalleryScene, data, settings: ReferenceSettings | None = None
 ) -> tuple[str, str]:
     """``(status, why)``: ``"ok"``, ``"missing"``, ``"corrupt"`` (the file's checksum differs
     from the manifest's) or ``"stale"`` (the scene, its files or, given ``settings``, the render
-    settings changed since)."""
+    settings changed since: the scene's own, :func:`scene_settings`)."""
     entry = read_manifest(Path(refs))["entries"].get(scene.name)
     if not isinstance(entry, dict):
         return "missing", "not in the manifest"
@@ -161,8 +172,10 @@ def reference_status(
         return "corrupt", f"{path.name}: its sha256 is not the manifest's"
     if entry.get("scene_hash") != scene_hash(scene, data_folder(data)):
         return "stale", "the scene's definition, mesh or map changed"
-    if settings is not None and entry.get("settings") != settings.to_dict():
-        return "stale", f"rendered with {entry.get('settings')}, asked for {settings.to_dict()}"
+    if settings is not None:
+        want = scene_settings(settings, scene).to_dict()
+        if entry.get("settings") != want:
+            return "stale", f"rendered with {entry.get('settings')}, asked for {want}"
     return "ok", ""
 
 
@@ -296,9 +309,10 @@ def render_references(
         t = time.perf_counter()
         mesh = prepare_mesh(sc, data)
         scene = to_scene(sc, data, mesh)
-        w, h = settings.width, settings.height
-        mask = coverage_mask(mesh, scene.camera, w, h, grid=settings.mask_grid)
-        image, stderr = _render_mitsuba(mi, out["variant"], scene, settings, progress)
+        own = scene_settings(settings, sc)
+        w, h = own.width, own.height
+        mask = coverage_mask(mesh, scene.camera, w, h, grid=own.mask_grid)
+        image, stderr = _render_mitsuba(mi, out["variant"], scene, own, progress)
         seconds = time.perf_counter() - t
         m = mask.numpy()
         noise = (
@@ -308,7 +322,7 @@ def render_references(
             "scene_hash": scene_hash(sc, data),
             "geometry_sha256": geometry_sha256(mesh),
             "vertices": mesh.n_vertices,
-            "settings": settings.to_dict(),
+            "settings": own.to_dict(),
             "variant": out["variant"],
             "mitsuba": mi.__version__,
             "seconds": seconds,

@@ -33,6 +33,7 @@ from ...scene import (
     mesh_from_arrays,
     parse_material,
 )
+from ._settings import SHARP_REFERENCE_SAMPLES
 
 __all__ = [
     "GALLERY_DATA",
@@ -122,6 +123,8 @@ class GalleryScene:
     gaussians : the bake's fitted Gaussians per view (:data:`GAUSSIANS`; None: fit_model's
         default)
     description : what the scene shows and how its mesh is prepared
+    reference_samples : the reference is rendered with this many times the settings' samples
+        per pixel (:data:`SHARP_REFERENCE_SAMPLES` for the sharp metals)
     """
 
     name: str
@@ -134,6 +137,7 @@ class GalleryScene:
     max_vertices: int | None = None
     gaussians: int | None = None
     description: str = ""
+    reference_samples: int = 1
 
     def to_dict(self) -> dict:
         d = dataclasses.asdict(self)
@@ -248,14 +252,24 @@ _AVOCADO = {
 #: and an interior or overcast map.
 SCENES: tuple[GalleryScene, ...] = (
     *_bake(
-        "bunny-sharp-metal", "bunny_hr.obj", "sharp_metal", ("park", "grace", "interior"), **_BUNNY
+        "bunny-sharp-metal",
+        "bunny_hr.obj",
+        "sharp_metal",
+        ("park", "grace", "interior"),
+        reference_samples=SHARP_REFERENCE_SAMPLES,
+        **_BUNNY,
     ),
     *_bake("bunny-plastic", "bunny_hr.obj", "plastic", ("studio", "overcast", "dawn"), **_BUNNY),
     *_bake("spot-rough-metal", "spot.obj", "rough_metal", ("park", "studio", "dawn"), **_SPOT),
     *_bake("spot-diffuse", "spot.obj", "diffuse", ("overcast", "grace", "interior"), **_SPOT),
     *_bake("teapot-diffuse", "teapot.obj", "diffuse", ("park", "studio", "dawn"), **_TEAPOT),
     *_bake(
-        "teapot-sharp-metal", "teapot.obj", "sharp_metal", ("studio", "overcast", "dawn"), **_TEAPOT
+        "teapot-sharp-metal",
+        "teapot.obj",
+        "sharp_metal",
+        ("studio", "overcast", "dawn"),
+        reference_samples=SHARP_REFERENCE_SAMPLES,
+        **_TEAPOT,
     ),
     *_bake(
         "suzanne-rough-metal",
@@ -395,9 +409,12 @@ def sha256_file(path) -> str:
 def scene_hash(scene: GalleryScene, data: Path | None) -> str:
     """sha256 of the scene's definition, :data:`PREPARATION` and its mesh and map files'
     contents: it changes whenever anything that a reference shows changes (not the bake's
-    Gaussians per view)."""
+    Gaussians per view, nor the reference's samples per pixel)."""
     mesh = find_mesh(scene, data)
-    shown = {k: v for k, v in scene.to_dict().items() if k != "gaussians"}
+    # the samples are the reference's settings, checked with them (reference_status)
+    shown = {
+        k: v for k, v in scene.to_dict().items() if k not in ("gaussians", "reference_samples")
+    }
     d = {
         "definition": shown | {"name": None, "description": None},
         "preparation": PREPARATION,

@@ -1,5 +1,6 @@
 """The gallery's settings that the command line needs before anything heavy is imported: the
-Mitsuba variants tried, how references are rendered and the equal-quality sweep's extent."""
+Mitsuba variants tried, how references are rendered (the sharp metals' with more samples) and
+the equal-quality sweep's extent."""
 
 from __future__ import annotations
 
@@ -7,12 +8,21 @@ from dataclasses import asdict, dataclass
 
 from ...errors import InputError
 
-__all__ = ["SWEEP_MAX_SPP", "VARIANTS", "ReferenceSettings"]
+__all__ = ["SHARP_REFERENCE_SAMPLES", "SWEEP_MAX_SPP", "VARIANTS", "ReferenceSettings"]
 
 #: Mitsuba variants tried in turn when none is asked for.
 VARIANTS = ("llvm_ad_rgb", "scalar_rgb")
 #: The equal-quality sweep's largest samples per pixel by default.
 SWEEP_MAX_SPP = 256
+
+#: The sharp metals' references take this many times the samples per pixel of the others. A
+#: mirror seen in a mirror lit by a small bright source (the object in its own sharp
+#: reflection, under a sun or a softbox) is a caustic path that a path tracer finds rarely:
+#: at the settings' 1024 samples its noise took 0.3-0.5 dB off the scores of the sharp bunny
+#: in the park and the sharp teapot under the studio map, against 16,384 samples
+#: (docs/results.md). Every score is reported beside its reference's own noise
+#: (``reference_noise_psnr_display``).
+SHARP_REFERENCE_SAMPLES = 16
 
 
 @dataclass(frozen=True)
