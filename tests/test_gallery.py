@@ -508,6 +508,24 @@ def test_bad_inputs_name_the_input(data_dir, monkeypatch):
         run([BALL], data=data_dir, refs=data_dir / "refs", out=data_dir / "out")
 
 
+def _stub_references(monkeypatch) -> list[tuple[str, int]]:
+    """Mitsuba replaced for render_references: each render is the constant 0.5 with no noise;
+    returns the list its calls fill with (scene name, samples per pixel)."""
+    calls = []
+
+    class FakeMitsuba:
+        __version__ = "0-test"
+
+    def fake_render(mi, variant, scene, s, progress):
+        calls.append((scene.name, s.spp))
+        img = np.full((s.height, s.width, 3), 0.5, np.float32)
+        return img, np.zeros_like(img)
+
+    monkeypatch.setattr(_references, "_mitsuba", lambda v: (FakeMitsuba, "stub", ""))
+    monkeypatch.setattr(_references, "_render_mitsuba", fake_render)
+    return calls
+
+
 def test_manifest_checksum_finds_a_corrupt_reference_and_it_is_rendered_again(
     data_dir, tmp_path, monkeypatch
 ):
@@ -531,20 +549,9 @@ def test_manifest_checksum_finds_a_corrupt_reference_and_it_is_rendered_again(
     other = GalleryScene(BALL_2.name, BALL_2.bake, "ball.obj", "sky.hdr", "diffuse:color=0.2")
     assert reference_status(refs, other, data_dir)[0] == "stale"
 
-    rendered = []
-
-    class FakeMitsuba:
-        __version__ = "0-test"
-
-    def fake_render(mi, variant, scene, s, progress):
-        rendered.append(scene.name)
-        img = np.full((s.height, s.width, 3), 0.5, np.float32)
-        return img, np.zeros_like(img)
-
-    monkeypatch.setattr(_references, "_mitsuba", lambda v: (FakeMitsuba, "stub", ""))
-    monkeypatch.setattr(_references, "_render_mitsuba", fake_render)
+    calls = _stub_references(monkeypatch)
     out = render_references([BALL, BALL_2], data=data_dir, refs=refs, settings=settings)
-    assert rendered == ["ball-diffuse-sky"] and out["kept"] == ["ball-diffuse-sky-2"]
+    assert [c[0] for c in calls] == ["ball-diffuse-sky"] and out["kept"] == ["ball-diffuse-sky-2"]
     assert out["status"]["ball-diffuse-sky"].startswith("corrupt")
     assert reference_status(refs, BALL, data_dir, settings) == ("ok", "")
     manifest = json.loads((refs / "manifest.json").read_text())
@@ -569,20 +576,9 @@ def test_a_scene_with_more_reference_samples_is_rendered_and_checked_with_them(
     _synthetic(refs, more, data_dir, settings)  # at the settings' samples: too few
     assert reference_status(refs, more, data_dir, settings)[0] == "stale"
     assert reference_status(refs, BALL, data_dir, settings) == ("ok", "")
-    spps = []
-
-    class FakeMitsuba:
-        __version__ = "0-test"
-
-    def fake_render(mi, variant, scene, s, progress):
-        spps.append(s.spp)
-        img = np.full((s.height, s.width, 3), 0.5, np.float32)
-        return img, np.zeros_like(img)
-
-    monkeypatch.setattr(_references, "_mitsuba", lambda v: (FakeMitsuba, "stub", ""))
-    monkeypatch.setattr(_references, "_render_mitsuba", fake_render)
+    calls = _stub_references(monkeypatch)
     out = render_references([more], data=data_dir, refs=refs, settings=settings)
-    assert out["rendered"] == [more.name] and spps == [want.spp]
+    assert out["rendered"] == [more.name] and calls == [(more.name, want.spp)]
     assert reference_status(refs, more, data_dir, settings) == ("ok", "")
     entry = json.loads((refs / "manifest.json").read_text())["entries"][more.name]
     assert entry["settings"] == want.to_dict()
