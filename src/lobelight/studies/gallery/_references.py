@@ -151,8 +151,6 @@ def scene_settings(settings: ReferenceSettings, scene: GalleryScene) -> Referenc
     """The settings ``scene``'s reference is rendered with: ``settings`` with the scene's
     :attr:`~lobelight.studies.gallery.GalleryScene.reference_samples` times their samples per
     pixel."""
-    if scene.reference_samples == 1:
-        return settings
     return dataclasses.replace(settings, spp=settings.spp * scene.reference_samples)
 
 
