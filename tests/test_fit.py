@@ -174,6 +174,51 @@ def test_gather_resolves_a_sharp_phong_lobe():
     assert float(terms["D"].max()) < 0.02
 
 
+def test_neighbour_mean_is_each_views_average_of_its_neighbours():
+    # the one matrix product over all vertices against the average written out view by view
+    from lobelight.fit._objective import _neighbour_mean
+
+    g = torch.Generator().manual_seed(1)
+    x = torch.randn(5, NBR.shape[0], 2, 3, generator=g, dtype=torch.float64)
+    got = _neighbour_mean(x, NBR)
+    for v in range(NBR.shape[0]):
+        ids = NBR[v][NBR[v] >= 0]
+        want = x[:, ids].mean(1)
+        assert torch.allclose(got[:, v], want, atol=1e-12), v
+    assert _neighbour_mean(x[:0], NBR).shape == (0, NBR.shape[0], 2, 3)
+
+
+def test_graded_cap_points_lie_on_their_rings_for_a_mirror_sharp_lobe():
+    # the cap's points at 1 - cos = s of their ring from the axis, equally spaced around it,
+    # unit length; at the smallest peak scale (1e-6) the first ring is 1e-7 from the axis, so
+    # its radius (4.5e-4 rad) is found to a few 1e-4 relative only if the points are formed
+    # from the ring's radius and height, not from a float32 1 - s
+    from lobelight.fit._data import graded_cap
+
+    g = torch.Generator().manual_seed(2)
+    axis = torch.nn.functional.normalize(torch.randn(3, 4, 3, generator=g), dim=-1)
+    scale = torch.tensor([1e-6, 1e-4, 1e-2, 0.5]).expand(3, 4)
+    s_max = torch.tensor([1e-3, 0.1, 0.5, 2.0]).expand(3, 4)
+    n_theta, n_phi = 12, 24
+    dirs, w = graded_cap(axis, scale, s_max, n_theta=n_theta, n_phi=n_phi)
+    assert dirs.shape == (3, 4, n_theta * n_phi, 3) and w.shape == (3, 4, n_theta * n_phi)
+    d = dirs.double().reshape(3, 4, n_theta, n_phi, 3)
+    assert float((d.norm(dim=-1) - 1).abs().max()) < 1e-6
+    # angle from the axis per point, against the ring's (all of a ring's points alike)
+    a = axis.double()[:, :, None, None]
+    angle = torch.atan2(torch.linalg.cross(a.expand_as(d), d).norm(dim=-1), (a * d).sum(-1))
+    ring = angle.mean(-1, keepdim=True)
+    assert float(((angle - ring).abs() / ring).max()) < 1e-3
+    # the first ring of the sharpest cap: s = scale (exp(u_0) - 1) from Gauss-Legendre's first
+    # node, so 1 - cos(angle) = s
+    x, _ = sphere.gauss_legendre(n_theta)
+    top = math.log1p(1e-3 / 1e-6)
+    s0 = 1e-6 * math.expm1(0.5 * (float(x[0]) + 1) * top)
+    assert abs(float(ring[0, 0, 0, 0]) - math.acos(1 - s0)) < 1e-3 * math.acos(1 - s0)
+    # the weights sum to the cap's solid angle 2 pi s_max
+    assert torch.allclose(w.double().sum(-1), 2 * math.pi * s_max.double(), rtol=1e-5)
+
+
 def test_weights_of_coincident_lobes_are_finite():
     # regression: two Gaussians that coincide (same mean and sharpness, e.g. N = 2 on a single
     # lobe) made the float32 normal equations exactly singular and stopped a knot fit

@@ -121,6 +121,9 @@ class BakeState:
         given zero weights without a fit, and are nobody's neighbour in the spatial term
         (their means are arbitrary)
     ind_w, ind_mu : (V, J, 1, 3) and ind_lam : (V, J, 1), the indirect glossy Gaussian
+    lobe_axis : (V, J, 3), lobe_lam, lobe_scale : (V, J), the material's lobe estimate
+        (:func:`lobelight.fit.lobe_estimate`) that sized the flood fill's samples, kept so
+        that the relaxation samples the same directions without estimating it again
     """
 
     mu: torch.Tensor
@@ -134,6 +137,9 @@ class BakeState:
     ind_w: torch.Tensor
     ind_mu: torch.Tensor
     ind_lam: torch.Tensor
+    lobe_axis: torch.Tensor
+    lobe_lam: torch.Tensor
+    lobe_scale: torch.Tensor
 
     @classmethod
     def empty(cls, v: int, j: int, n: int, *, device) -> BakeState:
@@ -151,6 +157,9 @@ class BakeState:
             ind_w=torch.zeros(v, j, 1, 3, device=device),
             ind_mu=torch.tensor([0.0, 1.0, 0.0], device=device).expand(v, j, 1, 3).clone(),
             ind_lam=torch.ones(v, j, 1, device=device),
+            lobe_axis=torch.zeros(v, j, 3, device=device),
+            lobe_lam=torch.zeros(v, j, device=device),
+            lobe_scale=torch.full((v, j), 2.0, device=device),
         )
 
     def arrays(self) -> dict[str, torch.Tensor]:
@@ -268,11 +277,13 @@ class Neighbours:
 @dataclass(eq=False)
 class RefitInputs:
     """What the relaxation's refit of a chunk reads of the state: its glossy vertices (B,),
-    their Gaussians (w (B, J, N, 3), ...) and data error (B,), and their neighbours."""
+    their Gaussians (w (B, J, N, 3), ...), data error (B,) and lobe estimate (axis (B, J, 3),
+    sharpness and scale (B, J)), and their neighbours."""
 
     vertices: torch.Tensor
     old: Gaussians
     derr: torch.Tensor
+    lobe: tuple[torch.Tensor, torch.Tensor, torch.Tensor]
     neighbours: Neighbours
 
     def to(self, device) -> RefitInputs:
@@ -281,6 +292,7 @@ class RefitInputs:
             self.vertices.to(device),
             Gaussians(o.w.to(device), o.mu.to(device), o.lam.to(device)),
             self.derr.to(device),
+            tuple(x.to(device) for x in self.lobe),
             self.neighbours.to(device),
         )
 
@@ -350,10 +362,10 @@ def compute_fit(bake: Bake, chunk: Chunk, nbrs: Neighbours | None) -> ChunkResul
     the start that suits each one's data best, :func:`_better_start`)."""
     vidx, n = chunk.vertices, bake.n
     out = _first_visit(bake, vidx)
-    lobe, gl = out.pop("_lobe"), out["glossy"]
+    gl = out["glossy"]
     if not bool(gl.any()):
         return ChunkResult(chunk.index, vidx, out)
-    lobe = tuple(x[gl] for x in lobe)
+    lobe = tuple(out[k][gl] for k in ("lobe_axis", "lobe_lam", "lobe_scale"))
     seconds = _indirect(bake, chunk, vidx[gl], out, gl) if bake.indirect_paths > 0 else 0.0
     # the relaxation samples the transport again rather than keeping it: all of it
     # (V x J x ~700 samples x 7 floats) would not fit in memory on a large mesh
@@ -379,12 +391,13 @@ def refit_chunk(bake: Bake, chunk: Chunk) -> None:
 
 def refit_inputs(bake: Bake, chunk: Chunk) -> RefitInputs:
     """What the relaxation's refit of ``chunk`` reads of the state: its glossy vertices, their
-    Gaussians and data error, and their glossy neighbours."""
+    Gaussians, data error and lobe estimate, and their glossy neighbours."""
     st = bake.state
     vidx = chunk.vertices
     vidx = vidx[st.glossy[vidx]]
+    lobe = (st.lobe_axis[vidx], st.lobe_lam[vidx], st.lobe_scale[vidx])
     return RefitInputs(
-        vidx, st.gaussians(vidx), st.derr[vidx], Neighbours.read(bake, vidx, st.glossy)
+        vidx, st.gaussians(vidx), st.derr[vidx], lobe, Neighbours.read(bake, vidx, st.glossy)
     )
 
 
@@ -395,7 +408,8 @@ def compute_refit(bake: Bake, chunk: Chunk, inputs: RefitInputs) -> ChunkResult:
     vidx, old, nb = inputs.vertices, inputs.old, inputs.neighbours
     if vidx.numel() == 0:
         return ChunkResult(chunk.index, vidx, {})
-    data = gather(bake.transport, vidx, bake.views, lobe=None).compact()
+    # the flood fill's samples again (the same lobe estimate sizes the same cap)
+    data = gather(bake.transport, vidx, bake.views, lobe=inputs.lobe).compact()
     g, terms = _fit(bake, data, nb, old, iters=REFIT_ITERATIONS)
     # The refit keeps a vertex's new lobes only where they add no flipped pair against its
     # neighbours, counting all pairs and separated ones: S alone does not hold the lobes (its
@@ -419,8 +433,8 @@ def compute_refit(bake: Bake, chunk: Chunk, inputs: RefitInputs) -> ChunkResult:
 def _first_visit(bake: Bake, vidx: torch.Tensor) -> dict[str, torch.Tensor]:
     """A chunk's vertices reached by the flood fill: the state's arrays at them as a chunk's
     result starts them (:meth:`BakeState.empty`'s values), with their diffuse transfer, which
-    of them are glossy, and zero weights for the others; under ``"_lobe"`` the lobe estimate
-    of all of them (:func:`lobelight.fit.lobe_estimate`)."""
+    of them are glossy, zero weights for the others, and the lobe estimate of all of them
+    (:func:`lobelight.fit.lobe_estimate`)."""
     tr = bake.transport
     out = BakeState.empty(vidx.numel(), bake.views.shape[0], bake.n, device=vidx.device).arrays()
     del out["bounce"]  # the interreflection's, later
@@ -431,7 +445,7 @@ def _first_visit(bake: Bake, vidx: torch.Tensor) -> dict[str, torch.Tensor]:
     out["glossy"] = gl
     # no glossy transport: zero weights (as started), means at the lobe axis
     out["mu"][~gl] = axis[~gl][:, :, None].expand(-1, -1, bake.n, -1)
-    out["_lobe"] = (axis, lam_est, scale)
+    out["lobe_axis"], out["lobe_lam"], out["lobe_scale"] = axis, lam_est, scale
     return out
 
 

@@ -64,6 +64,8 @@ class FitData:
     values: torch.Tensor
     below: torch.Tensor
     _unit: torch.Tensor | None = field(default=None, init=False, repr=False)
+    _energy: torch.Tensor | None = field(default=None, init=False, repr=False)
+    _light: torch.Tensor | None = field(default=None, init=False, repr=False)
 
     @property
     def shape(self) -> tuple[int, int, int]:
@@ -78,8 +80,17 @@ class FitData:
         return self._unit
 
     def energy(self) -> torch.Tensor:
-        """``int |T|^2`` per vertex and view, summed over channels, (B, J)."""
-        return (self.weights[..., None] * self.values**2).sum((-1, -2))
+        """``int |T|^2`` per vertex and view, summed over channels, (B, J); formed once (a
+        chunk's fit asks for it at every start and solve)."""
+        if self._energy is None:
+            self._energy = (self.weights[..., None] * self.values**2).sum((-1, -2))
+        return self._energy
+
+    def light(self) -> torch.Tensor:
+        """``int max(T, 0)`` per vertex, view and channel, (B, J, 3); formed once."""
+        if self._light is None:
+            self._light = (self.weights[..., None] * self.values.clamp_min(0)).sum(2)
+        return self._light
 
     def compact(self) -> FitData:
         """The same quadrature without the samples of weight 0: each (vertex, view) keeps its
@@ -223,17 +234,27 @@ def graded_cap(
     s = c * torch.expm1(u)
     ws = 0.5 * wx * top * (s + c)  # (..., n_theta) ring weights in s
     sin_t = torch.sqrt((s * (2 - s)).clamp_min(0))
-    t, b, a = sphere.frame(axis.double())  # (..., 3) each
+    # the rings' radii and heights are formed in float64 (``1 - s`` of a mirror-sharp lobe's
+    # first ring is 1 - 1e-6), the points in the axis' dtype: each point is its local
+    # coordinates times the frame (one batched product), whose rounding is that of the
+    # returned directions
+    dt = axis.dtype
+    frame = torch.stack(sphere.frame(axis.double()), -2).to(dt)  # (..., 3, 3) rows t, b, axis
     phi = (torch.arange(n_phi, dtype=torch.float64, device=dev) + 0.5) * (2 * math.pi / n_phi)
     batch = axis.shape[:-1]
-    t, b, a = (v.reshape(*batch, 1, 1, 3) for v in (t, b, a))
-    lx = (sin_t[..., None] * phi.cos())[..., None]  # (..., n_theta, n_phi, 1)
-    ly = (sin_t[..., None] * phi.sin())[..., None]
-    lz = (1 - s)[..., None, None]
-    dirs = lx * t + ly * b + lz * a
-    w = (ws * (2 * math.pi / n_phi))[..., None].expand(*batch, n_theta, n_phi)
-    m = n_theta * n_phi
-    return dirs.reshape(*batch, m, 3).to(axis.dtype), w.reshape(*batch, m).to(axis.dtype)
+    m, p = n_theta * n_phi, math.prod(batch)
+    radius = sin_t.to(dt)[..., None]  # (..., n_theta, 1)
+    local = torch.stack(
+        [
+            radius * phi.cos().to(dt),
+            radius * phi.sin().to(dt),
+            (1 - s).to(dt)[..., None].expand(*batch, n_theta, n_phi),
+        ],
+        -1,
+    ).reshape(p, m, 3)
+    dirs = torch.bmm(local, frame.reshape(p, 3, 3))
+    w = (ws * (2 * math.pi / n_phi)).to(dt)[..., None].expand(*batch, n_theta, n_phi)
+    return dirs.reshape(*batch, m, 3), w.reshape(*batch, m)
 
 
 def gather(

@@ -49,6 +49,7 @@ from ._objective import (
     _neighbour_matrix,
     _neighbour_mean,
     _pair_diffs,
+    across_views,
     conserve_factor,
     solve_gram,
     unit64,
@@ -135,7 +136,7 @@ def levenberg_marquardt(
 
     def to_neighbours(x: torch.Tensor) -> torch.Tensor:
         """sum over the views u that have v as a neighbour of x_u / R_u, (B, J, ...)."""
-        return torch.matmul(back, x.reshape(*x.shape[:2], -1)).reshape(x.shape)
+        return across_views(back, x)
 
     def nmean(x: torch.Tensor) -> torch.Tensor:
         return _neighbour_mean(x, nbr_views, avg)

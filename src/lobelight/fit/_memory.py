@@ -89,8 +89,9 @@ def chunk_bytes(j: int, n: int) -> float:
 def state_bytes(v: int, j: int, n: int) -> int:
     """Bytes of the bake's state, which grows with the mesh
     (:class:`lobelight.fit._chunk.BakeState`: per vertex and view N direct and one indirect
-    Gaussian, 7 floats each; per vertex two SH transfers and a few flags)."""
-    return v * 4 * (j * (n + 1) * 7 + 2 * 25 * 3 + 2)
+    Gaussian, 7 floats each, and the lobe estimate, 5 floats; per vertex two SH transfers and a
+    few flags)."""
+    return v * 4 * (j * ((n + 1) * 7 + 5) + 2 * 25 * 3 + 2)
 
 
 def interreflection_bytes(v: int, j: int, n: int) -> int:

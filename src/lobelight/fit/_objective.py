@@ -23,6 +23,7 @@ on how many views a vertex has.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import torch
@@ -121,8 +122,8 @@ def solve_weights(
 
 def light_of(data: FitData) -> torch.Tensor:
     """``int max(T, 0)`` per vertex, view and channel, (B, J, 3): the light of
-    :func:`solve_gram`."""
-    return (data.weights[..., None] * data.values.clamp_min(0)).sum(2)
+    :func:`solve_gram` (:meth:`FitData.light`)."""
+    return data.light()
 
 
 def conserve_factor(lam: torch.Tensor) -> torch.Tensor:
@@ -236,7 +237,16 @@ def _neighbour_mean(
     """Average of ``x`` (B, J, ...) over each view's neighbours ``nbr`` (J, 6) (-1 padded), as
     one product with their averaging matrix (:func:`_neighbour_matrix`, or ``matrix``)."""
     m = _neighbour_matrix(nbr, x.dtype) if matrix is None else matrix
-    return torch.matmul(m, x.reshape(*x.shape[:2], -1)).reshape(x.shape)
+    return across_views(m, x)
+
+
+def across_views(m: torch.Tensor, x: torch.Tensor) -> torch.Tensor:
+    """``m`` (J, J) applied to the views' axis of ``x`` (B, J, ...): ``out[b, v] = sum_u m[v, u]
+    x[b, u]``, as one matrix product with every vertex's views side by side (a product per
+    vertex, as broadcasting would make it, is several times slower on the CPU)."""
+    b, j, rest = x.shape[0], x.shape[1], math.prod(x.shape[2:])
+    cols = x.reshape(b, j, rest).transpose(0, 1).reshape(j, b * rest)
+    return (m @ cols).reshape(j, b, rest).transpose(0, 1).reshape(x.shape)
 
 
 def mean_term(mu: torch.Tensor, nbr: torch.Tensor) -> torch.Tensor:

@@ -34,8 +34,10 @@ from ._data import FitData
 from ._lm import levenberg_marquardt
 from ._objective import (
     Weights,
+    _neighbour_matrix,
     _neighbour_mean,
     _pair_diffs,
+    across_views,
     data_term,
     gaussians_at,
     mean_term,
@@ -139,14 +141,12 @@ def _fill_empty(mu, lam, empty, nbr, *, sweeps: int = 30):
     log-sharpness, on the empty views only. The M and V terms would get there too, but a few
     dozen Jacobi steps through the optimiser cost far more than these averages.
     """
-    valid = (nbr >= 0).to(mu.dtype)  # (J, 6)
+    avg = _neighbour_matrix(nbr, mu.dtype)  # (J, J)
     e = empty[..., None]  # (B, J, 1)
     loglam = lam.log()
     for _ in range(sweeps):
-        avg_mu = (mu[:, nbr.clamp_min(0)] * valid[None, :, :, None, None]).sum(2)
-        avg_ll = (loglam[:, nbr.clamp_min(0)] * valid[None, :, :, None]).sum(2) / valid.sum(1)[
-            None, :, None
-        ]
+        avg_mu = across_views(avg, mu)
+        avg_ll = across_views(avg, loglam)
         mu = torch.where(e[..., None], torch.nn.functional.normalize(avg_mu, dim=-1), mu)
         loglam = torch.where(e, avg_ll, loglam)
     return mu, loglam.exp()
