@@ -10,7 +10,8 @@ import numpy as np
 import pytest
 import torch
 
-from lobelight import fit, scene
+from lobelight import fit, scene, transport
+from lobelight.geometry import sphere
 from lobelight.lobes import sg
 from lobelight.scene import _shapes
 
@@ -123,6 +124,26 @@ def test_killed_fit_resumes_to_the_same_model(tmp_path, n, stage, batch):
         log.clear()
         fit.fit_mesh(sc, **kw, seed=1, checkpoint=ck, progress=_killer("none", 0, log))
         assert log[0] == ("fit", 1)
+
+
+def test_the_relaxation_samples_where_the_flood_fill_did(tmp_path):
+    # the relaxation samples each vertex's transport again on the cap the flood fill's lobe
+    # estimate sized; the estimate is kept in the bake's state (and its checkpoint), so once
+    # the flood fill is done the state holds every vertex's, as estimated from the material
+    sc = scene.builtin("sphere", subdivisions=0, model="phong", exponent=200.0)
+    ck = tmp_path / "bake.ckpt.npz"
+    with pytest.raises(_Kill):
+        fit.fit_mesh(
+            sc, n=2, batch=6, checkpoint=ck, checkpoint_every=0,
+            progress=_killer("relax", 1, []),
+        )  # fmt: skip
+    with np.load(ck) as z:
+        kept = [torch.from_numpy(z[k]) for k in ("lobe_axis", "lobe_lam", "lobe_scale")]
+    tr = transport.Transport(sc)
+    want = fit.lobe_estimate(tr, torch.arange(sc.mesh.n_vertices), sphere.geodesic_views())
+    assert bool((want[1] > 0).any())  # a glossy material: lobes to keep
+    for got, ref in zip(kept, want, strict=True):
+        torch.testing.assert_close(got, ref, rtol=1e-6, atol=1e-6)
 
 
 @pytest.mark.parametrize("damage", ["truncated", "flipped", "next_not_a_count", "nan_weights"])
