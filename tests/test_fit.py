@@ -219,6 +219,42 @@ def test_graded_cap_points_lie_on_their_rings_for_a_mirror_sharp_lobe():
     assert torch.allclose(w.double().sum(-1), 2 * math.pi * s_max.double(), rtol=1e-5)
 
 
+def test_gather_again_from_the_kept_visibility_gives_the_same_samples():
+    # the relaxation gathers a chunk again from the lobe estimate and the samples' visibility
+    # the flood fill kept (as bits): the same directions, weights and values, with no ray
+    from lobelight.fit._chunk import CAP_SAMPLES, GLOBAL_SAMPLES, pack_bits, unpack_bits
+
+    sc = scene.builtin("knot")  # it shadows itself and its ground
+    tr = transport.Transport(sc)
+    vidx = torch.arange(0, sc.mesh.n_vertices, 29)
+    lobe = fit.lobe_estimate(tr, vidx, VIEWS)
+    first = fit.gather(tr, vidx, VIEWS, lobe=lobe)
+    cap, glob = first.visibility
+    assert cap.shape == (*first.dirs.shape[:2], CAP_SAMPLES)
+    assert glob.shape == (vidx.numel(), GLOBAL_SAMPLES)
+    assert 0.05 < float(glob.float().mean()) < 0.6  # some rays blocked, the others not
+    kept = tuple(unpack_bits(pack_bits(x), x.shape[-1]) for x in (cap, glob))
+    calls = []
+    real = tr.visibility
+    tr.visibility = lambda *a, **k: calls.append(1) or real(*a, **k)
+    again = fit.gather(tr, vidx, VIEWS, lobe=lobe, visibility=kept)
+    assert not calls
+    for a, b in ((first.dirs, again.dirs), (first.weights, again.weights)):
+        assert torch.equal(a, b)
+    assert torch.equal(first.values, again.values)
+
+
+def test_bits_pack_eight_to_a_byte_and_unpack_to_the_same():
+    from lobelight.fit._chunk import pack_bits, unpack_bits
+
+    g = torch.Generator().manual_seed(3)
+    x = torch.rand(4, 3, 21, generator=g) < 0.5
+    p = pack_bits(x)
+    assert p.dtype == torch.uint8 and p.shape == (4, 3, 3)
+    assert int(p[0, 0, 0]) == sum(int(x[0, 0, i]) << i for i in range(8))
+    assert torch.equal(unpack_bits(p, 21), x)
+
+
 def test_weights_of_coincident_lobes_are_finite():
     # regression: two Gaussians that coincide (same mean and sharpness, e.g. N = 2 on a single
     # lobe) made the float32 normal equations exactly singular and stopped a knot fit

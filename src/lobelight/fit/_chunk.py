@@ -35,7 +35,7 @@ import torch
 from ..geometry import cubemap, sphere
 from ..scene import Mesh
 from ..transport import DIFFUSE_ORDER, Transport
-from ._data import gather, lobe_estimate
+from ._data import GLOBAL_RES, N_THETA, gather, lobe_estimate
 from ._objective import Weights, mixture, solve_weights
 from ._optimize import Gaussians, fit_batch, initial_guess
 from ._relax import SEPARATED, vertex_flips
@@ -67,6 +67,25 @@ FILL_ITERATIONS = 14
 REFIT_ITERATIONS = 8
 #: Face resolution of the cube map of directions the self-shadowed diffuse transfer sums over.
 DIFFUSE_RES = 16
+#: Samples of a fit's cap grid per (vertex, view) and of its global set per vertex
+#: (:func:`lobelight.fit.gather`), whose visibility the bake's state keeps as bits.
+CAP_SAMPLES = 2 * N_THETA**2
+GLOBAL_SAMPLES = 6 * GLOBAL_RES**2
+_BITS = 1 << torch.arange(8, dtype=torch.uint8)
+
+
+def pack_bits(x: torch.Tensor) -> torch.Tensor:
+    """(..., K) bool as (..., ceil(K / 8)) uint8, eight to a byte, the first in the lowest bit."""
+    k = x.shape[-1]
+    pad = torch.nn.functional.pad(x.to(torch.uint8), (0, -k % 8))
+    bytes8 = pad.reshape(*x.shape[:-1], -1, 8) * _BITS.to(x.device)
+    return bytes8.sum(-1, dtype=torch.uint8)
+
+
+def unpack_bits(p: torch.Tensor, k: int) -> torch.Tensor:
+    """The (..., k) bool that :func:`pack_bits` packed into ``p`` (..., ceil(k / 8))."""
+    bits = (p[..., None] & _BITS.to(p.device)) != 0
+    return bits.reshape(*p.shape[:-1], -1)[..., :k]
 
 
 @dataclass(frozen=True)
@@ -124,6 +143,9 @@ class BakeState:
     lobe_axis : (V, J, 3), lobe_lam, lobe_scale : (V, J), the material's lobe estimate
         (:func:`lobelight.fit.lobe_estimate`) that sized the flood fill's samples, kept so
         that the relaxation samples the same directions without estimating it again
+    vis_cap : (V, J, CAP_SAMPLES / 8) and vis_global : (V, GLOBAL_SAMPLES / 8) uint8, the
+        visibility of those samples (:func:`pack_bits`), kept so that the relaxation casts no
+        ray
     """
 
     mu: torch.Tensor
@@ -140,6 +162,8 @@ class BakeState:
     lobe_axis: torch.Tensor
     lobe_lam: torch.Tensor
     lobe_scale: torch.Tensor
+    vis_cap: torch.Tensor
+    vis_global: torch.Tensor
 
     @classmethod
     def empty(cls, v: int, j: int, n: int, *, device) -> BakeState:
@@ -160,6 +184,8 @@ class BakeState:
             lobe_axis=torch.zeros(v, j, 3, device=device),
             lobe_lam=torch.zeros(v, j, device=device),
             lobe_scale=torch.full((v, j), 2.0, device=device),
+            vis_cap=torch.zeros(v, j, -(-CAP_SAMPLES // 8), dtype=torch.uint8, device=device),
+            vis_global=torch.zeros(v, -(-GLOBAL_SAMPLES // 8), dtype=torch.uint8, device=device),
         )
 
     def arrays(self) -> dict[str, torch.Tensor]:
@@ -277,13 +303,15 @@ class Neighbours:
 @dataclass(eq=False)
 class RefitInputs:
     """What the relaxation's refit of a chunk reads of the state: its glossy vertices (B,),
-    their Gaussians (w (B, J, N, 3), ...), data error (B,) and lobe estimate (axis (B, J, 3),
-    sharpness and scale (B, J)), and their neighbours."""
+    their Gaussians (w (B, J, N, 3), ...), data error (B,), lobe estimate (axis (B, J, 3),
+    sharpness and scale (B, J)) and their samples' visibility (packed, :class:`BakeState`'s
+    ``vis_cap`` and ``vis_global``), and their neighbours."""
 
     vertices: torch.Tensor
     old: Gaussians
     derr: torch.Tensor
     lobe: tuple[torch.Tensor, torch.Tensor, torch.Tensor]
+    visibility: tuple[torch.Tensor, torch.Tensor]
     neighbours: Neighbours
 
     def to(self, device) -> RefitInputs:
@@ -293,6 +321,7 @@ class RefitInputs:
             Gaussians(o.w.to(device), o.mu.to(device), o.lam.to(device)),
             self.derr.to(device),
             tuple(x.to(device) for x in self.lobe),
+            tuple(x.to(device) for x in self.visibility),
             self.neighbours.to(device),
         )
 
@@ -369,7 +398,10 @@ def compute_fit(bake: Bake, chunk: Chunk, nbrs: Neighbours | None) -> ChunkResul
     seconds = _indirect(bake, chunk, vidx[gl], out, gl) if bake.indirect_paths > 0 else 0.0
     # the relaxation samples the transport again rather than keeping it: all of it
     # (V x J x ~700 samples x 7 floats) would not fit in memory on a large mesh
-    data = gather(bake.transport, vidx[gl], bake.views, lobe=lobe).compact()
+    data = gather(bake.transport, vidx[gl], bake.views, lobe=lobe)
+    out["vis_cap"][gl] = pack_bits(data.visibility[0])
+    out["vis_global"][gl] = pack_bits(data.visibility[1])
+    data = data.compact()
     init, nb = None, None
     if nbrs is not None:
         nb = nbrs.rows(gl)
@@ -396,9 +428,9 @@ def refit_inputs(bake: Bake, chunk: Chunk) -> RefitInputs:
     vidx = chunk.vertices
     vidx = vidx[st.glossy[vidx]]
     lobe = (st.lobe_axis[vidx], st.lobe_lam[vidx], st.lobe_scale[vidx])
-    return RefitInputs(
-        vidx, st.gaussians(vidx), st.derr[vidx], lobe, Neighbours.read(bake, vidx, st.glossy)
-    )
+    vis = (st.vis_cap[vidx], st.vis_global[vidx])
+    nbrs = Neighbours.read(bake, vidx, st.glossy)
+    return RefitInputs(vidx, st.gaussians(vidx), st.derr[vidx], lobe, vis, nbrs)
 
 
 def compute_refit(bake: Bake, chunk: Chunk, inputs: RefitInputs) -> ChunkResult:
@@ -408,8 +440,13 @@ def compute_refit(bake: Bake, chunk: Chunk, inputs: RefitInputs) -> ChunkResult:
     vidx, old, nb = inputs.vertices, inputs.old, inputs.neighbours
     if vidx.numel() == 0:
         return ChunkResult(chunk.index, vidx, {})
-    # the flood fill's samples again (the same lobe estimate sizes the same cap)
-    data = gather(bake.transport, vidx, bake.views, lobe=inputs.lobe).compact()
+    # the flood fill's samples again: the same lobe estimate sizes the same cap, whose
+    # visibility the flood fill kept
+    vis = (
+        unpack_bits(inputs.visibility[0], CAP_SAMPLES),
+        unpack_bits(inputs.visibility[1], GLOBAL_SAMPLES),
+    )
+    data = gather(bake.transport, vidx, bake.views, lobe=inputs.lobe, visibility=vis).compact()
     g, terms = _fit(bake, data, nb, old, iters=REFIT_ITERATIONS)
     # The refit keeps a vertex's new lobes only where they add no flipped pair against its
     # neighbours, counting all pairs and separated ones: S alone does not hold the lobes (its

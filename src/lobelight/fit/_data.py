@@ -66,6 +66,10 @@ class FitData:
     _unit: torch.Tensor | None = field(default=None, init=False, repr=False)
     _energy: torch.Tensor | None = field(default=None, init=False, repr=False)
     _light: torch.Tensor | None = field(default=None, init=False, repr=False)
+    #: (cap (B, J, K) bool, global set (B, D) bool): whether each sample direction sees the
+    #: environment, as :func:`gather` cast it (before :meth:`compact`), for a caller that samples
+    #: the same directions again (:func:`gather`'s ``visibility``); None on other data
+    visibility: tuple[torch.Tensor, torch.Tensor] | None = field(default=None, repr=False)
 
     @property
     def shape(self) -> tuple[int, int, int]:
@@ -113,6 +117,12 @@ class FitData:
             values=torch.gather(self.values, 2, order[..., None].expand(-1, -1, -1, 3)),
             below=self.below,
         )
+
+
+#: The samples of :func:`gather`: a cap grid of ``N_THETA x 2 N_THETA`` points and the texels of
+#: a cube map of face resolution ``GLOBAL_RES``.
+N_THETA = 12
+GLOBAL_RES = 8
 
 
 def half_vector_lobes(spec: brdf.BRDF | None) -> bool:
@@ -262,11 +272,12 @@ def gather(
     vidx: torch.Tensor,
     views: torch.Tensor,
     *,
-    global_res: int = 8,
-    n_theta: int = 12,
+    global_res: int = GLOBAL_RES,
+    n_theta: int = N_THETA,
     indirect: torch.Tensor | None = None,
     indirect_res: int = 16,
     lobe: tuple[torch.Tensor, torch.Tensor, torch.Tensor] | None = None,
+    visibility: tuple[torch.Tensor, torch.Tensor] | None = None,
 ) -> FitData:
     """Sample the glossy transport of vertices for views where the fit needs it.
 
@@ -278,6 +289,8 @@ def gather(
     indirect : optional (B, J, 6 indirect_res^2, 3) indirect glossy density (from
         :meth:`Transport.indirect`), added at every sample by nearest bin
     lobe : :func:`lobe_estimate` of these vertices and views, if the caller has it
+    visibility : the samples' visibility (:attr:`FitData.visibility`) from an earlier gather
+        of the same vertices, views and ``lobe``, if the caller kept it: no ray is cast
 
     Returns
     -------
@@ -311,8 +324,15 @@ def gather(
         vh = (ldirs * v[:, :, None]).sum(-1, keepdim=True)  # (B, J, K, 1)
         ldirs = torch.nn.functional.normalize(2 * vh * ldirs - v[:, :, None], dim=-1)
         lw = lw * 4 * vh[..., 0].clamp_min(0)
-    lvals = tr.direct(vidx, views, ldirs)  # (B, J, K, 3)
     gd = cubemap.texel_directions(global_res, device=dev).reshape(-1, 3)  # (D, 3)
+    if visibility is None:
+        # the cap's rays of the views above the horizon (the others' transport is 0), as
+        # Transport.direct would cast them, and the global set's, shared by all views
+        vis_cap = torch.zeros(ldirs.shape[:-1], dtype=torch.bool, device=dev)
+        bi, ji = (~below).nonzero(as_tuple=True)
+        vis_cap[bi, ji] = tr.visibility(vidx[bi], ldirs[bi, ji])
+        visibility = (vis_cap, tr.visibility(vidx, gd))
+    lvals = tr.direct(vidx, views, ldirs, visibility=visibility[0])  # (B, J, K, 3)
     gom = cubemap.texel_solid_angles(global_res, device=dev).reshape(-1)
     # the global set leaves out the directions the cap covers (in its own domain): weight 0,
     # and the transport is not evaluated there
@@ -320,7 +340,7 @@ def gather(
     gcap = torch.nn.functional.normalize(gcap, dim=-1)  # (B, J, D, 3)
     inside = (axis[:, :, None] * gcap).sum(-1) > (1 - s_max)[..., None]  # (B, J, D)
     gw = torch.where(inside, torch.zeros_like(inside, dtype=gom.dtype), gom.expand(b, j, -1))
-    gvals = tr.direct(vidx, views, gd, need=~inside)  # (B, J, D, 3)
+    gvals = tr.direct(vidx, views, gd, need=~inside, visibility=visibility[1])  # (B, J, D, 3)
     dirs = torch.cat([ldirs, gd.expand(b, j, -1, 3)], 2)
     weights = torch.cat([lw, gw], 2)
     values = torch.cat([lvals, gvals], 2)
@@ -333,4 +353,4 @@ def gather(
         values = values + torch.gather(indirect.to(dev), 2, idx[..., None].expand(-1, -1, -1, 3))
         # (the direct transport is 0 below the horizon already)
         values = torch.where(below[..., None, None], torch.zeros_like(values), values)
-    return FitData(dirs=dirs, weights=weights, values=values, below=below)
+    return FitData(dirs=dirs, weights=weights, values=values, below=below, visibility=visibility)

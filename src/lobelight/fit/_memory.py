@@ -25,6 +25,7 @@ except ImportError:  # pragma: no cover
     resource = None
 
 from ..errors import InputError
+from ._data import GLOBAL_RES, N_THETA
 
 __all__ = [
     "MEMORY_GB",
@@ -89,9 +90,10 @@ def chunk_bytes(j: int, n: int) -> float:
 def state_bytes(v: int, j: int, n: int) -> int:
     """Bytes of the bake's state, which grows with the mesh
     (:class:`lobelight.fit._chunk.BakeState`: per vertex and view N direct and one indirect
-    Gaussian, 7 floats each, and the lobe estimate, 5 floats; per vertex two SH transfers and a
-    few flags)."""
-    return v * 4 * (j * ((n + 1) * 7 + 5) + 2 * 25 * 3 + 2)
+    Gaussian, 7 floats each, the lobe estimate, 5 floats, and the cap samples' visibility, a bit
+    each; per vertex two SH transfers, a few flags and the global samples' visibility)."""
+    cap_bytes, global_bytes = -(-2 * N_THETA**2 // 8), -(-6 * GLOBAL_RES**2 // 8)
+    return v * (4 * (j * ((n + 1) * 7 + 5) + 2 * 25 * 3 + 2) + j * cap_bytes + global_bytes)
 
 
 def interreflection_bytes(v: int, j: int, n: int) -> int:
