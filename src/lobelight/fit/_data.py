@@ -57,6 +57,10 @@ class FitData:
     values : (B, J, S, 3) transport values (RGB); 0 where the weight is 0 (not evaluated
         there: no integral of the fit sees those samples)
     below : (B, J) bool, view below the vertex's horizon (transport 0, weight forced to 0)
+    visibility : (cap (B, J, K) bool, global set (B, D) bool), whether each sample direction
+        sees the environment, as :func:`gather` cast it (before :meth:`compact`), for a caller
+        that samples the same directions again (:func:`gather`'s ``visibility``); None on
+        other data
     """
 
     dirs: torch.Tensor
@@ -66,9 +70,6 @@ class FitData:
     _unit: torch.Tensor | None = field(default=None, init=False, repr=False)
     _energy: torch.Tensor | None = field(default=None, init=False, repr=False)
     _light: torch.Tensor | None = field(default=None, init=False, repr=False)
-    #: (cap (B, J, K) bool, global set (B, D) bool): whether each sample direction sees the
-    #: environment, as :func:`gather` cast it (before :meth:`compact`), for a caller that samples
-    #: the same directions again (:func:`gather`'s ``visibility``); None on other data
     visibility: tuple[torch.Tensor, torch.Tensor] | None = field(default=None, repr=False)
 
     @property
