@@ -103,25 +103,35 @@ def test_float16_round_trip_renders_the_same_images(which, request, tmp_path):
 
 
 def test_float16_records_are_the_models_rounded_to_half(sharp_model, tmp_path):
-    """The kept records read back as the model's light, mean and width rounded to float16 by
-    numpy (an independent rounding), the left-out ones with zero weight."""
+    """The kept records read back as the model's light, mean and width rounded to float16, the
+    left-out ones with zero weight.
+
+    Light and width: each read back within half a float16 step of the model's value computed
+    in float64, plus 2e-6 of it, because the exporter forms them in float32 before rounding.
+    A value that lies within float32's error of a float16 rounding boundary may round either
+    way, so comparing against numpy's rounding of the float64 value would be fragile there.
+    Truncating instead of rounding, or one step off, exceeds the bound."""
     m = sharp_model
     p = tmp_path / "m.glb"
     export_gltf(m, p)
     back = import_gltf(p)
-    g = m.gaussians
-    light = (g.w.double() * sg.integral(g.lam.double())[..., None]).numpy()
-    sigma = g.lam.double().rsqrt().numpy()
-    lam16 = sigma.astype(np.float16).astype(np.float32).astype(np.float64) ** -2
-    w16 = (
-        light.astype(np.float16).astype(np.float64)
-        / sg.integral(torch.from_numpy(lam16)).numpy()[..., None]
-    )
-    live = back.gaussians.w.amax((-1, -2)) > 0  # (V, J)
+    g, gb = m.gaussians, back.gaussians
+    live = gb.w.amax((-1, -2)) > 0  # (V, J)
     assert live.sum() > 0
-    # float32 reads of the float16 values: 1e-6 relative
-    assert np.allclose(back.gaussians.w.numpy()[live], w16[live], rtol=1e-5, atol=0)
-    assert np.allclose(back.gaussians.lam.numpy()[live], lam16[live], rtol=1e-5)
+
+    def light_sigma(x):
+        lam = x.lam.double()
+        return (x.w.double() * sg.integral(lam)[..., None]).numpy(), lam.rsqrt().numpy()
+
+    for got, exact in zip(light_sigma(gb), light_sigma(g), strict=True):
+        got, exact = got[live.numpy()], exact[live.numpy()]
+        with np.errstate(divide="ignore"):
+            e = np.maximum(np.floor(np.log2(np.abs(exact))), -14)  # float16's subnormals below
+        half_step = 2.0 ** (e - 11)
+        assert (np.abs(got - exact) <= half_step + 2e-6 * np.abs(exact)).all()
+        # and most are numpy's own rounding of the exact value
+        same = np.isclose(got, exact.astype(np.float16).astype(np.float64), rtol=1e-6, atol=0)
+        assert same.mean() > 0.99
     mu16 = g.mu.numpy().astype(np.float16).astype(np.float64)
     mu16 /= np.linalg.norm(mu16, axis=-1, keepdims=True)
     assert np.allclose(back.gaussians.mu.numpy()[live], mu16[live], atol=1e-6)
