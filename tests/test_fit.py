@@ -222,7 +222,8 @@ def test_graded_cap_points_lie_on_their_rings_for_a_mirror_sharp_lobe():
 def test_gather_again_from_the_kept_visibility_gives_the_same_samples():
     # the relaxation gathers a chunk again from the lobe estimate and the samples' visibility
     # the flood fill kept (as bits): the same directions, weights and values, with no ray
-    from lobelight.fit._chunk import CAP_SAMPLES, GLOBAL_SAMPLES, pack_bits, unpack_bits
+    from lobelight.fit._chunk import pack_bits, unpack_bits
+    from lobelight.fit._data import CAP_SAMPLES, GLOBAL_SAMPLES
 
     sc = scene.builtin("knot")  # it shadows itself and its ground
     tr = transport.Transport(sc)

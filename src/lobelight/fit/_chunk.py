@@ -35,7 +35,7 @@ import torch
 from ..geometry import cubemap, sphere
 from ..scene import Mesh
 from ..transport import DIFFUSE_ORDER, Transport
-from ._data import GLOBAL_RES, N_THETA, gather, lobe_estimate
+from ._data import CAP_SAMPLES, GLOBAL_SAMPLES, gather, lobe_estimate
 from ._objective import Weights, mixture, solve_weights
 from ._optimize import Gaussians, fit_batch, initial_guess
 from ._relax import SEPARATED, vertex_flips
@@ -67,10 +67,6 @@ FILL_ITERATIONS = 14
 REFIT_ITERATIONS = 8
 #: Face resolution of the cube map of directions the self-shadowed diffuse transfer sums over.
 DIFFUSE_RES = 16
-#: Samples of a fit's cap grid per (vertex, view) and of its global set per vertex
-#: (:func:`lobelight.fit.gather`), whose visibility the bake's state keeps as bits.
-CAP_SAMPLES = 2 * N_THETA**2
-GLOBAL_SAMPLES = 6 * GLOBAL_RES**2
 _BITS = 1 << torch.arange(8, dtype=torch.uint8)
 
 
@@ -423,7 +419,8 @@ def refit_chunk(bake: Bake, chunk: Chunk) -> None:
 
 def refit_inputs(bake: Bake, chunk: Chunk) -> RefitInputs:
     """What the relaxation's refit of ``chunk`` reads of the state: its glossy vertices, their
-    Gaussians, data error and lobe estimate, and their glossy neighbours."""
+    Gaussians, data error, lobe estimate and samples' visibility, and their glossy
+    neighbours."""
     st = bake.state
     vidx = chunk.vertices
     vidx = vidx[st.glossy[vidx]]

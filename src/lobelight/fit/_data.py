@@ -120,10 +120,12 @@ class FitData:
         )
 
 
-#: The samples of :func:`gather`: a cap grid of ``N_THETA x 2 N_THETA`` points and the texels of
-#: a cube map of face resolution ``GLOBAL_RES``.
+#: The samples of :func:`gather`: a cap grid of ``N_THETA x 2 N_THETA`` points per (vertex,
+#: view) and the texels of a cube map of face resolution ``GLOBAL_RES`` per vertex.
 N_THETA = 12
 GLOBAL_RES = 8
+CAP_SAMPLES = 2 * N_THETA**2
+GLOBAL_SAMPLES = 6 * GLOBAL_RES**2
 
 
 def half_vector_lobes(spec: brdf.BRDF | None) -> bool:

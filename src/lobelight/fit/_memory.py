@@ -25,7 +25,7 @@ except ImportError:  # pragma: no cover
     resource = None
 
 from ..errors import InputError
-from ._data import GLOBAL_RES, N_THETA
+from ._data import CAP_SAMPLES, GLOBAL_SAMPLES
 
 __all__ = [
     "MEMORY_GB",
@@ -50,8 +50,8 @@ _BASE_BYTES = 1 * _GB
 # Jacobian rows and products in the Levenberg-Marquardt iteration.
 _SAMPLE_BYTES = 90
 _SAMPLE_GAUSSIAN_BYTES = 100
-# Samples per (vertex, view) of the fit (lobelight.fit.gather's defaults: 2 x 12^2 + 6 x 8^2).
-_SAMPLES = 672
+# Samples per (vertex, view) of the fit (lobelight.fit.gather's cap grid and global set).
+_SAMPLES = CAP_SAMPLES + GLOBAL_SAMPLES
 # Vertices per chunk on the CPU: larger chunks gain nothing there.
 _CPU_BATCH = 64
 # Bytes per vertex the interreflection keeps besides the bake's state: the Gaussians (direct
@@ -92,7 +92,7 @@ def state_bytes(v: int, j: int, n: int) -> int:
     (:class:`lobelight.fit._chunk.BakeState`: per vertex and view N direct and one indirect
     Gaussian, 7 floats each, the lobe estimate, 5 floats, and the cap samples' visibility, a bit
     each; per vertex two SH transfers, a few flags and the global samples' visibility)."""
-    cap_bytes, global_bytes = -(-2 * N_THETA**2 // 8), -(-6 * GLOBAL_RES**2 // 8)
+    cap_bytes, global_bytes = -(-CAP_SAMPLES // 8), -(-GLOBAL_SAMPLES // 8)
     return v * (4 * (j * ((n + 1) * 7 + 5) + 2 * 25 * 3 + 2) + j * cap_bytes + global_bytes)
 
 
