@@ -20,6 +20,7 @@ PASSES = (
     "uniforms",
     "shadow",
     "table",
+    "stage",
     "clear",
     "depth",
     "prt",
@@ -68,7 +69,9 @@ def test_bench_render_breaks_a_frame_into_passes(monkeypatch, small_env):
     # the float32 target that Renderer.render reads: no tone-mapping, one sample, no sun
     (row,) = bench.bench_render(display=False, profile_frames=2, **kw)["rows"]
     assert row["target"] == "rgba32f"
-    assert tuple(row["cpu_ms"]) == ("uniforms", "table", "clear", "depth", "prt", "background")
+    assert tuple(row["cpu_ms"]) == (
+        "uniforms", "table", "stage", "clear", "depth", "prt", "background"
+    )  # fmt: skip
 
 
 @needs_gl

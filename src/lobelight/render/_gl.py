@@ -109,6 +109,8 @@ _ALBEDO_UNIT = _TABLE_LOBE_UNIT + 6
 #: Texture units of a glTF lobe varying per vertex (reflection.glsl ``lobe_tex``,
 #: ``split_tex``), after the albedo textures' two.
 _LOBE_UNIT = _ALBEDO_UNIT + 2
+#: Texture unit of the vertex stage's results per vertex (prt.glsl FROM_STAGE).
+_STAGE_UNIT = _LOBE_UNIT + 2
 #: The shader files the lobe visibility correction's vertex stage includes, in order.
 LOBE_VISIBILITY_INCLUDE = ("frame", "geodesic", "prefiltered", "tiles", "brdf", "lobe_visibility")
 #: Colour target texel types: float32 (what ``read`` returns exactly) and half float (display).
@@ -281,6 +283,12 @@ def _rgb0(table: torch.Tensor) -> np.ndarray:
     """``(..., 3)`` values as ``(T, 4)`` float texels (alpha 0)."""
     rows = torch.cat([table, torch.zeros_like(table[..., :1])], -1)
     return rows.reshape(-1, 4).detach().cpu().numpy()
+
+
+def stage_varyings(model) -> list[str]:
+    """The outputs prt.glsl's STAGE_PASS captures, in the order of a vertex's texels in the
+    stage texture: the ``2 N`` lobe varyings, then the diffuse colour."""
+    return [f"v_lobe[{i}]" for i in range(2 * model.n_gaussians)] + ["v_stage_diffuse"]
 
 
 def gaussian_records(model, width: int | None = None) -> np.ndarray:
@@ -464,7 +472,8 @@ class PassTimer:
 
     Passes: ``uniforms`` (the per-frame block), ``shadow`` (the sun's shadow map, when it is
     redrawn), ``table`` (the vertex stage's results for the sharp reflection's hit points, with
-    a sharp material), ``clear``, ``depth`` (the object's depth pre-pass), ``prt`` (the object's
+    a sharp material), ``stage`` (the vertex stage's results, once per frame), ``clear``,
+    ``depth`` (the object's depth pre-pass), ``prt`` (the object's
     shading), ``background``, ``resolve`` (adding a sample into the frame, with several samples
     per pixel), ``tonemap`` (``present``); a pass run once per sample sums over the samples.
 
@@ -660,6 +669,8 @@ class GLRenderer:
             "VERTEX_TABLE": 0,
             "LOBE_VIS": int(self.lobe_vis),
             "LOBE_VIS_PASS": 0,
+            "STAGE_PASS": 0,
+            "FROM_STAGE": 0,
             **lobe_visibility_defines(),
             "TABLE_WIDTH": _VIS_TEX_WIDTH,
             "TABLE_ROWS": max(1, -(-model.mesh.n_vertices // _VIS_TEX_WIDTH)),
@@ -678,10 +689,17 @@ class GLRenderer:
         self.prog = _program(
             ctx,
             "prt",
-            {**prt_defines, "DEPTH_ONLY": 0},
+            {**prt_defines, "DEPTH_ONLY": 0, "FROM_STAGE": 1},
             include=include,
             vertex_include=("frame", "geodesic"),
         )
+        # the vertex stage once per frame, captured by transform feedback (prt.glsl STAGE_PASS)
+        vertex, _ = stage_sources(
+            "prt", {**prt_defines, "DEPTH_ONLY": 0, "STAGE_PASS": 1},
+            vertex_include=("frame", "geodesic"),
+        )  # fmt: skip
+        self.stage_texels = 2 * model.n_gaussians + 1
+        self.stage_prog = ctx.program(vertex_shader=vertex, varyings=stage_varyings(model))
         # the depth pre-pass: the object's depth alone, from the same projection code
         # (prt.glsl's project, invariant gl_Position) so that the shading pass's depths equal it
         self.depth_prog = _program(
@@ -711,10 +729,17 @@ class GLRenderer:
     def _upload_transfer(self, model) -> int:
         """The model's transfer as data textures (:func:`_transfer_images`); returns their
         width in texels."""
+        import moderngl  # optional (the gl extra)
+
         gauss, diffuse, bounce, width = _transfer_images(model, bounce=self.has_bounce)
         self.gauss_tex = self._data_texture(gauss)
         self.diff_tex = self._data_texture(diffuse)
         self.bounce_tex = self._data_texture(bounce)
+        # the stage pass's transform feedback, copied into a texture of the same width
+        rows = -(-model.mesh.n_vertices * self.stage_texels // width)
+        self.stage_buf = self.ctx.buffer(reserve=16 * rows * width)
+        self.stage_tex = self.ctx.texture((width, rows), 4, dtype="f4")
+        self.stage_tex.filter = (moderngl.NEAREST, moderngl.NEAREST)
         if self.sharp is not None:
             self._upload_sharp(model)
         if self.lv_prog is not None:
@@ -855,6 +880,20 @@ class GLRenderer:
         if self.has_bounce:
             self.bounce_tex.use(8)
 
+    def _stage_pass(self) -> None:
+        """The vertex stage's results for this frame's view and lighting (prt.glsl STAGE_PASS)
+        into ``stage_tex``, by transform feedback, one vertex per vertex: each sample's shading
+        pass then reads them (FROM_STAGE) instead of interpolating the views again."""
+        import moderngl  # optional (the gl extra)
+
+        with self._section("stage"):
+            self.fbo.use()  # a draw needs a complete framebuffer, though this one rasterises none
+            self._use_vertex_stage_textures()
+            self.stage_vao.transform(
+                self.stage_buf, mode=moderngl.POINTS, vertices=self._n_vertices
+            )
+            self.stage_tex.write(self.stage_buf)
+
     def _lobe_visibility_pass(self) -> None:
         """Each vertex's factor on its direct Gaussians' light for this frame's view and
         lighting into ``rho_buf``, by transform feedback of the correction's vertex stage
@@ -913,7 +952,7 @@ class GLRenderer:
         p["tex_width"].value = tex_width
         set_uniforms(p, self._atlas_uniforms)
         p["Planes"].binding = _PLANES_BINDING
-        table = tuple(t for t in (self.table_prog, self.lv_prog) if t is not None)
+        table = tuple(t for t in (self.table_prog, self.lv_prog, self.stage_prog) if t)
         if self.lv_prog is not None:
             set_uniforms(self.lv_prog, self._atlas_uniforms)
             set_uniforms(self.lv_prog, sun_glossy_uniforms(self._specular))
@@ -941,6 +980,7 @@ class GLRenderer:
             ("specular_tex", _ALBEDO_UNIT + 1),
             ("lobe_tex", _LOBE_UNIT),
             ("split_tex", _LOBE_UNIT + 1),
+            ("stage_tex", _STAGE_UNIT),
             *_SHARP_UNITS,
         )
         for prog in (p, *table):
@@ -1004,10 +1044,11 @@ class GLRenderer:
                 p["sun_spread"].value = float(lighting.sun.spread)
             self.sbo = ctx.buffer(np.ascontiguousarray(sb))
             content.append((self.sbo, "4f 3f 3f", "in_sb0", "in_eta", "in_k"))
-        shading = content
+        staged = content
         if self.lv_prog is not None:  # the correction pass's factors (prt.glsl in_rho)
-            shading = [*content, (self.rho_buf, "3f", "in_rho")]
-        self.vao = ctx.vertex_array(p, shading, self.ibo, 4)
+            staged = [*content, (self.rho_buf, "3f", "in_rho")]
+        self.stage_vao = ctx.vertex_array(self.stage_prog, staged, skip_errors=True)
+        self.vao = ctx.vertex_array(p, content, self.ibo, 4, skip_errors=True)
         self.lv_vao = None
         if self.lv_prog is not None:
             # the BRDF as it is (the sun's shading reads it widened by the disc)
@@ -1288,6 +1329,7 @@ class GLRenderer:
             self._table_pass()
         if self.lv_prog is not None and glossy:
             self._lobe_visibility_pass()
+        self._stage_pass()
         n = self.offsets.shape[0]
         if n == 1:
             self._draw_sample(out, 0, background)
@@ -1344,11 +1386,7 @@ class GLRenderer:
             if self.has_sun:
                 self.shadow_tex.use(6)
                 self.shadow_sampler.use(_SHADOW_DEPTH_UNIT)
-            self.gauss_tex.use(0)
-            self.diff_tex.use(1)
-            self.cand_tex.use(2)
-            if self.has_bounce:
-                self.bounce_tex.use(8)
+            self.stage_tex.use(_STAGE_UNIT)
             self.atlas.use(3)
             if self.whole_atlas is not None:
                 self.whole_atlas.use(_WHOLE_ATLAS_UNIT)
@@ -1468,6 +1506,10 @@ class GLRenderer:
             self.gauss_tex,
             self.diff_tex,
             self.bounce_tex,
+            self.stage_vao,
+            self.stage_prog,
+            self.stage_buf,
+            self.stage_tex,
             self.planes_ubo,
             self.sample_ubo,
             self.cand_tex,

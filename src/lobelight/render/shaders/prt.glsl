@@ -14,6 +14,12 @@
 // rotation, SH lighting, sun) come from frame.glsl's block. The torch path (render/_torch.py)
 // mirrors this file step by step.
 //
+// The vertex stage's view interpolation and SH products depend on the camera and the lighting,
+// not on the sub-pixel sample: with STAGE_PASS 1 they run once per frame, one vertex per
+// vertex, captured by transform feedback as STAGE_TEXELS RGBA texels per vertex (v_lobe, then
+// the diffuse colour), which the renderer copies into stage_tex; with FROM_STAGE 1 the shading
+// pass's vertices read them there instead of computing them again for every sample.
+//
 // Two vec4 varyings per Gaussian: a float array varying takes a whole interpolator slot per
 // element on many GPUs, so (e, live) and (mu offset, sigma) share slots; the sun's per-vertex
 // inputs are compiled out when they are not shaded.
@@ -38,12 +44,16 @@ in vec4 in_sb0;                // the BRDF (render/_sun_glossy.py): alpha, specu
 in vec3 in_eta;                // widened by its disc; the correction pass's as it is), conductor
 in vec3 in_k;                  // index eta + i k
 #endif
-#if LOBE_VIS
+#if LOBE_VIS && !FROM_STAGE
 // the factor on this vertex's direct Gaussians' light this frame (lobe_visibility.glsl), from
 // the correction pass's transform feedback
 in vec3 in_rho;
 #endif
 
+#define STAGE_TEXELS (2 * N_GAUSSIANS + 1)
+#if FROM_STAGE
+uniform sampler2D stage_tex;   // RGBA32F, STAGE_TEXELS texels per vertex (STAGE_PASS)
+#endif
 uniform sampler2D gauss_tex;   // RGBA32F, 2 texels per record (e.rgb, sigma), (mu.xyz, 0)
 uniform sampler2D diff_tex;    // RGBA32F, N_SH texels per vertex: transfer RGB
 uniform sampler2D bounce_tex;  // RGBA32F, N_SH texels per vertex: its interreflected part
@@ -71,13 +81,16 @@ out vec3 v_factor;
 // the correction pass (LOBE_VIS_PASS): each vertex's factor, captured by transform feedback
 out vec3 v_rho;
 #endif
+#if STAGE_PASS
+out vec4 v_stage_diffuse;      // v_diffuse, a whole texel of the stage's record
+#endif
 #if SUN_GLOSSY || LOBE_VIS_PASS
 out vec4 v_sb0;
 out vec3 v_eta;
 out vec3 v_k;
 #endif
 
-#if defined(GL_ES) && defined(SHARP) && SHARP && !VERTEX_TABLE
+#if defined(GL_ES) && defined(SHARP) && SHARP && !VERTEX_TABLE && !STAGE_PASS
 // OpenGL ES 3.00 has no gl_PrimitiveID: the web viewer draws the triangles unindexed, each
 // corner carrying its vertex's id and its triangle's (reflection.glsl corners)
 in float in_vertex;
@@ -108,12 +121,18 @@ void main() {
 ivec2 at(int i) { return ivec2(i % tex_width, i / tex_width); }
 
 void main() {
-#if defined(GL_ES) && defined(SHARP) && SHARP && !VERTEX_TABLE
+#if defined(GL_ES) && defined(SHARP) && SHARP && !VERTEX_TABLE && !STAGE_PASS
     int v = int(in_vertex + 0.5);
     v_face = int(in_face + 0.5);
 #else
     int v = gl_VertexID;
 #endif
+#if FROM_STAGE
+    for (int i = 0; i < 2 * N_GAUSSIANS; ++i) {
+        v_lobe[i] = texelFetch(stage_tex, at(v * STAGE_TEXELS + i), 0);
+    }
+    v_diffuse = texelFetch(stage_tex, at(v * STAGE_TEXELS + 2 * N_GAUSSIANS), 0).rgb;
+#else
     vec3 d = normalize(eye - in_pos);
 
     vec3 bdet;
@@ -161,6 +180,10 @@ void main() {
     }
 #endif
     v_diffuse = diffuse;
+#if STAGE_PASS
+    v_stage_diffuse = vec4(diffuse, 0.0);
+#endif
+#endif  // FROM_STAGE
     v_pos = in_pos;
     v_normal = in_normal;
 #if HAS_SUN && !ALBEDO_TEX
@@ -198,7 +221,7 @@ void main() {
 
 void main() {}
 
-#elif defined FRAGMENT_SHADER && LOBE_VIS_PASS
+#elif defined FRAGMENT_SHADER && (LOBE_VIS_PASS || STAGE_PASS)
 
 // the correction pass writes its transform feedback and rasterises nothing
 out vec4 frag;
