@@ -19,7 +19,6 @@ CAM = render.Camera.look_at((0.3, 0.9, 3.0), (0.0, 0.0, 0.0), fov=40)
 PASSES = (
     "uniforms",
     "shadow",
-    "table",
     "stage",
     "clear",
     "depth",
@@ -70,7 +69,7 @@ def test_bench_render_breaks_a_frame_into_passes(monkeypatch, small_env):
     (row,) = bench.bench_render(display=False, profile_frames=2, **kw)["rows"]
     assert row["target"] == "rgba32f"
     assert tuple(row["cpu_ms"]) == (
-        "uniforms", "table", "stage", "clear", "depth", "prt", "background"
+        "uniforms", "stage", "clear", "depth", "prt", "background"
     )  # fmt: skip
 
 

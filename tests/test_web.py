@@ -442,8 +442,8 @@ def sharp_torus(indirect: bool = False, varying: bool = False) -> Model:
     mixture for it) with no fitted glossy transport and a constant diffuse transfer
     (tests/test_reflection.py's bare model): the desktop shades its direct light per pixel
     (reflection.glsl), its inner side sees the torus (hit tiles), and the hit points are
-    shaded from the vertex table (their diffuse light). ``indirect``: a second, indirect
-    Gaussian about the normal (the vertex table's indirect lobes, read at the hit points).
+    shaded from the vertex stage's capture (their diffuse light). ``indirect``: a second,
+    indirect Gaussian about the normal (the capture's indirect lobes, read at the hit points).
     ``varying``: a glTF lobe whose roughness runs from 0.005 to 0.3 around the torus and
     whose F0 changes across it (sharp at some vertices, shaded by the Gaussians at the rest)."""
     tm = trimesh.creation.torus(
@@ -483,9 +483,9 @@ def test_a_sharp_metal_is_shaded_per_pixel_as_the_torch_path(
     browser, tmp_path, sun, indirect, varying
 ):
     """A sharp metal's per-pixel reflection (reflection.glsl: visibility tiles, the object seen
-    in the lobe through the hit tiles and the vertex table; with the sun, its shape through the
+    in the lobe through the hit tiles and the vertex stage's capture; with the sun, its shape through the
     whole map's chain, which this sun's disc resolves for the mixture's sharpest Gaussian;
-    with an indirect Gaussian, the vertex table's indirect lobes) against
+    with an indirect Gaussian, the capture's indirect lobes) against
     ``Renderer(..., backend="torch")`` on 400 sampled interior pixels of the torus, at
     384 x 288 as the Gaussian path's test above (whose docstring gives the 1e-2 bound).
 

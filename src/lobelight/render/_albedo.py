@@ -45,7 +45,8 @@ def hit_diffuse_light(
     :func:`diffuse_light`'s: interpolated from the vertices, each with its own albedo
     (``materials.diffuse``, a texture's average over the vertex's one-ring) where the model's
     transfer is per unit albedo. A texture's detail in a reflection of the object is second
-    order, and the shader path reads the hit points' vertices from its vertex table alone."""
+    order, and the shader path reads the hit points' vertices from the vertex stage's capture
+    alone."""
     if model.albedo is not None:
         vertex_light = vertex_light * model.materials.diffuse.to(vertex_light)
     return (vertex_light[corners] * bary.to(vertex_light)[..., None]).sum(1)

@@ -70,6 +70,8 @@ __all__ = [
     "load_shader",
     "set_uniforms",
     "stage_sources",
+    "stage_texels",
+    "stage_varyings",
     "upload_geodesic",
     "upload_prefiltered",
 ]
@@ -92,25 +94,24 @@ _VIS_UNIT = 10
 #: Width in texels of the visibility atlas and of the face and position textures.
 _VIS_TEX_WIDTH = 4096
 #: Texture units of the sharp reflection's hit points (reflection.glsl): normals, albedos,
-#: hit tiles, and the vertex table's targets (the indirect Gaussians' two per lobe; at most
-#: three indirect Gaussians).
+#: hit tiles.
 _SHARP_UNITS = (
     ("nrm_tex", _VIS_UNIT + 3),
     ("alb_tex", _VIS_UNIT + 4),
     ("hit_face_tex", _VIS_UNIT + 5),
     ("hit_dist_tex", _VIS_UNIT + 6),
-    ("table0_tex", _VIS_UNIT + 7),
-    ("table1_tex", _VIS_UNIT + 8),
 )
-#: The first texture unit of the vertex table's indirect Gaussians (the array table_lobe_tex).
-_TABLE_LOBE_UNIT = _VIS_UNIT + 9
-#: Texture unit of the albedo textures (albedo.glsl), after the vertex table's at most six.
-_ALBEDO_UNIT = _TABLE_LOBE_UNIT + 6
+#: Texture unit of the vertex stage's results per vertex (prt.glsl FROM_STAGE, and the sharp
+#: reflection's hit points).
+_STAGE_UNIT = _VIS_UNIT + 7
+#: Texture unit of the albedo textures (albedo.glsl).
+_ALBEDO_UNIT = _VIS_UNIT + 8
 #: Texture units of a glTF lobe varying per vertex (reflection.glsl ``lobe_tex``,
 #: ``split_tex``), after the albedo textures' two.
 _LOBE_UNIT = _ALBEDO_UNIT + 2
-#: Texture unit of the vertex stage's results per vertex (prt.glsl FROM_STAGE).
-_STAGE_UNIT = _LOBE_UNIT + 2
+#: Components one transform feedback captures at most, interleaved: 64 in every OpenGL 3.3 and
+#: WebGL 2 implementation (GL_MAX_TRANSFORM_FEEDBACK_INTERLEAVED_COMPONENTS' minimum).
+TRANSFORM_FEEDBACK_COMPONENTS = 64
 #: The shader files the lobe visibility correction's vertex stage includes, in order.
 LOBE_VISIBILITY_INCLUDE = ("frame", "geodesic", "prefiltered", "tiles", "brdf", "lobe_visibility")
 #: Colour target texel types: float32 (what ``read`` returns exactly) and half float (display).
@@ -285,10 +286,22 @@ def _rgb0(table: torch.Tensor) -> np.ndarray:
     return rows.reshape(-1, 4).detach().cpu().numpy()
 
 
+def stage_texels(model) -> int:
+    """RGBA texels per vertex of the vertex stage's results (prt.glsl STAGE_TEXELS)."""
+    return 2 * model.n_gaussians + 1
+
+
+def stage_fits(model) -> bool:
+    """Whether one transform feedback captures the vertex stage's results (up to seven
+    Gaussians per view); with more, each shading pass computes them itself."""
+    return 4 * stage_texels(model) <= TRANSFORM_FEEDBACK_COMPONENTS
+
+
 def stage_varyings(model) -> list[str]:
     """The outputs prt.glsl's STAGE_PASS captures, in the order of a vertex's texels in the
-    stage texture: the ``2 N`` lobe varyings, then the diffuse colour."""
-    return [f"v_lobe[{i}]" for i in range(2 * model.n_gaussians)] + ["v_stage_diffuse"]
+    stage texture (the ``2 N`` lobe varyings, then the diffuse colour; one output each, as
+    WebGL 2 captures no array)."""
+    return [f"v_stage{i}" for i in range(stage_texels(model))]
 
 
 def gaussian_records(model, width: int | None = None) -> np.ndarray:
@@ -471,10 +484,9 @@ class PassTimer:
     next (``present``).
 
     Passes: ``uniforms`` (the per-frame block), ``shadow`` (the sun's shadow map, when it is
-    redrawn), ``table`` (the vertex stage's results for the sharp reflection's hit points, with
-    a sharp material), ``stage`` (the vertex stage's results, once per frame), ``clear``,
-    ``depth`` (the object's depth pre-pass), ``prt`` (the object's
-    shading), ``background``, ``resolve`` (adding a sample into the frame, with several samples
+    redrawn), ``lobe visibility`` (a rough lobe's correction, render/_lobe_visibility.py),
+    ``stage`` (the vertex stage's results, once per frame), ``clear``, ``depth`` (the object's
+    depth pre-pass), ``prt`` (the object's shading), ``background``, ``resolve`` (adding a sample into the frame, with several samples
     per pixel), ``tonemap`` (``present``); a pass run once per sample sums over the samples.
 
     GPU time: one GL_TIME_ELAPSED query (core in GL 3.3) around each pass, from when the GPU
@@ -666,14 +678,12 @@ class GLRenderer:
             "ALBEDO_LAYERS": 1 if model.albedo is None else len(model.albedo.images),
             "SPECULAR_TEX": int(self._f0 is not None),
             "F0_MIN": f"{F0_MIN:.6e}",
-            "VERTEX_TABLE": 0,
             "LOBE_VIS": int(self.lobe_vis),
             "LOBE_VIS_PASS": 0,
             "STAGE_PASS": 0,
             "FROM_STAGE": 0,
+            "STAGE_TEXELS": stage_texels(model),
             **lobe_visibility_defines(),
-            "TABLE_WIDTH": _VIS_TEX_WIDTH,
-            "TABLE_ROWS": max(1, -(-model.mesh.n_vertices // _VIS_TEX_WIDTH)),
             "VIS_RES": VISIBILITY_RES,
             "MIXTURE": MIXTURE,
             "ALBEDO_STEPS": ALBEDO_STEPS,
@@ -686,33 +696,35 @@ class GLRenderer:
         include += ("brdf",) if self.sun_glossy else ()
         include += ("tiles", "reflection") if self.sharp else ()
         include += ("albedo",) if model.albedo is not None else ()
+        # the vertex stage once per frame, captured by transform feedback (prt.glsl STAGE_PASS)
+        self.staged = stage_fits(model)
+        if self.sharp is not None and not self.staged:
+            raise InputError(
+                "model",
+                f"has {model.n_gaussians} Gaussians per view; a sharp material's per-pixel "
+                "reflection reads the vertex stage's capture, which holds at most "
+                f"{(TRANSFORM_FEEDBACK_COMPONENTS // 4 - 1) // 2}",
+            )
         self.prog = _program(
             ctx,
             "prt",
-            {**prt_defines, "DEPTH_ONLY": 0, "FROM_STAGE": 1},
+            {**prt_defines, "DEPTH_ONLY": 0, "FROM_STAGE": int(self.staged)},
             include=include,
             vertex_include=("frame", "geodesic"),
         )
-        # the vertex stage once per frame, captured by transform feedback (prt.glsl STAGE_PASS)
-        vertex, _ = stage_sources(
-            "prt", {**prt_defines, "DEPTH_ONLY": 0, "STAGE_PASS": 1},
-            vertex_include=("frame", "geodesic"),
-        )  # fmt: skip
-        self.stage_texels = 2 * model.n_gaussians + 1
-        self.stage_prog = ctx.program(vertex_shader=vertex, varyings=stage_varyings(model))
+        self.stage_prog = None
+        if self.staged:
+            vertex, _ = stage_sources(
+                "prt", {**prt_defines, "DEPTH_ONLY": 0, "STAGE_PASS": 1},
+                vertex_include=("frame", "geodesic"),
+            )  # fmt: skip
+            self.stage_prog = ctx.program(vertex_shader=vertex, varyings=stage_varyings(model))
         # the depth pre-pass: the object's depth alone, from the same projection code
         # (prt.glsl's project, invariant gl_Position) so that the shading pass's depths equal it
         self.depth_prog = _program(
             ctx, "prt", {**prt_defines, "DEPTH_ONLY": 1}, ("frame",), ("frame",)
         )
         self.depth_prepass = True
-        # the vertex stage's results as a table, for the sharp reflection's hit points
-        self.table_prog = None
-        if self.sharp is not None:
-            self.table_prog = _program(
-                ctx, "prt", {**prt_defines, "DEPTH_ONLY": 0, "VERTEX_TABLE": 1}, ("frame",),
-                ("frame", "geodesic"),
-            )  # fmt: skip
         # each vertex's factor on its direct Gaussians' light, once per frame
         self.lv_prog = None
         if self.lobe_vis:
@@ -735,11 +747,11 @@ class GLRenderer:
         self.gauss_tex = self._data_texture(gauss)
         self.diff_tex = self._data_texture(diffuse)
         self.bounce_tex = self._data_texture(bounce)
-        # the stage pass's transform feedback, copied into a texture of the same width
-        rows = -(-model.mesh.n_vertices * self.stage_texels // width)
-        self.stage_buf = self.ctx.buffer(reserve=16 * rows * width)
-        self.stage_tex = self.ctx.texture((width, rows), 4, dtype="f4")
-        self.stage_tex.filter = (moderngl.NEAREST, moderngl.NEAREST)
+        if self.staged:  # the stage pass's capture, copied into a texture of the same width
+            rows = -(-model.mesh.n_vertices * stage_texels(model) // width)
+            self.stage_buf = self.ctx.buffer(reserve=16 * rows * width)
+            self.stage_tex = self.ctx.texture((width, rows), 4, dtype="f4")
+            self.stage_tex.filter = (moderngl.NEAREST, moderngl.NEAREST)
         if self.sharp is not None:
             self._upload_sharp(model)
         if self.lv_prog is not None:
@@ -827,13 +839,8 @@ class GLRenderer:
         self.hit_dist_tex = self.ctx.texture(
             (hit_dist.shape[1], hit_dist.shape[0]), 1, hit_dist, dtype="f2"
         )
-        # the vertex table's targets (prt.glsl VERTEX_TABLE), one texel per vertex
-        n_targets = 2 + 2 * model.indirect_gaussians
-        self.table_tex = [self.ctx.texture(size, 4, dtype="f4") for _ in range(n_targets)]
-        self.table_fbo = self.ctx.framebuffer(color_attachments=self.table_tex)
-        self.table_size = size
         for t in (self.face_tex, self.pos_tex, self.nrm_tex, self.alb_tex, self.hit_face_tex,
-                  self.hit_dist_tex, *self.table_tex):  # fmt: skip
+                  self.hit_dist_tex):  # fmt: skip
             t.filter = (moderngl.NEAREST, moderngl.NEAREST)
         p, sh = self.prog, self.sharp
         p["vis_per_row"].value = per_row
@@ -857,19 +864,6 @@ class GLRenderer:
         )
         for t in (self.lobe_tex, self.split_tex):
             t.filter = (moderngl.NEAREST, moderngl.NEAREST)
-
-    def _table_pass(self) -> None:
-        """The vertex stage's results for this frame's view into the vertex table (one point
-        per vertex), read by the sharp reflection's hit points."""
-        import moderngl  # optional (the gl extra)
-
-        ctx = self.ctx
-        with self._section("table"):
-            self.table_fbo.use()
-            ctx.viewport = (0, 0, *self.table_size)
-            ctx.disable(moderngl.DEPTH_TEST | moderngl.BLEND)
-            self._use_vertex_stage_textures()
-            self.table_vao.render(moderngl.POINTS, vertices=self._n_vertices)
 
     def _use_vertex_stage_textures(self) -> None:
         """The textures prt.glsl's vertex stage reads (the records, the diffuse transfer, the
@@ -952,7 +946,7 @@ class GLRenderer:
         p["tex_width"].value = tex_width
         set_uniforms(p, self._atlas_uniforms)
         p["Planes"].binding = _PLANES_BINDING
-        table = tuple(t for t in (self.table_prog, self.lv_prog, self.stage_prog) if t)
+        table = tuple(t for t in (self.lv_prog, self.stage_prog) if t is not None)
         if self.lv_prog is not None:
             set_uniforms(self.lv_prog, self._atlas_uniforms)
             set_uniforms(self.lv_prog, sun_glossy_uniforms(self._specular))
@@ -987,10 +981,6 @@ class GLRenderer:
             for name, unit in units:
                 if prog.get(name, None) is not None:  # compiled out without a sun or a bounce
                     prog[name].value = unit
-            lobes = prog.get("table_lobe_tex", None)  # a sampler array: one unit per element
-            if lobes is not None:
-                n = lobes.array_length
-                lobes.value = list(range(_TABLE_LOBE_UNIT, _TABLE_LOBE_UNIT + n))
         self.bg_prog["env"].value = 4
         self.tm_prog["image"].value = 5
         self.acc_prog["image"].value = 7
@@ -1044,11 +1034,15 @@ class GLRenderer:
                 p["sun_spread"].value = float(lighting.sun.spread)
             self.sbo = ctx.buffer(np.ascontiguousarray(sb))
             content.append((self.sbo, "4f 3f 3f", "in_sb0", "in_eta", "in_k"))
-        staged = content
-        if self.lv_prog is not None:  # the correction pass's factors (prt.glsl in_rho)
-            staged = [*content, (self.rho_buf, "3f", "in_rho")]
-        self.stage_vao = ctx.vertex_array(self.stage_prog, staged, skip_errors=True)
-        self.vao = ctx.vertex_array(p, content, self.ibo, 4, skip_errors=True)
+        # the vertex stage reads the correction pass's factors (prt.glsl in_rho)
+        stage = content
+        if self.lv_prog is not None:
+            stage = [*content, (self.rho_buf, "3f", "in_rho")]
+        self.stage_vao = None
+        if self.staged:
+            self.stage_vao = ctx.vertex_array(self.stage_prog, stage, skip_errors=True)
+        shading = content if self.staged else stage
+        self.vao = ctx.vertex_array(p, shading, self.ibo, 4, skip_errors=True)
         self.lv_vao = None
         if self.lv_prog is not None:
             # the BRDF as it is (the sun's shading reads it widened by the disc)
@@ -1060,9 +1054,6 @@ class GLRenderer:
                 [*base, (self.lvbo, "4f 3f 3f", "in_sb0", "in_eta", "in_k")],
                 skip_errors=True,
             )
-        self.table_vao = None
-        if self.table_prog is not None:
-            self.table_vao = ctx.vertex_array(self.table_prog, content, skip_errors=True)
         self.depth_vao = ctx.vertex_array(
             self.depth_prog, [(self.vbo, "3f", "in_pos")], self.ibo, 4
         )
@@ -1325,11 +1316,10 @@ class GLRenderer:
             self._bind_blocks()
         if sun_on:
             self._shadow_pass()
-        if self.sharp is not None and glossy:
-            self._table_pass()
         if self.lv_prog is not None and glossy:
             self._lobe_visibility_pass()
-        self._stage_pass()
+        if self.staged:
+            self._stage_pass()
         n = self.offsets.shape[0]
         if n == 1:
             self._draw_sample(out, 0, background)
@@ -1386,7 +1376,10 @@ class GLRenderer:
             if self.has_sun:
                 self.shadow_tex.use(6)
                 self.shadow_sampler.use(_SHADOW_DEPTH_UNIT)
-            self.stage_tex.use(_STAGE_UNIT)
+            if self.staged:
+                self.stage_tex.use(_STAGE_UNIT)
+            else:
+                self._use_vertex_stage_textures()
             self.atlas.use(3)
             if self.whole_atlas is not None:
                 self.whole_atlas.use(_WHOLE_ATLAS_UNIT)
@@ -1398,11 +1391,8 @@ class GLRenderer:
                 self.vis_tex.use(_VIS_UNIT)
                 self.face_tex.use(_VIS_UNIT + 1)
                 self.pos_tex.use(_VIS_UNIT + 2)
-                sharp_textures = (self.nrm_tex, self.alb_tex, self.hit_face_tex,
-                                  self.hit_dist_tex, *self.table_tex)  # fmt: skip
-                units = [u for _, u in _SHARP_UNITS]
-                units += range(_TABLE_LOBE_UNIT, _TABLE_LOBE_UNIT + len(self.table_tex) - 2)
-                for unit, tex in zip(units, sharp_textures, strict=True):
+                sharp_textures = (self.nrm_tex, self.alb_tex, self.hit_face_tex, self.hit_dist_tex)
+                for (_, unit), tex in zip(_SHARP_UNITS, sharp_textures, strict=True):
                     tex.use(unit)
                 if self.lobe_tex is not None:
                     self.lobe_tex.use(_LOBE_UNIT)
@@ -1467,9 +1457,7 @@ class GLRenderer:
     def _sharp_objects(self) -> tuple:
         """The GL objects of the sharp reflection's hit points (released with the renderer)."""
         lobe = () if self.lobe_tex is None else (self.lobe_tex, self.split_tex)
-        return (self.nrm_tex, self.alb_tex, self.hit_face_tex, self.hit_dist_tex,
-                *self.table_tex, self.table_fbo, self.table_vao, self.table_prog,
-                *lobe)  # fmt: skip
+        return (self.nrm_tex, self.alb_tex, self.hit_face_tex, self.hit_dist_tex, *lobe)
 
     def release(self) -> None:
         self.make_current()
@@ -1506,10 +1494,8 @@ class GLRenderer:
             self.gauss_tex,
             self.diff_tex,
             self.bounce_tex,
-            self.stage_vao,
-            self.stage_prog,
-            self.stage_buf,
-            self.stage_tex,
+            *((self.stage_vao, self.stage_prog, self.stage_buf, self.stage_tex)
+              if self.staged else ()),
             self.planes_ubo,
             self.sample_ubo,
             self.cand_tex,

@@ -2,7 +2,9 @@
 of the same shader files (the web viewer, :mod:`lobelight.web`), so that their layouts cannot
 drift from the desktop's.
 
-- Textures: :func:`gaussian_records` (two texels per Gaussian record), :func:`atlas_image` and
+- Textures: :func:`gaussian_records` (two texels per Gaussian record), :func:`stage_texels`
+  and :func:`stage_varyings` (the vertex stage's results per vertex, captured once per frame by
+  transform feedback: ``prt.glsl``'s ``STAGE_PASS``), :func:`atlas_image` and
   :func:`atlas_uniforms` (the prefiltered chain's atlas, ``prefiltered.glsl``),
   :func:`geodesic_tables` (``geodesic.glsl``'s planes and candidate cube), :data:`TEX_WIDTH`
   (the width long arrays wrap at), :data:`CAND_RES`, :data:`SHADOW_RES`,
@@ -43,6 +45,8 @@ from ._gl import (
     geodesic_tables,
     load_shader,
     stage_sources,
+    stage_texels,
+    stage_varyings,
 )
 from ._gl_albedo import MAX_ALBEDO_LAYERS, MAX_ALBEDO_SIZE, albedo_array, albedo_uniforms
 from ._gltf_out import kept_records
@@ -89,6 +93,8 @@ __all__ = [
     "sharp_shader_defines",
     "specular_f0",
     "stage_sources",
+    "stage_texels",
+    "stage_varyings",
     "sun_glossy_supported",
     "sun_glossy_uniforms",
     "sun_glossy_vertex_params",

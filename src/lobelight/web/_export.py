@@ -54,6 +54,8 @@ from ..render.layout import (
     sharp_shader_defines,
     specular_f0,
     stage_sources,
+    stage_texels,
+    stage_varyings,
     sun_glossy_supported,
     sun_glossy_uniforms,
     sun_glossy_vertex_params,
@@ -253,11 +255,9 @@ def _programs(model, n_sh: int, geo_defines: dict, key_args: tuple) -> dict[str,
         "ALBEDO_LAYERS": 1 if model.albedo is None else len(model.albedo.images),
         "SPECULAR_TEX": int(specular_f0(model) is not None),
         "F0_MIN": f"{F0_MIN:.6e}",
-        "VERTEX_TABLE": 0,
         "STAGE_PASS": 0,
         "FROM_STAGE": 0,
-        "TABLE_WIDTH": 4096,
-        "TABLE_ROWS": 1,
+        "STAGE_TEXELS": stage_texels(model),
         "SHADOW_SAMPLES": SHADOW_SAMPLES,
         "BLOCKER_SAMPLES": BLOCKER_SAMPLES,
         **geo_defines,
@@ -273,12 +273,13 @@ def _programs(model, n_sh: int, geo_defines: dict, key_args: tuple) -> dict[str,
     include = ("frame", "prefiltered") + (("brdf",) if sun_glossy else ())
     include += ("tiles", "reflection") if sharp else ()
     include += ("albedo",) if model.albedo is not None else ()
-    table = {}
-    if sharp:  # the vertex stage's results per vertex, read at the hit points
-        table_defines = {**defines, "DEPTH_ONLY": 0, "VERTEX_TABLE": 1}
-        table["table"] = list(
-            stage_sources("prt", table_defines, frame, ("frame", "geodesic"), dialect=es)
+    # the vertex stage once per frame, captured by transform feedback (prt.glsl STAGE_PASS)
+    stage_defines = {**defines, "DEPTH_ONLY": 0, "STAGE_PASS": 1}
+    table = {
+        "stage": list(
+            stage_sources("prt", stage_defines, frame, ("frame", "geodesic"), dialect=es)
         )
+    }
     if lobe_vis:  # each vertex's factor on its direct Gaussians' light, by transform feedback
         lv_defines = {**defines, "DEPTH_ONLY": 0, "LOBE_VIS": 0, "LOBE_VIS_PASS": 1}
         table["lobevis"] = list(
@@ -289,7 +290,7 @@ def _programs(model, n_sh: int, geo_defines: dict, key_args: tuple) -> dict[str,
         "prt": list(
             stage_sources(
                 "prt",
-                {**defines, "DEPTH_ONLY": 0},
+                {**defines, "DEPTH_ONLY": 0, "FROM_STAGE": 1},
                 include,
                 ("frame", "geodesic"),
                 dialect=es,
@@ -304,15 +305,10 @@ def _programs(model, n_sh: int, geo_defines: dict, key_args: tuple) -> dict[str,
 
 
 def _sharp_defines(model) -> dict:
-    """The defines of a sharp material's programs: the vertex table's width (the page's
-    textures of per-vertex and per-face values wrap at :data:`lobelight.render.layout.TEX_WIDTH`)
-    and rows, the tiles' resolution, the mixture's and albedo table's sizes, and
-    :func:`lobelight.render.layout.sharp_shader_defines`."""
-    v = model.mesh.n_vertices
+    """The defines of a sharp material's programs: the tiles' resolution, the mixture's and
+    albedo table's sizes, and :func:`lobelight.render.layout.sharp_shader_defines`."""
     return {
         "SHARP": 1,
-        "TABLE_WIDTH": TEX_WIDTH,
-        "TABLE_ROWS": max(1, -(-v // TEX_WIDTH)),
         "VIS_RES": int(model.visibility().shape[-1]),
         "MIXTURE": MIXTURE,
         "ALBEDO_STEPS": ALBEDO_STEPS,
@@ -438,6 +434,8 @@ def _model_file(model, float16: bool) -> tuple[dict, dict[str, np.ndarray], int]
         # desktop lays them out
         "frame_layout": dict(FRAME_LAYOUT),
         "tex_width": TEX_WIDTH,
+        # what the vertex stage's pass captures per vertex, in order (prt.glsl STAGE_PASS)
+        "stage_varyings": stage_varyings(model),
         # a still frame's sub-pixel samples: the desktop renderer's default
         "samples": sample_offsets(STILL_SAMPLES).tolist(),
         "notes": [],

@@ -50,7 +50,6 @@ in vec3 in_k;                  // index eta + i k
 in vec3 in_rho;
 #endif
 
-#define STAGE_TEXELS (2 * N_GAUSSIANS + 1)
 #if FROM_STAGE
 uniform sampler2D stage_tex;   // RGBA32F, STAGE_TEXELS texels per vertex (STAGE_PASS)
 #endif
@@ -82,7 +81,57 @@ out vec3 v_factor;
 out vec3 v_rho;
 #endif
 #if STAGE_PASS
-out vec4 v_stage_diffuse;      // v_diffuse, a whole texel of the stage's record
+// WebGL 2's transform feedback captures no array nor array element: the stage's texels as
+// outputs of their own, v_stage<i> texel i (lobelight.render.layout.stage_varyings)
+out vec4 v_stage0;
+#if STAGE_TEXELS > 1
+out vec4 v_stage1;
+#endif
+#if STAGE_TEXELS > 2
+out vec4 v_stage2;
+#endif
+#if STAGE_TEXELS > 3
+out vec4 v_stage3;
+#endif
+#if STAGE_TEXELS > 4
+out vec4 v_stage4;
+#endif
+#if STAGE_TEXELS > 5
+out vec4 v_stage5;
+#endif
+#if STAGE_TEXELS > 6
+out vec4 v_stage6;
+#endif
+#if STAGE_TEXELS > 7
+out vec4 v_stage7;
+#endif
+#if STAGE_TEXELS > 8
+out vec4 v_stage8;
+#endif
+#if STAGE_TEXELS > 9
+out vec4 v_stage9;
+#endif
+#if STAGE_TEXELS > 10
+out vec4 v_stage10;
+#endif
+#if STAGE_TEXELS > 11
+out vec4 v_stage11;
+#endif
+#if STAGE_TEXELS > 12
+out vec4 v_stage12;
+#endif
+#if STAGE_TEXELS > 13
+out vec4 v_stage13;
+#endif
+#if STAGE_TEXELS > 14
+out vec4 v_stage14;
+#endif
+#if STAGE_TEXELS > 15
+out vec4 v_stage15;
+#endif
+#if STAGE_TEXELS > 16
+out vec4 v_stage16;
+#endif
 #endif
 #if SUN_GLOSSY || LOBE_VIS_PASS
 out vec4 v_sb0;
@@ -90,7 +139,7 @@ out vec3 v_eta;
 out vec3 v_k;
 #endif
 
-#if defined(GL_ES) && defined(SHARP) && SHARP && !VERTEX_TABLE && !STAGE_PASS
+#if defined(GL_ES) && defined(SHARP) && SHARP && !STAGE_PASS
 // OpenGL ES 3.00 has no gl_PrimitiveID: the web viewer draws the triangles unindexed, each
 // corner carrying its vertex's id and its triangle's (reflection.glsl corners)
 in float in_vertex;
@@ -121,7 +170,7 @@ void main() {
 ivec2 at(int i) { return ivec2(i % tex_width, i / tex_width); }
 
 void main() {
-#if defined(GL_ES) && defined(SHARP) && SHARP && !VERTEX_TABLE && !STAGE_PASS
+#if defined(GL_ES) && defined(SHARP) && SHARP && !STAGE_PASS
     int v = int(in_vertex + 0.5);
     v_face = int(in_face + 0.5);
 #else
@@ -181,7 +230,57 @@ void main() {
 #endif
     v_diffuse = diffuse;
 #if STAGE_PASS
-    v_stage_diffuse = vec4(diffuse, 0.0);
+    // texel i: v_lobe[i] below 2 N_GAUSSIANS, then the diffuse colour
+#define STAGE_TEXEL(i) ((i) < 2 * N_GAUSSIANS ? v_lobe[min(i, 2 * N_GAUSSIANS - 1)] : vec4(diffuse, 0.0))
+    v_stage0 = STAGE_TEXEL(0);
+#if STAGE_TEXELS > 1
+    v_stage1 = STAGE_TEXEL(1);
+#endif
+#if STAGE_TEXELS > 2
+    v_stage2 = STAGE_TEXEL(2);
+#endif
+#if STAGE_TEXELS > 3
+    v_stage3 = STAGE_TEXEL(3);
+#endif
+#if STAGE_TEXELS > 4
+    v_stage4 = STAGE_TEXEL(4);
+#endif
+#if STAGE_TEXELS > 5
+    v_stage5 = STAGE_TEXEL(5);
+#endif
+#if STAGE_TEXELS > 6
+    v_stage6 = STAGE_TEXEL(6);
+#endif
+#if STAGE_TEXELS > 7
+    v_stage7 = STAGE_TEXEL(7);
+#endif
+#if STAGE_TEXELS > 8
+    v_stage8 = STAGE_TEXEL(8);
+#endif
+#if STAGE_TEXELS > 9
+    v_stage9 = STAGE_TEXEL(9);
+#endif
+#if STAGE_TEXELS > 10
+    v_stage10 = STAGE_TEXEL(10);
+#endif
+#if STAGE_TEXELS > 11
+    v_stage11 = STAGE_TEXEL(11);
+#endif
+#if STAGE_TEXELS > 12
+    v_stage12 = STAGE_TEXEL(12);
+#endif
+#if STAGE_TEXELS > 13
+    v_stage13 = STAGE_TEXEL(13);
+#endif
+#if STAGE_TEXELS > 14
+    v_stage14 = STAGE_TEXEL(14);
+#endif
+#if STAGE_TEXELS > 15
+    v_stage15 = STAGE_TEXEL(15);
+#endif
+#if STAGE_TEXELS > 16
+    v_stage16 = STAGE_TEXEL(16);
+#endif
 #endif
 #endif  // FROM_STAGE
     v_pos = in_pos;
@@ -206,14 +305,7 @@ void main() {
 #if LOBE_VIS_PASS
     v_rho = lobe_visibility(v, in_normal, d, v_lobe, in_sb0, in_eta, in_k);
 #endif
-#if VERTEX_TABLE
-    // one point per vertex, at its texel of the vertex table (reflection.glsl)
-    vec2 texel = vec2(v % TABLE_WIDTH, v / TABLE_WIDTH) + 0.5;
-    gl_Position = vec4(texel / vec2(TABLE_WIDTH, TABLE_ROWS) * 2.0 - 1.0, 0.0, 1.0);
-    gl_PointSize = 1.0;
-#else
     gl_Position = project(in_pos);
-#endif
 }
 #endif
 
@@ -227,39 +319,6 @@ void main() {}
 out vec4 frag;
 
 void main() { frag = vec4(0.0); }
-
-#elif defined FRAGMENT_SHADER && VERTEX_TABLE
-
-// the vertex stage's results for the current view, one texel per vertex, for the sharp
-// reflection's hit points (reflection.glsl object_light): its diffuse colour, the light its
-// direct Gaussians carry, and its indirect Gaussians as the shading pass's varyings hold them
-in vec4 v_lobe[2 * N_GAUSSIANS];
-in vec3 v_diffuse;
-layout(location = 0) out vec4 table0;
-layout(location = 1) out vec4 table1;
-#if N_INDIRECT > 0
-layout(location = 2) out vec4 table_lobe[2 * N_INDIRECT];
-#endif
-
-void main() {
-    vec3 direct = vec3(0.0);
-    for (int k = 0; k < N_GAUSSIANS - N_INDIRECT; ++k) direct += v_lobe[2 * k].rgb;
-    table0 = vec4(v_diffuse, 0.0);
-    table1 = vec4(direct, 0.0);
-    // constant indices: OpenGL ES indexes fragment outputs by constants only
-#if N_INDIRECT > 0
-    table_lobe[0] = v_lobe[2 * (N_GAUSSIANS - N_INDIRECT)];
-    table_lobe[1] = v_lobe[2 * (N_GAUSSIANS - N_INDIRECT) + 1];
-#endif
-#if N_INDIRECT > 1
-    table_lobe[2] = v_lobe[2 * (N_GAUSSIANS - N_INDIRECT) + 2];
-    table_lobe[3] = v_lobe[2 * (N_GAUSSIANS - N_INDIRECT) + 3];
-#endif
-#if N_INDIRECT > 2
-    table_lobe[4] = v_lobe[2 * (N_GAUSSIANS - N_INDIRECT) + 4];
-    table_lobe[5] = v_lobe[2 * (N_GAUSSIANS - N_INDIRECT) + 5];
-#endif
-}
 
 #elif defined FRAGMENT_SHADER
 

@@ -13,31 +13,27 @@ uniform sampler2D nrm_tex;        // RGB32F: vertex normals, face_width wide
 uniform sampler2D alb_tex;        // RGB32F: vertex diffuse albedos, face_width wide
 uniform isampler2D hit_face_tex;  // R32I hit tiles (lobelight.model.hit_tiles), laid out as vis_tex
 uniform sampler2D hit_dist_tex;   // R16F their distances
-// the vertex table (prt.glsl's VERTEX_TABLE pass), face_width wide: diffuse colour, the light
-// of the direct Gaussians, and the indirect Gaussians as (e, live), (live offset, live sigma)
-uniform sampler2D table0_tex;
-uniform sampler2D table1_tex;
-#if N_INDIRECT > 0
-uniform sampler2D table_lobe_tex[2 * N_INDIRECT];
-#endif
+// the vertex stage's results for this frame (prt.glsl STAGE_PASS), STAGE_TEXELS texels per
+// vertex, tex_width wide: its Gaussians as the shading pass's varyings hold them, (e, live) and
+// (live offset, live sigma), then its diffuse colour
+uniform sampler2D stage_tex;
+uniform int tex_width;
 
-// texel t of the vertex table's target j of the indirect Gaussians (a sampler array takes
-// constant indices only)
-vec4 table_lobe(int j, ivec2 t) {
-#if N_INDIRECT > 0
-    if (j == 0) return texelFetch(table_lobe_tex[0], t, 0);
-    if (j == 1) return texelFetch(table_lobe_tex[1], t, 0);
-#endif
-#if N_INDIRECT > 1
-    if (j == 2) return texelFetch(table_lobe_tex[2], t, 0);
-    if (j == 3) return texelFetch(table_lobe_tex[3], t, 0);
-#endif
-#if N_INDIRECT > 2
-    if (j == 4) return texelFetch(table_lobe_tex[4], t, 0);
-    if (j == 5) return texelFetch(table_lobe_tex[5], t, 0);
-#endif
-    return vec4(0.0);
+// texel i of vertex v's record in the stage texture
+vec4 stage_texel(int v, int i) {
+    int k = v * STAGE_TEXELS + i;
+    return texelFetch(stage_tex, ivec2(k % tex_width, k / tex_width), 0);
 }
+
+// vertex v's diffuse colour and the light its direct Gaussians carry
+vec3 stage_diffuse(int v) { return stage_texel(v, 2 * N_GAUSSIANS).rgb; }
+
+vec3 stage_direct(int v) {
+    vec3 e = vec3(0.0);
+    for (int k = 0; k < N_GAUSSIANS - N_INDIRECT; ++k) e += stage_texel(v, 2 * k).rgb;
+    return e;
+}
+
 uniform float sharp_weight[MIXTURE];
 uniform float sharp_lam[MIXTURE];
 uniform float sharp_warp;         // 1: the sharpness divides by n.v (microfacet lobes)
@@ -278,23 +274,21 @@ vec3 hit_light(int f, vec3 p, float dist, vec3 r, float nv_px, float scale_px) {
 #if ALBEDO_TEX
     // the transfer is per unit albedo: the hit's vertices' own albedos (render/_albedo.py
     // hit_diffuse_light)
-    light += b.x * texelFetch(table0_tex, t0, 0).rgb * texelFetch(alb_tex, t0, 0).rgb
-             + b.y * texelFetch(table0_tex, t1, 0).rgb * texelFetch(alb_tex, t1, 0).rgb
-             + b.z * texelFetch(table0_tex, t2, 0).rgb * texelFetch(alb_tex, t2, 0).rgb;
+    light += b.x * stage_diffuse(c.x) * texelFetch(alb_tex, t0, 0).rgb
+             + b.y * stage_diffuse(c.y) * texelFetch(alb_tex, t1, 0).rgb
+             + b.z * stage_diffuse(c.z) * texelFetch(alb_tex, t2, 0).rgb;
 #else
-    light += b.x * texelFetch(table0_tex, t0, 0).rgb + b.y * texelFetch(table0_tex, t1, 0).rgb
-             + b.z * texelFetch(table0_tex, t2, 0).rgb;
+    light += b.x * stage_diffuse(c.x) + b.y * stage_diffuse(c.y) + b.z * stage_diffuse(c.z);
 #endif
-    vec3 direct = b.x * texelFetch(table1_tex, t0, 0).rgb + b.y * texelFetch(table1_tex, t1, 0).rgb
-                  + b.z * texelFetch(table1_tex, t2, 0).rgb;
+    vec3 direct = b.x * stage_direct(c.x) + b.y * stage_direct(c.y) + b.z * stage_direct(c.z);
     float v_fit = clamp((direct.r + direct.g + direct.b) /
                         max(albedo.r + albedo.g + albedo.b, 1e-30), 0.0, 1.0);
     float scale = clamp((1.0 - vis) / max(1.0 - v_fit, OCCLUDED_FLOOR), 0.0, INDIRECT_SCALE_MAX);
-    for (int k = 0; k < N_INDIRECT; ++k) {
-        vec4 el = b.x * table_lobe(2 * k, t0) + b.y * table_lobe(2 * k, t1)
-                  + b.z * table_lobe(2 * k, t2);
-        vec4 ms = b.x * table_lobe(2 * k + 1, t0) + b.y * table_lobe(2 * k + 1, t1)
-                  + b.z * table_lobe(2 * k + 1, t2);
+    for (int k = N_GAUSSIANS - N_INDIRECT; k < N_GAUSSIANS; ++k) {
+        vec4 el = b.x * stage_texel(c.x, 2 * k) + b.y * stage_texel(c.y, 2 * k)
+                  + b.z * stage_texel(c.z, 2 * k);
+        vec4 ms = b.x * stage_texel(c.x, 2 * k + 1) + b.y * stage_texel(c.y, 2 * k + 1)
+                  + b.z * stage_texel(c.z, 2 * k + 1);
         if (el.w < MIN_SAY) continue;
         float sigma = ms.w / el.w;
         vec3 mu = normalize(rh + ms.xyz / el.w);

@@ -188,12 +188,12 @@
     specular_tex: 7, bounce_tex: 8, shadow_depth: 9, albedo_tex: 10,
     // a sharp material's per-pixel reflection (reflection.glsl) and the whole map's chain
     vis_tex: 11, face_tex: 12, pos_tex: 13, nrm_tex: 14, alb_tex: 15, hit_face_tex: 16,
-    hit_dist_tex: 17, table0_tex: 18, table1_tex: 19, whole_atlas: 20,
-    // a glTF lobe varying per vertex (after the vertex table's six units of table_lobe_tex)
-    lobe_tex: 27, split_tex: 28,
+    hit_dist_tex: 17, whole_atlas: 20,
+    // the vertex stage's results per vertex (prt.glsl FROM_STAGE, reflection.glsl)
+    stage_tex: 18,
+    // a glTF lobe varying per vertex
+    lobe_tex: 21, split_tex: 22,
   };
-  // the first unit of the vertex table's indirect Gaussians (the sampler array table_lobe_tex)
-  const TABLE_LOBE_UNIT = 21;
   const CURVE_NEUTRAL = 2;
 
   class Viewer {
@@ -246,6 +246,14 @@
       if (need > have) {
         throw new LimitError("This model's " + h.n_gaussians + " Gaussians per view need " +
                              need + " varying vectors; this device has " + have + ".");
+      }
+      // the vertex stage's pass captures 2 N + 1 vectors per vertex (stagePass)
+      const captured = 4 * (2 * h.n_gaussians + 1);
+      const capture = gl.getParameter(gl.MAX_TRANSFORM_FEEDBACK_INTERLEAVED_COMPONENTS);
+      if (captured > capture) {
+        throw new LimitError("This model's " + h.n_gaussians + " Gaussians per view need a " +
+                             "transform feedback of " + captured + " components; this " +
+                             "device captures " + capture + ".");
       }
       this.texWidth = width;
     }
@@ -330,6 +338,7 @@
       if (a.albedo_layers) this.uploadAlbedo();
       if (h.sharp) this.uploadSharp();
       if (h.lobe_visibility) this.uploadLobeVisibility();
+      this.uploadStage();
       this.quad = this.buffer(gl.ARRAY_BUFFER, new Float32Array([-1, -1, 1, -1, -1, 1, 1, 1]));
       this.frameData = new Float32Array(FRAME.sh_light + 8 * h.n_sh);
       this.frameUbo = gl.createBuffer();
@@ -408,7 +417,7 @@
 
     // a sharp material's per-pixel reflection (render/_gl.py _upload_sharp): the visibility
     // and hit tiles, the triangles' corners and the vertices' positions, normals and albedos
-    // as textures, the vertex table's targets, and the per-corner buffers of the unindexed
+    // as textures, and the per-corner buffers of the unindexed
     // draw (each corner its vertex's id and its triangle's: OpenGL ES has no gl_PrimitiveID)
     uploadSharp() {
       const gl = this.gl, a = this.a, h = this.h, r = h.sharp.vis_res, w = h.tex_width;
@@ -444,29 +453,6 @@
         const [sa, st] = a.split.shape;
         this.splitTex = this.dataTexture(st, sa, gl.RG32F, gl.RG, gl.FLOAT, a.split.data);
       }
-      // the vertex table's targets (prt.glsl VERTEX_TABLE), one RGBA32F texel per vertex
-      const rows = Math.max(1, Math.ceil(nv / w));
-      const n = 2 + 2 * h.indirect_gaussians;
-      this.tableTex = [];
-      this.tableFbo = gl.createFramebuffer();
-      gl.bindFramebuffer(gl.FRAMEBUFFER, this.tableFbo);
-      const buffers = [];
-      for (let i = 0; i < n; ++i) {
-        const t = gl.createTexture();
-        gl.bindTexture(gl.TEXTURE_2D, t);
-        gl.texStorage2D(gl.TEXTURE_2D, 1, gl.RGBA32F, w, rows);
-        gl.texParameteri(gl.TEXTURE_2D, gl.TEXTURE_MIN_FILTER, gl.NEAREST);
-        gl.texParameteri(gl.TEXTURE_2D, gl.TEXTURE_MAG_FILTER, gl.NEAREST);
-        gl.framebufferTexture2D(gl.FRAMEBUFFER, gl.COLOR_ATTACHMENT0 + i, gl.TEXTURE_2D, t, 0);
-        buffers.push(gl.COLOR_ATTACHMENT0 + i);
-        this.tableTex.push(t);
-      }
-      gl.drawBuffers(buffers);
-      if (gl.checkFramebufferStatus(gl.FRAMEBUFFER) !== gl.FRAMEBUFFER_COMPLETE) {
-        throw new Error("The sharp reflection's vertex table cannot be rendered to here.");
-      }
-      gl.bindFramebuffer(gl.FRAMEBUFFER, null);
-      this.tableSize = [w, rows];
       // the unindexed draw: every per-vertex buffer repeated per corner, and the ids
       const f = a.faces.data, nc = f.length;
       const ids = new Float32Array(nc), tri = new Float32Array(nc);
@@ -516,6 +502,29 @@
       this.rhoFeedback = gl.createTransformFeedback();
     }
 
+    // the vertex stage's pass (render/_gl.py _stage_pass): a buffer its transform feedback
+    // fills, STAGE_TEXELS RGBA32F texels per vertex, copied into a texture of the data
+    // textures' width that the shading pass reads
+    uploadStage() {
+      const gl = this.gl, w = this.texWidth;
+      const texels = this.h.n_vertices * (2 * this.h.n_gaussians + 1);
+      this.stageRows = Math.max(1, Math.ceil(texels / w));
+      if (this.stageRows > this.maxTex) {
+        throw new LimitError("This model's vertex stage needs " + texels + " texels; the " +
+                             "largest texture here holds " + w + " × " + this.maxTex + ".");
+      }
+      this.stageBuf = gl.createBuffer();
+      gl.bindBuffer(gl.ARRAY_BUFFER, this.stageBuf);
+      gl.bufferData(gl.ARRAY_BUFFER, 16 * w * this.stageRows, gl.DYNAMIC_COPY);
+      gl.bindBuffer(gl.ARRAY_BUFFER, null);
+      this.stageTex = gl.createTexture();
+      gl.bindTexture(gl.TEXTURE_2D, this.stageTex);
+      gl.texStorage2D(gl.TEXTURE_2D, 1, gl.RGBA32F, w, this.stageRows);
+      gl.texParameteri(gl.TEXTURE_2D, gl.TEXTURE_MIN_FILTER, gl.NEAREST);
+      gl.texParameteri(gl.TEXTURE_2D, gl.TEXTURE_MAG_FILTER, gl.NEAREST);
+      this.stageFeedback = gl.createTransformFeedback();
+    }
+
     // per-vertex values (`size` each) repeated at each triangle corner
     perCorner(src, size) {
       const f = this.a.faces.data, out = new Float32Array(f.length * size);
@@ -557,12 +566,6 @@
         const loc = gl.getUniformLocation(prog, u);
         if (loc) gl.uniform1i(loc, UNITS[u]);
       }
-      const lobes = gl.getUniformLocation(prog, "table_lobe_tex");  // a sampler array
-      if (lobes) {
-        const n = 2 * this.h.indirect_gaussians, units = [];
-        for (let i = 0; i < n; ++i) units.push(TABLE_LOBE_UNIT + i);
-        gl.uniform1iv(lobes, units);
-      }
       return prog;
     }
 
@@ -586,10 +589,10 @@
       if (this.programs[variant]) return this.programs[variant];
       const gl = this.gl, src = this.shaders.header[variant];
       const p = {};
-      for (const name of ["prt", "depth", "shadow", "background", "tonemap", "accumulate",
-                          "table"]) {
+      for (const name of ["prt", "depth", "shadow", "background", "tonemap", "accumulate"]) {
         if (src[name]) p[name] = this.compile(name, src[name]);
       }
+      p.stage = this.compile("stage", src.stage, this.h.stage_varyings);
       if (src.lobevis) p.lobevis = this.compile("lobevis", src.lobevis, ["v_rho"]);
       const size = gl.getActiveUniformBlockParameter(
         p.prt, gl.getUniformBlockIndex(p.prt, "Frame"), gl.UNIFORM_BLOCK_DATA_SIZE);
@@ -612,6 +615,8 @@
         this.uniform(p.prt, "albedo_grad_scale", "uniform1f", 1.0);  // one sample per pixel
       }
       p.vao = this.h.sharp ? this.cornerArray(p.prt) : this.vertexArray(p.prt, true);
+      this.uniform(p.stage, "tex_width", "uniform1i", this.texWidth);
+      p.stageVao = this.vertexArray(p.stage, true);
       if (this.h.sharp) this.sharpUniforms(p);
       if (p.lobevis) this.lobeVisibilityUniforms(p);
       p.depthVao = this.vertexArray(p.depth, false);
@@ -655,8 +660,7 @@
       return vao;
     }
 
-    // a sharp material's uniforms (render/_gl.py _upload_sharp) and the vertex table's
-    // program (one point per vertex, from the per-vertex buffers)
+    // a sharp material's uniforms (render/_gl.py _upload_sharp)
     sharpUniforms(p) {
       const s = this.h.sharp;
       this.uniform(p.prt, "vis_per_row", "uniform1i", this.visPerRow);
@@ -665,8 +669,6 @@
       this.uniform(p.prt, "sharp_lam", "uniform1fv", s.lam);
       this.uniform(p.prt, "sharp_warp", "uniform1f", s.warp);
       if (!s.varying) this.uniform(p.prt, "sharp_albedo", "uniform3fv", s.albedo.flat());
-      this.uniform(p.table, "tex_width", "uniform1i", this.texWidth);
-      p.tableVao = this.vertexArray(p.table, true);
     }
 
     // the lobe visibility correction's uniforms and vertex array (render/_gl.py's lv_vao):
@@ -813,12 +815,7 @@
         this.uniform(p.prt, "sun_spread", "uniform1f", h.sun.spread);
         if (h.sun_tail != null) this.uniform(p.prt, "sun_tail", "uniform1f", h.sun_tail);
         this.sunAttributes(env, p.prt, p.vao);
-        if (p.table) {
-          this.uniform(p.table, "sun_model", "uniform1i", h.sun_brdf.model);
-          this.uniform(p.table, "sun_fresnel", "uniform1f", h.sun_brdf.fresnel);
-          this.uniform(p.table, "sun_spread", "uniform1f", h.sun.spread);
-          this.sunAttributes(env, p.table, p.tableVao);
-        }
+        this.sunAttributes(env, p.stage, p.stageVao);
       }
     }
 
@@ -987,19 +984,29 @@
       gl.bindVertexArray(null);
     }
 
-    // the vertex stage's results for this frame's view into the vertex table, one point per
-    // vertex, read by the sharp reflection's hit points (render/_gl.py _table_pass)
-    tablePass(p) {
+    // the vertex stage's results for this frame's view and lighting into stageTex: its
+    // transform feedback, one vertex per vertex, nothing rasterised, then the buffer copied
+    // into the texture (render/_gl.py _stage_pass)
+    stagePass(p) {
       const gl = this.gl;
-      gl.bindFramebuffer(gl.FRAMEBUFFER, this.tableFbo);
-      gl.viewport(0, 0, this.tableSize[0], this.tableSize[1]);
-      gl.disable(gl.DEPTH_TEST);
-      gl.disable(gl.BLEND);
       this.bindVertexStage();
-      gl.useProgram(p.table);
-      gl.bindVertexArray(p.tableVao);
+      gl.useProgram(p.stage);
+      gl.bindVertexArray(p.stageVao);
+      gl.enable(gl.RASTERIZER_DISCARD);
+      gl.bindTransformFeedback(gl.TRANSFORM_FEEDBACK, this.stageFeedback);
+      gl.bindBufferBase(gl.TRANSFORM_FEEDBACK_BUFFER, 0, this.stageBuf);
+      gl.beginTransformFeedback(gl.POINTS);
       gl.drawArrays(gl.POINTS, 0, this.h.n_vertices);
+      gl.endTransformFeedback();
+      gl.bindBufferBase(gl.TRANSFORM_FEEDBACK_BUFFER, 0, null);
+      gl.bindTransformFeedback(gl.TRANSFORM_FEEDBACK, null);
+      gl.disable(gl.RASTERIZER_DISCARD);
       gl.bindVertexArray(null);
+      gl.bindBuffer(gl.PIXEL_UNPACK_BUFFER, this.stageBuf);
+      this.bindTexture(UNITS.stage_tex, gl.TEXTURE_2D, this.stageTex);
+      gl.texSubImage2D(gl.TEXTURE_2D, 0, 0, 0, this.texWidth, this.stageRows, gl.RGBA,
+                       gl.FLOAT, 0);
+      gl.bindBuffer(gl.PIXEL_UNPACK_BUFFER, null);
     }
 
     // each vertex's factor on its direct Gaussians' light for this frame's view and lighting
@@ -1042,12 +1049,8 @@
       const gl = this.gl, T = gl.TEXTURE_2D;
       const tex = [["vis_tex", this.visTex], ["face_tex", this.faceTex], ["pos_tex", this.posTex],
                    ["nrm_tex", this.nrmTex], ["alb_tex", this.albTex],
-                   ["hit_face_tex", this.hitFaceTex], ["hit_dist_tex", this.hitDistTex],
-                   ["table0_tex", this.tableTex[0]], ["table1_tex", this.tableTex[1]]];
+                   ["hit_face_tex", this.hitFaceTex], ["hit_dist_tex", this.hitDistTex]];
       for (const [name, t] of tex) this.bindTexture(UNITS[name], T, t);
-      for (let i = 2; i < this.tableTex.length; ++i) {
-        this.bindTexture(TABLE_LOBE_UNIT + i - 2, T, this.tableTex[i]);
-      }
       if (env.wholeAtlas) this.bindTexture(UNITS.whole_atlas, T, env.wholeAtlas);
       if (this.lobeTex) {
         this.bindTexture(UNITS.lobe_tex, T, this.lobeTex);
@@ -1088,10 +1091,10 @@
       this.mark("uniforms");
       if (sunOn) this.shadowPass(p);
       this.mark("shadow");
-      if (p.table && opts.glossy) this.tablePass(p);
-      this.mark("table");
       if (p.lobevis && opts.glossy) this.lobeVisibilityPass(p, opts.moving);
       this.mark("lobe visibility");
+      this.stagePass(p);
+      this.mark("stage");
       const offsets = opts.offsets && opts.offsets.length > 1 ? opts.offsets : null;
       if (!offsets) {
         this.setJitter(opts.offsets ? opts.offsets[0] : [0.5, 0.5], t, 0, 1);
@@ -1151,10 +1154,7 @@
       }
       this.mark("depth");
       gl.depthFunc(gl.LEQUAL);
-      this.bindTexture(UNITS.gauss_tex, gl.TEXTURE_2D, this.gaussTex);
-      this.bindTexture(UNITS.diff_tex, gl.TEXTURE_2D, this.diffTex);
-      this.bindTexture(UNITS.cand_tex, gl.TEXTURE_2D, this.candTex);
-      this.bindTexture(UNITS.bounce_tex, gl.TEXTURE_2D, this.bounceTex);
+      this.bindTexture(UNITS.stage_tex, gl.TEXTURE_2D, this.stageTex);
       this.bindTexture(UNITS.atlas, gl.TEXTURE_2D, env.atlas);
       if (this.albedoTex) this.bindTexture(UNITS.albedo_tex, gl.TEXTURE_2D_ARRAY, this.albedoTex);
       if (this.specularTex) {
