@@ -483,9 +483,9 @@ def test_a_sharp_metal_is_shaded_per_pixel_as_the_torch_path(
     browser, tmp_path, sun, indirect, varying
 ):
     """A sharp metal's per-pixel reflection (reflection.glsl: visibility tiles, the object seen
-    in the lobe through the hit tiles and the vertex stage's capture; with the sun, its shape through the
-    whole map's chain, which this sun's disc resolves for the mixture's sharpest Gaussian;
-    with an indirect Gaussian, the capture's indirect lobes) against
+    in the lobe through the hit tiles and the vertex stage's capture; with the sun, its shape
+    through the whole map's chain, which this sun's disc resolves for the mixture's sharpest
+    Gaussian; with an indirect Gaussian, the capture's indirect lobes) against
     ``Renderer(..., backend="torch")`` on 400 sampled interior pixels of the torus, at
     384 x 288 as the Gaussian path's test above (whose docstring gives the 1e-2 bound).
 

@@ -486,8 +486,9 @@ class PassTimer:
     Passes: ``uniforms`` (the per-frame block), ``shadow`` (the sun's shadow map, when it is
     redrawn), ``lobe visibility`` (a rough lobe's correction, render/_lobe_visibility.py),
     ``stage`` (the vertex stage's results, once per frame), ``clear``, ``depth`` (the object's
-    depth pre-pass), ``prt`` (the object's shading), ``background``, ``resolve`` (adding a sample into the frame, with several samples
-    per pixel), ``tonemap`` (``present``); a pass run once per sample sums over the samples.
+    depth pre-pass), ``prt`` (the object's shading), ``background``, ``resolve`` (adding a
+    sample into the frame, with several samples per pixel), ``tonemap`` (``present``); a pass
+    run once per sample sums over the samples.
 
     GPU time: one GL_TIME_ELAPSED query (core in GL 3.3) around each pass, from when the GPU
     reaches its first command to its last. On llvmpipe it is CPU wall-clock time taken by its
