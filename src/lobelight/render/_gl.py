@@ -1495,8 +1495,11 @@ class GLRenderer:
             self.gauss_tex,
             self.diff_tex,
             self.bounce_tex,
-            *((self.stage_vao, self.stage_prog, self.stage_buf, self.stage_tex)
-              if self.staged else ()),
+            *(
+                (self.stage_vao, self.stage_prog, self.stage_buf, self.stage_tex)
+                if self.staged
+                else ()
+            ),
             self.planes_ubo,
             self.sample_ubo,
             self.cand_tex,

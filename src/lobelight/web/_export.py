@@ -276,9 +276,7 @@ def _programs(model, n_sh: int, geo_defines: dict, key_args: tuple) -> dict[str,
     # the vertex stage once per frame, captured by transform feedback (prt.glsl STAGE_PASS)
     stage_defines = {**defines, "DEPTH_ONLY": 0, "STAGE_PASS": 1}
     table = {
-        "stage": list(
-            stage_sources("prt", stage_defines, frame, ("frame", "geodesic"), dialect=es)
-        )
+        "stage": list(stage_sources("prt", stage_defines, frame, ("frame", "geodesic"), dialect=es))
     }
     if lobe_vis:  # each vertex's factor on its direct Gaussians' light, by transform feedback
         lv_defines = {**defines, "DEPTH_ONLY": 0, "LOBE_VIS": 0, "LOBE_VIS_PASS": 1}
