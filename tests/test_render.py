@@ -419,3 +419,58 @@ def test_transfer_images_hold_the_records_at_one_width(model2):
     assert (flat[rec.shape[0] :] == 0).all()
     d = diffuse.reshape(-1, 4)[: model2.diffuse.shape[0] * model2.diffuse.shape[1]]
     np.testing.assert_array_equal(d[:, :3], model2.diffuse.reshape(-1, 3).numpy())
+
+
+def _with_gaussians(model: Model, n: int) -> Model:
+    """``model`` with its Gaussians repeated to ``n`` per view (each copy a third of the
+    light, so the image stays in range)."""
+    g = model.gaussians
+    k = -(-n // g.w.shape[2])
+
+    def rep(t):
+        return torch.cat([t] * k, 2)[:, :, :n].contiguous()
+
+    g = fit.Gaussians(rep(g.w) * (g.w.shape[2] / n), rep(g.mu), rep(g.lam))
+    return Model(model.mesh, model.views, g, model.diffuse, model.materials, {})
+
+
+@needs_gl
+@pytest.mark.parametrize("n", [2, 7])
+def test_the_captured_vertex_stage_equals_the_shading_pass_s_own(model2, lighting, monkeypatch, n):
+    # the shading pass reads the vertex stage's results captured once per frame (prt.glsl
+    # STAGE_PASS, FROM_STAGE); computed in the shading pass itself (the path of a model whose
+    # stage one capture cannot hold) the same float32 arithmetic gives the same image, to
+    # float32 rounding of the same operations in another program (bound 1e-6 relative to the
+    # brightest pixel), with several samples per pixel and up to the largest capture
+    from lobelight.render import _gl
+
+    model = _with_gaussians(model2, n)
+    images = {}
+    for staged in (True, False):
+        monkeypatch.setattr(_gl, "stage_fits", lambda m, staged=staged: staged)
+        ren = render.Renderer(model, lighting, 64, 48, backend="gl", samples=2)
+        assert ren.gl.staged is staged
+        images[staged] = ren.render(CAM, 30.0)
+        ren.close()
+    top = float(images[False].abs().max())
+    assert top > 0
+    assert float((images[True] - images[False]).abs().max()) <= 1e-6 * top
+
+
+@needs_gl
+def test_a_sharp_model_wider_than_one_capture_is_refused(model2, lighting):
+    # eight Gaussians per view: 18 vectors a vertex, over one transform feedback's 64
+    # components; a sharp material's reflection reads the capture, so the model is refused by
+    # name, where a rough one falls back to the shading pass (test above)
+    sharp = scene.uniform(
+        {"diffuse": [0.5, 0.5, 0.5], "model": "ggx", "alpha": 0.03, "specular": 0.9},
+        model2.mesh.n_vertices,
+    )
+    wide = _with_gaussians(model2, 8)
+    wide.materials = sharp
+    with pytest.raises(InputError, match=r"8 Gaussians per view.*at most 7"):
+        render.Renderer(wide, lighting, 32, 24, backend="gl")
+    rough = _with_gaussians(model2, 8)
+    ren = render.Renderer(rough, lighting, 32, 24, backend="gl")
+    assert not ren.gl.staged
+    ren.close()

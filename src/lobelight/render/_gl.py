@@ -69,6 +69,7 @@ __all__ = [
     "gl_available",
     "load_shader",
     "set_uniforms",
+    "stage_layout",
     "stage_sources",
     "stage_texels",
     "stage_varyings",
@@ -286,9 +287,23 @@ def _rgb0(table: torch.Tensor) -> np.ndarray:
     return rows.reshape(-1, 4).detach().cpu().numpy()
 
 
+#: Texels across a row of the stage texture at most (WebGL 2's smallest texture size).
+STAGE_WIDTH = 2048
+
+
 def stage_texels(model) -> int:
-    """RGBA texels per vertex of the vertex stage's results (prt.glsl STAGE_TEXELS)."""
-    return 2 * model.n_gaussians + 1
+    """RGBA texels per vertex of the vertex stage's results (prt.glsl STAGE_TEXELS): the ``2 N``
+    lobe varyings, the diffuse colour, the direct Gaussians' light (stage.glsl)."""
+    return 2 * model.n_gaussians + 2
+
+
+def stage_layout(model) -> tuple[int, int, int]:
+    """The stage texture's vertices per row, width and rows (stage.glsl): whole vertices per
+    row, so that a vertex's texels are found with one division, and the capture, vertex after
+    vertex, copies into it row by row."""
+    t = stage_texels(model)
+    per_row = STAGE_WIDTH // t
+    return per_row, per_row * t, max(1, -(-model.mesh.n_vertices // per_row))
 
 
 def stage_fits(model) -> bool:
@@ -299,8 +314,7 @@ def stage_fits(model) -> bool:
 
 def stage_varyings(model) -> list[str]:
     """The outputs prt.glsl's STAGE_PASS captures, in the order of a vertex's texels in the
-    stage texture (the ``2 N`` lobe varyings, then the diffuse colour; one output each, as
-    WebGL 2 captures no array)."""
+    stage texture (:func:`stage_texels`; one output each, as WebGL 2 captures no array)."""
     return [f"v_stage{i}" for i in range(stage_texels(model))]
 
 
@@ -684,6 +698,7 @@ class GLRenderer:
             "STAGE_PASS": 0,
             "FROM_STAGE": 0,
             "STAGE_TEXELS": stage_texels(model),
+            "STAGE_PER_ROW": stage_layout(model)[0],
             **lobe_visibility_defines(),
             "VIS_RES": VISIBILITY_RES,
             "MIXTURE": MIXTURE,
@@ -695,7 +710,7 @@ class GLRenderer:
         }
         include = ("frame", "prefiltered")
         include += ("brdf",) if self.sun_glossy else ()
-        include += ("tiles", "reflection") if self.sharp else ()
+        include += ("stage", "tiles", "reflection") if self.sharp else ()
         include += ("albedo",) if model.albedo is not None else ()
         # the vertex stage once per frame, captured by transform feedback (prt.glsl STAGE_PASS)
         self.staged = stage_fits(model)
@@ -704,14 +719,14 @@ class GLRenderer:
                 "model",
                 f"has {model.n_gaussians} Gaussians per view; a sharp material's per-pixel "
                 "reflection reads the vertex stage's capture, which holds at most "
-                f"{(TRANSFORM_FEEDBACK_COMPONENTS // 4 - 1) // 2}",
+                f"{(TRANSFORM_FEEDBACK_COMPONENTS // 4 - 2) // 2}",
             )
         self.prog = _program(
             ctx,
             "prt",
             {**prt_defines, "DEPTH_ONLY": 0, "FROM_STAGE": int(self.staged)},
             include=include,
-            vertex_include=("frame", "geodesic"),
+            vertex_include=("frame", "geodesic", "stage"),
         )
         self.stage_prog = None
         if self.staged:
@@ -748,10 +763,10 @@ class GLRenderer:
         self.gauss_tex = self._data_texture(gauss)
         self.diff_tex = self._data_texture(diffuse)
         self.bounce_tex = self._data_texture(bounce)
-        if self.staged:  # the stage pass's capture, copied into a texture of the same width
-            rows = -(-model.mesh.n_vertices * stage_texels(model) // width)
-            self.stage_buf = self.ctx.buffer(reserve=16 * rows * width)
-            self.stage_tex = self.ctx.texture((width, rows), 4, dtype="f4")
+        if self.staged:  # the stage pass's capture, and the texture it is copied into
+            _, stage_width, rows = stage_layout(model)
+            self.stage_buf = self.ctx.buffer(reserve=16 * rows * stage_width)
+            self.stage_tex = self.ctx.texture((stage_width, rows), 4, dtype="f4")
             self.stage_tex.filter = (moderngl.NEAREST, moderngl.NEAREST)
         if self.sharp is not None:
             self._upload_sharp(model)
@@ -944,7 +959,8 @@ class GLRenderer:
         """The programs' uniform-block bindings, texture units and the uniforms that hold for
         the renderer's life."""
         p = self.prog
-        p["tex_width"].value = tex_width
+        if p.get("tex_width", None) is not None:  # read by the vertex stage, when not captured
+            p["tex_width"].value = tex_width
         set_uniforms(p, self._atlas_uniforms)
         p["Planes"].binding = _PLANES_BINDING
         table = tuple(t for t in (self.lv_prog, self.stage_prog) if t is not None)

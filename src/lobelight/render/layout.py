@@ -2,9 +2,10 @@
 of the same shader files (the web viewer, :mod:`lobelight.web`), so that their layouts cannot
 drift from the desktop's.
 
-- Textures: :func:`gaussian_records` (two texels per Gaussian record), :func:`stage_texels`
-  and :func:`stage_varyings` (the vertex stage's results per vertex, captured once per frame by
-  transform feedback: ``prt.glsl``'s ``STAGE_PASS``), :func:`atlas_image` and
+- Textures: :func:`gaussian_records` (two texels per Gaussian record), :func:`stage_texels`,
+  :func:`stage_layout` and :func:`stage_varyings` (the vertex stage's results per vertex,
+  captured once per frame by transform feedback: ``prt.glsl``'s ``STAGE_PASS``,
+  ``stage.glsl``), :func:`atlas_image` and
   :func:`atlas_uniforms` (the prefiltered chain's atlas, ``prefiltered.glsl``),
   :func:`geodesic_tables` (``geodesic.glsl``'s planes and candidate cube), :data:`TEX_WIDTH`
   (the width long arrays wrap at), :data:`CAND_RES`, :data:`SHADOW_RES`,
@@ -44,6 +45,7 @@ from ._gl import (
     gaussian_records,
     geodesic_tables,
     load_shader,
+    stage_layout,
     stage_sources,
     stage_texels,
     stage_varyings,
@@ -92,6 +94,7 @@ __all__ = [
     "lobe_visibility_defines",
     "sharp_shader_defines",
     "specular_f0",
+    "stage_layout",
     "stage_sources",
     "stage_texels",
     "stage_varyings",

@@ -53,6 +53,7 @@ from ..render.layout import (
     lobe_visibility_defines,
     sharp_shader_defines,
     specular_f0,
+    stage_layout,
     stage_sources,
     stage_texels,
     stage_varyings,
@@ -258,6 +259,7 @@ def _programs(model, n_sh: int, geo_defines: dict, key_args: tuple) -> dict[str,
         "STAGE_PASS": 0,
         "FROM_STAGE": 0,
         "STAGE_TEXELS": stage_texels(model),
+        "STAGE_PER_ROW": stage_layout(model)[0],
         "SHADOW_SAMPLES": SHADOW_SAMPLES,
         "BLOCKER_SAMPLES": BLOCKER_SAMPLES,
         **geo_defines,
@@ -271,7 +273,7 @@ def _programs(model, n_sh: int, geo_defines: dict, key_args: tuple) -> dict[str,
         defines["VIS_RES"] = int(model.visibility().shape[-1])
     frame = ("frame",)
     include = ("frame", "prefiltered") + (("brdf",) if sun_glossy else ())
-    include += ("tiles", "reflection") if sharp else ()
+    include += ("stage", "tiles", "reflection") if sharp else ()
     include += ("albedo",) if model.albedo is not None else ()
     # the vertex stage once per frame, captured by transform feedback (prt.glsl STAGE_PASS)
     stage_defines = {**defines, "DEPTH_ONLY": 0, "STAGE_PASS": 1}
@@ -290,7 +292,7 @@ def _programs(model, n_sh: int, geo_defines: dict, key_args: tuple) -> dict[str,
                 "prt",
                 {**defines, "DEPTH_ONLY": 0, "FROM_STAGE": 1},
                 include,
-                ("frame", "geodesic"),
+                ("frame", "geodesic", "stage"),
                 dialect=es,
             )
         ),
@@ -432,8 +434,10 @@ def _model_file(model, float16: bool) -> tuple[dict, dict[str, np.ndarray], int]
         # desktop lays them out
         "frame_layout": dict(FRAME_LAYOUT),
         "tex_width": TEX_WIDTH,
-        # what the vertex stage's pass captures per vertex, in order (prt.glsl STAGE_PASS)
+        # what the vertex stage's pass captures per vertex, in order (prt.glsl STAGE_PASS),
+        # and the texture it is copied into: vertices per row, width, rows (stage.glsl)
         "stage_varyings": stage_varyings(model),
+        "stage_layout": list(stage_layout(model)),
         # a still frame's sub-pixel samples: the desktop renderer's default
         "samples": sample_offsets(STILL_SAMPLES).tolist(),
         "notes": [],

@@ -16,9 +16,9 @@
 //
 // The vertex stage's view interpolation and SH products depend on the camera and the lighting,
 // not on the sub-pixel sample: with STAGE_PASS 1 they run once per frame, one vertex per
-// vertex, captured by transform feedback as STAGE_TEXELS RGBA texels per vertex (v_lobe, then
-// the diffuse colour), which the renderer copies into stage_tex; with FROM_STAGE 1 the shading
-// pass's vertices read them there instead of computing them again for every sample.
+// vertex, captured by transform feedback as STAGE_TEXELS RGBA texels per vertex (stage.glsl),
+// which the renderer copies into stage_tex; with FROM_STAGE 1 the shading pass's vertices
+// read them there instead of computing them again for every sample.
 //
 // Two vec4 varyings per Gaussian: a float array varying takes a whole interpolator slot per
 // element on many GPUs, so (e, live) and (mu offset, sigma) share slots; the sun's per-vertex
@@ -50,9 +50,6 @@ in vec3 in_k;                  // index eta + i k
 in vec3 in_rho;
 #endif
 
-#if FROM_STAGE
-uniform sampler2D stage_tex;   // RGBA32F, STAGE_TEXELS texels per vertex (STAGE_PASS)
-#endif
 uniform sampler2D gauss_tex;   // RGBA32F, 2 texels per record (e.rgb, sigma), (mu.xyz, 0)
 uniform sampler2D diff_tex;    // RGBA32F, N_SH texels per vertex: transfer RGB
 uniform sampler2D bounce_tex;  // RGBA32F, N_SH texels per vertex: its interreflected part
@@ -129,9 +126,6 @@ out vec4 v_stage14;
 #if STAGE_TEXELS > 15
 out vec4 v_stage15;
 #endif
-#if STAGE_TEXELS > 16
-out vec4 v_stage16;
-#endif
 #endif
 #if SUN_GLOSSY || LOBE_VIS_PASS
 out vec4 v_sb0;
@@ -177,10 +171,9 @@ void main() {
     int v = gl_VertexID;
 #endif
 #if FROM_STAGE
-    for (int i = 0; i < 2 * N_GAUSSIANS; ++i) {
-        v_lobe[i] = texelFetch(stage_tex, at(v * STAGE_TEXELS + i), 0);
-    }
-    v_diffuse = texelFetch(stage_tex, at(v * STAGE_TEXELS + 2 * N_GAUSSIANS), 0).rgb;
+    ivec2 first = stage_at(v);  // stage.glsl
+    for (int i = 0; i < 2 * N_GAUSSIANS; ++i) v_lobe[i] = stage_texel(first, i);
+    v_diffuse = stage_texel(first, 2 * N_GAUSSIANS).rgb;
 #else
     vec3 d = normalize(eye - in_pos);
 
@@ -230,8 +223,11 @@ void main() {
 #endif
     v_diffuse = diffuse;
 #if STAGE_PASS
-    // texel i: v_lobe[i] below 2 N_GAUSSIANS, then the diffuse colour
-#define STAGE_TEXEL(i) ((i) < 2 * N_GAUSSIANS ? v_lobe[min(i, 2 * N_GAUSSIANS - 1)] : vec4(diffuse, 0.0))
+    // texel i: v_lobe[i] below 2 N_GAUSSIANS, then the diffuse colour, then the direct light
+    vec3 direct = vec3(0.0);
+    for (int k = 0; k < N_GAUSSIANS - N_INDIRECT; ++k) direct += v_lobe[2 * k].rgb;
+#define STAGE_TEXEL(i) ((i) < 2 * N_GAUSSIANS ? v_lobe[min(i, 2 * N_GAUSSIANS - 1)] \
+                        : vec4((i) == 2 * N_GAUSSIANS ? diffuse : direct, 0.0))
     v_stage0 = STAGE_TEXEL(0);
 #if STAGE_TEXELS > 1
     v_stage1 = STAGE_TEXEL(1);
@@ -277,9 +273,6 @@ void main() {
 #endif
 #if STAGE_TEXELS > 15
     v_stage15 = STAGE_TEXEL(15);
-#endif
-#if STAGE_TEXELS > 16
-    v_stage16 = STAGE_TEXEL(16);
 #endif
 #endif
 #endif  // FROM_STAGE

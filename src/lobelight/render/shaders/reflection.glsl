@@ -13,27 +13,6 @@ uniform sampler2D nrm_tex;        // RGB32F: vertex normals, face_width wide
 uniform sampler2D alb_tex;        // RGB32F: vertex diffuse albedos, face_width wide
 uniform isampler2D hit_face_tex;  // R32I hit tiles (lobelight.model.hit_tiles), laid out as vis_tex
 uniform sampler2D hit_dist_tex;   // R16F their distances
-// the vertex stage's results for this frame (prt.glsl STAGE_PASS), STAGE_TEXELS texels per
-// vertex, tex_width wide: its Gaussians as the shading pass's varyings hold them, (e, live) and
-// (live offset, live sigma), then its diffuse colour
-uniform sampler2D stage_tex;
-uniform int tex_width;
-
-// texel i of vertex v's record in the stage texture
-vec4 stage_texel(int v, int i) {
-    int k = v * STAGE_TEXELS + i;
-    return texelFetch(stage_tex, ivec2(k % tex_width, k / tex_width), 0);
-}
-
-// vertex v's diffuse colour and the light its direct Gaussians carry
-vec3 stage_diffuse(int v) { return stage_texel(v, 2 * N_GAUSSIANS).rgb; }
-
-vec3 stage_direct(int v) {
-    vec3 e = vec3(0.0);
-    for (int k = 0; k < N_GAUSSIANS - N_INDIRECT; ++k) e += stage_texel(v, 2 * k).rgb;
-    return e;
-}
-
 uniform float sharp_weight[MIXTURE];
 uniform float sharp_lam[MIXTURE];
 uniform float sharp_warp;         // 1: the sharpness divides by n.v (microfacet lobes)
@@ -271,24 +250,29 @@ vec3 hit_light(int f, vec3 p, float dist, vec3 r, float nv_px, float scale_px) {
     float blur = hit_spread(nv_px, dist, face_curvature(p0, p1, p2, n0, n1, n2), scale_px);
     vec3 light = albedo * sharp_lighting(rot_t * rh, rot_t * across(n, rh), nv, blur, lobe.scale)
                  * vis;
+    // the corners' vertex stage this frame (stage.glsl)
+    ivec2 s0 = stage_at(c.x), s1 = stage_at(c.y), s2 = stage_at(c.z);
+    const int DIFFUSE = 2 * N_GAUSSIANS, DIRECT = 2 * N_GAUSSIANS + 1;
 #if ALBEDO_TEX
     // the transfer is per unit albedo: the hit's vertices' own albedos (render/_albedo.py
     // hit_diffuse_light)
-    light += b.x * stage_diffuse(c.x) * texelFetch(alb_tex, t0, 0).rgb
-             + b.y * stage_diffuse(c.y) * texelFetch(alb_tex, t1, 0).rgb
-             + b.z * stage_diffuse(c.z) * texelFetch(alb_tex, t2, 0).rgb;
+    light += b.x * stage_texel(s0, DIFFUSE).rgb * texelFetch(alb_tex, t0, 0).rgb
+             + b.y * stage_texel(s1, DIFFUSE).rgb * texelFetch(alb_tex, t1, 0).rgb
+             + b.z * stage_texel(s2, DIFFUSE).rgb * texelFetch(alb_tex, t2, 0).rgb;
 #else
-    light += b.x * stage_diffuse(c.x) + b.y * stage_diffuse(c.y) + b.z * stage_diffuse(c.z);
+    light += b.x * stage_texel(s0, DIFFUSE).rgb + b.y * stage_texel(s1, DIFFUSE).rgb
+             + b.z * stage_texel(s2, DIFFUSE).rgb;
 #endif
-    vec3 direct = b.x * stage_direct(c.x) + b.y * stage_direct(c.y) + b.z * stage_direct(c.z);
+    vec3 direct = (b.x * stage_texel(s0, DIRECT) + b.y * stage_texel(s1, DIRECT)
+                   + b.z * stage_texel(s2, DIRECT)).rgb;
     float v_fit = clamp((direct.r + direct.g + direct.b) /
                         max(albedo.r + albedo.g + albedo.b, 1e-30), 0.0, 1.0);
     float scale = clamp((1.0 - vis) / max(1.0 - v_fit, OCCLUDED_FLOOR), 0.0, INDIRECT_SCALE_MAX);
     for (int k = N_GAUSSIANS - N_INDIRECT; k < N_GAUSSIANS; ++k) {
-        vec4 el = b.x * stage_texel(c.x, 2 * k) + b.y * stage_texel(c.y, 2 * k)
-                  + b.z * stage_texel(c.z, 2 * k);
-        vec4 ms = b.x * stage_texel(c.x, 2 * k + 1) + b.y * stage_texel(c.y, 2 * k + 1)
-                  + b.z * stage_texel(c.z, 2 * k + 1);
+        vec4 el = b.x * stage_texel(s0, 2 * k) + b.y * stage_texel(s1, 2 * k)
+                  + b.z * stage_texel(s2, 2 * k);
+        vec4 ms = b.x * stage_texel(s0, 2 * k + 1) + b.y * stage_texel(s1, 2 * k + 1)
+                  + b.z * stage_texel(s2, 2 * k + 1);
         if (el.w < MIN_SAY) continue;
         float sigma = ms.w / el.w;
         vec3 mu = normalize(rh + ms.xyz / el.w);

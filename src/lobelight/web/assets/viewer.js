@@ -248,7 +248,7 @@
                              need + " varying vectors; this device has " + have + ".");
       }
       // the vertex stage's pass captures 2 N + 1 vectors per vertex (stagePass)
-      const captured = 4 * (2 * h.n_gaussians + 1);
+      const captured = 4 * h.stage_varyings.length;
       const capture = gl.getParameter(gl.MAX_TRANSFORM_FEEDBACK_INTERLEAVED_COMPONENTS);
       if (captured > capture) {
         throw new LimitError("This model's " + h.n_gaussians + " Gaussians per view need a " +
@@ -503,15 +503,15 @@
     }
 
     // the vertex stage's pass (render/_gl.py _stage_pass): a buffer its transform feedback
-    // fills, STAGE_TEXELS RGBA32F texels per vertex, copied into a texture of the data
-    // textures' width that the shading pass reads
+    // fills, STAGE_TEXELS RGBA32F texels per vertex, copied into the texture of the header's
+    // layout (stage.glsl) that the shading pass reads
     uploadStage() {
-      const gl = this.gl, w = this.texWidth;
-      const texels = this.h.n_vertices * (2 * this.h.n_gaussians + 1);
-      this.stageRows = Math.max(1, Math.ceil(texels / w));
-      if (this.stageRows > this.maxTex) {
-        throw new LimitError("This model's vertex stage needs " + texels + " texels; the " +
-                             "largest texture here holds " + w + " × " + this.maxTex + ".");
+      const gl = this.gl, [, w, rows] = this.h.stage_layout;
+      this.stageWidth = w;
+      this.stageRows = rows;
+      if (w > this.maxTex || rows > this.maxTex) {
+        throw new LimitError("This model's vertex stage needs a texture of " + w + " × " +
+                             rows + " texels; this device's largest is " + this.maxTex + ".");
       }
       this.stageBuf = gl.createBuffer();
       gl.bindBuffer(gl.ARRAY_BUFFER, this.stageBuf);
@@ -1004,7 +1004,7 @@
       gl.bindVertexArray(null);
       gl.bindBuffer(gl.PIXEL_UNPACK_BUFFER, this.stageBuf);
       this.bindTexture(UNITS.stage_tex, gl.TEXTURE_2D, this.stageTex);
-      gl.texSubImage2D(gl.TEXTURE_2D, 0, 0, 0, this.texWidth, this.stageRows, gl.RGBA,
+      gl.texSubImage2D(gl.TEXTURE_2D, 0, 0, 0, this.stageWidth, this.stageRows, gl.RGBA,
                        gl.FLOAT, 0);
       gl.bindBuffer(gl.PIXEL_UNPACK_BUFFER, null);
     }
