@@ -426,23 +426,51 @@ def test_shaders_match_the_torch_path_on_a_lobe_varying_per_vertex():
 
 
 def test_hit_tiles_travel_in_the_model_file(tmp_path):
+    # stored as the texels that hit (a few percent of a tile), read back as the whole tiles,
+    # bit for bit; the tiles held whole read the same
     mesh = _torus()
     sc = scene.Scene(mesh, scene.uniform(SHARP, mesh.n_vertices), name="t")
     m = _bare_model(sc)
     m.save(tmp_path / "m.npz")
     back = load(tmp_path / "m.npz")
+    face, dist = m.hits()
     assert back.hits_held is not None
-    assert torch.equal(back.hits_held[0], m.hits()[0])
-    assert torch.equal(back.hits_held[1], m.hits()[1])
+    assert torch.equal(back.hits_held[0], face)
+    assert torch.equal(back.hits_held[1].view(torch.int16), dist.view(torch.int16))
     arrays = dict(np.load(tmp_path / "m.npz"))
-    bad = dict(arrays, hit_face=arrays["hit_face"] + 10**6)
-    np.savez(tmp_path / "bad.npz", **bad)
+    hit = face.reshape(face.shape[0], -1) >= 0
+    assert arrays["hit_face"].shape == (int(hit.sum()),) and 0 < hit.float().mean() < 0.5
+    assert np.array_equal(arrays["hit_count"], hit.sum(1).numpy())
+    whole = dict(arrays, hit_face=face.numpy(), hit_distance=dist.numpy())
+    del whole["hit_count"], whole["hit_texel"]
+    np.savez(tmp_path / "whole.npz", **whole)
+    again = load(tmp_path / "whole.npz").hits_held
+    assert torch.equal(again[0], face)
+    assert torch.equal(again[1].view(torch.int16), dist.view(torch.int16))
+
+    def refused(match, **change):
+        bad = {k: a for k, a in dict(arrays, **change).items() if a is not None}
+        np.savez(tmp_path / "bad.npz", **bad)
+        with pytest.raises(InputError, match=match):
+            load(tmp_path / "bad.npz")
+
+    refused("triangle ids outside", hit_face=arrays["hit_face"] + 10**6)
+    refused("triangle ids outside", hit_face=arrays["hit_face"] * 0 - 1)  # -1 is no hit
+    refused("together", hit_distance=None)
+    refused("together", hit_count=None)
+    texel = arrays["hit_texel"].copy()
+    texel[[0, 1]] = texel[[1, 0]]  # the first vertex's first two texels swapped
+    assert arrays["hit_count"][np.flatnonzero(arrays["hit_count"])[0]] >= 2
+    refused("ascend", hit_texel=texel)
+    refused("outside 0..1023", hit_texel=arrays["hit_texel"] | np.uint16(1 << 15))
+    count = arrays["hit_count"].copy()
+    count[np.flatnonzero(count)[0]] += 1
+    refused("adding up", hit_count=count)
+    refused("need the visibility tiles", visibility=None)
+    whole_bad = dict(whole, hit_face=whole["hit_face"] + 10**6)
+    np.savez(tmp_path / "whole_bad.npz", **whole_bad)
     with pytest.raises(InputError, match="triangle ids outside"):
-        load(tmp_path / "bad.npz")
-    one = {k: a for k, a in arrays.items() if k != "hit_distance"}
-    np.savez(tmp_path / "one.npz", **one)
-    with pytest.raises(InputError, match="come together"):
-        load(tmp_path / "one.npz")
+        load(tmp_path / "whole_bad.npz")
 
 
 def _softbox(height: int = 256) -> envmap.EnvMap:

@@ -20,9 +20,14 @@ holding
                     as well (the self-shadowed part sees the sun per pixel)
 ``visibility``      optional (V, R, R) uint8: each vertex's octahedral visibility tile
                     (:func:`lobelight.model.visibility_tiles`; computed from the mesh when absent)
-``hit_face``        optional (V, R, R) int32, with ``hit_distance`` (V, R, R) float16: the
-                    triangle and distance each tile texel's ray hits, -1 and 0 for none
-                    (:func:`lobelight.model.hit_tiles`; computed from the mesh when absent)
+``hit_*``           optional, with ``visibility``: the hit tiles (:func:`lobelight.model.hit_tiles`;
+                    computed from the mesh when absent), the triangle and distance each tile
+                    texel's ray hits, stored as the texels that hit (a few percent of them):
+                    ``hit_count`` (V,) int32 texels per vertex, then for each of them in vertex
+                    order ``hit_texel`` (K,) uint16 its index in the vertex's tile (row-major,
+                    ascending), ``hit_face`` (K,) int32 and ``hit_distance`` (K,) float16. The
+                    reader also takes the tiles whole, ``hit_face`` (V, R, R) int32 with -1 for
+                    none and ``hit_distance`` (V, R, R) float16.
 ``albedo_*``        optional: the albedo textures read per pixel (``lobelight.model._albedo_file``);
                     with them ``diffuse`` and ``bounce`` are per unit albedo
 
@@ -77,7 +82,8 @@ __all__ = [
 FORMAT = "lobelight-model"
 VERSION = 1
 _ARRAYS = ("meta", "vertices", "faces", "normals", "views", "keep", "gaussians", "diffuse")
-_OPTIONAL = ("bounce", "visibility", "hit_face", "hit_distance", *ALBEDO_ARRAYS)
+_HITS = ("hit_count", "hit_texel", "hit_face", "hit_distance")
+_OPTIONAL = ("bounce", "visibility", *_HITS, *ALBEDO_ARRAYS)
 
 
 #: The most light a Gaussian, or a transfer coefficient, of a fitted model carries: they are
@@ -180,8 +186,7 @@ def write(
     if visibility is not None:
         arrays["visibility"] = visibility.cpu().numpy().astype(np.uint8)
     if hits is not None:
-        arrays["hit_face"] = hits[0].cpu().numpy().astype(np.int32)
-        arrays["hit_distance"] = hits[1].cpu().numpy().astype(np.float16)
+        arrays.update(_sparse_hits(*hits))
     arrays.update(albedo_arrays(albedo))
     try:
         check(arrays, str(p))
@@ -195,6 +200,42 @@ def write(
         "records_total": v * j,
         "floats_paper": 92 * 7 * v * n,
     }
+
+
+def _sparse_hits(face: torch.Tensor, dist: torch.Tensor) -> dict[str, np.ndarray]:
+    """Hit tiles ``(V, R, R)`` as the file stores them: the texels that hit (module
+    docstring)."""
+    v = face.shape[0]
+    flat = face.reshape(v, -1).cpu().numpy()
+    hit = flat >= 0
+    vert, texel = np.nonzero(hit)  # row-major: vertex after vertex, texels ascending
+    return {
+        "hit_count": hit.sum(1, dtype=np.int32),
+        "hit_texel": texel.astype(np.uint16),
+        "hit_face": flat[vert, texel].astype(np.int32),
+        "hit_distance": dist.reshape(v, -1).cpu().numpy()[vert, texel].astype(np.float16),
+    }
+
+
+def _dense_hits(a: dict[str, np.ndarray], v: int) -> tuple[torch.Tensor, torch.Tensor]:
+    """The hit tiles ``(V, R, R)`` of checked arrays: -1 and 0 where a texel's ray misses."""
+    if "hit_texel" not in a:  # held whole
+        return _tensor(a["hit_face"]), _tensor(a["hit_distance"])
+    r = a["visibility"].shape[-1]
+    flat = _hit_offsets(a["hit_count"], a["hit_texel"], r * r)
+    face = torch.full((v * r * r,), -1, dtype=torch.int32)
+    dist = torch.zeros(v * r * r, dtype=torch.float16)
+    face[flat] = torch.from_numpy(a["hit_face"])
+    dist[flat] = torch.from_numpy(a["hit_distance"])
+    return face.view(v, r, r), dist.view(v, r, r)
+
+
+def _hit_offsets(count: np.ndarray, texel: np.ndarray, per_tile: int) -> torch.Tensor:
+    """Each stored hit's place in the tiles laid end to end, ``vertex R² + texel`` (K,) int64."""
+    vert = torch.repeat_interleave(
+        torch.arange(count.shape[0], dtype=torch.int64), torch.from_numpy(count.astype(np.int64))
+    )
+    return vert * per_tile + torch.from_numpy(texel.astype(np.int64))
 
 
 def _need(cond: bool, name: str, problem: str) -> None:
@@ -309,10 +350,10 @@ def read(path) -> dict[str, Any]:
     h, mats = check(a, name)
     g = _expand(a["gaussians"], a["keep"], h)
     out = _build(p, a, h, mats, g)
-    vis, face, dist = (a.get(k) for k in ("visibility", "hit_face", "hit_distance"))
+    vis = a.get("visibility")
     # the arrays read are this read's own and writable: copied only where not C-ordered
     out["visibility"] = None if vis is None else _tensor(vis)
-    out["hits"] = None if face is None else (_tensor(face), _tensor(dist))
+    out["hits"] = _dense_hits(a, h.v) if "hit_face" in a else None
     out["albedo"] = read_albedo(a)
     return out
 
@@ -348,7 +389,7 @@ def check(a: dict[str, np.ndarray], name: str) -> tuple[_Header, Materials]:
     _check_arrays(a, h, name)
     _check_transfer(a["diffuse"], a.get("bounce"), name)
     n_faces = int(a["faces"].shape[0])
-    _check_tiles(a.get("visibility"), a.get("hit_face"), a.get("hit_distance"), h.v, n_faces, name)
+    _check_tiles(a, h.v, n_faces, name)
     check_albedo(a, h.v, name)
     _check_provenance(h.provenance, name)
     return h, _materials(h, name)
@@ -367,6 +408,8 @@ _DTYPES = {
     "bounce": (_FLOATS, "floating point"),
     "keep": ((np.dtype(np.bool_),), "boolean"),
     "visibility": ((np.dtype(np.uint8),), "uint8"),
+    "hit_count": ((np.dtype(np.int32),), "int32"),
+    "hit_texel": ((np.dtype(np.uint16),), "uint16"),
     "hit_face": ((np.dtype(np.int32),), "int32"),
     "hit_distance": ((np.dtype(np.float16),), "float16"),
     **ALBEDO_DTYPES,
@@ -391,6 +434,9 @@ def _check_memory(a: dict[str, np.ndarray], h: _Header, name: str) -> None:
     :data:`MAX_READ_BYTES`, before the expansion is allocated."""
     arrays = sum(arr.nbytes for arr in a.values())
     expanded = _GAUSSIAN_BYTES * h.v * h.j * h.n
+    vis = a.get("visibility")
+    if "hit_texel" in a and vis is not None and vis.ndim == 3:  # the tiles made whole: 6 B each
+        expanded += 6 * h.v * vis.shape[-1] * vis.shape[-1]
     total = arrays + expanded
     _need(
         total <= MAX_READ_BYTES,
@@ -400,28 +446,62 @@ def _check_memory(a: dict[str, np.ndarray], h: _Header, name: str) -> None:
     )
 
 
-def _check_tiles(vis, face, dist, v: int, n_faces: int, name: str) -> None:
-    """The optional tiles: visibility ``(V, R, R)`` uint8 with ``R >= 2``; hit tiles both or
-    neither, ``(V, R, R)`` int32 triangle ids in ``[-1, F)`` and float16 distances, finite and
-    non-negative, of the visibility tiles' resolution where both are held."""
+def _check_tiles(a: dict[str, np.ndarray], v: int, n_faces: int, name: str) -> None:
+    """The optional tiles: visibility ``(V, R, R)`` uint8 with ``R >= 2``; hit tiles stored
+    whole or as their texels that hit (module docstring), every array of them or none."""
+    vis = a.get("visibility")
     if vis is not None:
         ok = vis.ndim == 3 and vis.shape[0] == v and vis.shape[1] == vis.shape[2] >= 2
         _need(ok, name, f"visibility must be ({v}, R, R) uint8 tiles, got {vis.shape}")
-    if face is None and dist is None:
+    held = [k for k in _HITS if k in a]
+    if not held:
         return
-    _need(face is not None and dist is not None, name,
-          "hit_face and hit_distance come together; the file holds only one")  # fmt: skip
-    ok = face.ndim == 3 and face.shape[0] == v and face.shape[1] == face.shape[2] >= 2
-    _need(ok, name, f"hit_face must be ({v}, R, R) int32 tiles, got {face.shape}")
+    face, dist = a.get("hit_face"), a.get("hit_distance")
+    if "hit_texel" in a or "hit_count" in a:
+        _need(len(held) == len(_HITS), name,
+              f"the hit tiles are {', '.join(_HITS)} together; the file holds {held}")  # fmt: skip
+        _check_sparse_hits(a, vis, v, name)
+        lo_face = 0
+    else:
+        _need(face is not None and dist is not None, name,
+              "hit_face and hit_distance come together; the file holds only one")  # fmt: skip
+        ok = face.ndim == 3 and face.shape[0] == v and face.shape[1] == face.shape[2] >= 2
+        _need(ok, name, f"hit_face must be ({v}, R, R) int32 tiles, got {face.shape}")
+        _need(vis is None or face.shape == vis.shape, name,
+              "hit tiles and visibility tiles differ in resolution")  # fmt: skip
+        lo_face = -1
     _need(dist.shape == face.shape, name,
           f"hit_distance must be {face.shape} float16, got {dist.shape}")  # fmt: skip
     if face.size:
         lo, hi = torch.aminmax(torch.from_numpy(face))
-        _need(int(lo) >= -1 and int(hi) < n_faces, name,
-              f"hit_face holds triangle ids outside -1..{n_faces - 1}")  # fmt: skip
+        _need(int(lo) >= lo_face and int(hi) < n_faces, name,
+              f"hit_face holds triangle ids outside {lo_face}..{n_faces - 1}")  # fmt: skip
     _need(_distances_fine(dist), name, "hit_distance holds negative or non-finite distances")
-    _need(vis is None or face.shape == vis.shape, name,
-          "hit tiles and visibility tiles differ in resolution")  # fmt: skip
+
+
+def _check_sparse_hits(a: dict[str, np.ndarray], vis, v: int, name: str) -> None:
+    """Hit tiles stored as their texels that hit: the visibility tiles held (their
+    resolution is the tiles'), a count per vertex adding up to the texels stored, and each
+    vertex's texels inside its tile and ascending (no texel twice)."""
+    count, texel, face = a["hit_count"], a["hit_texel"], a["hit_face"]
+    _need(vis is not None, name, "hit tiles stored by texel need the visibility tiles")
+    rr = vis.shape[-1] ** 2
+    _need(rr <= 65536, name, f"hit tiles of {vis.shape[-1]}² texels: at most 256² by texel")
+    _need(count.shape == (v,), name, f"hit_count must be ({v},) int32, got {count.shape}")
+    _need(texel.ndim == 1 and face.shape == texel.shape, name,
+          f"hit_texel and hit_face must be (K,), got {texel.shape} and {face.shape}")  # fmt: skip
+    total = int(count.sum(dtype=np.int64))
+    k = texel.shape[0]
+    _need(bool((count >= 0).all()) and total == k, name,
+          f"hit_count must be counts adding up to the {k:,} texels stored")  # fmt: skip
+    if texel.size:
+        _need(int(texel.max()) < rr, name, f"hit_texel holds texels outside 0..{rr - 1}")
+        flat = _hit_offsets(count, texel, rr)
+        _need(
+            bool((flat[1:] > flat[:-1]).all()),
+            name,
+            "hit_texel must ascend within each vertex's tile (no texel twice)",
+        )
 
 
 def _distances_fine(dist: np.ndarray) -> bool:
