@@ -473,6 +473,25 @@ def test_hit_tiles_travel_in_the_model_file(tmp_path):
         load(tmp_path / "whole_bad.npz")
 
 
+def test_hit_slots_keep_the_tiles_that_find_the_object():
+    # the shaders read a hit tile at its vertex's slot: slots in vertex order for the vertices
+    # whose tile holds a hit, each slot's tile that vertex's own; a mesh that never sees
+    # itself (a sphere) keeps one tile of misses and no slot
+    from lobelight.render._gl import hit_slots
+
+    face, dist = hit_tiles(_torus(), res=16)
+    slots, tiles, d = hit_slots(face, dist)
+    has = (face.reshape(face.shape[0], -1) >= 0).any(1).numpy()
+    assert 0 < has.mean() < 1  # the torus: some vertices see it, some do not
+    assert np.array_equal(slots >= 0, has)
+    assert np.array_equal(slots[has], np.arange(int(has.sum())))
+    assert np.array_equal(tiles, face.numpy()[has])
+    assert np.array_equal(d.view(np.int16), dist.numpy()[has].view(np.int16))
+    ball = scene.builtin("sphere", subdivisions=2).mesh
+    slots, tiles, d = hit_slots(*hit_tiles(ball, res=16))
+    assert (slots == -1).all() and tiles.shape == (1, 16, 16) and (tiles == -1).all()
+
+
 def _softbox(height: int = 256) -> envmap.EnvMap:
     """A dim sky and a uniform rectangle 18 by 5 degrees behind the camera of
     :func:`_softbox_scene`, brighter than the sky by 600 times: a studio's softbox, taken out

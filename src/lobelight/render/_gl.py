@@ -259,6 +259,21 @@ def _tile_atlas(tiles: np.ndarray, per_row: int, dtype=None) -> np.ndarray:
     return out.reshape(rows * r, per_row * r)
 
 
+def hit_slots(face: torch.Tensor, dist: torch.Tensor) -> tuple[np.ndarray, ...]:
+    """The hit tiles ``(V, R, R)`` of the vertices whose tile finds the object, as the shaders
+    read them (reflection.glsl): each vertex's slot ``(V,)`` int32 (-1: no hit in its tile),
+    and the slots' tiles ``(S, R, R)`` int32 and float16, in vertex order (one tile of -1 where
+    no vertex has a hit: a texture is never empty)."""
+    f = face.cpu().numpy()
+    has = (f.reshape(f.shape[0], -1) >= 0).any(1)
+    slots = np.where(has, np.cumsum(has) - 1, -1).astype(np.int32)
+    tiles, d = f[has], dist.cpu().numpy()[has]
+    if not tiles.shape[0]:
+        tiles = np.full((1, *f.shape[1:]), -1, np.int32)
+        d = np.zeros((1, *f.shape[1:]), np.float16)
+    return slots, tiles.astype(np.int32), d.astype(np.float16)
+
+
 def atlas_image(pf: Prefiltered) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """All prefiltered levels' padded faces in one image: ``(H, W, 4)`` (RGB, alpha 1), row and
     res per level."""
@@ -831,14 +846,17 @@ class GLRenderer:
         width = _VIS_TEX_WIDTH
         fimg = np.zeros((-(-faces.shape[0] // width) * width, 3), np.int32)
         fimg[: faces.shape[0]] = faces
+        slots, tiles, hit_dist = hit_slots(*model.hits())
         pimg = np.zeros((-(-verts.shape[0] // width) * width, 3), np.float32)
         pimg[: verts.shape[0]] = verts
         self.face_tex = self.ctx.texture(
             (width, fimg.shape[0] // width), 3, np.ascontiguousarray(fimg), dtype="i4"
         )
-        self.pos_tex = self.ctx.texture(
-            (width, pimg.shape[0] // width), 3, np.ascontiguousarray(pimg), dtype="f4"
-        )
+        # the positions and each vertex's hit-tile slot (exact in float32)
+        pos = np.zeros((pimg.shape[0], 4), np.float32)
+        pos[:, :3] = pimg
+        pos[: verts.shape[0], 3] = slots
+        self.pos_tex = self.ctx.texture((width, pimg.shape[0] // width), 4, pos, dtype="f4")
         nimg = np.zeros_like(pimg)
         nimg[: verts.shape[0]] = model.mesh.normals.detach().cpu().numpy()
         aimg = np.zeros_like(pimg)
@@ -846,9 +864,9 @@ class GLRenderer:
         size = (width, pimg.shape[0] // width)
         self.nrm_tex = self.ctx.texture(size, 3, np.ascontiguousarray(nimg), dtype="f4")
         self.alb_tex = self.ctx.texture(size, 3, np.ascontiguousarray(aimg), dtype="f4")
-        face, dist = model.hits()
-        hit_face = _tile_atlas(face.cpu().numpy(), per_row, np.int32)
-        hit_dist = _tile_atlas(dist.cpu().numpy(), per_row, np.float16)
+        hit_per_row = max(1, min(tiles.shape[0], _VIS_TEX_WIDTH // tiles.shape[1]))
+        hit_face = _tile_atlas(tiles, hit_per_row, np.int32)
+        hit_dist = _tile_atlas(hit_dist, hit_per_row, np.float16)
         self.hit_face_tex = self.ctx.texture(
             (hit_face.shape[1], hit_face.shape[0]), 1, hit_face, dtype="i4"
         )
@@ -860,6 +878,7 @@ class GLRenderer:
             t.filter = (moderngl.NEAREST, moderngl.NEAREST)
         p, sh = self.prog, self.sharp
         p["vis_per_row"].value = per_row
+        p["hit_per_row"].value = hit_per_row
         p["face_width"].value = width
         p["sharp_weight"].value = tuple(float(x) for x in sh.weights)
         p["sharp_warp"].value = float(sh.warp)

@@ -504,9 +504,9 @@ void main() {
 #if defined(SHARP) && SHARP
     // the pixel's lobe (reflection.glsl lobe_at) and the share of it shaded per pixel, from
     // its sharp corners (render/_torch.py _glossy)
-    ivec3 cc;
+    ivec3 cc, cs;
     vec3 cb;
-    corners(v_pos, cc, cb);
+    corners(v_pos, cc, cs, cb);
     float share;
     Lobe lobe = lobe_at(cc, cb, true, share);
 #endif
@@ -558,13 +558,13 @@ void main() {
         fitted = 1.0 - share;
         if (share > 0.0) {
             float nv = max(dot(n, d), 0.0);
-            vec4 seen = object_light(v_pos, mirror, nv, cc, cb, lobe.scale);
+            vec4 seen = object_light(v_pos, mirror, nv, cs, cb, lobe.scale);
             vec3 albedo = directional_albedo(lobe, nv);
             float vis = 1.0;
             vec3 hit = vec3(0.0);
             if (seen.a > 0.0) {
-                vis = cb.x * hit_free(cc.x, mirror) + cb.y * hit_free(cc.y, mirror)
-                      + cb.z * hit_free(cc.z, mirror);
+                vis = cb.x * hit_free(cs.x, mirror) + cb.y * hit_free(cs.y, mirror)
+                      + cb.z * hit_free(cs.z, mirror);
                 hit = seen.rgb / seen.a;
             }
             vec3 env = sharp_lighting(rot_t * mirror, rot_t * across(n, mirror), nv, 0.0,

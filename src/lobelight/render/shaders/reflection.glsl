@@ -8,11 +8,18 @@
 
 uniform isampler2D face_tex;      // RGB32I: each triangle's corner vertex ids, face_width wide
 uniform int face_width;
-uniform sampler2D pos_tex;        // RGB32F: vertex positions, face_width wide
+uniform sampler2D pos_tex;        // RGBA32F, face_width wide: vertex positions and each vertex's
+                                  // hit-tile slot (-1: its tile finds nothing)
 uniform sampler2D nrm_tex;        // RGB32F: vertex normals, face_width wide
 uniform sampler2D alb_tex;        // RGB32F: vertex diffuse albedos, face_width wide
-uniform isampler2D hit_face_tex;  // R32I hit tiles (lobelight.model.hit_tiles), laid out as vis_tex
-uniform sampler2D hit_dist_tex;   // R16F their distances
+// the hit tiles (lobelight.model.hit_tiles) of the vertices whose tile finds the object, each
+// at its vertex's slot, hit_per_row tiles per row: R32I triangle ids (-1: none), R16F distances
+uniform isampler2D hit_face_tex;
+uniform sampler2D hit_dist_tex;
+uniform int hit_per_row;
+
+// the first texel of hit-tile slot s
+ivec2 hit_origin(int s) { return ivec2(s % hit_per_row, s / hit_per_row) * VIS_RES; }
 uniform float sharp_weight[MIXTURE];
 uniform float sharp_lam[MIXTURE];
 uniform float sharp_warp;         // 1: the sharpness divides by n.v (microfacet lobes)
@@ -37,12 +44,14 @@ struct Lobe {
     vec3 f0;
 };
 
-// the share of vertex v's hit-tile texels around direction d that find no hit, bilinear
-// (render/_reflection.py hit_free_fraction)
-float hit_free(int v, vec3 d) {
-    ivec2 o;
+// the share of the hit-tile texels of slot s around direction d that find no hit, bilinear
+// (render/_reflection.py hit_free_fraction); all of them for a vertex without hits (s < 0)
+float hit_free(int s, vec3 d) {
+    if (s < 0) return 1.0;
+    ivec2 x0;
     vec2 f;
-    tile_footprint(v, d, o, f);
+    tile_bilinear(d, x0, f);
+    ivec2 o = hit_origin(s) + x0;
     float a = texelFetch(hit_face_tex, o, 0).r < 0 ? 1.0 : 0.0;
     float b = texelFetch(hit_face_tex, o + ivec2(1, 0), 0).r < 0 ? 1.0 : 0.0;
     float c = texelFetch(hit_face_tex, o + ivec2(0, 1), 0).r < 0 ? 1.0 : 0.0;
@@ -82,24 +91,27 @@ vec3 projected(vec3 p0, vec3 p1, vec3 p2, vec3 p) {
     return b / max(b.x + b.y + b.z, 1e-30);
 }
 
-// the corners of triangle f and the barycentrics of p projected onto it
-void triangle_at(int f, vec3 p, out ivec3 c, out vec3 b) {
+// the corners of triangle f, their hit-tile slots s and the barycentrics of p projected onto it
+void triangle_at(int f, vec3 p, out ivec3 c, out ivec3 s, out vec3 b) {
     c = texelFetch(face_tex, at_face_width(f), 0).xyz;
-    b = projected(texelFetch(pos_tex, at_face_width(c.x), 0).xyz,
-                  texelFetch(pos_tex, at_face_width(c.y), 0).xyz,
-                  texelFetch(pos_tex, at_face_width(c.z), 0).xyz, p);
+    vec4 p0 = texelFetch(pos_tex, at_face_width(c.x), 0);
+    vec4 p1 = texelFetch(pos_tex, at_face_width(c.y), 0);
+    vec4 p2 = texelFetch(pos_tex, at_face_width(c.z), 0);
+    s = ivec3(floor(vec3(p0.w, p1.w, p2.w) + 0.5));
+    b = projected(p0.xyz, p1.xyz, p2.xyz, p);
 }
 
 #ifdef GL_ES
 flat in int v_face;  // the triangle's id from its corners (prt.glsl: OpenGL ES has no gl_PrimitiveID)
 #endif
 
-// the fragment's triangle corners and barycentrics, from its primitive id and position
-void corners(vec3 p, out ivec3 c, out vec3 b) {
+// the fragment's triangle corners, their hit-tile slots and barycentrics, from its primitive
+// id and position
+void corners(vec3 p, out ivec3 c, out ivec3 s, out vec3 b) {
 #ifdef GL_ES
-    triangle_at(v_face, p, c, b);
+    triangle_at(v_face, p, c, s, b);
 #else
-    triangle_at(gl_PrimitiveID, p, c, b);
+    triangle_at(gl_PrimitiveID, p, c, s, b);
 #endif
 }
 
@@ -205,11 +217,11 @@ vec3 sun_brdf_cos(vec3 l, vec3 v, vec3 n);  // prt.glsl
 float sun_through(vec3 mu, float lam);      // prt.glsl
 #endif
 
-// the texel of vertex v's tile holding direction d (lobelight.geometry.octahedral.nearest_texel)
-ivec2 tile_texel(int v, vec3 d) {
+// the texel of hit-tile slot s holding direction d (lobelight.geometry.octahedral.nearest_texel)
+ivec2 hit_texel(int s, vec3 d) {
     vec2 p = oct_encode(d);
     ivec2 x = clamp(ivec2(floor((p + 1.0) * (0.5 * float(VIS_RES)))), ivec2(0), ivec2(VIS_RES - 1));
-    return ivec2(v % vis_per_row, v / vis_per_row) * VIS_RES + x;
+    return hit_origin(s) + x;
 }
 
 // a triangle's curvature, radians per unit length: the mean over its edges of the corners'
@@ -299,17 +311,20 @@ vec3 hit_light(int f, vec3 p, float dist, vec3 r, float nv_px, float scale_px) {
     return light;
 }
 
-// the object seen along r from point p (n.v nv, lobe's sharpness factor scale) of corners c
-// and barycentrics b: the corners' hits' light weighted by their barycentrics, summed (rgb),
+// the object seen along r from point p (n.v nv, lobe's sharpness factor scale) of corners
+// with hit-tile slots s and barycentrics b: the corners' hits' light weighted by their barycentrics, summed (rgb),
 // and the corners' weight (a)
 // (render/_reflection.py object_light). One call site of hit_light in
 // a loop over a bit mask of the corners with a hit: a loop over the three corners is unrolled
 // into three copies, and a rasteriser that runs both sides of a branch under a mask (llvmpipe)
 // runs every copy for every pixel
-vec4 object_light(vec3 p, vec3 r, float nv, ivec3 c, vec3 b, float scale) {
-    ivec2 t0 = tile_texel(c.x, r), t1 = tile_texel(c.y, r), t2 = tile_texel(c.z, r);
-    ivec3 f = ivec3(texelFetch(hit_face_tex, t0, 0).r, texelFetch(hit_face_tex, t1, 0).r,
-                    texelFetch(hit_face_tex, t2, 0).r);
+vec4 object_light(vec3 p, vec3 r, float nv, ivec3 s, vec3 b, float scale) {
+    // a corner without a slot has no hit anywhere in its tile
+    ivec2 t0 = hit_texel(max(s.x, 0), r), t1 = hit_texel(max(s.y, 0), r);
+    ivec2 t2 = hit_texel(max(s.z, 0), r);
+    ivec3 f = ivec3(s.x >= 0 ? texelFetch(hit_face_tex, t0, 0).r : -1,
+                    s.y >= 0 ? texelFetch(hit_face_tex, t1, 0).r : -1,
+                    s.z >= 0 ? texelFetch(hit_face_tex, t2, 0).r : -1);
     int mask = (f.x >= 0 && b.x > 0.0 ? 1 : 0) | (f.y >= 0 && b.y > 0.0 ? 2 : 0)
                | (f.z >= 0 && b.z > 0.0 ? 4 : 0);
     vec3 light = vec3(0.0);

@@ -16,14 +16,21 @@ vec2 oct_encode(vec3 d) {
     return p;
 }
 
-// the bilinear footprint of direction d in vertex v's tile, clamped to the tile
-// (lobelight.geometry.octahedral.bilinear): its first texel o in the atlas and the weights f
-void tile_footprint(int v, vec3 d, out ivec2 o, out vec2 f) {
+// the bilinear footprint of direction d in a tile, clamped to the tile
+// (lobelight.geometry.octahedral.bilinear): its first texel x0 in the tile and the weights f
+void tile_bilinear(vec3 d, out ivec2 x0, out vec2 f) {
     vec2 p = oct_encode(d);
     float r = float(VIS_RES);
     vec2 x = clamp((p + 1.0) * (0.5 * r) - 0.5, 0.0, r - 1.0);
-    ivec2 x0 = min(ivec2(floor(x)), ivec2(VIS_RES - 2));
+    x0 = min(ivec2(floor(x)), ivec2(VIS_RES - 2));
     f = x - vec2(x0);
+}
+
+// the bilinear footprint of direction d in vertex v's visibility tile: its first texel o in
+// the atlas and the weights f
+void tile_footprint(int v, vec3 d, out ivec2 o, out vec2 f) {
+    ivec2 x0;
+    tile_bilinear(d, x0, f);
     o = ivec2(v % vis_per_row, v / vis_per_row) * VIS_RES + x0;
 }
 

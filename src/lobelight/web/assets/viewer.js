@@ -422,28 +422,49 @@
     uploadSharp() {
       const gl = this.gl, a = this.a, h = this.h, r = h.sharp.vis_res, w = h.tex_width;
       const nv = h.n_vertices;
-      const vis = this.uploadVisibility(r), perRow = this.visPerRow;
-      // the hit tiles, stored as their texels that see the object: placed straight into the
-      // atlas, -1 (none) elsewhere
-      const hf = { data: new Int32Array(vis.w * vis.h).fill(-1), w: vis.w, h: vis.h };
-      const hd = { data: new Uint16Array(vis.w * vis.h), w: vis.w, h: vis.h };
+      this.uploadVisibility(r);
+      // the hit tiles, stored as their texels that see the object: a slot for each vertex
+      // whose tile has one (in vertex order: the texels ascend), its tile at the slot's place
+      // in the atlas, -1 (none) at its other texels (render/_gl.py hit_slots)
       const at = a.hit_index.data, rr = r * r;
+      const slot = new Int32Array(nv).fill(-1);
+      let slots = 0;
+      for (let i = 0; i < at.length; ++i) {
+        const v = Math.floor(at[i] / rr);
+        if (slot[v] < 0) slot[v] = slots++;
+      }
+      const hitRow = tilesPerRow(Math.max(slots, 1), r, h.tex_width, this.maxTex);
+      const hw = hitRow * r, hh = Math.ceil(Math.max(slots, 1) / hitRow) * r;
+      const hf = { data: new Int32Array(hw * hh).fill(-1), w: hw, h: hh };
+      const hd = { data: new Uint16Array(hw * hh), w: hw, h: hh };
       for (let i = 0; i < at.length; ++i) {
         const v = Math.floor(at[i] / rr), t = at[i] - v * rr, y = Math.floor(t / r);
-        const p = (Math.floor(v / perRow) * r + y) * vis.w + (v % perRow) * r + (t - y * r);
+        const s = slot[v];
+        const p = (Math.floor(s / hitRow) * r + y) * hw + (s % hitRow) * r + (t - y * r);
         hf.data[p] = a.hit_face.data[i];
         hd.data[p] = a.hit_dist.data[i];
       }
+      this.hitPerRow = hitRow;
       this.hitFaceTex = this.dataTexture(hf.w, hf.h, gl.R32I, gl.RED_INTEGER, gl.INT, hf.data);
       this.hitDistTex = this.dataTexture(hd.w, hd.h, gl.R16F, gl.RED, gl.HALF_FLOAT, hd.data);
       const faces = this.padded(new Int32Array(a.faces.data.buffer), 3, w, Int32Array);
       this.faceTex = this.dataTexture(w, faces.rows, gl.RGB32I, gl.RGB_INTEGER, gl.INT,
                                       faces.data);
       const tex = {};
-      for (const [name, arr] of [["pos", a.positions], ["nrm", a.normals], ["alb", a.albedo]]) {
+      for (const [name, arr] of [["nrm", a.normals], ["alb", a.albedo]]) {
         const p = this.padded(arr.data, 3, w, Float32Array);
         tex[name] = this.dataTexture(w, p.rows, gl.RGB32F, gl.RGB, gl.FLOAT, p.data);
       }
+      // the positions and each vertex's hit-tile slot
+      const pos = this.padded(a.positions.data, 3, w, Float32Array);
+      const pos4 = new Float32Array(pos.rows * w * 4);
+      for (let v = 0; v < nv; ++v) {
+        pos4[4 * v] = pos.data[3 * v];
+        pos4[4 * v + 1] = pos.data[3 * v + 1];
+        pos4[4 * v + 2] = pos.data[3 * v + 2];
+        pos4[4 * v + 3] = slot[v];
+      }
+      tex.pos = this.dataTexture(w, pos.rows, gl.RGBA32F, gl.RGBA, gl.FLOAT, pos4);
       this.posTex = tex.pos;
       this.nrmTex = tex.nrm;
       this.albTex = tex.alb;
@@ -664,6 +685,7 @@
     sharpUniforms(p) {
       const s = this.h.sharp;
       this.uniform(p.prt, "vis_per_row", "uniform1i", this.visPerRow);
+      this.uniform(p.prt, "hit_per_row", "uniform1i", this.hitPerRow);
       this.uniform(p.prt, "face_width", "uniform1i", this.h.tex_width);
       this.uniform(p.prt, "sharp_weight", "uniform1fv", s.weights);
       this.uniform(p.prt, "sharp_lam", "uniform1fv", s.lam);
