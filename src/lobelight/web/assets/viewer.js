@@ -1012,18 +1012,7 @@
     stagePass(p) {
       const gl = this.gl;
       this.bindVertexStage();
-      gl.useProgram(p.stage);
-      gl.bindVertexArray(p.stageVao);
-      gl.enable(gl.RASTERIZER_DISCARD);
-      gl.bindTransformFeedback(gl.TRANSFORM_FEEDBACK, this.stageFeedback);
-      gl.bindBufferBase(gl.TRANSFORM_FEEDBACK_BUFFER, 0, this.stageBuf);
-      gl.beginTransformFeedback(gl.POINTS);
-      gl.drawArrays(gl.POINTS, 0, this.h.n_vertices);
-      gl.endTransformFeedback();
-      gl.bindBufferBase(gl.TRANSFORM_FEEDBACK_BUFFER, 0, null);
-      gl.bindTransformFeedback(gl.TRANSFORM_FEEDBACK, null);
-      gl.disable(gl.RASTERIZER_DISCARD);
-      gl.bindVertexArray(null);
+      this.feedback(p.stage, p.stageVao, this.stageFeedback, this.stageBuf);
       gl.bindBuffer(gl.PIXEL_UNPACK_BUFFER, this.stageBuf);
       this.bindTexture(UNITS.stage_tex, gl.TEXTURE_2D, this.stageTex);
       gl.texSubImage2D(gl.TEXTURE_2D, 0, 0, 0, this.stageWidth, this.stageRows, gl.RGBA,
@@ -1041,15 +1030,22 @@
       this.bindVertexStage();
       this.bindTexture(UNITS.atlas, gl.TEXTURE_2D, this.env.atlas);
       this.bindTexture(UNITS.vis_tex, gl.TEXTURE_2D, this.visTex);
-      gl.useProgram(p.lobevis);
-      gl.bindVertexArray(p.lvVao);
+      this.feedback(p.lobevis, p.lvVao, this.rhoFeedback, this.rhoBuf);
+    }
+
+    // prog's vertex stage over every vertex (one point each, nothing rasterised), its
+    // outputs captured into buf through the transform feedback object tf
+    feedback(prog, vao, tf, buf) {
+      const gl = this.gl;
+      gl.useProgram(prog);
+      gl.bindVertexArray(vao);
       gl.enable(gl.RASTERIZER_DISCARD);
-      gl.bindTransformFeedback(gl.TRANSFORM_FEEDBACK, this.rhoFeedback);
-      gl.bindBufferBase(gl.TRANSFORM_FEEDBACK_BUFFER, 0, this.rhoBuf);
+      gl.bindTransformFeedback(gl.TRANSFORM_FEEDBACK, tf);
+      gl.bindBufferBase(gl.TRANSFORM_FEEDBACK_BUFFER, 0, buf);
       gl.beginTransformFeedback(gl.POINTS);
       gl.drawArrays(gl.POINTS, 0, this.h.n_vertices);
       gl.endTransformFeedback();
-      // unbound before the shading pass reads the buffer as a vertex attribute
+      // unbound before another pass reads the buffer (a vertex attribute, a texture's copy)
       gl.bindBufferBase(gl.TRANSFORM_FEEDBACK_BUFFER, 0, null);
       gl.bindTransformFeedback(gl.TRANSFORM_FEEDBACK, null);
       gl.disable(gl.RASTERIZER_DISCARD);
