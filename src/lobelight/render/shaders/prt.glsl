@@ -224,10 +224,11 @@ void main() {
     v_diffuse = diffuse;
 #if STAGE_PASS
     // texel i: v_lobe[i] below 2 N_GAUSSIANS, then the diffuse colour, then the direct light
+    // (one line: GLSL 3.30 has no line continuation)
     vec3 direct = vec3(0.0);
     for (int k = 0; k < N_GAUSSIANS - N_INDIRECT; ++k) direct += v_lobe[2 * k].rgb;
-#define STAGE_TEXEL(i) ((i) < 2 * N_GAUSSIANS ? v_lobe[min(i, 2 * N_GAUSSIANS - 1)] \
-                        : vec4((i) == 2 * N_GAUSSIANS ? diffuse : direct, 0.0))
+    vec4 tail[2] = vec4[2](vec4(diffuse, 0.0), vec4(direct, 0.0));
+#define STAGE_TEXEL(i) ((i) < 2 * N_GAUSSIANS ? v_lobe[min(i, 2 * N_GAUSSIANS - 1)] : tail[max(i - 2 * N_GAUSSIANS, 0)])
     v_stage0 = STAGE_TEXEL(0);
 #if STAGE_TEXELS > 1
     v_stage1 = STAGE_TEXEL(1);
