@@ -173,7 +173,7 @@ void main() {
 #if FROM_STAGE
     ivec2 first = stage_at(v);  // stage.glsl
     for (int i = 0; i < 2 * N_GAUSSIANS; ++i) v_lobe[i] = stage_texel(first, i);
-    v_diffuse = stage_texel(first, 2 * N_GAUSSIANS).rgb;
+    v_diffuse = stage_texel(first, STAGE_DIFFUSE).rgb;
 #else
     vec3 d = normalize(eye - in_pos);
 

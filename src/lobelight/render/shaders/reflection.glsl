@@ -264,19 +264,19 @@ vec3 hit_light(int f, vec3 p, float dist, vec3 r, float nv_px, float scale_px) {
                  * vis;
     // the corners' vertex stage this frame (stage.glsl)
     ivec2 s0 = stage_at(c.x), s1 = stage_at(c.y), s2 = stage_at(c.z);
-    const int DIFFUSE = 2 * N_GAUSSIANS, DIRECT = 2 * N_GAUSSIANS + 1;
 #if ALBEDO_TEX
     // the transfer is per unit albedo: the hit's vertices' own albedos (render/_albedo.py
     // hit_diffuse_light)
-    light += b.x * stage_texel(s0, DIFFUSE).rgb * texelFetch(alb_tex, t0, 0).rgb
-             + b.y * stage_texel(s1, DIFFUSE).rgb * texelFetch(alb_tex, t1, 0).rgb
-             + b.z * stage_texel(s2, DIFFUSE).rgb * texelFetch(alb_tex, t2, 0).rgb;
+    light += b.x * stage_texel(s0, STAGE_DIFFUSE).rgb * texelFetch(alb_tex, t0, 0).rgb
+             + b.y * stage_texel(s1, STAGE_DIFFUSE).rgb * texelFetch(alb_tex, t1, 0).rgb
+             + b.z * stage_texel(s2, STAGE_DIFFUSE).rgb * texelFetch(alb_tex, t2, 0).rgb;
 #else
-    light += b.x * stage_texel(s0, DIFFUSE).rgb + b.y * stage_texel(s1, DIFFUSE).rgb
-             + b.z * stage_texel(s2, DIFFUSE).rgb;
+    light += b.x * stage_texel(s0, STAGE_DIFFUSE).rgb
+             + b.y * stage_texel(s1, STAGE_DIFFUSE).rgb
+             + b.z * stage_texel(s2, STAGE_DIFFUSE).rgb;
 #endif
-    vec3 direct = (b.x * stage_texel(s0, DIRECT) + b.y * stage_texel(s1, DIRECT)
-                   + b.z * stage_texel(s2, DIRECT)).rgb;
+    vec3 direct = (b.x * stage_texel(s0, STAGE_DIRECT) + b.y * stage_texel(s1, STAGE_DIRECT)
+                   + b.z * stage_texel(s2, STAGE_DIRECT)).rgb;
     float v_fit = clamp((direct.r + direct.g + direct.b) /
                         max(albedo.r + albedo.g + albedo.b, 1e-30), 0.0, 1.0);
     float scale = clamp((1.0 - vis) / max(1.0 - v_fit, OCCLUDED_FLOOR), 0.0, INDIRECT_SCALE_MAX);

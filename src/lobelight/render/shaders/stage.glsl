@@ -6,6 +6,10 @@
 // Gaussians carry.
 uniform sampler2D stage_tex;
 
+// a vertex's texels after its lobes: its diffuse colour, its direct Gaussians' light
+#define STAGE_DIFFUSE (2 * N_GAUSSIANS)
+#define STAGE_DIRECT (2 * N_GAUSSIANS + 1)
+
 // the first texel of vertex v (a division by a constant, once per vertex)
 ivec2 stage_at(int v) {
     return ivec2((v % STAGE_PER_ROW) * STAGE_TEXELS, v / STAGE_PER_ROW);

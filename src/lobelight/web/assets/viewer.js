@@ -247,7 +247,7 @@
         throw new LimitError("This model's " + h.n_gaussians + " Gaussians per view need " +
                              need + " varying vectors; this device has " + have + ".");
       }
-      // the vertex stage's pass captures 2 N + 1 vectors per vertex (stagePass)
+      // the vertex stage's pass captures 2 N + 2 vectors per vertex (stagePass)
       const captured = 4 * h.stage_varyings.length;
       const capture = gl.getParameter(gl.MAX_TRANSFORM_FEEDBACK_INTERLEAVED_COMPONENTS);
       if (captured > capture) {
