@@ -161,7 +161,7 @@ def test_what_info_reads_render_draws(tmp_path, fitted):
 def test_a_zip_bomb_is_refused_before_it_is_decompressed(tmp_path, fitted):
     """A model file with a member that deflates 1000:1 (200 MB of zeros in ~200 kB) is refused
     from the sizes the zip directory declares, before anything is decompressed: a read takes
-    at most model._format.EXPANSION_SLACK + EXPANSION times the file's size."""
+    at most lobelight._container.declared_limit of the file's size."""
     sc, mf = fitted
     good = tmp_path / "good.npz"
     model.save(good, sc.mesh, sc.materials, mf)

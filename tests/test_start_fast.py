@@ -12,12 +12,13 @@ import sys
 import textwrap
 import time
 import zipfile
+from pathlib import Path
 
 import numpy as np
 import pytest
 import torch
 
-from lobelight import brdf, model
+from lobelight import _container, brdf, model
 from lobelight.bench import synthetic_model
 from lobelight.brdf import _sharp
 from lobelight.errors import InputError
@@ -120,6 +121,132 @@ def test_a_file_replaced_while_it_is_read_is_refused(model_file, tmp_path, monke
     monkeypatch.setattr(_format, "_PARALLEL_BYTES", 0)
     with pytest.raises(InputError, match="changed while it was read"):
         model.load(path)
+
+
+# --------------------------------------------------------------------------------------------
+# the model file read ahead in a child process (lobelight._container)
+
+
+@pytest.fixture
+def ahead(monkeypatch):
+    """Read ahead on for files of any size; what each ``take`` gave, recorded."""
+    monkeypatch.setattr(_container, "AHEAD_MIN_BYTES", 0)
+    taken = []
+    take = _container.take
+
+    def recorded(path, found):
+        out = take(path, found)
+        taken.append(out is not None)
+        return out
+
+    monkeypatch.setattr(_container, "take", recorded)
+    yield taken
+    _container.take(Path("/nonexistent"), [])  # a read ahead never taken: its child reaped
+
+
+def _same_models(a, b):
+    for field in ("w", "mu", "lam"):
+        assert torch.equal(getattr(a.gaussians, field), getattr(b.gaussians, field))
+    assert a.bounce is None and b.bounce is None  # this synthetic model has none
+    for field in ("diffuse", "views", "visibility_held"):
+        assert torch.equal(getattr(a, field), getattr(b, field))
+    assert torch.equal(a.mesh.vertices, b.mesh.vertices) and torch.equal(a.mesh.faces, b.mesh.faces)
+    assert all(torch.equal(x, y) for x, y in zip(a.hits_held, b.hits_held, strict=True))
+    assert a.provenance == b.provenance
+
+
+def test_a_model_read_ahead_is_the_model_read_plainly(model_file, ahead):
+    plain = model.load(model_file)
+    ahead.clear()
+    assert _container.read_ahead(model_file)
+    read = model.load(model_file)
+    assert ahead == [True]  # the members came from the child
+    _same_models(read, plain)
+    # the arrays are the read's own: writable, as a plain read's are
+    assert read.gaussians.w.numpy().flags.writeable
+
+
+def test_a_file_changed_after_the_read_ahead_is_read_again(model_file, tmp_path, ahead):
+    path = tmp_path / "m.npz"
+    path.write_bytes(model_file.read_bytes())
+    assert _container.read_ahead(path)
+    other = tmp_path / "other.npz"
+    synthetic_model(300, 1, vary=True).save(other)
+    expected = model.load(other)
+    os.replace(other, path)
+    ahead.clear()
+    read = model.load(path)
+    assert ahead == [False]
+    _same_models(read, expected)
+
+
+def test_a_damaged_member_read_ahead_gives_the_plain_reads_error(model_file, tmp_path, ahead):
+    bad = tmp_path / "bad.npz"
+    _bad_crc(model_file, bad, "gaussians.npy")
+    with pytest.raises(InputError) as plain:
+        model.load(bad)
+    ahead.clear()
+    assert _container.read_ahead(bad)
+    with pytest.raises(InputError) as read:
+        model.load(bad)
+    assert ahead == [False]  # the child found the checksum wrong: the file was read again
+    assert (read.value.what, read.value.problem) == (plain.value.what, plain.value.problem)
+
+
+def test_no_read_ahead_where_it_cannot_help_or_would_be_unsafe(model_file, tmp_path, monkeypatch):
+    # the default threshold: this small file inflates faster than a child starts
+    assert model_file.stat().st_size < _container.AHEAD_MIN_BYTES
+    assert not _container.read_ahead(model_file)
+    monkeypatch.setattr(_container, "AHEAD_MIN_BYTES", 0)
+    assert not _container.read_ahead(tmp_path / "missing.npz")
+    (tmp_path / "not.npz").write_bytes(b"not a zip file")
+    assert not _container.read_ahead(tmp_path / "not.npz")
+    # members declared larger than the size rule allows: nothing is allocated for them
+    monkeypatch.setattr(_container, "MAX_READ_BYTES", 1000)
+    assert not _container.read_ahead(model_file)
+    monkeypatch.undo()
+    monkeypatch.setattr(_container, "AHEAD_MIN_BYTES", 0)
+    # a thread running: a fork would copy only this one
+    import threading
+
+    stop = threading.Event()
+    t = threading.Thread(target=stop.wait)
+    t.start()
+    try:
+        assert not _container.read_ahead(model_file)
+    finally:
+        stop.set()
+        t.join()
+
+
+def test_the_command_line_reads_its_model_ahead(model_file, tmp_path):
+    # the command line's own process: the model named on it is read ahead before torch loads
+    code = textwrap.dedent(
+        """
+        import sys
+        from lobelight import _container
+        _container.AHEAD_MIN_BYTES = 0
+        take = _container.take
+        def recorded(path, found):
+            out = take(path, found)
+            print("taken", out is not None, file=sys.stderr)
+            return out
+        _container.take = recorded
+        start = _container.read_ahead
+        def started(path):
+            print("torch loaded", "torch" in sys.modules, file=sys.stderr)
+            return start(path)
+        _container.read_ahead = started
+        sys.argv = ["lobelight", "info", sys.argv[1]]
+        from lobelight.cli import main
+        main()
+        """
+    )
+    r = subprocess.run(
+        [sys.executable, "-c", code, str(model_file)], capture_output=True, text=True, timeout=120
+    )
+    assert r.returncode == 0, r.stderr
+    assert "torch loaded False" in r.stderr and "taken True" in r.stderr
 
 
 def _records(sigma, weight, mean=(0.0, 0.0, 1.0)):

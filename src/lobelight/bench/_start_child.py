@@ -34,6 +34,14 @@ from pathlib import Path  # noqa: E402
 if sys.path and Path(sys.path[0]).resolve() == Path(__file__).resolve().parent:
     sys.path.pop(0)
 
+# the command line starts inflating the model file in a child process before it imports torch
+# (lobelight._container): so here, the model being the render's first argument
+from lobelight._container import read_ahead  # noqa: E402
+
+_ARGV = sys.argv[4:] if sys.argv[3:4] == ["--"] else sys.argv[3:]
+if _ARGV[:1] == ["render"] and len(_ARGV) > 1:
+    read_ahead(_ARGV[1])
+
 import torch  # noqa: E402
 
 _P_TORCH = time.perf_counter()
@@ -130,7 +138,7 @@ def _write_record(out: str, t0: float) -> None:
 
 def main() -> int:
     out, t0 = sys.argv[1], float(sys.argv[2])
-    argv = sys.argv[4:] if sys.argv[3:4] == ["--"] else sys.argv[3:]
+    argv = _ARGV
     _gl_hooks()
     atexit.register(_write_record, out, t0)
     sys.argv = ["lobelight", *argv]

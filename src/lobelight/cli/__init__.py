@@ -40,6 +40,7 @@ from pathlib import Path
 
 from .. import __version__
 from .._cache import MAX_MB_ENV, cache_dir, cache_max_bytes, check_environment
+from .._container import read_ahead
 from .._io import protect_inputs
 from ..errors import MAX_QUOTED, InputError, Terminated, one_line, shorten
 from ._arguments import _parser, _UsageError
@@ -180,6 +181,10 @@ def _run(args, own_process: bool = False) -> dict:
     a program that embeds the command line keeps its collector as it is."""
     check_environment()
     _no_cap_as_a_number()
+    if own_process and isinstance(getattr(args, "model", None), str):
+        # the model file's members inflate in a child process while torch loads here
+        # (:mod:`lobelight._container`); the reader takes them if the file is still the same
+        read_ahead(args.model)
     # the commands (and torch) load once the line is parsed: --help and a mistyped
     # command answer at once
     with imports_uncollected() if own_process else contextlib.nullcontext():

@@ -45,6 +45,7 @@ they are allocated.
 
 from __future__ import annotations
 
+import io
 import json
 import math
 import zipfile
@@ -57,7 +58,8 @@ from typing import Any
 import numpy as np
 import torch
 
-from .. import __version__
+from .. import __version__, _container
+from .._container import MAX_FILE_BYTES, MAX_READ_BYTES, declared_limit
 from .._io import atomic_writer, check_input
 from .._tol import SHARPNESS_MIN
 from ..errors import InputError
@@ -260,23 +262,6 @@ def _not_a_model(path: Path) -> str:
     return "not a lobelight model file (not an .npz archive)"
 
 
-#: The largest model file read (a 50K-vertex model with three Gaussians is about 100 MB).
-MAX_FILE_BYTES = 1 << 36
-
-#: Decompressed bytes a model file may hold beyond ``EXPANSION`` times its own size: a model's
-#: arrays are floats, which deflate compresses by a few times at most, while a zip bomb's
-#: members expand by a thousand times and more.
-EXPANSION_SLACK = 64 << 20
-EXPANSION = 100
-
-#: The most memory a model takes once read, in bytes (8 GiB): its arrays as decompressed plus
-#: its Gaussians expanded to every (vertex, view) record, 7 float32 per Gaussian, which is
-#: ``2,576 N`` bytes per vertex for N Gaussians per view (a million vertices at N = 3, 417,000
-#: at N = 8). A file whose sizes (those the zip directory declares, and the counts of its
-#: metadata) add up to more is refused before they are allocated; a read's peak stays within
-#: about twice this (the arrays are copied as the model is built from them).
-MAX_READ_BYTES = 8 << 30
-
 #: Bytes of the metadata beyond ``_META_PER_VERTEX_BYTE`` times the vertex array's bytes: the
 #: settings, provenance and material records (a per-vertex albedo in the materials takes at
 #: most 76 bytes of JSON per vertex, under 7 times the vertex's 12 bytes of position).
@@ -299,12 +284,12 @@ _GAUSSIAN_BYTES = 28
 
 
 def _check_sizes(archive: zipfile.ZipFile, file_bytes: int, name: str) -> None:
-    """Refuse an archive whose members would decompress to more than ``EXPANSION`` times the
-    file's size plus ``EXPANSION_SLACK``, or to more than :data:`MAX_READ_BYTES`, or whose
+    """Refuse an archive whose members would decompress to more than
+    :func:`lobelight._container.declared_limit` of the file's size, or whose
     metadata is larger than its vertices could need: the memory a read takes is bounded by
     that. The sizes are those the zip directory declares, which decompression never exceeds."""
     total = sum(info.file_size for info in archive.infolist())
-    limit = min(EXPANSION_SLACK + EXPANSION * file_bytes, MAX_READ_BYTES)
+    limit = declared_limit(file_bytes)
     _need(
         total <= limit,
         name,
@@ -572,28 +557,24 @@ READ_THREADS = 2
 _PARALLEL_BYTES = 8 << 20
 
 
-def _directory(archive: zipfile.ZipFile) -> list[tuple]:
-    """What a zip directory declares of each member: name, sizes, checksum, offset."""
-    return [
-        (i.filename, i.file_size, i.compress_size, i.CRC, i.header_offset)
-        for i in archive.infolist()
-    ]
-
-
 def _read_members(z, p: Path, keys: list[str], name: str) -> dict[str, np.ndarray]:
     """The members ``keys`` of the open archive ``z`` (as ``z[key]`` reads them), the largest
     first on :data:`READ_THREADS` threads, each through its own handle on ``p`` whose
     directory must be the one :func:`_check_sizes` checked (a file replaced meanwhile is
     refused, so the declared sizes still bound what is read). A failure is the one the first
     failing member in ``keys``' order raises, as in a read of one member after another."""
+    directory = _container.directory(z.zip)
+    ahead = _read_ahead(p, directory, keys)
+    if ahead is not None:
+        return ahead
     sizes = {i.filename.removesuffix(".npy"): i.file_size for i in z.zip.infolist()}
     if READ_THREADS < 2 or sum(sizes.get(k, 0) for k in keys) < _PARALLEL_BYTES:
         return {k: z[k] for k in keys}
-    directory = _directory(z.zip)
 
     def member(key: str) -> np.ndarray:
         with np.load(p, allow_pickle=False) as own:
-            same = isinstance(own, np.lib.npyio.NpzFile) and _directory(own.zip) == directory
+            same = isinstance(own, np.lib.npyio.NpzFile)
+            same = same and _container.directory(own.zip) == directory
             _need(same, name, "the file changed while it was read")
             return own[key]
 
@@ -603,6 +584,48 @@ def _read_members(z, p: Path, keys: list[str], name: str) -> dict[str, np.ndarra
             return {k: futures[k].result() for k in keys}
         finally:
             pool.shutdown(cancel_futures=True)
+
+
+def _read_ahead(p: Path, directory: list[tuple], keys: list[str]) -> dict[str, np.ndarray] | None:
+    """The members ``keys`` as the command line's child process inflated them ahead
+    (:func:`lobelight._container.take`), parsed as ``np.load`` parses them, sharing the child's
+    memory; None where there is no such read ahead of this file, or a member is not a plain
+    ``.npy`` array (the file is then read as usual, with its errors)."""
+    members = _container.take(p, directory)
+    if members is None:
+        return None
+    out = {}
+    for k in keys:
+        arr = _npy(members.get(k + ".npy"))
+        if arr is None:
+            return None
+        out[k] = arr
+    return out
+
+
+def _npy(buf: memoryview | None) -> np.ndarray | None:
+    """The array of an ``.npy`` file's bytes ``buf``, sharing them (None where ``buf`` is not a
+    version 1 or 2 ``.npy`` file of plain data whose size is its header's)."""
+    if buf is None:
+        return None
+    fmt = np.lib.format
+    try:
+        head = io.BytesIO(bytes(buf[: _NPY_HEADER_MAX + 12]))
+        version = fmt.read_magic(head)
+        read_header = {(1, 0): fmt.read_array_header_1_0, (2, 0): fmt.read_array_header_2_0}
+        shape, fortran, dtype = read_header[version](head, max_header_size=_NPY_HEADER_MAX)
+    except (ValueError, KeyError, EOFError):
+        return None
+    count = math.prod(shape)
+    offset = head.tell()
+    if dtype.hasobject or len(buf) != offset + count * dtype.itemsize:
+        return None
+    arr = np.frombuffer(buf, dtype, count, offset)
+    return arr.reshape(shape, order="F" if fortran else "C")
+
+
+# the largest .npy header parsed (NumPy's own default limit)
+_NPY_HEADER_MAX = 10_000
 
 
 def _header(raw: np.ndarray, name: str) -> _Header:
