@@ -407,18 +407,36 @@ def test_tile_atlas_puts_each_vertex_tile_at_its_place():
         assert (atlas[~placed] == 0).all()
 
 
-def test_transfer_images_hold_the_records_at_one_width(model2):
-    # the records image is the records in order, zero-padded, at the width the three share
-    from lobelight.render._gl import _transfer_images, gaussian_records
+@needs_gl
+@pytest.mark.parametrize("band_bytes", [64 << 10, 4 << 20])
+def test_the_records_texture_holds_the_records_in_order(model2, monkeypatch, band_bytes):
+    # the records written band by band (many small bands, a partial last one; or one band)
+    # read back as gaussian_records' texels in order, zero-padded to the shared width
+    from lobelight.render import _gl
 
-    gauss, diffuse, bounce, width = _transfer_images(model2, bounce=False)
-    assert gauss.shape[1] == diffuse.shape[1] == bounce.shape[1] == width
-    rec = gaussian_records(model2)
-    flat = gauss.reshape(-1, 4)
-    np.testing.assert_array_equal(flat[: rec.shape[0]], rec)
-    assert (flat[rec.shape[0] :] == 0).all()
-    d = diffuse.reshape(-1, 4)[: model2.diffuse.shape[0] * model2.diffuse.shape[1]]
-    np.testing.assert_array_equal(d[:, :3], model2.diffuse.reshape(-1, 3).numpy())
+    monkeypatch.setattr(_gl, "RECORD_BAND_BYTES", band_bytes)
+    table = torch.zeros_like(model2.diffuse[:1])
+    width = _gl.transfer_width(model2, table)
+    ctx = _gl.create_context()
+    try:
+        tex = _gl.upload_records(ctx, model2, width)
+        got = np.frombuffer(tex.read(), np.float32).reshape(-1, 4)
+    finally:
+        ctx.release()
+    rec = _gl.gaussian_records(model2)
+    assert got.shape[0] % width == 0 and got.shape[0] >= rec.shape[0]
+    if band_bytes < 1 << 20:
+        assert got.shape[0] // width > 1  # several bands
+    np.testing.assert_array_equal(got[: rec.shape[0]], rec)
+    assert (got[rec.shape[0] :] == 0).all()
+    # the record's texels: the light it carries and its width, then its axis and horizon flag
+    g = model2.gaussians
+    r = rec.reshape(*g.lam.shape, 2, 4)
+    np.testing.assert_allclose(r[..., 0, 3], g.lam.rsqrt().numpy(), rtol=1e-6)
+    np.testing.assert_array_equal(r[..., 1, :3], g.mu.numpy())
+    above = (model2.views[None] * model2.mesh.normals[:, None]).sum(-1) > 0
+    above = above[..., None].expand(g.lam.shape).float()
+    np.testing.assert_array_equal(r[..., 1, 3], above.numpy())
 
 
 def _with_gaussians(model: Model, n: int) -> Model:

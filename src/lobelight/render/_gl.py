@@ -271,7 +271,7 @@ def hit_slots(face: torch.Tensor, dist: torch.Tensor) -> tuple[np.ndarray, ...]:
     if not tiles.shape[0]:
         tiles = np.full((1, *f.shape[1:]), -1, np.int32)
         d = np.zeros((1, *f.shape[1:]), np.float16)
-    return slots, tiles.astype(np.int32), d.astype(np.float16)
+    return slots, tiles.astype(np.int32, copy=False), d.astype(np.float16, copy=False)
 
 
 def atlas_image(pf: Prefiltered) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -333,47 +333,72 @@ def stage_varyings(model) -> list[str]:
     return [f"v_stage{i}" for i in range(stage_texels(model))]
 
 
-def gaussian_records(model, width: int | None = None) -> np.ndarray:
+def gaussian_records(model) -> np.ndarray:
     """Two texels per Gaussian ``(2 V J N, 4)``: record ``(v, j, k)`` is texels ``2r`` and
     ``2r + 1`` with ``r = (v J + j) N + k``, holding the light the lobe carries and its width
     ``(e, sigma)``, then its axis and whether the record's view is above the vertex's horizon
-    ``(mu, above)`` (prt.glsl's ``gaussian``). With ``width``, the records come wrapped into
-    an ``(H, width, 4)`` image instead (zero-padded, :func:`_wrap`), filled in place."""
-    g = model.gaussians
-    v, j, n = g.lam.shape
-    t = 2 * v * j * n
-    # one float32 buffer filled in place (a model's records are its largest array)
-    h = 1 if width is None else _wrap_size(t, width)[0]
-    buf = torch.empty(t if width is None else h * width, 4, device=g.w.device)
-    buf[t:] = 0
-    out = buf[:t].view(v, j, n, 2, 4)
-    out[..., 0, 3] = g.lam.rsqrt()
-    # the light each lobe carries (prt.glsl blends it, not the peak weight)
-    torch.mul(g.w, sg.integral(g.lam)[..., None], out=out[..., 0, :3])
-    out[..., 1, :3] = g.mu
-    # .w: the record's view is above the vertex's horizon (model.horizon_scale)
-    out[..., 1, 3] = ((model.views[None] * model.mesh.normals[:, None]).sum(-1) > 0)[..., None]
-    rec = buf.detach().cpu().numpy()
-    return rec if width is None else rec.reshape(h, width, 4)
+    ``(mu, above)`` (prt.glsl's ``gaussian``)."""
+    flat = _FlatRecords(model)
+    out = torch.empty(2 * flat.count, 4)
+    flat.fill(0, flat.count, out.view(-1, 2, 4))
+    return out.numpy()
 
 
-def _transfer_images(model, *, bounce: bool) -> tuple[np.ndarray, np.ndarray, np.ndarray, int]:
-    """The model's transfer as three ``(H, W, 4)`` float32 images of one width ``W``: the
-    Gaussian records (:func:`gaussian_records`), the diffuse transfer ``(V, N_SH)`` RGB per
-    texel, and the interreflected part of the transfer (``Model.bounce``; one vertex of zeros
-    when ``bounce`` is false); returns them and ``W``."""
-    table = model.bounce if bounce else torch.zeros_like(model.diffuse[:1])
+class _FlatRecords:
+    """A model's Gaussian records in the order of :func:`gaussian_records`, filled by range."""
+
+    def __init__(self, model):
+        g = model.gaussians
+        v, j, n = g.lam.shape
+        self.count = v * j * n
+        self.w, self.mu, self.lam = g.w.reshape(-1, 3), g.mu.reshape(-1, 3), g.lam.reshape(-1)
+        # whether each record's view is above its vertex's horizon (model.horizon_scale)
+        above = (model.views[None] * model.mesh.normals[:, None]).sum(-1) > 0  # (V, J)
+        self.above = above.reshape(-1, 1).expand(-1, n).reshape(-1)
+
+    def fill(self, a: int, b: int, out: torch.Tensor) -> None:
+        """Records ``a`` to ``b`` into ``out (b - a, 2, 4)``."""
+        lam = self.lam[a:b]
+        torch.rsqrt(lam, out=out[:, 0, 3])
+        # the light each lobe carries (prt.glsl blends it, not the peak weight)
+        torch.mul(self.w[a:b], sg.integral(lam)[:, None], out=out[:, 0, :3])
+        out[:, 1, :3] = self.mu[a:b]
+        out[:, 1, 3] = self.above[a:b]
+
+
+#: Bytes of records written to the records texture at a time: a buffer this size is filled
+#: and uploaded band by band, so the records never exist whole outside the texture (a model's
+#: records are its largest array) and the buffer stays in the processor's cache.
+RECORD_BAND_BYTES = 4 << 20
+
+
+def upload_records(ctx, model, width: int):
+    """The records texture: :func:`gaussian_records` wrapped into rows of ``width`` texels
+    (zero-padded), float32, written in bands of :data:`RECORD_BAND_BYTES`."""
+    flat = _FlatRecords(model)
+    height = _wrap_size(2 * flat.count, width)[0]
+    tex = ctx.texture((width, height), 4, dtype="f4")
+    rows = max(1, RECORD_BAND_BYTES // (16 * width))
+    buf = torch.empty(rows * width, 4)
+    for y in range(0, height, rows):
+        h = min(rows, height - y)
+        a = y * width // 2  # width is even: a row holds whole records
+        b = min(a + h * width // 2, flat.count)
+        flat.fill(a, b, buf[: 2 * (b - a)].view(-1, 2, 4))
+        buf[2 * (b - a) : h * width] = 0
+        tex.write(buf[: h * width].numpy(), viewport=(0, y, width, h))
+    return tex
+
+
+def transfer_width(model, bounce: torch.Tensor) -> int:
+    """The width in texels the transfer's three textures share (each needs at least its own,
+    :func:`_wrap_size`): the records, the diffuse transfer, and ``bounce``."""
     g = model.gaussians.lam.shape
-    # all share one width uniform: the widest any of them needs
-    width = max(
+    return max(
         _wrap_size(2 * g[0] * g[1] * g[2])[1],
         _wrap_size(model.diffuse.shape[0] * model.diffuse.shape[1])[1],
-        _wrap_size(table.shape[0] * table.shape[1])[1],
+        _wrap_size(bounce.shape[0] * bounce.shape[1])[1],
     )
-    img = gaussian_records(model, width)
-    dimg, _ = _wrap(_rgb0(model.diffuse), width)
-    bimg, _ = _wrap(_rgb0(table), width)
-    return img, dimg, bimg, width
 
 
 def _bounding_sphere(mesh) -> tuple[np.ndarray, float]:
@@ -770,14 +795,18 @@ class GLRenderer:
         self.shadow_prog = _program(ctx, "shadow", {"N_SH": n_sh}, ("frame",), ("frame",))
 
     def _upload_transfer(self, model) -> int:
-        """The model's transfer as data textures (:func:`_transfer_images`); returns their
-        width in texels."""
+        """The model's transfer as data textures of one width (:func:`transfer_width`): the
+        Gaussian records (:func:`upload_records`), the diffuse transfer ``(V, N_SH)`` RGB per
+        texel and its interreflected part; returns the width in texels."""
         import moderngl  # optional (the gl extra)
 
-        gauss, diffuse, bounce, width = _transfer_images(model, bounce=self.has_bounce)
-        self.gauss_tex = self._data_texture(gauss)
-        self.diff_tex = self._data_texture(diffuse)
-        self.bounce_tex = self._data_texture(bounce)
+        # the interreflected part of the transfer (Model.bounce); one vertex of zeros without
+        table = model.bounce if self.has_bounce else torch.zeros_like(model.diffuse[:1])
+        width = transfer_width(model, table)
+        self.gauss_tex = upload_records(self.ctx, model, width)
+        self.gauss_tex.filter = (moderngl.NEAREST, moderngl.NEAREST)
+        self.diff_tex = self._data_texture(_wrap(_rgb0(model.diffuse), width)[0])
+        self.bounce_tex = self._data_texture(_wrap(_rgb0(table), width)[0])
         if self.staged:  # the stage pass's capture, and the texture it is copied into
             _, stage_width, rows = stage_layout(model)
             self.stage_buf = self.ctx.buffer(reserve=16 * rows * stage_width)
