@@ -17,6 +17,8 @@ from lobelight import brdf, envmap, render, scene
 from lobelight.envmap._envmap import _LatlongCells
 from lobelight.errors import InputError
 from lobelight.geometry import octahedral, sphere
+from lobelight.geometry.adjacency import face_neighbours
+from lobelight.geometry.raycast import RayCaster
 from lobelight.lobes.sg import Gaussians
 from lobelight.model import Model, hit_tiles, load, visibility_tiles
 from lobelight.render import _reflection
@@ -254,13 +256,13 @@ def test_concave_shape_shows_itself_in_its_reflection(tmp_path):
     mask = cov >= 1.0
     err = float((img - ref).abs()[mask].mean() / ref[mask].mean())
     err_blind = float((blind - ref).abs()[mask].mean() / ref[mask].mean())
-    # measured 0.026 against 0.072 without the hits (over every object pixel, most of which
-    # see the sky alone); what is left is the tiles' texels (the hit found along the texel's
-    # centre, not the pixel's own ray), the lobe's mixture and the reference's noise
+    # measured 0.026 against 0.084 without the hits (over every object pixel, most of which
+    # see the sky alone); what is left is the lobe's mixture, the hits the walk from the
+    # tiles' triangles does not reach, and the reference's noise
     assert err < 0.04 and err_blind > 1.8 * err, (err, err_blind)
     # the hit's own reflection blurred by the pixel's lobe (hit_spread): on the pixels it
-    # changes, closer to the path tracer than the hit's point shading (measured 0.148 against
-    # 0.161 over 539 pixels)
+    # changes, closer to the path tracer than the hit's point shading (measured 0.135 against
+    # 0.166 over 533 pixels)
     with pytest.MonkeyPatch.context() as mp:
         mp.setattr(_reflection, "hit_spread", lambda *args: None)
         point, _ = _ours(sc, env, cam, w, h, hits=True)
@@ -596,3 +598,69 @@ def test_a_hit_is_placed_where_the_pixels_ray_meets_the_hit_triangles_plane():
     tile = torch.full((5,), 0.7)
     t = _reflection._plane_distance(mesh, torch.zeros(5, dtype=torch.long), p, r, tile)
     torch.testing.assert_close(t, torch.tensor([1.0, 1.0 / math.cos(a), 0.7, 0.7, 0.7]))
+
+
+def test_face_neighbours_match_edges_by_position():
+    # a square of two triangles whose shared edge's corners are stored twice (a seam), a
+    # boundary everywhere else, and an edge three triangles share (non-manifold): no neighbour
+    v = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [1, 1, 0], [1, 0, 0], [0, 1, 0]], np.float32)
+    assert face_neighbours(v, np.array([[0, 1, 2], [4, 3, 5]])).tolist() == [
+        [1, -1, -1],
+        [-1, 0, -1],
+    ]
+    fan = np.array([[0, 1, 2], [1, 0, 3], [0, 1, 4]])
+    v5 = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [0, -1, 0], [0, 0, 1]], np.float32)
+    assert (face_neighbours(v5, fan)[:, 2] == -1).all()  # the edge (0, 1) of all three
+    # a closed mesh: every edge has exactly one neighbour across it, and the relation is mutual
+    mesh = _torus()
+    nb = mesh.face_neighbours
+    f = mesh.faces
+    assert bool((nb >= 0).all())
+    for i in range(3):
+        a, b = f[:, (i + 1) % 3], f[:, (i + 2) % 3]
+        g = f[nb[:, i]]  # the neighbour holds both corners of the edge
+        assert bool(((g == a[:, None]).any(1) & (g == b[:, None]).any(1)).all())
+        back = nb[nb[:, i]]
+        assert bool((back == torch.arange(f.shape[0])[:, None]).any(1).all())
+
+
+def test_a_hit_is_walked_to_the_triangle_the_pixels_ray_meets():
+    # rays across the torus's hole from points inside its triangles, each walk started where
+    # the renderer starts it: at the triangle a corner's hit tile names for the ray's texel.
+    # Where a walk arrives it is at the ray's first hit, as Embree finds it (the same triangle,
+    # or the same point on an edge two triangles share); it arrives for nearly every ray that
+    # hits (measured 97.4 % in the 8 steps it takes, 99.6 % in 16, 65 % in 4: the rest run out
+    # of steps or graze the far side) and for none that misses
+    mesh = _torus()
+    face, _ = hit_tiles(mesh)
+    gen = torch.Generator().manual_seed(5)
+    n = 16000
+    tri = torch.randint(0, mesh.n_faces, (n,), generator=gen)
+    b = torch.rand(n, 3, generator=gen)
+    b = b / b.sum(-1, keepdim=True)
+    c = mesh.faces[tri]
+    p = (mesh.vertices[c] * b[..., None]).sum(1)
+    inward = torch.cat([-p[:, :2], torch.zeros_like(p[:, 2:])], -1)
+    r = torch.nn.functional.normalize(inward + 0.3 * torch.randn(n, 3, generator=gen), dim=-1)
+    texel = octahedral.nearest_texel(r, face.shape[-1])
+    start = face.reshape(face.shape[0], -1)[c[:, 0], texel]
+    # a reflected ray leaves the surface above its tangent plane
+    nrm = torch.nn.functional.normalize((mesh.normals[c] * b[..., None]).sum(1), dim=-1)
+    keep = (start >= 0) & ((r * nrm).sum(-1) > 0.2)
+    p, r, start = p[keep], r[keep], start[keep]
+    assert int(keep.sum()) > 1000
+    arrived, g, t = _reflection.walk_to_hit(mesh, mesh.face_neighbours, start, p, r)
+    caster = RayCaster(mesh, offset=0.0, engine="embree")
+    want_tri, want_t, _ = caster.first_hit(p + 1e-5 * r, r)
+    want_t = want_t + 1e-5
+    hits = want_tri >= 0
+    assert 0 < int((~hits).sum()) and not bool((arrived & ~hits).any())
+    assert float(arrived[hits].float().mean()) > 0.95
+    a = arrived & hits
+    at, want_at = p[a] + t[a, None] * r[a], p[a] + want_t[a, None] * r[a]
+    same = (g[a] == want_tri[a]) | ((at - want_at).norm(dim=-1) < 1e-4)
+    assert bool(same.all()), float(same.float().mean())
+    torch.testing.assert_close(t[a], want_t[a], atol=1e-4, rtol=0)
+    # the walk moves most hits off the tile's triangle (measured 94 %): the tile's texel is 6
+    # degrees wide, and its ray leaves from the corner, not from the pixel's point
+    assert float((g[a] != start[a]).float().mean()) > 0.8

@@ -873,8 +873,12 @@ class GLRenderer:
         faces = model.mesh.faces.cpu().numpy().astype(np.int32)
         verts = model.mesh.vertices.detach().cpu().numpy().astype(np.float32)
         width = _VIS_TEX_WIDTH
-        fimg = np.zeros((-(-faces.shape[0] // width) * width, 3), np.int32)
+        # the corners, then from nbr_offset the triangles across each edge (reflection.glsl
+        # walk_to_hit)
+        nbr_offset = -(-faces.shape[0] // width) * width
+        fimg = np.zeros((2 * nbr_offset, 3), np.int32)
         fimg[: faces.shape[0]] = faces
+        fimg[nbr_offset : nbr_offset + faces.shape[0]] = model.mesh.face_neighbours.cpu().numpy()
         slots, tiles, hit_dist = hit_slots(*model.hits())
         pimg = np.zeros((-(-verts.shape[0] // width) * width, 3), np.float32)
         pimg[: verts.shape[0]] = verts
@@ -909,6 +913,7 @@ class GLRenderer:
         p["vis_per_row"].value = per_row
         p["hit_per_row"].value = hit_per_row
         p["face_width"].value = width
+        p["nbr_offset"].value = nbr_offset
         p["sharp_weight"].value = tuple(float(x) for x in sh.weights)
         p["sharp_warp"].value = float(sh.warp)
         self.lobe_tex = self.split_tex = None

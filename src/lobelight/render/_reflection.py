@@ -22,16 +22,23 @@ the narrow sharpness ``lam_i / (n.v)^2`` at ``R +- s_i t``, ``t`` the plane of i
 direction across ``R`` and ``s_i^2 = (1 - (n.v)^2) / lam_i`` the variance the plane's width
 adds: the two points carry that variance exactly.
 
-``V`` the visible fraction of the environment in direction ``R``: where a corner's hit tile
-(below) finds the object at ``R``'s texel, the share of the corners' hit-tile texels around
-``R`` that find none (bilinear, blended with the barycentrics), so that one tile decides where
-the lobe sees the environment and where the object; 1 where no corner finds a hit. What the
-lobe does not see of the environment is the object itself, shaded where it is seen
-(:func:`object_light`): each corner's hit tile (:meth:`lobelight.model.Model.hits`) names the
-triangle its ray along ``R``'s texel hits and how far away; the hit point is placed from the
-pixel itself, ``q = p + t R`` with ``t`` where the pixel's ray meets that triangle's plane (the
-tile's distance where the ray runs nearly along the plane or crosses it off the triangle), and
-projected onto the triangle;
+``V`` the visible fraction of the environment in direction ``R``. What the lobe does not see
+of the environment is the object itself, shaded where it is seen (:func:`object_light`): each
+corner's hit tile (:meth:`lobelight.model.Model.hits`) names the triangle its ray along ``R``'s
+texel hits and how far away. The tile's ray leaves from the corner along a texel 6 degrees
+wide, the pixel's from the pixel's point along ``R``: the pixel's own ray is walked from the
+named triangle across the edge beyond which it crosses each triangle's plane
+(:func:`walk_to_hit`, over :attr:`lobelight.scene.Mesh.face_neighbours`) to the triangle it
+meets. Where a walk arrives (from the corners' triangles in turn, until one does), the pixel's
+ray meets the object there, exactly: ``V = 0``, and the hit point is ``q = p + t R``, so that a
+reflected edge of the object falls where the pixel's ray puts it. Where none arrives (the ray
+runs nearly along a plane, leaves a boundary, or needs more than :data:`HIT_WALK_STEPS`
+triangles), where a corner's tile finds the object at ``R``'s texel ``V`` is the share of the
+corners' hit-tile texels around ``R`` that find none (bilinear, blended with the
+barycentrics), 1 where no corner finds a hit, and each corner's hit point is placed from the
+pixel itself, ``q = p + t R`` with ``t`` where the pixel's ray meets the named triangle's plane
+(the tile's distance where the ray runs nearly along the plane or crosses it off the
+triangle), projected onto the triangle;
 there the object's radiance towards the pixel is its direct sharp reflection for the view
 ``-R`` (as above, with the hit's own visible fraction ``V_hit`` read bilinearly from its
 corners' octahedral visibility tiles,
@@ -42,8 +49,9 @@ colour, the sun's light (shadowed) and
 its indirect Gaussians, taken from the current view's, re-based on the hit's reflected
 direction and rescaled to the hit's occluded fraction ``(1 - V_hit) / (1 - v_fit)``
 (:func:`indirect_scale`; ``v_fit`` the stored views' visible fraction, their direct
-Gaussians' light over ``E``). The pixel adds ``E(n.v) (1 - V) L_hit``, ``L_hit`` the corners'
-hits' light blended with the barycentrics of the corners that found one.
+Gaussians' light over ``E``). The pixel adds ``E(n.v) (1 - V) L_hit``, ``L_hit`` the walked
+hit's light, or the corners' hits' light blended with the barycentrics of the corners that
+found one.
 
 Supported: the BRDFs the sun is shaded with per pixel (:attr:`lobelight.brdf.BRDF.sun_model`)
 with parameters constant over the mesh and a lobe at least as sharp as
@@ -94,6 +102,7 @@ __all__ = [
     "sun_sharp",
     "varying_lobe_arrays",
     "visible_fraction",
+    "walk_to_hit",
 ]
 
 #: The pixel's occluded fraction over the stored views' may rescale the indirect Gaussians by
@@ -119,6 +128,9 @@ OCCLUDED_FLOOR = 0.05
 HIT_PLANE_COS_MIN = 0.1
 #: ... and where that crossing lies on the triangle or near it: no barycentric below minus this.
 HIT_PLANE_MARGIN = 0.25
+#: Triangles a hit is walked over at most, from the one its corner's hit tile names to the one
+#: the pixel's own ray meets (:func:`walk_to_hit`).
+HIT_WALK_STEPS = 8
 #: Shadow rays from a hit point are lifted off its triangle by this fraction of the mesh's
 #: diagonal (as the pixel's own, render/_torch.py).
 HIT_SHADOW_OFFSET = 1e-4
@@ -132,6 +144,7 @@ SHARP_DEFINES = {
     "SUN_RESOLVED": SUN_RESOLVED,
     "INDIRECT_SCALE_MAX": INDIRECT_SCALE_MAX,
     "SPREAD_GAUSSIAN": SPREAD_GAUSSIAN,
+    "HIT_WALK_STEPS": HIT_WALK_STEPS,
 }
 
 
@@ -350,6 +363,51 @@ def _plane_distance(mesh, tri, p, r, t):
     return torch.where(steep & (t_plane > 0) & near, t_plane, t)
 
 
+def walk_to_hit(mesh, neighbours: torch.Tensor, f: torch.Tensor, p: torch.Tensor,
+                r: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:  # fmt: skip
+    """The triangles the rays from ``p (P, 3)`` along ``r (P, 3)`` meet, found by walking from
+    triangles ``f (P,)`` across the edge beyond which each ray crosses the current triangle's
+    plane (``neighbours (F, 3)``, :func:`lobelight.geometry.adjacency.face_neighbours`), at most
+    :data:`HIT_WALK_STEPS` triangles. A corner's hit tile names the triangle its own ray along
+    the tile texel's centre hits; the pixel's ray, from another point and 3 degrees off at
+    most, meets that triangle or one a few triangles away on the same surface.
+
+    Returns
+    -------
+    arrived : (P,) bool, where the walk arrived: not where a ray runs nearly along a plane
+        (:data:`HIT_PLANE_COS_MIN`) or meets it behind ``p``, an edge has no neighbour, the
+        steps run out, or the triangle arrived at faces away from the ray (its corners'
+        normals summed on the ray's side)
+    tri : (P,) the triangle arrived at (where ``arrived``)
+    t : (P,) the distance along the ray to it (where ``arrived``)
+    """
+    g = f.to(torch.long, copy=True)
+    t = torch.zeros(p.shape[0], dtype=p.dtype, device=p.device)
+    arrived = torch.zeros(p.shape[0], dtype=torch.bool, device=p.device)
+    live = torch.arange(p.shape[0], device=p.device)
+    for _ in range(HIT_WALK_STEPS):
+        if live.numel() == 0:
+            break
+        c = mesh.faces[g[live]]
+        v = mesh.vertices[c]  # (L, 3, 3)
+        rl, pl = r[live], p[live]
+        n = torch.linalg.cross(v[:, 1] - v[:, 0], v[:, 2] - v[:, 0])
+        rn = (rl * n).sum(-1)
+        steep = rn.abs() >= HIT_PLANE_COS_MIN * rl.norm(dim=-1) * n.norm(dim=-1)
+        tl = ((v[:, 0] - pl) * n).sum(-1) / torch.where(rn != 0, rn, 1.0)
+        ok = steep & (tl > 0)
+        m, i = _barycentrics(v, pl + tl[:, None] * rl).min(-1)  # the first minimum, as GLSL
+        inside = ok & (m >= 0)
+        front = (mesh.normals[c].sum(1) * rl).sum(-1) < 0
+        arrived[live[inside & front]] = True
+        t[live] = tl
+        step = ok & ~inside
+        nb = neighbours[g[live[step]], i[step]].long()
+        g[live[step]] = nb
+        live = live[step][nb >= 0]
+    return arrived, g, t
+
+
 def _hit_light(model, lighting, vd, sharp, tri, q, r, rot, *, sun_gl, caster, blur, taps):
     """The object's radiance towards ``-r`` at points ``q`` near triangles ``tri`` (module
     docstring), its own sharp reflection blurred by the pixel's lobe (:func:`hit_spread`;
@@ -417,10 +475,18 @@ def object_light(model, lighting, vd, sharp, pixel, pos, r, nv, corners, bary, r
     (``sharp.at(corners, bary, sharp_only=True)``), whose spread blurs the hits; the hits' sun
     shadows take the directions over its disc in ``taps`` (the sample's share).
 
+    Where the pixel's own ray, walked from a corner's hit triangle (:func:`walk_to_hit`; the
+    corners in turn, until a walk arrives), arrives at a triangle, the object is seen there,
+    and the pixel sees the object in the whole lobe; elsewhere the corners' hits are blended.
+
     Returns
     -------
-    light : (P, 3), the corners' hits' light weighted by their barycentrics, summed
-    weight : (P,), the barycentric weight of the corners that found a hit
+    light : (P, 3), the exact hit's light where ``exact``, else the corners' hits' light
+        weighted by their barycentrics, summed
+    weight : (P,), 1 where ``exact``, else the barycentric weight of the corners that found
+        a hit
+    exact : (P,) bool, where the pixel's own ray meets the object (its lobe sees no
+        environment)
     """
     face, dist = model.hits()
     res = face.shape[-1]
@@ -428,9 +494,27 @@ def object_light(model, lighting, vd, sharp, pixel, pos, r, nv, corners, bary, r
     face, dist = face.reshape(face.shape[0], -1), dist.reshape(dist.shape[0], -1)
     light = torch.zeros_like(pos)
     weight = torch.zeros(pos.shape[0], device=pos.device)
-    for i in range(3):  # the triangle's corners
-        f = face[corners[:, i], texel].long()
-        h = ((f >= 0) & (bary[:, i] > 0)).nonzero().squeeze(-1)
+    found = [face[corners[:, i], texel].long() for i in range(3)]
+    exact = torch.zeros(pos.shape[0], dtype=torch.bool, device=pos.device)
+    tri = torch.zeros(pos.shape[0], dtype=torch.long, device=pos.device)
+    near = torch.zeros(pos.shape[0], dtype=pos.dtype, device=pos.device)
+    neighbours = model.mesh.face_neighbours
+    for i in range(3):  # the pixel's own ray, walked from each corner's triangle in turn
+        h = ((found[i] >= 0) & (bary[:, i] > 0) & ~exact).nonzero().squeeze(-1)
+        if h.numel() == 0:
+            continue
+        arrived, g, t = walk_to_hit(model.mesh, neighbours, found[i][h], pos[h], r[h])
+        exact[h[arrived]], tri[h[arrived]], near[h[arrived]] = True, g[arrived], t[arrived]
+    e = exact.nonzero().squeeze(-1)
+    if e.numel():
+        light[e] = _hit_light(
+            model, lighting, vd, sharp, tri[e], pos[e] + near[e, None] * r[e], r[e], rot,
+            sun_gl=sun_gl, caster=caster, blur=(pixel.take(e), nv[e], near[e]), taps=taps,
+        )  # fmt: skip
+        weight[e] = 1.0
+    for i in range(3):  # the triangle's corners, where no walk arrived
+        f = found[i]
+        h = ((f >= 0) & (bary[:, i] > 0) & ~exact).nonzero().squeeze(-1)
         if h.numel() == 0:
             continue
         t = _plane_distance(model.mesh, f[h], pos[h], r[h], dist[corners[h, i], texel[h]].float())
@@ -442,4 +526,4 @@ def object_light(model, lighting, vd, sharp, pixel, pos, r, nv, corners, bary, r
         )  # fmt: skip
         light[h] += bary[h, i, None] * hit
         weight[h] += bary[h, i]
-    return light, weight.clamp(0, 1)
+    return light, weight.clamp(0, 1), exact

@@ -219,10 +219,11 @@ def _per_pixel(model, lighting, vd, sharp, c, b, pos, nrm, view, r, rot, *, sun_
     lobe = sharp.at(c, b, sharp_only=True)
     # the object seen in the lobe where a corner's hit tile finds it; the environment in the
     # rest of it
-    seen, weight = object_light(model, lighting, vd, sharp, lobe, pos, r, nv, c, b, rot,
-                                sun_gl=sun_gl, caster=caster, taps=taps)  # fmt: skip
+    seen, weight, exact = object_light(model, lighting, vd, sharp, lobe, pos, r, nv, c, b, rot,
+                                       sun_gl=sun_gl, caster=caster, taps=taps)  # fmt: skip
     found = weight > 0
     vis = torch.where(found, hit_free_fraction(model.hits()[0].to(dev), c, b, r), 1.0)
+    vis = torch.where(exact, 0.0, vis)  # the pixel's own ray meets the object
     acc = shade(lobe, lighting, r, nrm, nv, vis, rot, rest=sun_gl).to(dev)
     hit = seen / weight.clamp_min(DIVISOR_F32)[:, None]
     return acc + lobe.directional_albedo(nv) * (1 - vis)[:, None] * hit

@@ -17,6 +17,7 @@ import torch
 from .._io import check_input
 from .._tol import DIVISOR_F64
 from ..errors import InputError
+from ..geometry.adjacency import face_neighbours
 from ._gltf import GLTF_SUFFIXES, GltfMaterial, read_gltf, sample_texture
 
 
@@ -140,6 +141,14 @@ class Mesh:
         offsets = torch.zeros(self.n_vertices + 1, dtype=torch.int64)
         offsets[1:] = torch.cumsum(counts, 0)
         return offsets.to(self.device), e[:, 1].contiguous().to(self.device)
+
+    @cached_property
+    def face_neighbours(self) -> torch.Tensor:
+        """``(F, 3)`` int64: the triangle across each triangle's edge opposite each corner, -1
+        at a boundary or non-manifold edge (:func:`lobelight.geometry.adjacency.face_neighbours`:
+        edges matched by their corners' positions)."""
+        nb = face_neighbours(self.vertices.detach().cpu().numpy(), self.faces.cpu().numpy())
+        return torch.from_numpy(nb).long().to(self.device)
 
     def neighbors(self, i: int) -> torch.Tensor:
         """Sorted neighbour indices of vertex ``i``."""

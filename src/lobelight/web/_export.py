@@ -374,6 +374,8 @@ def _sharp(model) -> tuple[dict | None, dict[str, np.ndarray]]:
         "hit_index": hit.astype("<u4"),
         "hit_face": face[hit].astype("<i4"),
         "hit_dist": dist[hit].astype("<f2"),
+        # the triangle across each edge: a hit walked to the pixel's own ray's triangle
+        "face_neighbours": model.mesh.face_neighbours.cpu().numpy().astype("<i4"),
     }
     if varying:
         arrays["lobe"], arrays["split"] = lobe.astype("<f4"), split.astype("<f4")
@@ -689,6 +691,12 @@ def _check_sharp_arrays(path: Path, h: dict, a: dict) -> None:
         raise InputError(str(path), "its hit tiles' arrays differ in length")
     if n[0] and int(a["hit_index"].max()) >= h["n_vertices"] * r * r:
         raise InputError(str(path), "a hit tile texel lies past the last tile")
+    nb = a.get("face_neighbours")
+    f = h["n_faces"]
+    if nb is None or nb.shape != (f, 3):
+        raise InputError(str(path), f"array face_neighbours missing or not of shape ({f}, 3)")
+    if f and (int(nb.min()) < -1 or int(nb.max()) >= f):
+        raise InputError(str(path), "a face's neighbour lies past the last face")
     if h["sharp"].get("varying"):
         shapes = {"lobe": (h["n_vertices"], 4), "split": (SPLIT_ALPHAS, ALBEDO_STEPS, 2)}
         for name, shape in shapes.items():

@@ -553,9 +553,10 @@ void main() {
         float fitted = 1.0;  // the fitted Gaussians' share of the pixel
 #if defined(SHARP) && SHARP
         // the material's own lobe at the pixel's reflected direction (reflection.glsl,
-        // render/_reflection.py): the object where the corners' hit tiles find it, the
-        // environment in the rest of the lobe (the tiles' hit-free share around it); a lobe
-        // varying per vertex at its sharp corners' share, the Gaussians at the rest
+        // render/_reflection.py): the object where the pixel's ray meets it, or else where
+        // the corners' hit tiles find it, the environment in the rest of the lobe (the tiles'
+        // hit-free share around it); a lobe varying per vertex at its sharp corners' share,
+        // the Gaussians at the rest
         fitted = 1.0 - share;
         if (share > 0.0) {
             float nv = max(dot(n, d), 0.0);
@@ -563,7 +564,10 @@ void main() {
             vec3 albedo = directional_albedo(lobe, nv);
             float vis = 1.0;
             vec3 hit = vec3(0.0);
-            if (seen.a > 0.0) {
+            if (seen.a == EXACT_HIT) {  // the pixel's own ray meets the object
+                vis = 0.0;
+                hit = seen.rgb;
+            } else if (seen.a > 0.0) {
                 vis = cb.x * hit_free(cs.x, mirror) + cb.y * hit_free(cs.y, mirror)
                       + cb.z * hit_free(cs.z, mirror);
                 hit = seen.rgb / seen.a;

@@ -1,13 +1,17 @@
 // A sharp reflection placed per pixel (render/_reflection.py, whose formulas these are): the
 // material's own lobe, a mixture of MIXTURE Gaussians, at the pixel's reflected direction,
 // times its directional albedo; where a corner's hit tile (lobelight.model.hit_tiles) finds
-// the object, the object shaded where it is seen (object_light), and the environment in the
-// rest of the lobe. A hit's own visible fraction is read from its corners' octahedral
+// the object, the object shaded where it is seen (object_light: where the pixel's own ray,
+// walked from a tile's triangle, meets the object, there and in the whole lobe), and the
+// environment in the rest of the lobe. A hit's own visible fraction is read from its corners' octahedral
 // visibility tiles (lobelight.model.visibility_tiles). Included in prt.glsl's fragment stage
 // when SHARP is 1; VIS_RES, MIXTURE and ALBEDO_STEPS are defined by the loader.
 
-uniform isampler2D face_tex;      // RGB32I: each triangle's corner vertex ids, face_width wide
+uniform isampler2D face_tex;      // RGB32I, face_width wide: each triangle's corner vertex ids,
+                                  // then from texel nbr_offset each triangle's neighbours
+                                  // (lobelight.geometry.adjacency.face_neighbours)
 uniform int face_width;
+uniform int nbr_offset;
 uniform sampler2D pos_tex;        // RGBA32F, face_width wide: vertex positions and each vertex's
                                   // hit-tile slot (-1: its tile finds nothing)
 uniform sampler2D nrm_tex;        // RGB32F: vertex normals, face_width wide
@@ -82,6 +86,40 @@ float plane_distance(vec3 p0, vec3 p1, vec3 p2, vec3 p, vec3 r, float t) {
     vec3 b = barycentrics(p0, p1, p2, p + tp * r);
     bool near = min(min(b.x, b.y), b.z) >= -HIT_PLANE_MARGIN;
     return abs(rn) >= HIT_PLANE_COS_MIN * length(r) * length(n) && tp > 0.0 && near ? tp : t;
+}
+
+// the triangle g the ray from p along r meets, and how far along the ray (t), found by walking
+// from triangle f across the edge beyond which the ray crosses the current triangle's plane, at
+// most HIT_WALK_STEPS triangles (render/_reflection.py walk_to_hit); false where the walk does
+// not arrive: the ray runs nearly along a plane or meets it behind p, an edge has no
+// neighbour, the steps run out, or the triangle it arrives at faces away from the ray (its
+// corners' normals on the ray's side)
+bool walk_to_hit(int f, vec3 p, vec3 r, out int g, out float t) {
+    g = f;
+    t = 0.0;
+    for (int k = 0; k < HIT_WALK_STEPS; ++k) {
+        ivec3 c = texelFetch(face_tex, at_face_width(g), 0).xyz;
+        vec3 p0 = texelFetch(pos_tex, at_face_width(c.x), 0).xyz;
+        vec3 p1 = texelFetch(pos_tex, at_face_width(c.y), 0).xyz;
+        vec3 p2 = texelFetch(pos_tex, at_face_width(c.z), 0).xyz;
+        vec3 n = cross(p1 - p0, p2 - p0);
+        float rn = dot(r, n);
+        if (abs(rn) < HIT_PLANE_COS_MIN * length(r) * length(n)) return false;
+        t = dot(p0 - p, n) / rn;
+        if (t <= 0.0) return false;
+        vec3 b = barycentrics(p0, p1, p2, p + t * r);
+        float m = min(min(b.x, b.y), b.z);
+        if (m >= 0.0) {
+            vec3 ns = texelFetch(nrm_tex, at_face_width(c.x), 0).xyz
+                      + texelFetch(nrm_tex, at_face_width(c.y), 0).xyz
+                      + texelFetch(nrm_tex, at_face_width(c.z), 0).xyz;
+            return dot(ns, r) < 0.0;
+        }
+        ivec3 nb = texelFetch(face_tex, at_face_width(nbr_offset + g), 0).xyz;
+        g = b.x == m ? nb.x : (b.y == m ? nb.y : nb.z);
+        if (g < 0) return false;
+    }
+    return false;
 }
 
 // the barycentrics of p projected onto triangle (p0, p1, p2), clamped to it
@@ -311,9 +349,14 @@ vec3 hit_light(int f, vec3 p, float dist, vec3 r, float nv_px, float scale_px) {
     return light;
 }
 
+// what object_light's .a is where the pixel's own ray meets the object (a corners' weight is
+// at most 1)
+const float EXACT_HIT = 2.0;
+
 // the object seen along r from point p (n.v nv, lobe's sharpness factor scale) of corners
-// with hit-tile slots s and barycentrics b: the corners' hits' light weighted by their barycentrics, summed (rgb),
-// and the corners' weight (a)
+// with hit-tile slots s and barycentrics b: where the pixel's ray, walked from a corner's
+// triangle, meets the object, that hit's light (rgb) and EXACT_HIT (a); else the corners' hits'
+// light weighted by their barycentrics, summed (rgb), and the corners' weight (a)
 // (render/_reflection.py object_light). One call site of hit_light in
 // a loop over a bit mask of the corners with a hit: a loop over the three corners is unrolled
 // into three copies, and a rasteriser that runs both sides of a branch under a mask (llvmpipe)
@@ -327,16 +370,35 @@ vec4 object_light(vec3 p, vec3 r, float nv, ivec3 s, vec3 b, float scale) {
                     s.z >= 0 ? texelFetch(hit_face_tex, t2, 0).r : -1);
     int mask = (f.x >= 0 && b.x > 0.0 ? 1 : 0) | (f.y >= 0 && b.y > 0.0 ? 2 : 0)
                | (f.z >= 0 && b.z > 0.0 ? 4 : 0);
+    // the pixel's own ray, walked from each corner's triangle in turn: where a walk arrives,
+    // the ray meets the object there, whatever the other corners' tiles say. One call site of
+    // each function in a loop (see above)
+    int hit = -1;
+    float near = 0.0;
+    int walks = mask;
+    while (walks != 0 && hit < 0) {
+        int i = (walks & 1) != 0 ? 0 : ((walks & 2) != 0 ? 1 : 2);
+        walks &= ~(1 << i);
+        int g;
+        float t;
+        if (walk_to_hit(i == 0 ? f.x : (i == 1 ? f.y : f.z), p, r, g, t)) {
+            hit = g;
+            near = t;
+        }
+    }
+    if (hit >= 0) mask = 8;  // the one hit the pixel's ray meets (bit 3)
     vec3 light = vec3(0.0);
     float w = 0.0;
     while (mask != 0) {
-        int i = (mask & 1) != 0 ? 0 : ((mask & 2) != 0 ? 1 : 2);
+        int i = (mask & 1) != 0 ? 0 : ((mask & 2) != 0 ? 1 : ((mask & 4) != 0 ? 2 : 3));
         mask &= ~(1 << i);
         ivec2 t = i == 0 ? t0 : (i == 1 ? t1 : t2);
-        int face = i == 0 ? f.x : (i == 1 ? f.y : f.z);
-        float weight = i == 0 ? b.x : (i == 1 ? b.y : b.z);
-        light += weight * hit_light(face, p, texelFetch(hit_dist_tex, t, 0).r, r, nv, scale);
+        int face = i == 0 ? f.x : (i == 1 ? f.y : (i == 2 ? f.z : hit));
+        float dist = i == 3 ? near : texelFetch(hit_dist_tex, t, 0).r;
+        float weight = i == 0 ? b.x : (i == 1 ? b.y : (i == 2 ? b.z : 1.0));
+        light += weight * hit_light(face, p, dist, r, nv, scale);
         w += weight;
     }
+    if (hit >= 0) return vec4(light, EXACT_HIT);
     return vec4(light, min(w, 1.0));
 }

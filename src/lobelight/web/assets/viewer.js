@@ -447,9 +447,16 @@
       this.hitPerRow = hitRow;
       this.hitFaceTex = this.dataTexture(hf.w, hf.h, gl.R32I, gl.RED_INTEGER, gl.INT, hf.data);
       this.hitDistTex = this.dataTexture(hd.w, hd.h, gl.R16F, gl.RED, gl.HALF_FLOAT, hd.data);
+      // the corners, then from nbrOffset the triangles across each edge (reflection.glsl
+      // walk_to_hit)
       const faces = this.padded(new Int32Array(a.faces.data.buffer), 3, w, Int32Array);
-      this.faceTex = this.dataTexture(w, faces.rows, gl.RGB32I, gl.RGB_INTEGER, gl.INT,
-                                      faces.data);
+      const nbrs = this.padded(a.face_neighbours.data, 3, w, Int32Array);
+      const both = new Int32Array(faces.data.length + nbrs.data.length);
+      both.set(faces.data);
+      both.set(nbrs.data, faces.data.length);
+      this.nbrOffset = faces.rows * w;
+      this.faceTex = this.dataTexture(w, faces.rows + nbrs.rows, gl.RGB32I, gl.RGB_INTEGER,
+                                      gl.INT, both);
       const tex = {};
       for (const [name, arr] of [["nrm", a.normals], ["alb", a.albedo]]) {
         const p = this.padded(arr.data, 3, w, Float32Array);
@@ -687,6 +694,7 @@
       this.uniform(p.prt, "vis_per_row", "uniform1i", this.visPerRow);
       this.uniform(p.prt, "hit_per_row", "uniform1i", this.hitPerRow);
       this.uniform(p.prt, "face_width", "uniform1i", this.h.tex_width);
+      this.uniform(p.prt, "nbr_offset", "uniform1i", this.nbrOffset);
       this.uniform(p.prt, "sharp_weight", "uniform1fv", s.weights);
       this.uniform(p.prt, "sharp_lam", "uniform1fv", s.lam);
       this.uniform(p.prt, "sharp_warp", "uniform1f", s.warp);

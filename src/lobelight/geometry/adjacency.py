@@ -1,0 +1,47 @@
+"""Which triangle lies across each edge of a triangle mesh.
+
+A mesh's vertices are often split where its normals, UVs or patches change (a scanned mesh's
+seams, the Utah teapot's Bezier patches): two triangles that meet there share no vertex index,
+though they share an edge in space. Edges are therefore matched by their corners' positions:
+vertices at the same position count as one.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+__all__ = ["face_neighbours"]
+
+
+def face_neighbours(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
+    """The triangle across each triangle's edges: ``(F, 3)`` int32, entry ``(f, i)`` the triangle
+    sharing the edge opposite corner ``i`` of triangle ``f`` (its corners ``i + 1`` and
+    ``i + 2``, mod 3), -1 where no other triangle has that edge or more than two have it (a
+    boundary, or a non-manifold edge: no one triangle is across it).
+
+    Parameters
+    ----------
+    vertices : (V, 3) positions; those equal in every coordinate are one vertex here
+    faces : (F, 3) vertex indices
+    """
+    v = np.asarray(vertices)
+    f = np.asarray(faces, np.int64)
+    if f.shape[0] == 0:
+        return np.zeros((0, 3), np.int32)
+    _, weld = np.unique(v, axis=0, return_inverse=True)
+    w = weld.reshape(-1)[f]  # (F, 3) the corners, welded
+    a, b = w[:, [1, 2, 0]], w[:, [2, 0, 1]]  # the edge opposite each corner
+    key = (np.minimum(a, b) * (int(weld.max()) + 1) + np.maximum(a, b)).reshape(-1)  # (3F,)
+    order = np.argsort(key, kind="stable")  # slots (3 f + i) by edge
+    ks = key[order]
+    start = np.r_[True, ks[1:] != ks[:-1]]
+    run = np.cumsum(start) - 1  # each slot's edge, in sorted order
+    first = np.flatnonzero(start)
+    count = np.bincount(run)
+    at = np.arange(ks.shape[0])
+    # an edge two triangles share: each slot's partner is the other slot of its run
+    two = count[run] == 2
+    partner = np.where(at == first[run], at + 1, at - 1)
+    out = np.full(ks.shape[0], -1, np.int64)
+    out[order[two]] = order[partner[two]] // 3
+    return out.reshape(-1, 3).astype(np.int32)
