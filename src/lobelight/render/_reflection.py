@@ -393,7 +393,8 @@ def walk_to_hit(mesh, neighbours: torch.Tensor, f: torch.Tensor, p: torch.Tensor
         rl, pl = r[live], p[live]
         n = torch.linalg.cross(v[:, 1] - v[:, 0], v[:, 2] - v[:, 0])
         rn = (rl * n).sum(-1)
-        steep = rn.abs() >= HIT_PLANE_COS_MIN * rl.norm(dim=-1) * n.norm(dim=-1)
+        # (a triangle of no area has no plane to cross)
+        steep = (rn != 0) & (rn.abs() >= HIT_PLANE_COS_MIN * rl.norm(dim=-1) * n.norm(dim=-1))
         tl = ((v[:, 0] - pl) * n).sum(-1) / torch.where(rn != 0, rn, 1.0)
         ok = steep & (tl > 0)
         m, i = _barycentrics(v, pl + tl[:, None] * rl).min(-1)  # the first minimum, as GLSL

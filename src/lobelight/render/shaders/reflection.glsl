@@ -104,7 +104,8 @@ bool walk_to_hit(int f, vec3 p, vec3 r, out int g, out float t) {
         vec3 p2 = texelFetch(pos_tex, at_face_width(c.z), 0).xyz;
         vec3 n = cross(p1 - p0, p2 - p0);
         float rn = dot(r, n);
-        if (abs(rn) < HIT_PLANE_COS_MIN * length(r) * length(n)) return false;
+        // (a triangle of no area has no plane to cross)
+        if (abs(rn) == 0.0 || abs(rn) < HIT_PLANE_COS_MIN * length(r) * length(n)) return false;
         t = dot(p0 - p, n) / rn;
         if (t <= 0.0) return false;
         vec3 b = barycentrics(p0, p1, p2, p + t * r);
