@@ -17,7 +17,18 @@ ROOT = Path(lobelight.__file__).parent
 
 #: Top-level modules and packages by layer, lowest first.
 LAYERS: list[tuple[str, ...]] = [
-    ("errors", "_backend", "_checks", "_tol", "_io", "_cache", "_memory", "progress", "data"),
+    (
+        "errors",
+        "_backend",
+        "_checks",
+        "_tol",
+        "_io",
+        "_cache",
+        "_memory",
+        "_container",
+        "progress",
+        "data",
+    ),
     ("geometry",),
     ("lobes",),
     ("brdf",),

@@ -129,8 +129,11 @@ def test_a_file_replaced_while_it_is_read_is_refused(model_file, tmp_path, monke
 
 @pytest.fixture
 def ahead(monkeypatch):
-    """Read ahead on for files of any size; what each ``take`` gave, recorded."""
+    """Read ahead on for files of any size, whatever threads earlier tests left idle in this
+    process (a server's, a client's: the child only inflates, and takes no lock of theirs);
+    what each ``take`` gave, recorded."""
     monkeypatch.setattr(_container, "AHEAD_MIN_BYTES", 0)
+    monkeypatch.setattr(_container, "_other_threads", lambda: False)
     taken = []
     take = _container.take
 
@@ -194,6 +197,9 @@ def test_a_damaged_member_read_ahead_gives_the_plain_reads_error(model_file, tmp
 
 
 def test_no_read_ahead_where_it_cannot_help_or_would_be_unsafe(model_file, tmp_path, monkeypatch):
+    # each refusal for its own reason: no other thread counted until the last case
+    other_threads = _container._other_threads
+    monkeypatch.setattr(_container, "_other_threads", lambda: False)
     # the default threshold: this small file inflates faster than a child starts
     assert model_file.stat().st_size < _container.AHEAD_MIN_BYTES
     assert not _container.read_ahead(model_file)
@@ -206,6 +212,12 @@ def test_no_read_ahead_where_it_cannot_help_or_would_be_unsafe(model_file, tmp_p
     assert not _container.read_ahead(model_file)
     monkeypatch.undo()
     monkeypatch.setattr(_container, "AHEAD_MIN_BYTES", 0)
+    # the same file with no other thread is read ahead (the child reaped by a take)
+    with monkeypatch.context() as m:
+        m.setattr(_container, "_other_threads", lambda: False)
+        assert _container.read_ahead(model_file)
+        assert _container.take(Path("/nonexistent"), []) is None
+    assert _container._other_threads is other_threads
     # a thread running: a fork would copy only this one
     import threading
 

@@ -88,6 +88,12 @@ class _Ahead:
 _AHEAD: _Ahead | None = None
 
 
+def _other_threads() -> bool:
+    """Whether a thread besides this one runs: a fork copies only the calling thread, and a
+    lock another thread holds stays held in the child."""
+    return threading.active_count() > 1
+
+
 def _identity(st: os.stat_result) -> tuple:
     return (st.st_dev, st.st_ino, st.st_size, st.st_mtime_ns)
 
@@ -101,7 +107,7 @@ def read_ahead(path) -> bool:
     global _AHEAD
     if _AHEAD is not None or not sys.platform.startswith("linux"):
         return False
-    if threading.active_count() > 1:  # a fork copies only the calling thread
+    if _other_threads():
         return False
     p = str(Path(path))
     try:
