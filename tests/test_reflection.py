@@ -664,3 +664,21 @@ def test_a_hit_is_walked_to_the_triangle_the_pixels_ray_meets():
     # the walk moves most hits off the tile's triangle (measured 94 %): the tile's texel is 6
     # degrees wide, and its ray leaves from the corner, not from the pixel's point
     assert float((g[a] != start[a]).float().mean()) > 0.8
+
+
+def test_a_corner_that_misses_starts_its_walk_from_its_footprint():
+    # one texel of a tile finds triangle 7: a direction whose bilinear footprint holds it
+    # starts there, one whose footprint does not finds none; of two texels in the footprint
+    # the first in hit_free's reading order wins
+    res = 8
+    tiles = torch.full((1, res, res), -1, dtype=torch.int32)
+    tiles[0, 3, 4] = 7
+    centres = octahedral.texel_directions(res)[:, :, 0]  # (R, R, 3): row, column
+    at = torch.stack([centres[3, 4], centres[3, 3], centres[2, 4], centres[6, 1]])
+    got = _reflection.footprint_face(tiles, torch.zeros(4, dtype=torch.long), at)
+    # a texel centre's footprint starts at that texel: (3, 4) itself, and (3, 3) and (2, 4)
+    # have (3, 4) as their right and lower neighbours; (6, 1) is far away
+    assert got.tolist() == [7, 7, 7, -1]
+    tiles[0, 3, 3] = 5  # now first in the footprint of (3, 3), before its neighbour (3, 4)
+    got = _reflection.footprint_face(tiles, torch.zeros(1, dtype=torch.long), centres[3, 3][None])
+    assert got.tolist() == [5]

@@ -29,8 +29,10 @@ texel hits and how far away. The tile's ray leaves from the corner along a texel
 wide, the pixel's from the pixel's point along ``R``: the pixel's own ray is walked from the
 named triangle across the edge beyond which it crosses each triangle's plane
 (:func:`walk_to_hit`, over :attr:`lobelight.scene.Mesh.face_neighbours`) to the triangle it
-meets. Where a walk arrives (from the corners' triangles in turn, until one does), the pixel's
-ray meets the object there, exactly: ``V = 0``, and the hit point is ``q = p + t R``, so that a
+meets (a corner whose texel finds nothing starts from a triangle its bilinear footprint's
+texels find, :func:`footprint_face`: along the silhouette of the object seen in the lobe). Where
+a walk arrives (from the corners' triangles in turn, until one does), the pixel's ray meets the
+object there, exactly: ``V = 0``, and the hit point is ``q = p + t R``, so that a
 reflected edge of the object falls where the pixel's ray puts it. Where none arrives (the ray
 runs nearly along a plane, leaves a boundary, or needs more than :data:`HIT_WALK_STEPS`
 triangles), where a corner's tile finds the object at ``R``'s texel ``V`` is the share of the
@@ -296,6 +298,21 @@ def visible_fraction(tiles: torch.Tensor, corners: torch.Tensor, bary: torch.Ten
     return (v * bary).sum(-1)
 
 
+def footprint_face(face: torch.Tensor, tile: torch.Tensor, r: torch.Tensor) -> torch.Tensor:
+    """A triangle the texels of the hit tiles ``face (V, R, R)`` (indexed by ``tile (P,)``)
+    around ``r (P, 3)`` find: the first of the bilinear footprint's four texels that finds one,
+    in the order :func:`hit_free_fraction` reads them, -1 where none does: (P,) int64."""
+    res = face.shape[-1]
+    p = octahedral.encode(r)
+    x = ((p[..., 0] + 1) * (res / 2) - 0.5).clamp(0, res - 1).floor().long().clamp(max=res - 2)
+    y = ((p[..., 1] + 1) * (res / 2) - 0.5).clamp(0, res - 1).floor().long().clamp(max=res - 2)
+    out = torch.full(r.shape[:-1], -1, dtype=torch.long, device=r.device)
+    for dy, dx in ((1, 1), (1, 0), (0, 1), (0, 0)):  # the first in reading order wins
+        f = face[tile, y + dy, x + dx].long()
+        out = torch.where(f >= 0, f, out)
+    return out
+
+
 def hit_free_fraction(face: torch.Tensor, corners: torch.Tensor, bary: torch.Tensor,
                       r: torch.Tensor) -> torch.Tensor:  # fmt: skip
     """``V(R)`` where the lobe finds the object: the share of the corners' hit tiles' texels
@@ -489,10 +506,10 @@ def object_light(model, lighting, vd, sharp, pixel, pos, r, nv, corners, bary, r
     exact : (P,) bool, where the pixel's own ray meets the object (its lobe sees no
         environment)
     """
-    face, dist = model.hits()
-    res = face.shape[-1]
+    tiles, dist = model.hits()
+    res = tiles.shape[-1]
     texel = octahedral.nearest_texel(r, res)  # (P,)
-    face, dist = face.reshape(face.shape[0], -1), dist.reshape(dist.shape[0], -1)
+    face, dist = tiles.reshape(tiles.shape[0], -1), dist.reshape(dist.shape[0], -1)
     light = torch.zeros_like(pos)
     weight = torch.zeros(pos.shape[0], device=pos.device)
     found = [face[corners[:, i], texel].long() for i in range(3)]
@@ -501,10 +518,16 @@ def object_light(model, lighting, vd, sharp, pixel, pos, r, nv, corners, bary, r
     near = torch.zeros(pos.shape[0], dtype=pos.dtype, device=pos.device)
     neighbours = model.mesh.face_neighbours
     for i in range(3):  # the pixel's own ray, walked from each corner's triangle in turn
-        h = ((found[i] >= 0) & (bary[:, i] > 0) & ~exact).nonzero().squeeze(-1)
+        # a corner whose texel at r finds nothing starts from a triangle its neighbouring
+        # texels find: along the silhouette of the object seen in the lobe
+        start = found[i].clone()
+        m = (start < 0) & (bary[:, i] > 0)
+        if bool(m.any()):
+            start[m] = footprint_face(tiles, corners[m, i], r[m])
+        h = ((start >= 0) & (bary[:, i] > 0) & ~exact).nonzero().squeeze(-1)
         if h.numel() == 0:
             continue
-        arrived, g, t = walk_to_hit(model.mesh, neighbours, found[i][h], pos[h], r[h])
+        arrived, g, t = walk_to_hit(model.mesh, neighbours, start[h], pos[h], r[h])
         exact[h[arrived]], tri[h[arrived]], near[h[arrived]] = True, g[arrived], t[arrived]
     e = exact.nonzero().squeeze(-1)
     if e.numel():

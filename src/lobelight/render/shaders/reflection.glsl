@@ -256,6 +256,21 @@ vec3 sun_brdf_cos(vec3 l, vec3 v, vec3 n);  // prt.glsl
 float sun_through(vec3 mu, float lam);      // prt.glsl
 #endif
 
+// a triangle the texels of hit-tile slot s around direction d find (its bilinear footprint,
+// in the order hit_free reads it), -1 where none does (render/_reflection.py footprint_face)
+int footprint_face(int s, vec3 d) {
+    ivec2 x0;
+    vec2 f;
+    tile_bilinear(d, x0, f);
+    ivec2 o = hit_origin(s) + x0;
+    int a = texelFetch(hit_face_tex, o, 0).r;
+    if (a >= 0) return a;
+    a = texelFetch(hit_face_tex, o + ivec2(1, 0), 0).r;
+    if (a >= 0) return a;
+    a = texelFetch(hit_face_tex, o + ivec2(0, 1), 0).r;
+    return a >= 0 ? a : texelFetch(hit_face_tex, o + ivec2(1, 1), 0).r;
+}
+
 // the texel of hit-tile slot s holding direction d (lobelight.geometry.octahedral.nearest_texel)
 ivec2 hit_texel(int s, vec3 d) {
     vec2 p = oct_encode(d);
@@ -372,17 +387,24 @@ vec4 object_light(vec3 p, vec3 r, float nv, ivec3 s, vec3 b, float scale) {
     int mask = (f.x >= 0 && b.x > 0.0 ? 1 : 0) | (f.y >= 0 && b.y > 0.0 ? 2 : 0)
                | (f.z >= 0 && b.z > 0.0 ? 4 : 0);
     // the pixel's own ray, walked from each corner's triangle in turn: where a walk arrives,
-    // the ray meets the object there, whatever the other corners' tiles say. One call site of
-    // each function in a loop (see above)
+    // the ray meets the object there, whatever the other corners' tiles say. A corner whose
+    // texel at r finds nothing starts from a triangle its neighbouring texels find: along the
+    // silhouette of the object seen in the lobe the pixel's ray may meet what the corner's
+    // 6-degree texel misses. One call site of each function in a loop (see above)
+    ivec3 start = f;
+    if (f.x < 0 && s.x >= 0 && b.x > 0.0) start.x = footprint_face(s.x, r);
+    if (f.y < 0 && s.y >= 0 && b.y > 0.0) start.y = footprint_face(s.y, r);
+    if (f.z < 0 && s.z >= 0 && b.z > 0.0) start.z = footprint_face(s.z, r);
     int hit = -1;
     float near = 0.0;
-    int walks = mask;
+    int walks = (start.x >= 0 && b.x > 0.0 ? 1 : 0) | (start.y >= 0 && b.y > 0.0 ? 2 : 0)
+                | (start.z >= 0 && b.z > 0.0 ? 4 : 0);
     while (walks != 0 && hit < 0) {
         int i = (walks & 1) != 0 ? 0 : ((walks & 2) != 0 ? 1 : 2);
         walks &= ~(1 << i);
         int g;
         float t;
-        if (walk_to_hit(i == 0 ? f.x : (i == 1 ? f.y : f.z), p, r, g, t)) {
+        if (walk_to_hit(i == 0 ? start.x : (i == 1 ? start.y : start.z), p, r, g, t)) {
             hit = g;
             near = t;
         }
