@@ -15,7 +15,7 @@ from __future__ import annotations
 
 import torch
 
-__all__ = ["bilinear", "decode", "encode", "nearest_texel", "texel_directions"]
+__all__ = ["bilinear", "decode", "encode", "footprint", "nearest_texel", "texel_directions"]
 
 
 def _fold(p: torch.Tensor) -> torch.Tensor:
@@ -55,6 +55,19 @@ def nearest_texel(dirs: torch.Tensor, res: int) -> torch.Tensor:
     return ij[..., 1] * res + ij[..., 0]
 
 
+def footprint(dirs: torch.Tensor, res: int) -> tuple[torch.Tensor, ...]:
+    """The bilinear footprint of directions ``dirs (..., 3)`` in a tile of ``res``² texels,
+    clamped to the tile: its first texel's column and row ``x0, y0 (...)`` int64 (the other
+    three are one to the right, below, and both) and the weights ``fx, fy (...)`` of the
+    second column and row."""
+    p = encode(dirs)
+    x = ((p[..., 0] + 1) * (res / 2) - 0.5).clamp(0, res - 1)
+    y = ((p[..., 1] + 1) * (res / 2) - 0.5).clamp(0, res - 1)
+    x0 = x.floor().long().clamp(max=res - 2)
+    y0 = y.floor().long().clamp(max=res - 2)
+    return x0, y0, x - x0, y - y0
+
+
 def bilinear(
     tiles: torch.Tensor, index: torch.Tensor, dirs: torch.Tensor, value=None
 ) -> torch.Tensor:
@@ -70,13 +83,7 @@ def bilinear(
     -------
     (...) float32
     """
-    r = tiles.shape[-1]
-    p = encode(dirs)
-    x = ((p[..., 0] + 1) * (r / 2) - 0.5).clamp(0, r - 1)
-    y = ((p[..., 1] + 1) * (r / 2) - 0.5).clamp(0, r - 1)
-    x0 = x.floor().long().clamp(max=r - 2)
-    y0 = y.floor().long().clamp(max=r - 2)
-    fx, fy = x - x0, y - y0
+    x0, y0, fx, fy = footprint(dirs, tiles.shape[-1])
 
     def at(dy: int, dx: int) -> torch.Tensor:
         # gather, then convert: the tiles stay in their own (e.g. uint8) storage

@@ -558,11 +558,13 @@ _PARALLEL_BYTES = 8 << 20
 
 
 def _read_members(z, p: Path, keys: list[str], name: str) -> dict[str, np.ndarray]:
-    """The members ``keys`` of the open archive ``z`` (as ``z[key]`` reads them), the largest
-    first on :data:`READ_THREADS` threads, each through its own handle on ``p`` whose
-    directory must be the one :func:`_check_sizes` checked (a file replaced meanwhile is
-    refused, so the declared sizes still bound what is read). A failure is the one the first
-    failing member in ``keys``' order raises, as in a read of one member after another."""
+    """The members ``keys`` of the open archive ``z`` (as ``z[key]`` reads them): those the
+    command line's child inflated ahead where it read this very file (:func:`_read_ahead`),
+    else read here, the largest first on :data:`READ_THREADS` threads, each through its own
+    handle on ``p`` whose directory must be the one :func:`_check_sizes` checked (a file
+    replaced meanwhile is refused, so the declared sizes still bound what is read). A failure
+    is the one the first failing member in ``keys``' order raises, as in a read of one member
+    after another."""
     directory = _container.directory(z.zip)
     ahead = _read_ahead(p, directory, keys)
     if ahead is not None:

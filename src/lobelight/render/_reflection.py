@@ -302,10 +302,7 @@ def footprint_face(face: torch.Tensor, tile: torch.Tensor, r: torch.Tensor) -> t
     """A triangle the texels of the hit tiles ``face (V, R, R)`` (indexed by ``tile (P,)``)
     around ``r (P, 3)`` find: the first of the bilinear footprint's four texels that finds one,
     in the order :func:`hit_free_fraction` reads them, -1 where none does: (P,) int64."""
-    res = face.shape[-1]
-    p = octahedral.encode(r)
-    x = ((p[..., 0] + 1) * (res / 2) - 0.5).clamp(0, res - 1).floor().long().clamp(max=res - 2)
-    y = ((p[..., 1] + 1) * (res / 2) - 0.5).clamp(0, res - 1).floor().long().clamp(max=res - 2)
+    x, y, _, _ = octahedral.footprint(r, face.shape[-1])
     out = torch.full(r.shape[:-1], -1, dtype=torch.long, device=r.device)
     for dy, dx in ((1, 1), (1, 0), (0, 1), (0, 0)):  # the first in reading order wins
         f = face[tile, y + dy, x + dx].long()
@@ -420,7 +417,7 @@ def walk_to_hit(mesh, neighbours: torch.Tensor, f: torch.Tensor, p: torch.Tensor
         arrived[live[inside & front]] = True
         t[live] = tl
         step = ok & ~inside
-        nb = neighbours[g[live[step]], i[step]].long()
+        nb = neighbours[g[live[step]], i[step]]
         g[live[step]] = nb
         live = live[step][nb >= 0]
     return arrived, g, t

@@ -3,8 +3,8 @@
 // times its directional albedo; where a corner's hit tile (lobelight.model.hit_tiles) finds
 // the object, the object shaded where it is seen (object_light: where the pixel's own ray,
 // walked from a tile's triangle, meets the object, there and in the whole lobe), and the
-// environment in the rest of the lobe. A hit's own visible fraction is read from its corners' octahedral
-// visibility tiles (lobelight.model.visibility_tiles). Included in prt.glsl's fragment stage
+// environment in the rest of the lobe. A hit's own visible fraction is read from its corners'
+// octahedral visibility tiles (lobelight.model.visibility_tiles). Included in prt.glsl's fragment stage
 // when SHARP is 1; VIS_RES, MIXTURE and ALBEDO_STEPS are defined by the loader.
 
 uniform isampler2D face_tex;      // RGB32I, face_width wide: each triangle's corner vertex ids,
