@@ -116,7 +116,9 @@ def _compare(mat: GltfMaterial, tex_uv: np.ndarray, a=_A, b=_B, pairs: int = 6) 
 
     m = _mitsuba()
     sc = _quad(mat, a, b)
-    scene = m.load_dict(scene_dict(sc, _constant_env(m), width=4, height=4, spp=1))
+    with tempfile.TemporaryDirectory() as work:
+        d = scene_dict(sc, _constant_env(m), width=4, height=4, spp=1, workdir=work)
+        scene = m.load_dict(d)
     xy = (tex_uv - b) @ np.linalg.inv(a).T  # (P, 2) points on the quad
     assert np.all(np.abs(xy) < 0.999), "a UV outside the quad"
     base, metal, rough = _factors(mat, torch.tensor(tex_uv))
@@ -321,8 +323,12 @@ def test_rendered_textured_quad_under_a_uniform_sky():
         cam = Camera.look_at((0.0, 0.0, 20.0), (0.0, 0.0, 0.0), fov=2 * math.degrees(0.04))
         sc = _quad(mat, env=_constant_env(m), camera=cam)
         w = 32
-        d = scene_dict(sc, sc.environment, width=w, height=w, spp=256, max_depth=2, seed=3)
-        out = np.asarray(m.render(m.load_dict(d)), dtype=np.float64)  # (w, w, 3)
+        with tempfile.TemporaryDirectory() as work:
+            d = scene_dict(
+                sc, sc.environment, width=w, height=w, spp=256, max_depth=2, seed=3, workdir=work
+            )
+            s = m.load_dict(d)
+        out = np.asarray(m.render(s), dtype=np.float64)  # (w, w, 3)
     finally:
         _mitsuba()
     # the lobe's directional albedo at normal incidence: the glTF formula (written in

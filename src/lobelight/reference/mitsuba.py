@@ -54,7 +54,6 @@ renders it.
 
 from __future__ import annotations
 
-import tempfile
 from pathlib import Path
 
 import numpy as np
@@ -472,7 +471,7 @@ def scene_dict(
     spp: int = 64,
     max_depth: int = 4,
     seed: int = 0,
-    workdir: str | Path | None = None,
+    workdir: str | Path,
     variant: str | None = None,
 ) -> dict:
     """A ``mi.load_dict`` scene equivalent to ours (PLY files are written to ``workdir``).
@@ -480,12 +479,14 @@ def scene_dict(
     Parameters
     ----------
     env_path : lat-long ``.exr``/``.hdr`` file of the lighting (Mitsuba's ``envmap``)
+    workdir : an existing directory for the meshes' PLY files, which Mitsuba reads when the
+        dict is loaded; the caller owns it (and removes it after ``mi.load_dict``)
     max_depth : path length as Mitsuba counts it (2 = direct lighting)
     variant : the Mitsuba variant to set (None: keep the one that is set, else ``scalar_rgb``)
     """
     mi = load_mitsuba(variant)
     cam = camera or scene.camera
-    work = Path(workdir or tempfile.mkdtemp(prefix="lobelight-mi-"))
+    work = Path(workdir)
     v = scene.mesh.vertices.cpu().numpy().astype(np.float64)
     n = scene.mesh.normals.cpu().numpy().astype(np.float64)
     f = scene.mesh.faces.cpu().numpy()
