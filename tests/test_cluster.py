@@ -222,23 +222,23 @@ def _fail_chunk_3(kind: str):
     NaN weights (``"nan"``)."""
     from lobelight.fit import _worker
 
-    real = _worker.compute_fit
+    real = _worker.compute_chunk
 
-    def broken(bake, chunk, inputs):
-        result = real(bake, chunk, inputs)
+    def broken(stage, bake, chunk, inputs):
+        result = real(stage, bake, chunk, inputs)
         if chunk.index == 3:
             if kind == "raise":
                 raise ValueError("degenerate data")
             result.arrays["w"][0] = float("nan")
         return result
 
-    _worker.compute_fit, _worker._real = broken, real
+    _worker.compute_chunk, _worker._real = broken, real
 
 
 def _restore():
     from lobelight.fit import _worker
 
-    _worker.compute_fit = getattr(_worker, "_real", _worker.compute_fit)
+    _worker.compute_chunk = getattr(_worker, "_real", _worker.compute_chunk)
 
 
 @pytest.mark.parametrize("kind", ["raise", "nan"])

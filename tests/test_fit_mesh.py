@@ -5,12 +5,14 @@ from __future__ import annotations
 import io
 import json
 import sys
+import threading
 
 import numpy as np
 import pytest
 import torch
 
 from lobelight import fit, scene, transport
+from lobelight.errors import InputError
 from lobelight.geometry import sphere
 from lobelight.lobes import sg
 from lobelight.scene import _shapes
@@ -124,6 +126,42 @@ def test_killed_fit_resumes_to_the_same_model(tmp_path, n, stage, batch):
         log.clear()
         fit.fit_mesh(sc, **kw, seed=1, checkpoint=ck, progress=_killer("none", 0, log))
         assert log[0] == ("fit", 1)
+
+
+def test_chunks_side_by_side_give_the_model_of_one_chunk_at_a_time(monkeypatch):
+    # two Gaussians per view: a wavefront's chunks run at once, each reading the wavefronts
+    # before its own and, in the relaxation, the Gaussians as its group found them; each on
+    # one torch thread. So two threads give the one thread's model bit for bit, and they did
+    # run side by side (two worker threads took chunks of one wavefront)
+    from lobelight.fit import _runner
+
+    sc = scene.builtin("sphere", subdivisions=1, model="ggx", roughness=0.25)
+    kw = dict(n=2, batch=4, indirect_paths=2, bounces=1)
+    fronts = [len(g) for g in _runner.groups(
+        fit._chunk.plan_chunks(fit.wavefronts(sc.mesh), n=2, batch=4, device="cpu"), 2
+    )]  # fmt: skip
+    assert max(fronts) >= 3  # wavefronts of several chunks
+    seen: dict[str, set] = {"fit": set(), "relax": set()}
+    real = _runner.compute_chunk
+
+    def spy(stage, bake, chunk, inputs):
+        seen[stage].add(threading.current_thread().name)
+        assert torch.get_num_threads() == 1  # a chunk's arithmetic is the same on any thread
+        return real(stage, bake, chunk, inputs)
+
+    monkeypatch.setattr(_runner, "compute_chunk", spy)
+    before = torch.get_num_threads()
+    one = fit.fit_mesh(sc, **kw, threads=1)
+    assert all(len(names) == 1 for names in seen.values())
+    seen = {"fit": set(), "relax": set()}
+    two = fit.fit_mesh(sc, **kw, threads=2)
+    assert all(len(names) == 2 for names in seen.values()), seen
+    assert torch.get_num_threads() == before  # restored after the chunks
+    _same(two, one)
+    assert two.batch == 4
+    for bad in (0, 1.5, True):
+        with pytest.raises(InputError, match="threads"):
+            fit.fit_mesh(sc, **kw, threads=bad)
 
 
 def test_the_relaxation_samples_where_the_flood_fill_did(tmp_path):

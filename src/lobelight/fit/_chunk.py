@@ -1,25 +1,24 @@
 """The chunk: the unit of a bake's work, fitted, saved and resumed as one.
 
 A bake (:func:`lobelight.fit.fit_mesh`) cuts the mesh's vertices into :class:`Chunk` s
-(:func:`plan_chunks`) and runs them in order, in the flood fill (:func:`fit_chunk`) and again
-in the relaxation (:func:`refit_chunk`); its checkpoint counts the chunks done
-(:mod:`._checkpoint`). Each chunk reads and writes the bake's arrays (:class:`BakeState`) at
-its own vertices, and reads them at their neighbours:
+(:func:`plan_chunks`) and runs them in the flood fill and again in the relaxation
+(:func:`compute_chunk`), in groups whose chunks run at once (:mod:`lobelight.fit._runner`); its
+checkpoint counts the chunks done (:mod:`._checkpoint`). Each chunk reads and writes the bake's
+arrays (:class:`BakeState`) at its own vertices, and reads them at their neighbours:
 
 - In the flood fill with one Gaussian per view there is no spatial term, and a chunk reads
   nothing of other chunks: chunks are independent and may run in any order, or at once.
 - With two or more, a chunk's vertices start from, and are held by ``S`` against, the
-  neighbours fitted in the chunks before it: chunks run in order (a chunk depends on the
-  earlier ones).
-- The relaxation refits each chunk against all neighbours' current Gaussians, in order.
+  neighbours fitted in the wavefronts before its own (:func:`fit_inputs`' ``readable``): the
+  chunks of one wavefront run at once, the wavefronts in order.
+- The relaxation refits each chunk against all neighbours' Gaussians as its group found them.
 
-A chunk's work is split in three, so that it may run in another process
+A chunk's work is split in three, so that it may run on another thread or in another process
 (:mod:`lobelight.fit._cluster`): what it reads of the bake's state is gathered first
 (:func:`fit_inputs`, :func:`refit_inputs`: its processed neighbours' Gaussians, tensors of the
 chunk's size), the work itself reads nothing else of the state and returns a
 :class:`ChunkResult` (:func:`compute_fit`, :func:`compute_refit`), which is then written into
-the state (:meth:`ChunkResult.apply`). :func:`fit_chunk` and :func:`refit_chunk` do the three in
-one process.
+the state (:meth:`ChunkResult.apply`).
 
 A chunk's indirect glossy paths are seeded by its index, not by when it runs, so a resumed bake
 draws the paths an uninterrupted one does.
@@ -50,12 +49,11 @@ __all__ = [
     "ChunkResult",
     "Neighbours",
     "RefitInputs",
+    "compute_chunk",
     "compute_fit",
     "compute_refit",
-    "fit_chunk",
     "fit_inputs",
     "plan_chunks",
-    "refit_chunk",
     "refit_inputs",
 ]
 
@@ -359,12 +357,6 @@ class ChunkResult:
         bake.indirect_seconds += self.indirect_seconds
 
 
-def fit_chunk(bake: Bake, chunk: Chunk) -> None:
-    """The flood fill's work on a chunk, in this process: :func:`compute_fit` against the
-    neighbours processed before it (:func:`fit_inputs`), written into the state."""
-    compute_fit(bake, chunk, fit_inputs(bake, chunk)).apply(bake)
-
-
 def fit_inputs(bake: Bake, chunk: Chunk, readable: torch.Tensor | None = None):
     """What the flood fill of ``chunk`` reads of the state: the processed neighbours of its
     vertices (with two or more Gaussians per view; None with one). A neighbour is processed
@@ -411,10 +403,13 @@ def compute_fit(bake: Bake, chunk: Chunk, nbrs: Neighbours | None) -> ChunkResul
     return ChunkResult(chunk.index, vidx, out, seconds)
 
 
-def refit_chunk(bake: Bake, chunk: Chunk) -> None:
-    """The relaxation's work on a chunk, in this process: :func:`compute_refit` against all
-    neighbours' current Gaussians (:func:`refit_inputs`), written into the state."""
-    compute_refit(bake, chunk, refit_inputs(bake, chunk)).apply(bake)
+def compute_chunk(stage: str, bake: Bake, chunk: Chunk, inputs) -> ChunkResult:
+    """One chunk's work in ``stage``: the flood fill's (``"fit"``, :func:`compute_fit` on
+    :func:`fit_inputs`) or the relaxation's (``"relax"``, :func:`compute_refit` on
+    :func:`refit_inputs`)."""
+    if stage == "fit":
+        return compute_fit(bake, chunk, inputs)
+    return compute_refit(bake, chunk, inputs)
 
 
 def refit_inputs(bake: Bake, chunk: Chunk) -> RefitInputs:

@@ -16,14 +16,10 @@ and the relaxation (:mod:`lobelight.fit._chunk`) through a :class:`ClusterRun`:
 - **Where the state is**: with the client, which writes each result into it as it arrives
   (``as_completed``), reports progress and saves the checkpoint
   (:mod:`lobelight.fit._checkpoint`) as the single-process bake does.
-- **The order**: with one Gaussian per view the chunks are independent and all are handed out
-  at once. With two or more, the spatial term reads processed neighbours: the chunks of one
-  wavefront of the flood fill run at once, each reading the wavefronts before its own only,
-  and the wavefronts run in order; the relaxation refits one wavefront's chunks at once
-  against the current Gaussians of all the others. Neighbours in one wavefront do not see
-  each other's new lobes, as they do in the single-process bake, so with two or more
-  Gaussians the result differs from it (and the checkpoint's settings say which order made
-  it); with one it is the same, bit for bit.
+- **The order**: the chunks run in groups, as on threads in one process
+  (:mod:`lobelight.fit._runner`): all at once with one Gaussian per view, a wavefront's at once
+  with two or more, each reading what its group found; the workers have one thread each, so
+  the model is the one process's, bit for bit.
 - **The interreflection** (:func:`lobelight.transport.diffuse_interreflection`), which couples
   all vertices, runs on the client: it reads every vertex's diffuse transfer and final
   Gaussians, the largest arrays of the bake, which are already there; on a worker they would
@@ -45,14 +41,12 @@ from __future__ import annotations
 
 import contextlib
 import uuid
-from collections.abc import Callable, Iterator
+from collections.abc import Iterator
 from concurrent.futures import CancelledError
 
-import torch
-
 from ..errors import InputError
-from ._checkpoint import Checkpoint, Position
-from ._chunk import Bake, Chunk, ChunkResult, fit_inputs, refit_inputs
+from ._chunk import Chunk, ChunkResult
+from ._runner import ChunkRun, name_vertices
 
 __all__ = ["CONNECT_TIMEOUT", "WORKER_ENVIRON", "ClusterRun", "cluster"]
 
@@ -68,8 +62,6 @@ WORKER_ENVIRON = {
     "MALLOC_TRIM_THRESHOLD_": 2**31 - 1,
     "MALLOC_TOP_PAD_": 512 * 1024 * 1024,
 }
-#: Vertex ids an error message lists before it counts the rest.
-_LISTED = 12
 _HINT = "pip install 'lobelight[cluster]' (dask[distributed])"
 
 
@@ -120,29 +112,7 @@ def cluster(
         yield client
 
 
-def name_vertices(ids: torch.Tensor) -> str:
-    """``"vertices 3, 4, 9"``, the first few and a count where there are many."""
-    ids = ids.reshape(-1).tolist()
-    text = ", ".join(str(i) for i in ids[:_LISTED])
-    if len(ids) > _LISTED:
-        text += f", ... ({len(ids)} in all)"
-    return f"vertices {text}" if len(ids) != 1 else f"vertex {text}"
-
-
-def checked(result: ChunkResult, stage: str) -> ChunkResult:
-    """``result``, after checking that its values are finite (an InputError naming the
-    vertices where they are not)."""
-    bad = result.nonfinite()
-    if bad.numel():
-        raise InputError(
-            name_vertices(bad),
-            f"the {stage} gave values that are not finite (NaN or infinite): a degenerate "
-            "triangle or material there?",
-        )
-    return result
-
-
-class ClusterRun:
+class ClusterRun(ChunkRun):
     """The chunks of one bake on the cluster of ``client`` (module docstring).
 
     Parameters
@@ -166,72 +136,26 @@ class ClusterRun:
         """Workers the scheduler knows now."""
         return len(self.client.scheduler_info(n_workers=-1).get("workers", {}))
 
-    def run(
-        self,
-        stage: str,
-        bake: Bake,
-        chunks: list[Chunk],
-        start: Position,
-        ckpt: Checkpoint,
-        progress: Callable[[str, int, int], None] | None,
-        *,
-        force_last: bool,
-    ) -> None:
-        """Run the chunks of ``stage`` (``"fit"`` or ``"relax"``) not yet done, group by group
-        (:func:`_groups`), writing each result into ``bake``'s state as it arrives, saving the
-        checkpoint (after each result in the flood fill, after each group in the relaxation,
-        whose chunks read the state as the group found it) and reporting progress."""
-        finished = _finished(stage, bake, chunks, start)
-        readable = _fronts(bake, chunks) if stage == "fit" and bake.n > 1 else None
-        total = len(chunks)
-        for group in _groups(chunks, bake.n):
-            todo = [c for c in group if not finished[c.index]]
-            if not todo:
-                continue
-            self._group(stage, bake, todo, readable, finished, ckpt, progress, force_last)
-            if stage != "fit":
-                nxt = group[-1].index + 1
-                at = Position(stage, nxt, bake.flips_before, bake.flips_after)
-                ckpt.save(at, bake.state.arrays(), force=force_last and nxt == total)
-
-    def _group(self, stage, bake, todo, readable, finished, ckpt, progress, force_last) -> None:
-        """Submit the chunks ``todo`` at once and take their results as they come."""
-        from distributed import as_completed  # optional: the [cluster] extra
-
+    def _submit(self, stage: str, chunk: Chunk, inputs):
         from ._worker import run_chunk  # optional: needs distributed (the [cluster] extra)
 
-        futures = {}
-        for c in todo:
-            inputs = _inputs(stage, bake, c, readable)
-            cpu = Chunk(c.index, c.vertices.cpu(), c.front)
-            fut = self.client.submit(run_chunk, self.name, stage, cpu, inputs, pure=False)
-            futures[fut] = c
-        try:
-            for fut in as_completed(list(futures), loop=self.client.loop):
-                chunk = futures.pop(fut)
-                result = _take(fut, chunk, stage, self.client.scheduler.address)
-                fut.release()  # the worker may forget it
-                checked(result.to(bake.state.w.device), stage).apply(bake)
-                finished[chunk.index] = True
-                done, total = int(finished.sum()), finished.numel()
-                if stage == "fit":
-                    nxt = int(finished.logical_not().nonzero()[0]) if done < total else total
-                    at = Position(stage, nxt, bake.flips_before, bake.flips_after)
-                    ckpt.save(at, bake.state.arrays(), force=force_last and done == total)
-                if progress is not None:
-                    progress(stage, done, total)
-        finally:
-            if futures:  # a fault, or the caller gone: the rest is not wanted
-                with contextlib.suppress(Exception):  # nothing to cancel on a lost scheduler
-                    self.client.cancel(list(futures))
+        cpu = Chunk(chunk.index, chunk.vertices.cpu(), chunk.front)
+        inputs = None if inputs is None else inputs.to("cpu")
+        return self.client.submit(run_chunk, self.name, stage, cpu, inputs, pure=False)
 
+    def _completed(self, futures: list) -> Iterator:
+        from distributed import as_completed  # optional: the [cluster] extra
 
-def _inputs(stage: str, bake: Bake, chunk: Chunk, readable):
-    """What ``chunk`` reads of the state, on the CPU."""
-    if stage == "fit":
-        nb = fit_inputs(bake, chunk, None if readable is None else readable < chunk.front)
-        return None if nb is None else nb.to("cpu")
-    return refit_inputs(bake, chunk).to("cpu")
+        return as_completed(futures, loop=self.client.loop)
+
+    def _take(self, fut, chunk: Chunk, stage: str) -> ChunkResult:
+        result = _take(fut, chunk, stage, self.client.scheduler.address)
+        fut.release()  # the worker may forget it
+        return result
+
+    def _cancel(self, futures: list) -> None:
+        with contextlib.suppress(Exception):  # nothing to cancel on a lost scheduler
+            self.client.cancel(futures)
 
 
 def _take(fut, chunk: Chunk, stage: str, scheduler: str) -> ChunkResult:
@@ -264,39 +188,3 @@ def _take(fut, chunk: Chunk, stage: str, scheduler: str) -> ChunkResult:
             name_vertices(chunk.vertices),
             f"the {stage} of this chunk failed on a worker: {type(e).__name__}: {e}",
         ) from e
-
-
-def _finished(stage: str, bake: Bake, chunks: list[Chunk], start: Position) -> torch.Tensor:
-    """(K,) bool, the chunks of ``stage`` done already: in the flood fill, those whose
-    vertices it has all reached (a resumed bake's results may have come in any order);
-    in the relaxation, those before the checkpoint's next chunk."""
-    done = torch.zeros(len(chunks), dtype=torch.bool)
-    if stage == "fit":
-        reached = bake.state.done.cpu()
-        for c in chunks:
-            done[c.index] = bool(reached[c.vertices.cpu()].all())
-    else:
-        done[: start.first_chunk(stage)] = True
-    return done
-
-
-def _fronts(bake: Bake, chunks: list[Chunk]) -> torch.Tensor:
-    """(V,) int64, each vertex's wavefront (its chunk's ``front``), on the state's device."""
-    front = torch.zeros(bake.mesh.n_vertices, dtype=torch.int64, device=bake.state.done.device)
-    for c in chunks:
-        front[c.vertices] = c.front
-    return front
-
-
-def _groups(chunks: list[Chunk], n: int) -> list[list[Chunk]]:
-    """The chunks that run at once, in the order the groups run: all of them with one Gaussian
-    per view, one wavefront's with more."""
-    if n == 1:
-        return [chunks]
-    groups: list[list[Chunk]] = []
-    for c in chunks:
-        if groups and groups[-1][0].front == c.front:
-            groups[-1].append(c)
-        else:
-            groups.append([c])
-    return groups

@@ -3,10 +3,11 @@
 The paper fits one vertex at a time, starting from a seed and moving to neighbours, so that the
 spatial term ``S`` always compares with vertices already fitted. Here the fill proceeds by
 breadth-first *wavefronts*: wavefront ``k`` holds the vertices at graph distance ``k`` from their
-component's seed. Their ``S`` terms read the vertices fitted before them (earlier wavefronts, and
-earlier chunks of their own), so a wavefront is fitted in a few large batches, chunks of bounded
-memory (:mod:`._chunk`), each at once on any device. The bake's state is saved to a checkpoint
-between chunks (:mod:`._checkpoint`).
+component's seed. Their ``S`` terms read the vertices of earlier wavefronts, so a wavefront is
+fitted in a few large batches, chunks of bounded memory (:mod:`._chunk`), each at once on any
+device, and a wavefront's chunks side by side on the threads of this process or the workers of
+a cluster (:mod:`._runner`). The bake's state is saved to a checkpoint between chunks
+(:mod:`._checkpoint`).
 
 Beyond the paper, a relaxation pass revisits every vertex once all are fitted, this time with
 ``S`` against all its neighbours (the paper's own proposal against "Gaussian flipping"), then
@@ -29,20 +30,13 @@ from ..geometry import sphere
 from ..scene import Mesh, Scene
 from ..transport import BOUNCES, INDIRECT_PATHS, Transport, diffuse_interreflection
 from ._checkpoint import Checkpoint, Position, settings_key
-from ._chunk import (
-    Bake,
-    Chunk,
-    compute_fit,
-    compute_refit,
-    fit_inputs,
-    plan_chunks,
-    refit_inputs,
-)
-from ._cluster import ClusterRun, checked
+from ._chunk import Bake, Chunk, plan_chunks
+from ._cluster import ClusterRun
 from ._memory import MEMORY_GB, PeakMeter, plan_memory
 from ._objective import Weights, flip_count
 from ._optimize import Gaussians
 from ._relax import SEPARATED, live_gaussians, reorder_mesh, separated_pairs
+from ._runner import ChunkRun, ThreadRun
 
 __all__ = ["MeshFit", "count_flips", "fit_mesh", "wavefronts"]
 
@@ -187,6 +181,7 @@ def fit_mesh(
     shadows: bool = True,
     memory_gb: float = MEMORY_GB,
     client=None,
+    threads: int | None = None,
 ) -> MeshFit:
     """Fit N Gaussians per view to every vertex's direct glossy transport, one more to its
     indirect glossy transport, and its SH diffuse transfer with interreflection.
@@ -207,9 +202,9 @@ def fit_mesh(
     scene : Scene;  n : Gaussians per view (1-3);  views : (J, 3), default the 92 geodesic views
     batch : vertices fitted at once (default: from ``memory_gb``: 64 on the CPU, as many as
         half the free memory holds on a GPU, fewer where the budget is smaller); memory about
-        ``batch x J x 1000 x (90 + 100 n)`` bytes. With ``n = 1`` there is no spatial term,
-        vertices do not depend on each other and chunks run across wavefronts; with ``n >= 2``
-        a chunk stays inside one wavefront
+        ``batch x J x 672 x (180 + 40 n)`` bytes (:func:`lobelight.fit._memory.chunk_bytes`).
+        With ``n = 1`` there is no spatial term, vertices do not depend on each other and
+        chunks run across wavefronts; with ``n >= 2`` a chunk stays inside one wavefront
     indirect_paths : paths per vertex and view for indirect glossy (0: direct glossy only,
         no indirect Gaussian)
     bounces : bounces of diffuse interreflection added to the SH transfer once the glossy fit
@@ -231,16 +226,22 @@ def fit_mesh(
     client : a ``distributed.Client`` (the optional ``[cluster]`` extra; :func:`cluster`
         makes one): the chunks of the flood fill and the relaxation run on its workers
         (:mod:`lobelight.fit._cluster`, which says what crosses and where each stage runs),
-        each worker computing on ``device`` (None: its CUDA device where it has one); with
-        one Gaussian per view the result is the single-process bake's, bit for bit, and the
-        two resume each other's checkpoints; with two or more, the chunks of a wavefront run
-        at once and read the wavefronts before their own only
+        each worker computing on ``device`` (None: its CUDA device where it has one); the
+        result is the bake's in one process, bit for bit, and the two resume each other's
+        checkpoints
+    threads : chunks run at once in this process without a ``client`` (:mod:`._runner`: each
+        on one torch thread, so the model does not depend on it); default torch's thread
+        count on the CPU, 1 on a GPU; fewer where the memory budget holds fewer chunks
 
     Returns
     -------
     MeshFit
     """
     weights = Weights() if weights is None else weights
+    if threads is not None and (
+        isinstance(threads, bool) or not isinstance(threads, int) or threads < 1
+    ):
+        raise InputError("threads", f"must be a positive number of threads, got {threads!r}")
     meter = PeakMeter()
     meter.stage("setup")
     try:
@@ -255,8 +256,9 @@ def fit_mesh(
         indirect_paths, bounces = _counts(plan.batch, indirect_paths, bounces)
         bake = Bake.start(tr, views, n=n, weights=weights, indirect_paths=indirect_paths, seed=seed)
         chunks = plan_chunks(wavefronts(tr.mesh), n=n, batch=plan.batch, device=dev)
-        # two or more Gaussians on a cluster run a wavefront's chunks at once: another result
-        order = ("wavefronts at once",) if client is not None and n > 1 else ()
+        # with two or more Gaussians a wavefront's chunks run at once (._runner): checkpoints
+        # of a bake that ran them one after another are of another result
+        order = ("wavefronts at once",) if n > 1 else ()
         key = settings_key(
             scene,
             n,
@@ -270,21 +272,30 @@ def fit_mesh(
         ckpt = Checkpoint(checkpoint, key, every=checkpoint_every)
         start = ckpt.resume(bake.state.arrays())
         bake.flips_before, bake.flips_after = start.flips_before, start.flips_after
-        remote = (
-            None if client is None else _cluster_run(client, scene, bake, device, shadows, progress)
-        )
+        if client is not None:
+            runner: ChunkRun = _cluster_run(client, scene, bake, device, shadows, progress)
+        else:
+            runner = ThreadRun(bake, _threads(threads, dev, plan.chunks_at_once))
         try:
             seconds = _stages(bake, chunks, start, ckpt, progress, meter, relax=relax,
                               bounces=bounces, memory=plan.interreflection,
-                              run=_run_chunks if remote is None else remote.run)  # fmt: skip
+                              run=runner.run)  # fmt: skip
         finally:
-            if remote is not None:
-                remote.close()
+            runner.close()
     finally:
         peaks = meter.stop()
     out = _result(bake, bounces, seconds)
     out.peak_bytes, out.batch = peaks, plan.batch
     return out
+
+
+def _threads(threads: int | None, device: torch.device, most: int) -> int:
+    """How many chunks run at once in this process: ``threads`` (default torch's thread count
+    on the CPU, 1 on a GPU, whose kernels a second chunk would only queue behind the first's),
+    at most ``most`` (what the memory budget holds)."""
+    if threads is None:
+        threads = torch.get_num_threads() if device.type == "cpu" else 1
+    return max(1, min(threads, most))
 
 
 def _cluster_run(client, scene: Scene, bake: Bake, device, shadows: bool, progress) -> ClusterRun:
@@ -318,7 +329,7 @@ def _spec(scene: Scene, bake: Bake, device, shadows: bool):
 
 def _stages(bake: Bake, chunks, start, ckpt, progress, meter, *, relax, bounces, memory, run):
     """The bake's stages from ``start``: flood fill, relaxation, interreflection, the chunks
-    run by ``run`` (:func:`_run_chunks`'s signature). Returns the seconds of each."""
+    run by ``run`` (:meth:`lobelight.fit._runner.ChunkRun.run`). Returns the seconds of each."""
     t0 = time.perf_counter()
     meter.stage("fit")
     if start.todo("fit"):
@@ -358,27 +369,6 @@ def _counts(batch: int, indirect_paths, bounces) -> tuple[int, int]:
 def _at(bake: Bake, stage: str, next_chunk: int) -> Position:
     """The bake's position at the start of chunk ``next_chunk`` of ``stage``."""
     return Position(stage, next_chunk, bake.flips_before, bake.flips_after)
-
-
-def _run_chunks(stage, bake, chunks, start, ckpt, progress, *, force_last: bool) -> None:
-    """Run the chunks of ``stage`` (``"fit"``: :func:`lobelight.fit._chunk.compute_fit`,
-    ``"relax"``: :func:`lobelight.fit._chunk.compute_refit`) not yet done, in this process and
-    in order, saving the state and reporting progress after each (a save forced after the last
-    one where ``force_last``). In the flood fill a chunk whose vertices are all reached is
-    done (a cluster's checkpoint may hold chunks done out of order)."""
-    total = len(chunks)
-    for chunk in chunks[start.first_chunk(stage) :]:
-        if stage == "fit":
-            if bool(bake.state.done[chunk.vertices].all()):
-                continue
-            result = compute_fit(bake, chunk, fit_inputs(bake, chunk))
-        else:
-            result = compute_refit(bake, chunk, refit_inputs(bake, chunk))
-        checked(result, stage).apply(bake)
-        done = chunk.index + 1
-        ckpt.save(_at(bake, stage, done), bake.state.arrays(), force=force_last and done == total)
-        if progress is not None:
-            progress(stage, done, total)
 
 
 def _relaxation(bake: Bake, chunks: list[Chunk], start, ckpt, progress, run) -> None:

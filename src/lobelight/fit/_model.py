@@ -44,6 +44,7 @@ def fit_model(
     memory_gb: float = MEMORY_GB,
     client=None,
     refine: int = REFINE_ROUNDS,
+    threads: int | None = None,
 ):
     """Fit the glossy transport of every vertex with ``n_gaussians`` Gaussians per view, and its
     SH diffuse transfer (:func:`fit_mesh`), and wrap the result as a model.
@@ -69,8 +70,11 @@ def fit_model(
     ``client``: a ``distributed.Client``, or the address of a Dask scheduler
     (``tcp://HOST:8786``; :func:`lobelight.fit.cluster`): the chunks of the bake run on the
     cluster's workers, the result streaming back into this process's state and checkpoint
-    (:func:`fit_mesh`); with one Gaussian per view the model is the single-process bake's, bit
-    for bit.
+    (:func:`fit_mesh`); the model is the one-process bake's, bit for bit.
+
+    ``threads``: without a ``client``, how many chunks run at once in this process (default
+    torch's thread count on the CPU, 1 on a GPU; :func:`fit_mesh`); each chunk runs on one
+    torch thread, so the model does not depend on it.
 
     ``refine``: rounds of splitting the mesh's edges whose ends see the environment
     differently (:func:`lobelight.fit.refine_scene`; 0: the scene's mesh as it is); the model
@@ -114,6 +118,7 @@ def fit_model(
             shadows=shadows,
             memory_gb=memory_gb,
             client=client,
+            threads=threads,
         )
     seconds = {**mf.seconds, "total": time.perf_counter() - t0}
     live = mf.gaussians.w.amax((-1, -2, -3)) > 0  # vertices with any glossy weight

@@ -5,7 +5,7 @@ which hands it to every worker once, and to every worker that joins or is restar
 scene, the views and the settings cross to a worker once, never with a chunk. The worker builds
 its :class:`lobelight.fit._chunk.Bake` (the scene's transport, without a state) at its first
 chunk and keeps it; :func:`run_chunk` is the task, one chunk's work
-(:func:`lobelight.fit._chunk.compute_fit` or :func:`lobelight.fit._chunk.compute_refit`) on
+(:func:`lobelight.fit._chunk.compute_chunk`) on
 the inputs that crossed with it, its result returned on the CPU.
 
 This module needs ``distributed`` (the optional ``[cluster]`` extra); nothing imports it
@@ -22,7 +22,7 @@ from distributed import WorkerPlugin, get_worker
 
 from ..scene import Scene
 from ..transport import Transport
-from ._chunk import Bake, Chunk, ChunkResult, compute_fit, compute_refit
+from ._chunk import Bake, Chunk, ChunkResult, compute_chunk
 from ._objective import Weights
 
 __all__ = ["BakePlugin", "BakeSpec", "run_chunk"]
@@ -99,8 +99,8 @@ def run_chunk(name: str, stage: str, chunk: Chunk, inputs) -> ChunkResult:
     dev = bake.transport.device
     chunk = Chunk(chunk.index, chunk.vertices.to(dev), chunk.front)
     inputs = None if inputs is None else inputs.to(dev)
-    if stage == "fit":
-        result = compute_fit(bake, chunk, inputs)
-    else:
-        result = compute_refit(bake, chunk, inputs)
-    return result.to("cpu")
+    # a chunk's work runs on one torch thread wherever it runs (lobelight.fit._runner): the
+    # same arithmetic, so the same model, as a bake in one process
+    if torch.get_num_threads() != 1:
+        torch.set_num_threads(1)
+    return compute_chunk(stage, bake, chunk, inputs).to("cpu")
