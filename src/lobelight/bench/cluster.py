@@ -7,8 +7,9 @@ process's one-time costs (imports, caches, the allocator's first growth). The sa
 Gaussian per view: independent chunks) runs on local clusters of 1, 2, ...
 worker processes of one thread each (:func:`lobelight.fit.cluster`), and, for each of them, in
 this process with as many torch threads as the cluster has worker threads (at most this
-machine's cores), so that each cluster run is set against a single-process bake on the same
-cores. The chunks' stage (``fit`` in the bake's provenance: transport sampling and the fit,
+machine's cores; the bake then runs as many chunks side by side, one torch thread each:
+:mod:`lobelight.fit._runner`), so that each cluster run is set against a single-process bake
+on the same cores. The chunks' stage (``fit`` in the bake's provenance: transport sampling and the fit,
 what the workers run) is timed apart from the interreflection, which stays on the client. From
 them:
 
