@@ -187,6 +187,38 @@ def test_large_arrays_travel_gzipped_and_damaged_ones_are_refused():
         assert "vis_tiles" in str(e.value)
 
 
+def test_a_sharp_metals_hit_tiles_read_back_from_their_steps(sky, tmp_path):
+    """The hit tiles travel as steps (each texel's flat index and triangle less the one
+    before's): summed, they are the model's tiles' texels that see the object, in order, and
+    their triangles; steps that do not ascend, or sum past the last tile or face, are
+    refused with one InputError naming the problem."""
+    from lobelight.web import _export
+
+    m = sharp_torus()
+    web.export_web(m, tmp_path / "v", [sky], base_res=32)
+    f = web.read_web(tmp_path / "v")
+    a, h = f.arrays, f.header
+    face = m.hits()[0].reshape(-1).numpy()  # (V R R,) -1 where the texel finds nothing
+    hit = np.nonzero(face >= 0)[0]
+    assert 0 < hit.size < face.size
+    np.testing.assert_array_equal(np.cumsum(a["hit_step"], dtype=np.int64), hit)
+    np.testing.assert_array_equal(np.cumsum(a["hit_face_step"], dtype=np.int64), face[hit])
+    past = a["hit_step"].copy()
+    past[-1] += h["n_vertices"] * h["sharp"]["vis_res"] ** 2
+    still = a["hit_step"].copy()
+    still[1] = 0
+    wrong = a["hit_face_step"].copy()
+    wrong[0] = -1
+    for change, says in (
+        ({"hit_step": past}, "past the last tile"),
+        ({"hit_step": still}, "do not ascend"),
+        ({"hit_face_step": wrong}, "not one of the faces"),
+        ({"hit_dist": a["hit_dist"][1:]}, "differ in length"),
+    ):
+        with pytest.raises(InputError, match=says):
+            _export._check_sharp_arrays(tmp_path / "v" / "model.js", h, {**a, **change})
+
+
 def test_the_folder_is_written_atomically_and_never_over_an_input(sky, tmp_path):
     m = analytic_model(1)
     out = tmp_path / "v"

@@ -9,9 +9,9 @@ worker processes of one thread each (:func:`lobelight.fit.cluster`), and, for ea
 this process with as many torch threads as the cluster has worker threads (at most this
 machine's cores; the bake then runs as many chunks side by side, one torch thread each:
 :mod:`lobelight.fit._runner`), so that each cluster run is set against a single-process bake
-on the same cores. The chunks' stage (``fit`` in the bake's provenance: transport sampling and the fit,
-what the workers run) is timed apart from the interreflection, which stays on the client. From
-them:
+on the same cores. The chunks' stage (``fit`` in the bake's provenance: transport sampling and
+the fit, what the workers run) is timed apart from the interreflection, which stays on the
+client. From them:
 
 - ``chunks_per_second``: chunks over the chunks' stage's seconds, per run;
 - ``overhead_seconds_per_chunk``: the 1-worker run's chunk stage less the one-thread local

@@ -371,8 +371,10 @@ def _sharp(model) -> tuple[dict | None, dict[str, np.ndarray]]:
     }
     arrays = {
         "vis_tiles": tiles,
-        "hit_index": hit.astype("<u4"),
-        "hit_face": face[hit].astype("<i4"),
+        # ascending texel indices, and the triangles of neighbouring texels, as steps from
+        # the one before: runs of small numbers that gzip shrinks several times over
+        "hit_step": np.diff(hit, prepend=0).astype("<u4"),
+        "hit_face_step": np.diff(face[hit].astype(np.int64), prepend=0).astype("<i4"),
         "hit_dist": dist[hit].astype("<f2"),
         # the triangle across each edge: a hit walked to the pixel's own ray's triangle
         "face_neighbours": model.mesh.face_neighbours.cpu().numpy().astype("<i4"),
@@ -684,15 +686,24 @@ def _check_sharp_arrays(path: Path, h: dict, a: dict) -> None:
     r = int(h["sharp"]["vis_res"])
     if "vis_tiles" not in a or a["vis_tiles"].shape != (h["n_vertices"], r, r):
         raise InputError(str(path), f"array vis_tiles missing or not of shape (V, {r}, {r})")
-    if any(name not in a for name in ("hit_index", "hit_face", "hit_dist")):
-        raise InputError(str(path), "has no hit tiles (hit_index, hit_face, hit_dist)")
-    n = a["hit_index"].shape
-    if a["hit_face"].shape != n or a["hit_dist"].shape != n or len(n) != 1:
+    if any(name not in a for name in ("hit_step", "hit_face_step", "hit_dist")):
+        raise InputError(str(path), "has no hit tiles (hit_step, hit_face_step, hit_dist)")
+    n = a["hit_step"].shape
+    if a["hit_face_step"].shape != n or a["hit_dist"].shape != n or len(n) != 1:
         raise InputError(str(path), "its hit tiles' arrays differ in length")
-    if n[0] and int(a["hit_index"].max()) >= h["n_vertices"] * r * r:
-        raise InputError(str(path), "a hit tile texel lies past the last tile")
-    nb = a.get("face_neighbours")
     f = h["n_faces"]
+    if n[0]:
+        texel = np.cumsum(a["hit_step"], dtype=np.int64)
+        if bool((a["hit_step"][1:] == 0).any()):
+            raise InputError(str(path), "its hit tile texels do not ascend")
+        if int(texel[-1]) >= h["n_vertices"] * r * r:
+            raise InputError(str(path), "a hit tile texel lies past the last tile")
+        face = np.cumsum(a["hit_face_step"], dtype=np.int64)
+        if int(face.min()) < 0 or int(face.max()) >= f:
+            raise InputError(
+                str(path), "a hit tile texel's triangle is not one of the mesh's faces"
+            )
+    nb = a.get("face_neighbours")
     if nb is None or nb.shape != (f, 3):
         raise InputError(str(path), f"array face_neighbours missing or not of shape ({f}, 3)")
     if f and (int(nb.min()) < -1 or int(nb.max()) >= f):

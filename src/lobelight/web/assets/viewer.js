@@ -426,7 +426,16 @@
       // the hit tiles, stored as their texels that see the object: a slot for each vertex
       // whose tile has one (in vertex order: the texels ascend), its tile at the slot's place
       // in the atlas, -1 (none) at its other texels (render/_gl.py hit_slots)
-      const at = a.hit_index.data, rr = r * r;
+      // the texels' flat indices and triangles, stored as steps from the one before
+      // (lobelight/web/_export.py)
+      const steps = a.hit_step.data, faceSteps = a.hit_face_step.data, rr = r * r;
+      const at = new Uint32Array(steps.length), hitFace = new Int32Array(steps.length);
+      for (let i = 0, t = 0, f = 0; i < steps.length; ++i) {
+        t += steps[i];
+        f += faceSteps[i];
+        at[i] = t;
+        hitFace[i] = f;
+      }
       const slot = new Int32Array(nv).fill(-1);
       let slots = 0;
       for (let i = 0; i < at.length; ++i) {
@@ -441,7 +450,7 @@
         const v = Math.floor(at[i] / rr), t = at[i] - v * rr, y = Math.floor(t / r);
         const s = slot[v];
         const p = (Math.floor(s / hitRow) * r + y) * hw + (s % hitRow) * r + (t - y * r);
-        hf.data[p] = a.hit_face.data[i];
+        hf.data[p] = hitFace[i];
         hd.data[p] = a.hit_dist.data[i];
       }
       this.hitPerRow = hitRow;
