@@ -145,7 +145,7 @@ def test_a_smaller_budget_gives_smaller_batches_and_an_impossible_one_an_error()
     full = _memory.plan_memory(4.0, 10_000, 92, 1, device="cpu")
     small = _memory.plan_memory(1.5, 10_000, 92, 1, device="cpu")
     assert full.batch == 64
-    # what is left of 1.5 GB after the 1 GB allowance and the state, in chunks of ~13 MB
+    # what is left of 1.5 GB after the 1 GB allowance and the state, in chunks of ~14 MB
     left = 1.5 * 2**30 - 2**30 - _memory.state_bytes(10_000, 92, 1)
     assert small.batch == int(left // _memory.chunk_bytes(92, 1)) < 64
     assert small.interreflection == left - _memory.interreflection_bytes(10_000, 92, 1)

@@ -128,6 +128,23 @@ def test_killed_fit_resumes_to_the_same_model(tmp_path, n, stage, batch):
         assert log[0] == ("fit", 1)
 
 
+def test_a_relaxation_killed_inside_a_group_runs_the_group_again(tmp_path):
+    # 12 vertices in chunks of 2, two Gaussians: wavefronts of 1, 5, 5 and 1 vertices, so the
+    # relaxation's groups are 1, 3, 3 and 1 chunks. Killed after the second chunk of the
+    # second group (the third in all), the checkpoint holds the first group only: the resumed
+    # bake refits the whole second group, from the Gaussians it found, to the same model
+    sc = scene.builtin("sphere", subdivisions=0, model="phong", exponent=200.0)
+    kw = dict(n=2, batch=2, checkpoint_every=0, threads=1)
+    clean = fit.fit_mesh(sc, n=2, batch=2)
+    ck = tmp_path / "bake.ckpt.npz"
+    with pytest.raises(_Kill):
+        fit.fit_mesh(sc, **kw, checkpoint=ck, progress=_killer("relax", 3, []))
+    log: list = []
+    done = fit.fit_mesh(sc, **kw, checkpoint=ck, progress=_killer("none", 0, log))
+    assert [d for s_, d in log if s_ == "relax"][:3] == [2, 3, 4]
+    _same(done, clean)
+
+
 def test_chunks_side_by_side_give_the_model_of_one_chunk_at_a_time(monkeypatch):
     # two Gaussians per view: a wavefront's chunks run at once, each reading the wavefronts
     # before its own and, in the relaxation, the Gaussians as its group found them; each on

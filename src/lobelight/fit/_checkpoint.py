@@ -1,15 +1,17 @@
 """The checkpoint of a bake: the file an interrupted bake resumes from.
 
 A bake (:func:`lobelight.fit.fit_mesh`) runs its :data:`STAGES` in order; the flood fill and the
-relaxation run their chunks (:class:`lobelight.fit._chunk.Chunk`) in order too. Where the bake
-stands is a :class:`Position`; a :class:`Checkpoint` saves the bake's arrays with it, and a bake
-that finds a checkpoint of the same scene and settings (:func:`settings_key`) goes on from
-there.
+relaxation run their chunks (:class:`lobelight.fit._chunk.Chunk`) in groups, several at once
+(:mod:`lobelight.fit._runner`). Where the bake stands is a :class:`Position`; a
+:class:`Checkpoint` saves the bake's arrays with it, and a bake that finds a checkpoint of the
+same scene and settings (:func:`settings_key`) goes on from there.
 
 The file is an ``.npz`` of plain arrays, never pickled, written whole
 (:func:`lobelight._io.atomic_writer`): one array per entry of the bake's state (``mu``,
 ``lam``, ``w``, ...), and ``meta``, UTF-8 JSON as uint8 bytes holding ``key``, ``stage``,
-``next`` (the next chunk of that stage), ``flips_before`` and ``flips_after`` (each a pair of
+``next`` (the first chunk of that stage not done: in the flood fill, which records
+each chunk's vertices as reached, later chunks may be done too; in the relaxation, which saves
+whole groups, none after it is), ``flips_before`` and ``flips_after`` (each a pair of
 counts: all flipped pairs, and those of separated lobes). The caller removes the file once the
 finished model is written.
 """

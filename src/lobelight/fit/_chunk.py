@@ -105,7 +105,7 @@ class Chunk:
 
 
 def plan_chunks(layers: list[torch.Tensor], *, n: int, batch: int, device) -> list[Chunk]:
-    """The chunks of a bake, in the order they run: the flood fill's wavefronts ``layers``
+    """The chunks of a bake, in the order they start: the flood fill's wavefronts ``layers``
     (:func:`lobelight.fit.wavefronts`) cut into chunks of at most ``batch`` vertices. With
     ``n = 1`` Gaussian per view there is no spatial term and a chunk runs across wavefronts;
     with ``n >= 2`` a chunk stays inside one wavefront."""

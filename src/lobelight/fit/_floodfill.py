@@ -18,6 +18,7 @@ flipped neighbour pairs is reported before and after.
 
 from __future__ import annotations
 
+import numbers
 import os
 import time
 from collections.abc import Callable
@@ -202,7 +203,7 @@ def fit_mesh(
     scene : Scene;  n : Gaussians per view (1-3);  views : (J, 3), default the 92 geodesic views
     batch : vertices fitted at once (default: from ``memory_gb``: 64 on the CPU, as many as
         half the free memory holds on a GPU, fewer where the budget is smaller); memory about
-        ``batch x J x 672 x (180 + 40 n)`` bytes (:func:`lobelight.fit._memory.chunk_bytes`).
+        ``batch x J x 672 x (130 + 100 n)`` bytes (:func:`lobelight.fit._memory.chunk_bytes`).
         With ``n = 1`` there is no spatial term, vertices do not depend on each other and
         chunks run across wavefronts; with ``n >= 2`` a chunk stays inside one wavefront
     indirect_paths : paths per vertex and view for indirect glossy (0: direct glossy only,
@@ -232,6 +233,8 @@ def fit_mesh(
     threads : chunks run at once in this process without a ``client`` (:mod:`._runner`: each
         on one torch thread, so the model does not depend on it); default torch's thread
         count on the CPU, 1 on a GPU; fewer where the memory budget holds fewer chunks
+        (on a GPU the budget is the host's: more than one there may not fit its memory); with
+        a ``client`` the cluster's workers run them
 
     Returns
     -------
@@ -239,7 +242,7 @@ def fit_mesh(
     """
     weights = Weights() if weights is None else weights
     if threads is not None and (
-        isinstance(threads, bool) or not isinstance(threads, int) or threads < 1
+        isinstance(threads, bool) or not isinstance(threads, numbers.Integral) or threads < 1
     ):
         raise InputError("threads", f"must be a positive number of threads, got {threads!r}")
     meter = PeakMeter()
@@ -295,7 +298,7 @@ def _threads(threads: int | None, device: torch.device, most: int) -> int:
     at most ``most`` (what the memory budget holds)."""
     if threads is None:
         threads = torch.get_num_threads() if device.type == "cpu" else 1
-    return max(1, min(threads, most))
+    return max(1, min(int(threads), most))
 
 
 def _cluster_run(client, scene: Scene, bake: Bake, device, shadows: bool, progress) -> ClusterRun:

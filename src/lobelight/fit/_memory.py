@@ -49,11 +49,12 @@ _BASE_BYTES = 1 * _GB
 # (direction, weight, RGB value and their float64 copies) and per Gaussian its values, Jacobian
 # rows and products in the Levenberg-Marquardt iteration. Measured as the rise of the peak
 # resident memory over one 64-vertex chunk of a 3,002-vertex bunny (92 views, 16 indirect
-# paths, two chunks side by side): 10.7 MiB a vertex with one Gaussian (GGX alpha 0.04, the
-# largest), 6.4 MiB with two (alpha 0.25, whose samples of weight 0 the fit drops); the figures
-# below hold 1.2x and 2.4x those.
-_SAMPLE_BYTES = 180
-_SAMPLE_GAUSSIAN_BYTES = 40
+# paths) of a GGX alpha 0.04 metal, the largest (a rougher lobe's samples of weight 0 are
+# dropped: at alpha 0.25 two Gaussians hold 6.4 MiB a vertex, three 7.0): 10.7, 16.0 and
+# 19.6 MiB a vertex with one, two and three Gaussians; the figures below hold 1.27x, 1.22x
+# and 1.29x those.
+_SAMPLE_BYTES = 130
+_SAMPLE_GAUSSIAN_BYTES = 100
 # Samples per (vertex, view) of the fit (lobelight.fit.gather's cap grid and global set).
 _SAMPLES = CAP_SAMPLES + GLOBAL_SAMPLES
 # Vertices per chunk on the CPU: larger chunks gain nothing there.

@@ -177,7 +177,11 @@ def fit_model(
 
 
 def _order(n: int) -> dict[str, str]:
-    """How a bake on a cluster ordered its chunks (:mod:`lobelight.fit._cluster`)."""
+    """Where a bake on a cluster ran its chunks (:mod:`lobelight.fit._cluster`), and in what
+    order (:mod:`lobelight.fit._runner`: the same as in one process)."""
     if n == 1:
         return {"chunks": "on Dask workers, in any order: independent, as in one process"}
-    return {"chunks": "on Dask workers, a wavefront's at once, reading earlier wavefronts only"}
+    return {
+        "chunks": "on Dask workers, a wavefront's at once, reading earlier wavefronts only, "
+        "as in one process"
+    }
