@@ -212,7 +212,7 @@ def test_a_sharp_metals_hit_tiles_read_back_from_their_steps(sky, tmp_path):
     for change, says in (
         ({"hit_step": past}, "past the last tile"),
         ({"hit_step": still}, "do not ascend"),
-        ({"hit_face_step": wrong}, "not one of the faces"),
+        ({"hit_face_step": wrong}, "not one of the mesh's faces"),
         ({"hit_dist": a["hit_dist"][1:]}, "differ in length"),
     ):
         with pytest.raises(InputError, match=says):
