@@ -27,9 +27,7 @@ from __future__ import annotations
 import concurrent.futures
 import ctypes
 import ctypes.util
-import queue
 import sys
-import threading
 from collections.abc import Callable, Iterable, Iterator
 
 import torch
@@ -151,7 +149,9 @@ class ThreadRun(ChunkRun):
         # what every chunk reads first and the transport makes on first use, made here once
         # (the threads would each make it: the vertices' ray origins, with their rays)
         _ = bake.transport.origins
-        self._pool = _DaemonPool(threads, "lobelight-chunk")
+        self._pool = concurrent.futures.ThreadPoolExecutor(
+            threads, thread_name_prefix="lobelight-chunk"
+        )
 
     def run(self, *args, **kwargs) -> None:
         """:meth:`ChunkRun.run` on one torch thread per chunk; then torch's thread count as it
@@ -167,10 +167,11 @@ class ThreadRun(ChunkRun):
             _trim_heap()
 
     def close(self) -> None:
-        """Stop the threads (a chunk still running, after a fault or an interruption, ends in
-        the background: its result is not taken, and it does not hold up the process's exit)."""
+        """Stop the threads, once the chunks under way (after a fault or an interruption; their
+        results are not taken) have ended: at most one chunk's time per thread. A thread still
+        computing when the process ends would have the C++ runtimes' teardown run under it."""
         if self._pool is not None:
-            self._pool.shutdown()
+            self._pool.shutdown(wait=True, cancel_futures=True)
             self._pool = None
 
     def _submit(self, stage: str, chunk: Chunk, inputs):
@@ -185,44 +186,6 @@ class ThreadRun(ChunkRun):
     def _cancel(self, futures: list) -> None:
         for fut in futures:
             fut.cancel()
-
-
-class _DaemonPool:
-    """``threads`` daemon threads taking calls from a queue, each call's
-    :class:`concurrent.futures.Future` its result. A thread pool of the standard library joins
-    its threads at the interpreter's exit, so a bake stopped by Ctrl-C or SIGTERM would wait
-    there for the chunks under way; these threads end with the process, and a chunk cut short
-    is one the checkpoint does not hold."""
-
-    def __init__(self, threads: int, name: str):
-        self._calls: queue.SimpleQueue = queue.SimpleQueue()
-        self._threads = [
-            threading.Thread(target=self._work, name=f"{name}-{i}", daemon=True)
-            for i in range(threads)
-        ]
-        for t in self._threads:
-            t.start()
-
-    def submit(self, fn, *args) -> concurrent.futures.Future:
-        fut: concurrent.futures.Future = concurrent.futures.Future()
-        self._calls.put((fut, fn, args))
-        return fut
-
-    def shutdown(self) -> None:
-        """Each thread ends after the call it is in (calls not started yet are cancelled by
-        their futures' owner, :meth:`ChunkRun._group`)."""
-        for _ in self._threads:
-            self._calls.put(None)
-
-    def _work(self) -> None:
-        while (call := self._calls.get()) is not None:
-            fut, fn, args = call
-            if not fut.set_running_or_notify_cancel():  # cancelled before it started
-                continue
-            try:
-                fut.set_result(fn(*args))
-            except BaseException as e:  # the caller's to raise, from the future
-                fut.set_exception(e)
 
 
 def inputs(stage: str, bake: Bake, chunk: Chunk, readable: torch.Tensor | None):
