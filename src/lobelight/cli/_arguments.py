@@ -358,8 +358,9 @@ def _add_bake(sub) -> None:
         metavar="ADDRESS",
         help="run the bake's chunks on the Dask cluster whose scheduler is at ADDRESS "
         "(tcp://HOST:8786, as `dask scheduler` prints it; workers started with `dask worker "
-        "ADDRESS`; docs/cluster.md); needs lobelight[cluster]. One Gaussian per view gives the "
-        "same model as without it (default: the bake runs in this process)",
+        "ADDRESS`; docs/cluster.md); needs lobelight[cluster]. The model is the same as without "
+        "it (default: the bake runs in this process, as many chunks at once as torch has "
+        "threads, OMP_NUM_THREADS)",
     )
     where.add_argument(
         "--workers",
@@ -367,7 +368,7 @@ def _add_bake(sub) -> None:
         metavar="N",
         help="run the bake's chunks on N worker processes started on this machine (a local "
         "Dask cluster of one thread each); needs lobelight[cluster] (default: none, the bake "
-        "runs in this process)",
+        "runs in this process, as many chunks at once as torch has threads)",
     )
 
 
