@@ -176,6 +176,7 @@ def test_chunks_side_by_side_give_the_model_of_one_chunk_at_a_time(monkeypatch):
     assert torch.get_num_threads() == before  # restored after the chunks
     _same(two, one)
     assert two.batch == 4
+    assert (one.chunks_at_once, two.chunks_at_once) == (1, 2)
     for bad in (0, 1.5, True):
         with pytest.raises(InputError, match="threads"):
             fit.fit_mesh(sc, **kw, threads=bad)

@@ -89,6 +89,7 @@ def bench_fit(
         "stage_seconds": {k: t for k, t in m.provenance["seconds"].items() if k != "total"},
         "memory_budget_gb": m.provenance["memory"]["budget_gb"],
         "batch": m.provenance["memory"]["batch"],
+        "chunks_at_once": m.provenance["memory"]["chunks_at_once"],
         "stage_peak_gb": m.provenance["memory"]["peak_gb"],
         "peak_gb": round(_peak_bytes() / 2**30, 3),
         "relative_l2_error_mean": m.provenance["relative_l2_error_mean"],

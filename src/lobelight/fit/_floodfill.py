@@ -107,6 +107,7 @@ class MeshFit:
     peak_bytes : peak resident memory of the process per stage (``setup``: the transport and
         the plan, then ``fit``, ``relax``, ``interreflection``)
     batch : vertices fitted at once (chunks), from the memory budget
+    chunks_at_once : chunks that ran side by side in this process (0 on a cluster)
     """
 
     gaussians: Gaussians
@@ -122,6 +123,7 @@ class MeshFit:
     indirect_gaussians: int = 0
     peak_bytes: dict[str, int] = field(default_factory=dict)
     batch: int = 0
+    chunks_at_once: int = 0
 
 
 def _edges(mesh: Mesh) -> torch.Tensor:
@@ -289,6 +291,7 @@ def fit_mesh(
         peaks = meter.stop()
     out = _result(bake, bounces, seconds)
     out.peak_bytes, out.batch = peaks, plan.batch
+    out.chunks_at_once = runner.threads if isinstance(runner, ThreadRun) else 0
     return out
 
 

@@ -56,7 +56,7 @@ def fit_model(
 
     ``memory_gb``: the bake's budget of resident memory (GB, the whole process), from which
     every stage's batch sizes are derived (:func:`fit_mesh`); the provenance records the budget,
-    the batch and each stage's peak.
+    the batch, the chunks that ran side by side and each stage's peak.
 
     Interreflection is baked by default: ``indirect_paths`` paths per vertex and view of
     indirect glossy, and ``bounces`` bounces of diffuse interreflection in the SH transfer
@@ -149,6 +149,7 @@ def fit_model(
         "memory": {
             "budget_gb": float(memory_gb),
             "batch": mf.batch,
+            "chunks_at_once": mf.chunks_at_once,
             "peak_gb": {k: round(b / 2**30, 3) for k, b in mf.peak_bytes.items()},
         },
         "device": str(mf.gaussians.w.device),
