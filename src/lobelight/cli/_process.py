@@ -33,12 +33,13 @@ from __future__ import annotations
 import atexit
 import contextlib
 import ctypes
-import ctypes.util
 import functools
 import gc
 import os
 import sys
 import threading
+
+from .._memory import glibc_function
 
 __all__ = ["end_process", "imports_uncollected", "keep_freed_memory", "short_openmp_spin", "tune"]
 
@@ -55,14 +56,9 @@ def keep_freed_memory() -> bool:
     Returns whether it took effect (glibc on Linux only; elsewhere a no-op). Process-wide and
     idempotent.
     """
-    if not sys.platform.startswith("linux"):
+    mallopt = glibc_function("mallopt", [ctypes.c_int, ctypes.c_int], ctypes.c_int)
+    if mallopt is None:
         return False
-    try:
-        libc = ctypes.CDLL(ctypes.util.find_library("c") or "libc.so.6")
-        mallopt = libc.mallopt
-    except (OSError, AttributeError):  # musl or another libc without mallopt
-        return False
-    mallopt.argtypes, mallopt.restype = [ctypes.c_int, ctypes.c_int], ctypes.c_int
     ok = mallopt(_M_MMAP_THRESHOLD, 32 * 1024 * 1024)
     ok &= mallopt(_M_TRIM_THRESHOLD, 2**31 - 1)
     ok &= mallopt(_M_TOP_PAD, 512 * 1024 * 1024)

@@ -26,12 +26,11 @@ from __future__ import annotations
 
 import concurrent.futures
 import ctypes
-import ctypes.util
-import sys
 from collections.abc import Callable, Iterable, Iterator
 
 import torch
 
+from .._memory import glibc_function
 from ..errors import InputError
 from ._checkpoint import Checkpoint, Position
 from ._chunk import Bake, Chunk, ChunkResult, compute_chunk, fit_inputs, refit_inputs
@@ -238,12 +237,6 @@ def _trim_heap() -> None:
     nothing). Each chunk thread allocates from a heap (arena) of its own, which a process that
     keeps freed memory (:func:`lobelight.cli.tune`) never shrinks, and which the work after a
     stage's chunks, on the main thread, cannot reuse: without this its peak adds to theirs."""
-    if not sys.platform.startswith("linux"):
-        return
-    try:
-        libc = ctypes.CDLL(ctypes.util.find_library("c") or "libc.so.6")
-        trim = libc.malloc_trim
-    except (OSError, AttributeError):  # musl or another libc without malloc_trim
-        return
-    trim.argtypes, trim.restype = [ctypes.c_size_t], ctypes.c_int
-    trim(0)
+    trim = glibc_function("malloc_trim", [ctypes.c_size_t], ctypes.c_int)
+    if trim is not None:
+        trim(0)

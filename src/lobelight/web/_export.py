@@ -693,10 +693,9 @@ def _check_sharp_arrays(path: Path, h: dict, a: dict) -> None:
         raise InputError(str(path), "its hit tiles' arrays differ in length")
     f = h["n_faces"]
     if n[0]:
-        texel = np.cumsum(a["hit_step"], dtype=np.int64)
         if bool((a["hit_step"][1:] == 0).any()):
             raise InputError(str(path), "its hit tile texels do not ascend")
-        if int(texel[-1]) >= h["n_vertices"] * r * r:
+        if int(a["hit_step"].sum(dtype=np.int64)) >= h["n_vertices"] * r * r:  # the last
             raise InputError(str(path), "a hit tile texel lies past the last tile")
         face = np.cumsum(a["hit_face_step"], dtype=np.int64)
         if int(face.min()) < 0 or int(face.max()) >= f:

@@ -430,16 +430,14 @@
       // (lobelight/web/_export.py)
       const steps = a.hit_step.data, faceSteps = a.hit_face_step.data, rr = r * r;
       const at = new Uint32Array(steps.length), hitFace = new Int32Array(steps.length);
+      const slot = new Int32Array(nv).fill(-1);
+      let slots = 0;
       for (let i = 0, t = 0, f = 0; i < steps.length; ++i) {
         t += steps[i];
         f += faceSteps[i];
         at[i] = t;
         hitFace[i] = f;
-      }
-      const slot = new Int32Array(nv).fill(-1);
-      let slots = 0;
-      for (let i = 0; i < at.length; ++i) {
-        const v = Math.floor(at[i] / rr);
+        const v = Math.floor(t / rr);
         if (slot[v] < 0) slot[v] = slots++;
       }
       const hitRow = tilesPerRow(Math.max(slots, 1), r, h.tex_width, this.maxTex);
