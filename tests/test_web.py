@@ -431,6 +431,30 @@ def test_the_page_shows_the_object_and_its_controls_change_it(browser, sky, tmp_
 
 
 @needs_browser
+def test_maps_load_in_any_order_and_a_map_file_without_its_map_is_named(browser, sky, tmp_path):
+    # two maps, the second four times as bright: opened at the second (whose file the page
+    # reads while the model decodes), then the first; the map a file hands over is its own
+    m = analytic_model(1)
+    bright = envmap.EnvMap(4 * sky.data, layout=sky.layout)
+    web.export_web(m, tmp_path / "v", [sky, bright], base_res=16)
+    page = open_page(browser, tmp_path / "v", "size=64x48&still=1&env=1")
+    assert page.evaluate("window.lobelight.status.ok")
+    cam = render.model_camera(m)
+    four = render_in_page(page, cam, 0.0, (32, 24), glossy=False, background=False, env=1)
+    plain = render_in_page(page, cam, 0.0, (32, 24), glossy=False, background=False, env=0)
+    page.close()
+    on = plain[..., 3] > 0.5
+    assert on.sum() > 50
+    assert np.allclose(four[on, :3], 4 * plain[on, :3], rtol=1e-2, atol=1e-6)
+    # a map file that runs without handing over its map: a message naming it, not a wait
+    (tmp_path / "v" / "env-1.js").write_text("// damaged\n")
+    page = open_page(browser, tmp_path / "v", "size=64x48&still=1&env=1")
+    status = page.evaluate("window.lobelight.status")
+    assert not status["ok"] and "env-1.js holds no map" in status["message"]
+    page.close()
+
+
+@needs_browser
 def test_frames_while_moving_have_fewer_pixels_and_the_rested_frame_all(browser, sky, tmp_path):
     # the interactive page (no still=1): frames while the view changes at half the canvas's
     # pixels across (moving=0.5), stretched onto the canvas, then the rested frame

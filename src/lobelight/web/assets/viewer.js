@@ -6,14 +6,14 @@
 "use strict";
 
 (function () {
-  const store = { env: [] };
-  const waiting = { env: [] };
+  const store = {};
 
-  // every data file calls this: lobelight_data(kind, {header, arrays})
+  // every data file calls this: lobelight_data(kind, {header, arrays}); a map's file hands its
+  // document to the loadScript that added it (maps load side by side, in any order)
   window.lobelight_data = function (kind, doc) {
     if (kind === "env") {
-      const resolve = waiting.env.shift();
-      if (resolve) resolve(doc);
+      const s = document.currentScript;
+      if (s && s.lobelightResolve) s.lobelightResolve(doc);
       return;
     }
     store[kind] = doc;
@@ -69,15 +69,31 @@
     return perRow;
   }
 
+  // a map's data file added to the page: its document once it has run (a file that runs
+  // without handing one over, or does not load, rejects)
   function loadScript(src) {
     return new Promise(function (resolve, reject) {
       const s = document.createElement("script");
       s.src = src;
+      s.lobelightResolve = resolve;
       s.onerror = function () { reject(new Error("cannot load " + src)); };
-      waiting.env.push(resolve);
+      s.onload = function () { reject(new Error(src + " holds no map")); };  // after resolve: no-op
       document.head.appendChild(s);
     });
   }
+
+  // each map's file read and its arrays decoded, once: [document, arrays]; the first map
+  // starts while the model's arrays decode, so its script is parsed meanwhile
+  const envLoads = {};
+  function loadEnv(file) {
+    if (!envLoads[file]) {
+      envLoads[file] = loadScript(file).then(function (doc) {
+        return decodeAll(doc).then(function (arrays) { return [doc, arrays]; });
+      });
+    }
+    return envLoads[file];
+  }
+
 
   // half-float bits of a number (round to nearest even), for the few values made here
   const f32 = new Float32Array(1);
@@ -398,10 +414,20 @@
     tileAtlas(src, perRow, r) {
       const nv = this.h.n_vertices, rows = Math.ceil(nv / perRow), w = perRow * r;
       const out = new src.constructor(rows * r * w);
+      // copied in 32-bit words where a tile's row is a whole number of them (a per-row
+      // subarray and set cost several times the copy: 50K tiles of 32 rows); the decoded
+      // arrays start at offset 0 (decode), so the words align
+      const per = 4 / src.BYTES_PER_ELEMENT;
+      const words = Number.isInteger(per) && r % per === 0 && src.byteOffset % 4 === 0;
+      const s = words ? new Uint32Array(src.buffer, src.byteOffset, src.length / per) : src;
+      const o = words ? new Uint32Array(out.buffer) : out;
+      const rw = words ? r / per : r, ww = words ? w / per : w;
       for (let v = 0; v < nv; ++v) {
-        const x0 = (v % perRow) * r, y0 = Math.floor(v / perRow) * r;
+        const x0 = (v % perRow) * rw, y0 = Math.floor(v / perRow) * r;
+        let i = v * r * rw;
         for (let y = 0; y < r; ++y) {
-          out.set(src.subarray((v * r + y) * r, (v * r + y + 1) * r), (y0 + y) * w + x0);
+          const row = (y0 + y) * ww + x0;
+          for (let x = 0; x < rw; ++x) o[row + x] = s[i++];
         }
       }
       return { data: out, w: w, h: rows * r };
@@ -1499,6 +1525,8 @@
                   "folder that lobelight export --web wrote, whole.");
       return;
     }
+    const envs = store.model.header.envs || [];
+    if (envs[options.env]) loadEnv(envs[options.env].file).catch(function () {});  // setEnv says
     let viewer;
     try {
       const arrays = await decodeAll(store.model);
@@ -1525,8 +1553,8 @@
     api.setEnv = async function (i) {
       if (!viewer.envs[i]) {
         for (let k = viewer.envs.length; k <= i; ++k) {
-          const doc = await loadScript(viewer.h.envs[k].file);
-          viewer.addEnv(doc, await decodeAll(doc));
+          const [doc, arrays] = await loadEnv(viewer.h.envs[k].file);
+          viewer.addEnv(doc, arrays);
         }
       }
       viewer.useEnv(i);
