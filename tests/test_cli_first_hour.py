@@ -180,10 +180,10 @@ def test_flag_names_are_shared_across_commands():
     for name, sp in cmds.items():
         opts = {o for a in sp._actions for o in a.option_strings}
         assert {"--json", "--quiet"} <= opts, name
-        # --device and --rays where there is heavy work to place; nowhere else
+        # --device where there is heavy work to place, --rays where it casts rays; nowhere else
         heavy = name not in ("info", "view", "figure5")
-        assert ({"--device", "--rays"} <= opts) == heavy, name
-        assert heavy or not {"--device", "--rays"} & opts, name
+        assert ("--device" in opts) == heavy, name
+        assert ("--rays" in opts) == (heavy and name != "compare-brdf"), name  # a closed form
         if "--output" in opts:
             assert {"-o", "--output"} <= opts, name
         assert not {"--out", "--ref-spp", "--lobes"} & opts, name
@@ -233,6 +233,30 @@ def test_render_writes_jpeg_and_a_turntable(tiny_model, tmp_path, capsys):
     assert len(list(frames.glob("frame_*.png"))) == 3
     gif = Image.open(frames / "frames.gif")
     assert gif.n_frames == 3
+
+
+def test_quiet_is_offered_only_where_there_is_progress_to_quiet(tiny_model, capsys):
+    """-q is accepted by every command (a script may pass it to each), and shown in the help of
+    those that report progress only; a flag that does nothing for a command is not offered."""
+    for name in ("info", "export", "view", "figure5", "compare-brdf"):
+        assert "--quiet" not in _subparsers()[name].format_help(), name
+    for name in ("bake", "render", "compare", "demo", "bench"):
+        assert "--quiet" in _subparsers()[name].format_help(), name
+    assert main(["info", str(tiny_model), "-q", "--json"]) == 0
+    assert json.loads(capsys.readouterr().out)["command"] == "info"
+    # the bench's options say which benchmark reads them
+    bench = " ".join(_subparsers()["bench"].format_help().split())
+    for flag in ("fit: Gaussians", "fit: the bake's memory", "prefilter: face resolution",
+                 "render: renderer", "render: anti-aliasing", "render: shade the map's sun",
+                 "--device is used by all, prefilter"):  # fmt: skip
+        assert flag in bench, flag
+
+
+def test_compare_refuses_gaussians_it_would_not_use(tiny_model, capsys):
+    # with --model the model's own Gaussians are scored: a --gaussians would be ignored
+    assert main(["compare", "--model", str(tiny_model), "--gaussians", "2"]) == 2
+    err = capsys.readouterr().err
+    assert "--gaussians" in err and "without --model" in err
 
 
 def test_every_flag_s_help_shows_its_default():

@@ -283,6 +283,27 @@ def test_view_without_a_display_names_view_web(tmp_path, monkeypatch, capsys):
     assert "view --web" in capsys.readouterr().err
 
 
+def test_view_web_under_json_keeps_stdout_for_the_json(tmp_path, monkeypatch, capsys):
+    # the server's lines (its URL, the SSH tunnel) go to stderr; stdout is one JSON object
+    import json
+
+    import lobelight.cli._commands as commands
+
+    served = []
+
+    def serve(folder, port, *, announce):  # the real one runs until Ctrl-C
+        served.append(web.read_web(folder).header["n_vertices"])
+        announce(f"lobelight web viewer: http://localhost:{port}/")
+
+    monkeypatch.setattr(commands, "serve", serve)
+    src = tmp_path / "m.npz"
+    analytic_model(1).save(src)
+    assert main(["view", "--web", str(src), "--port", "8123", "--json"]) == 0
+    out, err = capsys.readouterr()
+    assert json.loads(out)["port"] == 8123 and served == [162]
+    assert "http://localhost:8123/" in err and "writing the web viewer" in err
+
+
 # ---------------------------------------------------------------------------------------------
 # the page in a browser
 

@@ -1,12 +1,13 @@
 """The ``lobelight`` command line: one entry point, ``--help`` everywhere, ``--json`` for machines.
 
-Commands: ``demo``, ``bake``, ``info``, ``render``, ``view``, ``compare``, ``compare-brdf``,
-``gallery``, ``figure5``, ``lobes-demo``, ``bench``: their arguments are built in
-:mod:`._arguments` (one builder per command, without torch), what each does is in
+Commands: ``demo``, ``bake``, ``info``, ``render``, ``export``, ``view``, ``compare``,
+``compare-brdf``, ``gallery``, ``figure5``, ``lobes-demo``, ``bench``: their arguments are built
+in :mod:`._arguments` (one builder per command, without torch), what each does is in
 :mod:`._commands` (``run_NAME(args) -> dict``), the gallery's in :mod:`._gallery`.
 
-Every command takes ``--json`` (stdout carries only the JSON summary, or a JSON error object),
-``--device`` and ``--quiet``. Progress goes to stderr: bars on a terminal, plain lines at most
+Every command takes ``--json`` (stdout carries only the JSON summary, or a JSON error object)
+and ``--quiet`` (offered where a command reports progress); those that do heavy work take
+``--device``, and those that cast rays ``--rays``. Progress goes to stderr: bars on a terminal, plain lines at most
 every few seconds elsewhere (:mod:`lobelight.progress`). Flags share their names across
 commands: ``-o/--output``, ``--width/--height``, ``--spp``, ``--sun/--no-sun``, ``--backend``.
 

@@ -105,10 +105,21 @@ def _parser() -> argparse.ArgumentParser:
 # options the commands share
 
 
-def _command(sub, name: str, run: str, help: str, *, heavy: bool = True) -> argparse.ArgumentParser:
+def _command(
+    sub,
+    name: str,
+    run: str,
+    help: str,
+    *,
+    heavy: bool = True,
+    rays: bool | None = None,
+    progress: bool = True,
+) -> argparse.ArgumentParser:
     """A command's parser with every command's options: ``--json`` and ``-q``, and for a
-    command that does heavy work (``heavy``) ``--device`` and ``--rays`` (the others run on
-    the CPU with the default ray engine); ``run`` names its function in
+    command that does heavy work (``heavy``) ``--device`` and, unless ``rays`` is False (it
+    casts no rays), ``--rays`` (the others run on the CPU with the default ray engine). A
+    command without progress (``progress`` False) accepts ``-q`` without offering it, so that
+    a script may pass it to every command; ``run`` names its function in
     :mod:`lobelight.cli._commands`."""
     sp = sub.add_parser(name, help=help, description=help, formatter_class=_Help)
     sp.add_argument(
@@ -116,7 +127,12 @@ def _command(sub, name: str, run: str, help: str, *, heavy: bool = True) -> argp
         action="store_true",
         help="print a machine-readable summary on stdout (errors too, as JSON)",
     )
-    sp.add_argument("-q", "--quiet", action="store_true", help="no progress on stderr")
+    sp.add_argument(
+        "-q",
+        "--quiet",
+        action="store_true",
+        help="no progress on stderr" if progress else argparse.SUPPRESS,
+    )
     sp.add_argument(
         "--debug",
         action="store_true",
@@ -127,6 +143,9 @@ def _command(sub, name: str, run: str, help: str, *, heavy: bool = True) -> argp
         sp.add_argument(
             "--device", default="cpu", help="torch device of the heavy work (cpu, cuda, cuda:1)"
         )
+    else:
+        sp.set_defaults(device="cpu")
+    if heavy and rays is not False:
         sp.add_argument(
             "--rays",
             default="auto",
@@ -134,7 +153,7 @@ def _command(sub, name: str, run: str, help: str, *, heavy: bool = True) -> argp
             help="ray engine (auto: Warp on a CUDA device, Embree on the CPU)",
         )
     else:
-        sp.set_defaults(device="cpu", rays="auto")
+        sp.set_defaults(rays="auto")
     sp.set_defaults(run=run)
     return sp
 
@@ -148,10 +167,10 @@ def _output(sp, default, what: str) -> None:
     sp.add_argument("-o", "--output", default=default, help=what)
 
 
-def _size(sp, w: int = 512, h: int = 512) -> None:
+def _size(sp, w: int = 512, h: int = 512, what: str = "image") -> None:
     side = bounded_int(1, MAX_SIDE)
-    sp.add_argument("--width", type=side, default=w, help="image width in pixels")
-    sp.add_argument("--height", type=side, default=h, help="image height in pixels")
+    sp.add_argument("--width", type=side, default=w, help=f"{what} width in pixels")
+    sp.add_argument("--height", type=side, default=h, help=f"{what} height in pixels")
     sp.add_argument(
         "--size",
         help="N or WxH: sets --width and --height together (default: theirs); "
@@ -166,17 +185,17 @@ def _square(sp, n: int) -> None:
     )
 
 
-def _sun(sp, default: bool = True) -> None:
+def _sun(sp, default: bool = True, where: str = "") -> None:
     sp.add_argument(
         "--sun",
         action=argparse.BooleanOptionalAction,
         default=default,
-        help="shade the map's sun per pixel with a shadow map (--no-sun: the paper's terms, "
-        "the sun in the SH diffuse and the Gaussians' lighting)",
+        help=f"{where}shade the map's sun per pixel with a shadow map (--no-sun: the paper's "
+        "terms, the sun in the SH diffuse and the Gaussians' lighting)",
     )
 
 
-def _gaussians(sp, *, auto: bool = False) -> None:
+def _gaussians(sp, *, auto: bool = False, where: str = "") -> None:
     if not auto:
         sp.add_argument(
             "--gaussians",
@@ -192,35 +211,37 @@ def _gaussians(sp, *, auto: bool = False) -> None:
         type=gaussian_count,
         default="auto",
         choices=["auto", 1, 2, 3],
-        help="Gaussians per view fitted to the direct glossy transport (indirect glossy has "
-        "one more of its own); auto: chosen from the material (two for GGX-like metals of "
+        help=f"{where}Gaussians per view fitted to the direct glossy transport (indirect glossy "
+        "has one more of its own); auto: chosen from the material (two for GGX-like metals of "
         "moderate roughness, one otherwise; the reason is in the model's provenance, "
         "lobelight info)",
     )
 
 
-def _memory_gb(sp) -> None:
+def _memory_gb(sp, where: str = "") -> None:
     gb = memory_bytes() / 2**30
     sp.add_argument(
         "--memory-gb",
         type=bounded_float(0.0, round(gb, 1), lo_open=True),
         default=_MEMORY_GB,
         metavar="GB",
-        help="the bake's memory budget (resident, GB): every stage's batches are sized to it, "
+        help=f"{where}the bake's memory budget (resident, GB): every stage's batches are sized "
+        "to it, "
         f"so a mesh of any size bakes within it (at most this machine's {gb:.1f} GB)",
     )
 
 
-def _backend(sp) -> None:
+def _backend(sp, where: str = "") -> None:
     sp.add_argument(
         "--backend",
         choices=["auto", "gl", "torch"],
         default="auto",
-        help="renderer: GLSL through EGL, or the torch path (auto: gl where a context opens)",
+        help=f"{where}renderer: GLSL through EGL, or the torch path (auto: gl where a context "
+        "opens, else torch)",
     )
 
 
-def _base_res(sp, default: int | str = "auto") -> None:
+def _base_res(sp, default: int | str = "auto", where: str = "") -> None:
     lo, hi = AUTO_BASE_RES_RANGE
     auto = (
         f"auto: the one the model's sharpest lobes need under the map, {lo} to {hi}; "
@@ -231,7 +252,7 @@ def _base_res(sp, default: int | str = "auto") -> None:
         "--base-res",
         type=base_res_type if default == "auto" else bounded_int(1, MAX_BASE_RES),
         default=default,
-        help=f"face resolution of the sharpest prefiltered level ({auto}a power of two, at "
+        help=f"{where}face resolution of the sharpest prefiltered level ({auto}a power of two, at "
         f"most {MAX_BASE_RES}: the largest whose chain fits half of this machine's memory)",
     )
 
@@ -245,12 +266,12 @@ def _spp(sp, default: int) -> None:
     )
 
 
-def _samples(sp, default: int) -> None:
+def _samples(sp, default: int, where: str = "") -> None:
     sp.add_argument(
         "--samples",
         type=bounded_int(1, MAX_SAMPLES),
         default=default,
-        help=f"anti-aliasing samples per pixel, each a full shading pass (1: none; at most "
+        help=f"{where}anti-aliasing samples per pixel, each a full shading pass (1: none; at most "
         f"{MAX_SAMPLES})",
     )
 
@@ -373,13 +394,17 @@ def _add_bake(sub) -> None:
 
 
 def _add_info(sub) -> None:
-    i = _command(sub, "info", "run_info", "describe a model file", heavy=False)
+    i = _command(sub, "info", "run_info", "describe a model file", heavy=False, progress=False)
     i.add_argument("model", help="a model file written by bake")
 
 
 def _add_export(sub) -> None:
     ex = _command(
-        sub, "export", "run_export", "write a model for other programs (--gltf OUT.glb, --web DIR)"
+        sub,
+        "export",
+        "run_export",
+        "write a model for other programs (--gltf OUT.glb, --web DIR)",
+        progress=False,
     )
     ex.add_argument("model", help="a model file written by bake")
     out = ex.add_mutually_exclusive_group(required=True)
@@ -404,7 +429,7 @@ def _add_export(sub) -> None:
         "else the built-in sky)",
         repeat=True,
     )
-    _sun(ex)
+    _sun(ex, where="--web: ")
     ex.add_argument(
         "--float16",
         action=argparse.BooleanOptionalAction,
@@ -477,6 +502,7 @@ def _add_view(sub) -> None:
         "interactive window: drag to orbit, right-drag to turn the light, wheel to zoom, "
         "d/g/b diffuse/glossy/both, +/- exposure, t display curve, e next map",
         heavy=False,
+        progress=False,
     )
     v.add_argument("model", help="a model file written by bake")
     _env(
@@ -486,13 +512,13 @@ def _add_view(sub) -> None:
         repeat=True,
     )
     _sun(v)
-    _size(v, 1024, 768)
+    _size(v, 1024, 768, "the window's")
     v.add_argument(
         "--web",
         action="store_true",
         help="no window: write the WebGL 2 viewer to a temporary folder and serve it on "
         "localhost (for a machine without a display: reach it through an SSH tunnel; "
-        "default: a window)",
+        "default: a window); the page takes the browser window's size",
     )
     v.add_argument(
         "--port",
@@ -524,7 +550,14 @@ def _add_compare(sub) -> None:
         help="score the given scene's own material and map although the model was baked "
         "with others (the mesh must still match)",
     )
-    _gaussians(c)
+    c.add_argument(
+        "--gaussians",
+        type=int,
+        default=None,
+        choices=[1, 2, 3],
+        help="Gaussians per view of the model fitted here (default: 1); not with --model, "
+        "whose own are scored",
+    )
     _env(c, "default: the model's with --model, else the scene's")
     _output(c, "lobelight-compare", "output folder (images, compare.json)")
     _spp(c, 1024)
@@ -551,6 +584,8 @@ def _add_compare_brdf(sub) -> None:
         "compare-brdf",
         "run_compare_brdf",
         "SG-mixture BRDFs vs filtered importance sampling, Wang 2009 and the reference",
+        rays=False,  # its sphere is intersected in closed form
+        progress=False,
     )
     _output(cb, "lobelight-compare-brdf", "output folder")
     _env(cb, "default: the built-in sky")
@@ -582,6 +617,7 @@ def _add_figure5(sub) -> None:
         "run_figure5",
         "the paper's Figure 5: Gaussians vs Haar vs SH",
         heavy=False,
+        progress=False,
     )
     _output(f, "lobelight-figure5", "output folder")
 
@@ -629,7 +665,8 @@ def _add_bench(sub) -> None:
         help="which benchmark (all: every benchmark with a goal, on --device, in one run; "
         "start: a render's start in a new process, cold and warm; cluster: a bake on 1 and 2 "
         "local Dask workers against one process, --scene, lobelight[cluster]; web: the WebGL 2 "
-        "viewer's frames per second in headless chromium, lobelight[web])",
+        "viewer's frames per second in headless chromium, lobelight[web]; --device is "
+        "used by all, prefilter, transport, fit, rays, lobe-tables, lobes and brdf-fit)",
     )
     _output(be, None, "bench all: JSON file of the results, rewritten after each benchmark "
             "(default: none, the summary on stdout only)")  # fmt: skip
@@ -652,17 +689,18 @@ def _add_bench(sub) -> None:
         help="fit: a bare mesh's material (as bake's --material), e.g. 'ggx:alpha=0.04,"
         "specular=0.9' for a metal (default: the scene's own)",
     )
-    _gaussians(be, auto=True)
-    _memory_gb(be)
-    be.add_argument("--material", default="ward", help="brdf-fit material (ward, ward_aniso)")
-    _base_res(be, 512)
-    _backend(be)
+    _gaussians(be, auto=True, where="fit: ")
+    _memory_gb(be, where="fit: ")
+    be.add_argument("--material", default="ward", help="brdf-fit: the material (ward, ward_aniso)")
+    _base_res(be, 512, where="prefilter: ")
+    _backend(be, where="render: ")
     be.add_argument(
         "--repeats",
         type=bounded_int(1, MAX_REPEATS),
         default=None,
-        help="timed repeats (default: prefilter 3 builds, lobes 20 frames: on a shared "
-        f"machine the best of a few frames is mostly noise; at most {MAX_REPEATS})",
+        help="timed repeats (default: prefilter 3 builds, lobes 20 frames, start 3 warm "
+        "runs: on a shared machine the best of a few frames is mostly noise; at most "
+        f"{MAX_REPEATS})",
     )
-    _sun(be, default=False)
-    _samples(be, 1)
+    _sun(be, default=False, where="render: ")
+    _samples(be, 1, where="render: ")

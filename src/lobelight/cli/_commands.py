@@ -677,10 +677,14 @@ def _run_view_web(args) -> dict:
     m = _said(load_model, args.model)
     envs, inputs = _web_inputs(args, m)
     tmp = Path(tempfile.mkdtemp(prefix="lobelight-web-"))
-    print("lobelight: writing the web viewer (the maps' prefiltered chains first)...", flush=True)
+    # the lines for people go to stdout, or to stderr where stdout carries only the JSON
+    out = sys.stderr if args.json else sys.stdout
+    if not args.quiet:
+        print("lobelight: writing the web viewer (the maps' prefiltered chains first)...",
+              file=out, flush=True)  # fmt: skip
     try:
         info = export_web(m, tmp / "viewer", envs, sun=args.sun, inputs=inputs)
-        serve(tmp / "viewer", args.port, announce=lambda line: print(line, flush=True))
+        serve(tmp / "viewer", args.port, announce=lambda line: print(line, file=out, flush=True))
     finally:
         shutil.rmtree(tmp, ignore_errors=True)
     return {"command": "view", "web": True, "bytes": info["bytes"], "port": args.port}
@@ -702,6 +706,10 @@ def run_compare(args) -> dict:
     _check_base_res(args)
     if args.scene is None and args.model is None:
         raise InputError("scene", "give a scene, or --model MODEL to score a model's own scene")
+    if args.model is not None and args.gaussians is not None:
+        raise InputError(
+            "--gaussians", "a model's own Gaussians are scored: give --gaussians without --model"
+        )
     model = _said(load_model, args.model, device=args.device) if args.model else None
     sc = _compare_scene(args, model)
     env = _env(args.env) if args.env else None
@@ -714,7 +722,7 @@ def run_compare(args) -> dict:
         **compare(
             sc,
             model=model,
-            n_gaussians=args.gaussians,
+            n_gaussians=1 if args.gaussians is None else args.gaussians,
             env=env,
             width=width,
             height=height,
@@ -932,7 +940,7 @@ def run_bench(args) -> dict:
         )
     if w == "render":
         return bench.bench_render(
-            backend=args.backend if args.backend != "auto" else "gl",
+            backend=_backend(args.backend),
             sun=args.sun,
             samples=args.samples,
         )

@@ -39,8 +39,8 @@ ACTIONS = ("list", "references", "run")
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     """The gallery's own arguments: the action (``list``, ``references`` or ``run``), the
-    folders, the reference settings, and the bake and render settings (``--json``, ``--device``
-    and ``-q/--quiet`` are every command's)."""
+    folders, the reference settings, and the bake and render settings (``--json``, ``--device``,
+    ``--rays`` and ``-q/--quiet`` come with the command's parser)."""
     parser.add_argument(
         "action",
         choices=ACTIONS,
