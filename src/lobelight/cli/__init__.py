@@ -7,9 +7,10 @@ in :mod:`._arguments` (one builder per command, without torch), what each does i
 
 Every command takes ``--json`` (stdout carries only the JSON summary, or a JSON error object)
 and ``--quiet`` (offered where a command reports progress); those that do heavy work take
-``--device``, and those that cast rays ``--rays``. Progress goes to stderr: bars on a terminal, plain lines at most
-every few seconds elsewhere (:mod:`lobelight.progress`). Flags share their names across
-commands: ``-o/--output``, ``--width/--height``, ``--spp``, ``--sun/--no-sun``, ``--backend``.
+``--device``, and those that cast rays ``--rays``. Progress goes to stderr: bars on a terminal,
+plain lines at most every few seconds elsewhere (:mod:`lobelight.progress`). Flags share their
+names across commands: ``-o/--output``, ``--width/--height``, ``--spp``, ``--sun/--no-sun``,
+``--backend``.
 
 Exit codes: 0 success; 1 unexpected error (one line on stderr naming the log file that holds
 the traceback, or the traceback itself with ``--debug``); 2 bad input (one line on stderr naming
