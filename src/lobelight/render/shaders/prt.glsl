@@ -451,6 +451,7 @@ vec3 sun_shape(vec3 spec, vec3 n, vec3 d, Lobe lobe, float tail) {
     float disc_all = 0.0, disc_res = 0.0;
     vec3 shape = vec3(0.0);
     for (int i = 0; i < MIXTURE; ++i) {
+        if (sharp_weight[i] == 0.0) continue;  // no light, no lookups (sharp_lighting_in)
         float lam_i = sharp_lam[i] * lobe.scale;
         float lam = warp ? lam_i / (c * c) : lam_i;
         float lw = 1.0 / (1.0 / lam + 0.5 * s2);

@@ -213,12 +213,15 @@ vec3 across(vec3 n, vec3 r) {
 // plane of incidence's direction across R (both rotated); a microfacet lobe as two lookups of
 // sharpness lam_i / (n.v)^2 at R +- s_i t, s_i^2 = (1 - (n.v)^2) / lam_i; each lookup's
 // variance grown by blur; lam_i = sharp_lam[i] scale (render/_reflection.py shade,
-// lobe_points)
+// lobe_points); a Gaussian of weight 0 (a Phong lobe is one of the mixture's sharpnesses) is
+// skipped, not looked up: the branch is on a uniform, so a rasteriser that runs both sides of a
+// pixel-dependent branch skips it for every pixel
 vec3 sharp_lighting_in(sampler2D tex, vec3 r, vec3 t, float nv, float blur, float scale) {
     vec3 acc = vec3(0.0);
     if (sharp_warp > 0.0) {
         float c = max(nv, SHARP_NV_MIN);
         for (int i = 0; i < MIXTURE; ++i) {
+            if (sharp_weight[i] == 0.0) continue;  // a uniform: every pixel skips it
             float lam_i = sharp_lam[i] * scale;
             float lam = 1.0 / ((c * c) / lam_i + blur);
             vec3 step = sqrt(max(1.0 - c * c, 0.0) / lam_i) * t;
@@ -228,6 +231,7 @@ vec3 sharp_lighting_in(sampler2D tex, vec3 r, vec3 t, float nv, float blur, floa
         return acc;
     }
     for (int i = 0; i < MIXTURE; ++i) {
+        if (sharp_weight[i] == 0.0) continue;
         acc += sharp_weight[i]
                * prefiltered_lookup_in(tex, r, 1.0 / (1.0 / (sharp_lam[i] * scale) + blur));
     }
