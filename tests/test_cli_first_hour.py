@@ -285,10 +285,16 @@ def test_the_gitignore_keeps_the_readme_s_outputs_out_of_git():
 
     root = Path(__file__).resolve().parents[1]
     paths = ["lobelight-demo/report.md", "lobelight-compare/compare.json", "spot.npz",
-             "examples/gold.npz"]  # fmt: skip
+             "examples/gold.npz", "render.png", "turntable/frame_000.png"]  # fmt: skip
     if shutil.which("git") is None or not (root / ".git").exists():
         text = (root / ".gitignore").read_text()
-        assert {"/lobelight-demo/", "/lobelight-compare/", "*.npz"} <= set(text.split())
+        assert {
+            "/lobelight-demo/",
+            "/lobelight-compare/",
+            "*.npz",
+            "/render.png",
+            "/turntable/",
+        } <= set(text.split())
         return
     for path in paths:
         r = subprocess.run(["git", "check-ignore", "-q", path], cwd=root, check=False)

@@ -581,3 +581,155 @@ def test_a_scene_files_map_that_is_a_fifo_is_named_as_such(tmp_path, capsys, no_
     sc.write_text('mesh = "tri.obj"\nenvironment = "sky.hdr"\n')
     refused(capsys, ["bake", sc, "-o", tmp_path / "b.npz"], names="b.toml: environment",
             problem="not a regular file", inputs=[sc, mesh])  # fmt: skip
+
+
+# --------------------------------------------------------------------------------------------
+# paths the system refuses, folders in the way, values left empty
+
+
+LONG = "a" * 300  # past every Linux file system's 255-byte name
+
+
+@pytest.mark.parametrize(
+    "argv",
+    [
+        ["render", "m.npz", "-o", f"{LONG}.png"],
+        ["render", "m.npz", "--turntable", "2", "-o", LONG],
+        ["export", "m.npz", "--gltf", f"{LONG}.glb"],
+        ["export", "m.npz", "--web", LONG],
+        ["bake", "in.obj", "-o", f"{LONG}.npz"],
+        ["compare", "--model", "m.npz", "-o", LONG],
+    ],
+)
+def test_a_name_too_long_is_bad_input_before_any_work(files, capsys, no_work, argv):
+    refused(capsys, argv, names=LONG[:50], problem="file name too long",
+            inputs=[files / "m.npz"])  # fmt: skip
+
+
+@pytest.mark.parametrize(
+    "argv",
+    [
+        ["render", "m.npz", "--turntable", "2", "-o", "{}"],
+        ["export", "m.npz", "--web", "{}"],
+        ["compare", "--model", "m.npz", "-o", "{}"],
+    ],
+)
+def test_an_output_folder_that_cannot_be_made_is_refused_before_any_work(
+    files, capsys, no_work, argv
+):
+    # a link to nothing, a loop of links, a folder under a file
+    (files / "dangling").symlink_to(files / "nothere")
+    (files / "loop_a").symlink_to(files / "loop_b")
+    (files / "loop_b").symlink_to(files / "loop_a")
+    for bad, problem in (("dangling", "symbolic link to nothing"),
+                         ("loop_a", "symbolic link to nothing"),
+                         ("m.npz/sub", "is a file, not a folder")):  # fmt: skip
+        args = [a.replace("{}", bad) for a in argv]
+        refused(capsys, args, names=bad, problem=problem, inputs=[files / "m.npz"])
+
+
+def test_an_output_folder_s_parent_must_be_writable(files, capsys, no_work, monkeypatch):
+    # root writes anywhere: a folder not writable is stood in for by os.access
+    real = os.access
+    ro = str(files / "ro")
+    (files / "ro").mkdir()
+    monkeypatch.setattr(
+        os, "access", lambda p, mode: False if os.path.abspath(p) == ro else real(p, mode)
+    )
+    for name in ("export_gltf", "export_web"):  # the exports' work, as _WORK's
+        monkeypatch.setattr(_commands, name, lambda *a, **k: (_ for _ in ()).throw(WorkStarted))
+    for argv in (["export", "m.npz", "--gltf", "ro/x.glb"], ["export", "m.npz", "--web", "ro/w"],
+                 ["render", "m.npz", "--turntable", "2", "-o", "ro/t"]):  # fmt: skip
+        refused(capsys, argv, names="ro/", problem="is not writable", inputs=[files / "m.npz"])
+
+
+def test_empty_values_are_refused_not_taken_for_defaults(files, capsys, no_work):
+    refused(capsys, ["render", "m.npz", "--env", ""], names="--env", problem="is empty")
+    refused(capsys, ["render", "m.npz", "--camera", ""], names="--camera", problem="is empty")
+    refused(capsys, ["render", "m.npz", "--env", "."], names=".", problem="is a directory")
+
+
+def test_render_s_default_output_and_spin_follow_the_turntable(files, capsys, no_work, monkeypatch):
+    refused(capsys, ["render", "m.npz", "--spin", "light"], names="--spin",
+            problem="give --turntable")  # fmt: skip
+    # no -o: render.png, and with --turntable the folder turntable
+    chosen = []
+    real = _commands._render_outputs
+
+    def outputs(args, width, height):
+        chosen.append((args.output, args.spin))
+        return real(args, width, height)
+
+    monkeypatch.setattr(_commands, "_render_outputs", outputs)
+    for argv in (["render", "m.npz"], ["render", "m.npz", "--turntable", "2"]):
+        with pytest.raises(WorkStarted):
+            cli.main(argv)
+    assert chosen == [("render.png", "camera"), ("turntable", "camera")]
+
+
+def test_a_bake_s_model_is_an_npz_and_its_checkpoint_a_file(files, capsys, no_work):
+    refused(capsys, ["bake", "in.obj", "-o", "x.png"], names="x.png", problem=".npz archive")
+    refused(capsys, ["bake", "in.obj", "-o", "out/"], names="out/", problem="is a directory")
+    (files / "z.npz.ckpt").mkdir()
+    refused(capsys, ["bake", "in.obj", "-o", "z.npz"], names="z.npz.ckpt",
+            problem="is not a file")  # fmt: skip
+
+
+def test_a_usage_error_s_json_names_the_flag(files, capsys):
+    code, out, _ = run(capsys, ["render", "m.npz", "--width", "0", "--json"])
+    assert code == 2 and json.loads(out)["error"]["input"] == "--width"
+
+
+def test_a_model_whose_map_moved_is_lit_by_the_bundled_map_of_its_name_or_says_so(files, capsys):
+    from lobelight.data import envmap_names
+
+    name = envmap_names()[0]
+    moved = str(files / "gone" / f"{name}.hdr")
+    assert _commands._env_source(None, {"environment": moved}) == name
+    mine = str(files / "gone" / "mine.hdr")
+    assert _commands._env_source(None, {"environment": mine}) == "builtin"
+    assert _commands._env_source(None, {"environment": mine}) == "builtin"
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 2  # each missing map said once
+    assert name in err[0] and "bundled map" in err[0]
+    assert "mine.hdr" in err[1] and "built-in sky" in err[1]
+
+
+def test_a_stored_camera_that_is_no_camera_is_said(files, capsys):
+    mesh = scene.builtin("sphere", subdivisions=0).mesh
+    cam = _commands._camera_from(None, {"camera": {"origin": [0, 0, 0], "target": [0, 0, 0]}},
+                                 mesh)  # fmt: skip
+    assert cam is not None
+    err = capsys.readouterr().err
+    assert "the model's camera is not one" in err and "default framing" in err
+
+
+def test_stale_frames_of_another_turntable_are_refused(tmp_path):
+    from lobelight.render._turntable import _output_paths
+
+    out = tmp_path / "tt"
+    out.mkdir()
+    for k in range(4):
+        (out / f"frame_{k:03d}.png").write_bytes(b"")
+    paths, _ = _output_paths(out, 4, "frames.gif")  # the same count replaces them all
+    assert len(paths) == 4
+    with pytest.raises(InputError, match="2 frame\\(s\\) of another turntable"):
+        _output_paths(out, 2, "frames.gif")
+
+
+def test_a_model_too_small_or_too_large_to_render_is_refused_on_read(tmp_path):
+    for scale in (1e-15, 1e30):
+        path = _tiny_model(tmp_path / "m.npz")
+        with np.load(path) as z:
+            arrays = dict(z)
+        arrays["vertices"] = arrays["vertices"] * np.float32(scale)
+        np.savez(tmp_path / "s.npz", **arrays)
+        with pytest.raises(InputError, match=r"outside 1e-06\.\.1e\+09"):
+            model.load(tmp_path / "s.npz")
+
+
+def test_view_web_checks_a_size_it_is_given(files, capsys, no_work):
+    # the page takes the browser's size, but a size given must still be one
+    refused(capsys, ["view", "--web", "m.npz", "--size", "0"], names="--size", problem="1..")
+    refused(capsys, ["view", "--web", "m.npz", "--size", "junk"], names="--size",
+            problem="expected N or WxH")  # fmt: skip

@@ -26,6 +26,7 @@ no write replaces one (:func:`lobelight._io.protect_inputs`).
 from __future__ import annotations
 
 import contextlib
+import errno
 import importlib
 import json
 import math
@@ -116,6 +117,17 @@ def _fail(json_mode: bool, what: str, problem: str, code: int, **extra) -> int:
     return code
 
 
+#: The system's refusals of a path given on the command line, reported as bad input (exit 2).
+_PATH_ERRNOS = frozenset(
+    getattr(errno, name)
+    for name in ("ENAMETOOLONG", "ELOOP", "EACCES", "EPERM", "EROFS", "ENOTDIR", "EISDIR")
+)
+
+
+def _os_reason(e: OSError) -> str:
+    return (e.strerror or str(e)).lower()
+
+
 def _on_sigterm(signum, frame) -> None:
     raise Terminated
 
@@ -151,7 +163,9 @@ def _main(argv: list[str] | None) -> int:
     try:
         args = _parser().parse_args(argv)
     except _UsageError as e:
-        return _fail(json_mode, "", str(e), 2)
+        # the JSON names the flag argparse names ("argument --width: invalid ...")
+        flag = re.search(r"argument ([^:\s]+)", str(e))
+        return _fail(json_mode, "", str(e), 2, **({"input": flag[1]} if flag else {}))
     except Exception:  # the parser's own failure: the one door below
         return _unexpected(json_mode, debug)
     try:
@@ -160,6 +174,13 @@ def _main(argv: list[str] | None) -> int:
         return _fail(args.json, e.what, e.problem, 2)
     except (KeyboardInterrupt, Terminated) as e:
         return _stopped(args, e)
+    except OSError as e:
+        if e.errno not in _PATH_ERRNOS:
+            return _unexpected(args.json, args.debug)
+        # a path the system refuses (too long a name, a loop of links, no permission) that
+        # no check before the work caught: bad input, named as the system names it
+        where = e.filename2 if e.filename2 is not None else e.filename
+        return _fail(args.json, "" if where is None else str(where), _os_reason(e), 2)
     except Exception:
         return _unexpected(args.json, args.debug)
     try:

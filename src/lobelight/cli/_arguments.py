@@ -443,8 +443,8 @@ def _add_export(sub) -> None:
 def _add_render(sub) -> None:
     r = _command(sub, "render", "run_render", "render a model to an image (.png .jpg .exr .hdr)")
     r.add_argument("model", help="a model file written by bake")
-    _output(r, "render.png", "image (.png/.jpg tone-mapped, .exr/.hdr linear), or a folder "
-            "with --turntable")  # fmt: skip
+    _output(r, None, "image (.png/.jpg tone-mapped, .exr/.hdr linear), or a folder with "
+            "--turntable (default: render.png; with --turntable the folder turntable)")  # fmt: skip
     _env(r, "default: the model's, else the built-in sky")
     r.add_argument(
         "--camera",
@@ -488,8 +488,8 @@ def _add_render(sub) -> None:
     r.add_argument(
         "--spin",
         choices=["camera", "light"],
-        default="camera",
-        help="what --turntable turns",
+        default=None,
+        help="what --turntable turns (default: camera)",
     )
     _size(r)
 

@@ -167,6 +167,10 @@ _MAX_COORDINATE = 1e15
 
 
 def _camera_from(text: str | None, provenance: dict, mesh):
+    """``--camera`` (``ox,oy,oz:tx,ty,tz[:fov]``), else the model's stored camera, else the
+    mesh's default framing; a stored camera that is no camera is said on stderr."""
+    if text is not None and not text.strip():
+        raise InputError("--camera", "is empty: expected 'ox,oy,oz:tx,ty,tz[:fov]'")
     if text:
         try:
             parts = [[float(x) for x in p.split(",")] for p in text.split(":")]
@@ -190,8 +194,10 @@ def _camera_from(text: str | None, provenance: dict, mesh):
     if isinstance(cam, dict):
         try:
             return Camera(**{k: (tuple(v) if isinstance(v, list) else v) for k, v in cam.items()})
-        except (TypeError, ValueError, InputError):
-            pass
+        except (TypeError, ValueError, InputError) as e:
+            print(f"lobelight: the model's camera is not one ({one_line(str(e))[:200]}): the "
+                  "mesh's default framing instead (--camera names one)", file=sys.stderr,
+                  flush=True)  # fmt: skip
     return default_camera(mesh)
 
 
@@ -199,19 +205,38 @@ def _env_source(path: str | None, provenance: dict | None = None) -> str:
     """The environment a command uses: ``--env`` (a file, ``builtin`` or a bundled map's name),
     else the model's stored one (a scene file's or ``bake --env``'s) while its file exists, else
     ``"builtin"``."""
-    if path:
+    if path is not None:
+        if not str(path).strip():
+            raise InputError(
+                "--env", "is empty: give a map file, a bundled map's name or 'builtin'"
+            )
         return str(path)
     stored = (provenance or {}).get("environment", "builtin")
-    if isinstance(stored, str) and stored != "builtin" and Path(stored).is_file():
-        return stored
-    return "builtin"
+    if not isinstance(stored, str) or stored == "builtin" or Path(stored).is_file():
+        return stored if isinstance(stored, str) else "builtin"
+    # the file the model was baked under is not here (the model moved to another machine, or
+    # lobelight did): the bundled map of its name, else the built-in sky, said once
+    name = Path(stored).stem
+    source = name if name in envmap_names() else "builtin"
+    if stored not in _MISSING_MAPS_SAID:
+        _MISSING_MAPS_SAID.add(stored)
+        instead = "the built-in sky" if source == "builtin" else f"the bundled map {name!r}"
+        print(f"lobelight: the model's map {one_line(stored)!r} is not here: lit by {instead} "
+              "(--env names another)", file=sys.stderr, flush=True)  # fmt: skip
+    return source
+
+
+#: The models' stored maps found missing, each said once per process.
+_MISSING_MAPS_SAID: set[str] = set()
 
 
 def _env_file(source: str) -> str:
     """``source`` as a file path (a bundled map's name resolves to its file), or an InputError
     naming the bundled maps where ``source`` is neither a file nor one of them; a path that is
     there but is no regular file (a FIFO, a device) is said to be what it is."""
-    if os.path.lexists(source) and not os.path.isdir(source):
+    if os.path.isdir(source):
+        raise InputError(source, "is a directory, not a map file")
+    if os.path.lexists(source):
         check_input(source, limit=IMAGE_LIMIT)  # a FIFO or a dangling link: what it is
     resolved = resolve_envmap(source)
     if resolved is None:
@@ -254,14 +279,35 @@ def _size(args) -> tuple[int, int]:
     return check_image("--width/--height", args.width, args.height)
 
 
-def _output_folder(path) -> Path:
+def _output_folder(path, *, beside: bool = False) -> Path:
     """``-o`` of a command that writes a folder, checked before any work: a folder or nothing
-    yet (then made by the command), never a file (an input least of all)."""
+    yet (then made by the command), never a file (an input least of all), in a folder that
+    exists; the command must be able to write into it, or with ``beside`` (a folder written
+    whole beside it and renamed into place) into the folder that holds it. A path the system
+    cannot look up (too long a name, a loop of links) is refused with the system's reason."""
     out = Path(path)
     check_outputs(out)
-    if out.exists() and not out.is_dir():
-        raise InputError(str(out), "is a file, not a folder: name a folder for the outputs")
+    try:
+        if out.is_symlink() and not out.exists():
+            raise InputError(str(out), "is a symbolic link to nothing (or to a loop of links)")
+        if out.exists() and not out.is_dir():
+            raise InputError(str(out), "is a file, not a folder: name a folder for the outputs")
+        parent = out.parent
+        if parent.exists() and not parent.is_dir():
+            raise InputError(str(out), f"{str(parent)!r} is a file, not a folder")
+        if not parent.is_dir():
+            raise InputError(str(out), f"the directory {str(parent)!r} does not exist")
+        here = out if out.is_dir() and not beside else parent
+        if not os.access(here, os.W_OK | os.X_OK):
+            raise InputError(str(out), f"the directory {str(here)!r} is not writable")
+    except OSError as e:
+        raise InputError(str(out), _os_problem(e)) from None
     return out
+
+
+def _os_problem(e: OSError) -> str:
+    """An OSError's reason in the words of an error line (``file name too long``)."""
+    return (e.strerror or str(e)).lower()
 
 
 def _check_base_res(args) -> int | str:
@@ -278,6 +324,8 @@ def _model_path(scene: str, output: str | None) -> Path:
     """``-o`` exactly as given, else ``NAME.lobelight.npz`` in the working folder (a built-in
     name's ``:`` as ``-``: ``knot:2`` bakes to ``knot-2.lobelight.npz``)."""
     if output:
+        if output.endswith(("/", os.sep)):
+            raise InputError(output, "is a directory: name the model file (-o DIR/NAME.npz)")
         return _writable_file(Path(output))
     stem = Path(str(scene)).stem.replace(":", "-")
     return _writable_file(Path(f"{stem}.lobelight.npz"))
@@ -285,25 +333,25 @@ def _model_path(scene: str, output: str | None) -> Path:
 
 def _writable_file(out: Path) -> Path:
     """``out`` if a file can be written there (checked before any work), else an InputError."""
-    if out.is_dir():
-        raise InputError(str(out), "is a directory: name the file (-o DIR/NAME)")
-    if not out.parent.is_dir():
-        raise InputError(str(out), f"the directory {str(out.parent)!r} does not exist")
-    if not os.access(out.parent, os.W_OK):
-        raise InputError(str(out), f"the directory {str(out.parent)!r} is not writable")
+    try:
+        if str(out).endswith(os.sep) or out.is_dir():
+            raise InputError(str(out), "is a directory: name the file (-o DIR/NAME)")
+        if not out.parent.is_dir():
+            raise InputError(str(out), f"the directory {str(out.parent)!r} does not exist")
+        if not os.access(out.parent, os.W_OK | os.X_OK):
+            raise InputError(str(out), f"the directory {str(out.parent)!r} is not writable")
+    except OSError as e:
+        raise InputError(str(out), _os_problem(e)) from None
     return out
 
 
 def _check_gltf_output(path: str) -> Path:
-    """``--gltf``: a ``.glb`` in an existing folder, not a folder, checked before any work."""
+    """``--gltf``: a ``.glb`` in an existing, writable folder, not a folder, checked before any
+    work."""
     out = Path(path)
     if out.suffix.lower() != ".glb":
         raise InputError(str(out), "--gltf writes a glTF binary: name a .glb file")
-    if out.is_dir():
-        raise InputError(str(out), "is a folder: name a .glb file")
-    if not out.parent.is_dir():
-        raise InputError(str(out), f"the directory {str(out.parent)!r} does not exist")
-    return out
+    return _writable_file(out)
 
 
 def run_export(args) -> dict:
@@ -343,9 +391,7 @@ def _web_inputs(args, m) -> tuple[list, list[str]]:
 def _run_export_web(args) -> dict:
     """``export MODEL --web DIR``: the viewer's folder, written atomically."""
     _check_base_res(args)
-    out = Path(args.web)
-    if out.exists() and not out.is_dir():
-        raise InputError(str(out), "is a file: --web writes a folder")
+    out = _output_folder(args.web, beside=True)  # written whole beside it, then renamed
     m = _said(load_model, args.model)
     envs, inputs = _web_inputs(args, m)
     t0 = time.perf_counter()
@@ -393,8 +439,13 @@ def run_bake(args) -> dict:
     ckpt = out.with_name(out.name + ".ckpt")
     # every file the scene brought was read: none of them may be written over
     check_outputs(out, ckpt)
+    if out.suffix.lower() != ".npz":  # after the inputs' check: "is the input" says more
+        raise InputError(str(out), "a model file is an .npz archive: name it NAME.npz")
+    if ckpt.exists() and not ckpt.is_file():
+        raise InputError(str(ckpt), "is where the bake keeps its checkpoint, and is not a file")
     if ckpt.exists():
-        _note(args, f"resuming from {ckpt}")
+        _note(args, f"checkpoint {ckpt} found: resumed where it is this bake's (the same scene "
+              "and settings), else the bake starts over")  # fmt: skip
     _note(
         args, f"baking {sc.name}: {sc.mesh.n_vertices} vertices, {args.gaussians} Gaussian(s)/view"
     )
@@ -575,13 +626,18 @@ def _render_outputs(args, width: int, height: int) -> list[Path]:
     out_dir = Path(args.output)
     if out_dir.suffix and not out_dir.is_dir():
         raise InputError(str(out_dir), "--turntable writes frames into a folder: -o DIR")
-    if not out_dir.parent.is_dir():
-        raise InputError(str(out_dir), f"the directory {str(out_dir.parent)!r} does not exist")
-    frames = [out_dir / f"frame_{i:03d}.png" for i in range(args.turntable)]
+    _output_folder(out_dir)
+    digits = max(3, len(str(args.turntable - 1)))  # render.turntable's names
+    frames = [out_dir / f"frame_{i:0{digits}d}.png" for i in range(args.turntable)]
     return [out_dir, *frames, out_dir / "frames.gif"]
 
 
 def run_render(args) -> dict:
+    if args.spin is not None and args.turntable is None:
+        raise InputError("--spin", "turns a turntable: give --turntable FRAMES as well")
+    if args.output is None:
+        args.output = "render.png" if args.turntable is None else "turntable"
+    args.spin = args.spin or "camera"
     width, height = _size(args)
     exposure = _exposure(args.exposure)
     _check_base_res(args)
@@ -674,6 +730,7 @@ def run_view(args) -> dict:
 def _run_view_web(args) -> dict:
     """``view --web MODEL``: the viewer written to a temporary folder and served on
     localhost until interrupted; the folder is removed after."""
+    _size(args)  # the page takes the browser's size, but a size given must still be one
     m = _said(load_model, args.model)
     envs, inputs = _web_inputs(args, m)
     tmp = Path(tempfile.mkdtemp(prefix="lobelight-web-"))

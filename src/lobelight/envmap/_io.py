@@ -161,7 +161,8 @@ def _file_layout(h: int, w: int, layout: str | None, name: str) -> str:
     raise InputError(
         name,
         f"cannot tell the layout of a {w} x {h} image: expected a {want} "
-        "(or pass layout='latlong' for a lat-long map of another size)",
+        "(from Python, lobelight.envmap.load(path, layout='latlong') reads a lat-long map of "
+        "another size)",
     )
 
 
@@ -180,7 +181,10 @@ def _check_values(img: np.ndarray, name: str, *, sanitize: bool) -> np.ndarray:
             raise InputError(name, f"radiance up to {top:.3g}, over {MAX_RADIANCE:g}: not a map")
         return img
     if not sanitize:
-        raise InputError(name, problem + "; load with sanitize=True to repair them")
+        raise InputError(
+            name,
+            problem + " (from Python, lobelight.envmap.load(path, sanitize=True) repairs them)",
+        )
     nan = np.isnan(img)
     neg = img < 0  # includes -Inf
     pinf = np.isposinf(img)

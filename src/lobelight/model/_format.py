@@ -66,7 +66,7 @@ from ..errors import InputError
 from ..geometry import sphere
 from ..lobes import sg
 from ..lobes.sg import Gaussians
-from ..scene import AlbedoTexture, Materials, Mesh
+from ..scene import AlbedoTexture, Materials, Mesh, check_precision
 from ._albedo_file import ALBEDO_ARRAYS, ALBEDO_DTYPES, albedo_arrays, check_albedo, read_albedo
 
 __all__ = [
@@ -731,8 +731,8 @@ def _check_geometry(a: dict[str, np.ndarray], v: int, name: str) -> None:
     f = a["faces"]
     _need(f.shape[0] > 0, name, "has no faces")
     _need(f.min() >= 0 and f.max() < v, name, "face index out of range")
-    vert = a["vertices"].astype(np.float32)
-    _need(float(np.ptp(vert, axis=0).max()) > 0, name, "all vertices coincide (no extent)")
+    # the vertices the faces use, held to a loaded mesh's own checks (size, distance)
+    check_precision(a["vertices"][np.unique(f)], name)
     for k in ("normals", "views"):
         norm = np.linalg.norm(a[k].astype(np.float64), axis=-1)
         _need(bool((norm > 1e-6).all()), name, f"{k} has zero vectors")

@@ -167,13 +167,16 @@ def check_output_path(path, *, types: tuple[str, ...] = DISPLAY_TYPES + LINEAR_T
     it: its extension is one of ``types`` (case-insensitive), it is not a directory, and its
     directory exists and is writable. Nothing is written; callers check before rendering."""
     p = check_type(path, types)
-    if p.is_dir():
-        raise InputError(str(p), "is a directory, not an image file name")
-    parent = p.parent
-    if not parent.is_dir():
-        raise InputError(str(p), f"the directory {str(parent)!r} does not exist")
-    if not os.access(parent, os.W_OK | os.X_OK):
-        raise InputError(str(p), f"the directory {str(parent)!r} is not writable")
+    try:
+        if str(path).endswith(("/", os.sep)) or p.is_dir():
+            raise InputError(str(path), "is a directory, not an image file name")
+        parent = p.parent
+        if not parent.is_dir():
+            raise InputError(str(p), f"the directory {str(parent)!r} does not exist")
+        if not os.access(parent, os.W_OK | os.X_OK):
+            raise InputError(str(p), f"the directory {str(parent)!r} is not writable")
+    except OSError as e:  # a name too long, a loop of links: the system's reason
+        raise InputError(str(p), (e.strerror or str(e)).lower()) from None
     return p
 
 

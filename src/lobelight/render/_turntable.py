@@ -179,9 +179,18 @@ def _output_paths(out: Path, n: int, animation) -> tuple[list[Path], Path | None
         raise InputError(str(anim), "this Pillow has no WebP support: use .gif")
     if out.exists() and not out.is_dir():
         raise InputError(str(out), "is a file, not a folder for the frames")
-    out.mkdir(parents=True, exist_ok=True)
     digits = max(3, len(str(n - 1)))
-    paths = [check_output_path(out / f"frame_{k:0{digits}d}.png") for k in range(n)]
+    names = [f"frame_{k:0{digits}d}.png" for k in range(n)]
+    if out.is_dir():  # frames these would not replace would pass for theirs
+        stale = sorted(set(q.name for q in out.glob("frame_*.png")) - set(names))
+        if stale:
+            raise InputError(
+                str(out),
+                f"holds {len(stale)} frame(s) of another turntable that these {n} would not "
+                f"replace ({stale[0]}, ...): empty it or name another folder",
+            )
+    out.mkdir(parents=True, exist_ok=True)
+    paths = [check_output_path(out / name) for name in names]
     if anim is not None:
         check_output_path(anim, types=ANIMATION_TYPES)
     return paths, anim

@@ -41,6 +41,7 @@ __all__ = [
     "Mesh",
     "VertexFactors",
     "check_mesh_size",
+    "check_precision",
     "load_gltf",
     "load_mesh",
     "mesh_from_arrays",
@@ -248,6 +249,17 @@ def _double_areas(v: np.ndarray, f: np.ndarray) -> np.ndarray:
     return np.linalg.norm(np.cross(v[f[:, 1]] - v[f[:, 0]], v[f[:, 2]] - v[f[:, 0]]), axis=1)
 
 
+def check_precision(v: np.ndarray, name: str) -> None:
+    """Refuse vertices ``(V, 3)`` (those the faces use) that lobelight's float32 geometry cannot
+    keep: all at one point, a size outside ``MIN_EXTENT..MAX_EXTENT``, or too far from the
+    origin (:func:`_check_precision`); a mesh's load runs it, and a model file's read."""
+    v = np.asarray(v, dtype=np.float64)
+    diag = float(np.linalg.norm(v.max(0) - v.min(0)))
+    if not diag > 0:
+        raise InputError(name, "all vertices coincide: the mesh has no extent")
+    _check_precision(v, diag, name)
+
+
 def _check_precision(v: np.ndarray, diag: float, name: str) -> None:
     """Refuse a mesh whose float32 positions cannot keep its shape: one far from the origin
     against its size (beyond :data:`MAX_OFFSET` sizes away), or of a size outside
@@ -387,10 +399,8 @@ def weld_arrays(
         nrm = np.where(ok, nrm / np.where(ok, length, 1.0), np.nan)
     # a vertex no face uses neither sets the weld's tolerance nor the extent
     v, f, nrm, attrs = _compact(v, f.astype(np.int64), nrm, attrs)
-    diag = float(np.linalg.norm(v.max(0) - v.min(0)))
-    if not diag > 0:
-        raise InputError(name, "all vertices coincide: the mesh has no extent")
-    _check_precision(v, diag, name)
+    check_precision(v, name)
+    diag = float(np.linalg.norm(v.max(0) - v.min(0)))  # the weld's and the areas' unit
     area_before = 0.0
     if weld:
         area_before = float(_double_areas(v, f).sum())
