@@ -35,10 +35,8 @@ __all__ = [
 DTYPES = ("<f4", "<f2", "<u4", "<i4", "|u1", "<i2")
 #: Arrays smaller than this stay uncompressed (a stream's set-up costs more than it saves).
 GZIP_MIN_BYTES = 1 << 16
-#: An array is kept compressed where that leaves at most this share of its bytes: a page
-#: inflates slower than it parses base64, so an array that gzip shrinks by less than half (a
-#: float16 mean or hit distance: about 0.78) loads faster as it is.
-GZIP_MAX_RATIO = 0.5
+#: An array is kept compressed where that leaves at most this share of its bytes.
+GZIP_MAX_RATIO = 0.9
 #: gzip's level: the fastest (the page's load, not the folder's last bytes, is the goal).
 _GZIP_LEVEL = 1
 #: The call a data file makes, before its JSON.
