@@ -1,8 +1,8 @@
 """Bad input at every loader's door: one InputError that names the file, never a traceback.
 
 The plain cases every loader must handle (missing file, a directory, an empty file, a file it
-may not read), then regressions pinned by the fuzzing in ``test_fuzz.py``: each names the input
-that used to escape as another exception type, or that used to load when it should not.
+may not read), then the cases the fuzzing in ``test_fuzz.py`` found: each names an input that
+must give that one error, not another exception type, and that must not load.
 """
 
 from __future__ import annotations

@@ -206,8 +206,8 @@ def test_base_res_auto_is_the_default_where_a_model_is_rendered():
 
 
 def test_sigterm_ends_a_bake_like_ctrl_c(tmp_path):
-    """Batch schedulers stop jobs with SIGTERM: one line and exit 143, unwound like Ctrl-C (it
-    used to kill the process silently), and nothing half-written is left."""
+    """Batch schedulers stop jobs with SIGTERM: one line and exit 143, unwound like Ctrl-C (not a
+    silent death of the process), and nothing half-written is left."""
     import signal
 
     out = tmp_path / "knot.npz"

@@ -205,7 +205,7 @@ def test_the_relaxation_samples_where_the_flood_fill_did(tmp_path):
 @pytest.mark.parametrize("damage", ["truncated", "flipped", "next_not_a_count", "nan_weights"])
 def test_a_corrupt_checkpoint_is_moved_aside_and_the_bake_starts_afresh(tmp_path, caplog, damage):
     """A checkpoint cut short or with bytes flipped in its members (numpy's header parser then
-    raises errors no plain OSError covers) used to stop every later bake until deleted by hand."""
+    raises errors no plain OSError covers) never stops a later bake: it is moved aside."""
     sc = scene.builtin("sphere", subdivisions=0, model="phong", exponent=200.0)
     kw = dict(n=1, batch=2, checkpoint_every=0)
     clean = fit.fit_mesh(sc, **kw)
