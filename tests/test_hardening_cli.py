@@ -733,3 +733,18 @@ def test_view_web_checks_a_size_it_is_given(files, capsys, no_work):
     refused(capsys, ["view", "--web", "m.npz", "--size", "0"], names="--size", problem="1..")
     refused(capsys, ["view", "--web", "m.npz", "--size", "junk"], names="--size",
             problem="expected N or WxH")  # fmt: skip
+
+
+def test_view_opens_with_the_camera_render_takes_and_says_a_damaged_one(files, capsys, monkeypatch):
+    seen = []
+    monkeypatch.setattr(_commands, "require_display", lambda: None)
+    monkeypatch.setattr(_commands, "view", lambda m, **kw: seen.append(kw["camera"]) or {})
+    good = {"origin": [0.0, 1.0, 4.0], "target": [0.0, 0.0, 0.0], "fov": 35.0}
+    bad = {"origin": [0.0, 0.0, 0.0], "target": [0.0, 0.0, 0.0], "fov": 35.0}
+    for name, cam in (("good.npz", good), ("bad.npz", bad)):
+        _tiny_model(files / name, provenance={"scene": "s", "camera": cam})
+        assert cli.main(["view", name]) == 0
+    assert seen[0].origin == (0.0, 1.0, 4.0) and seen[0].fov == 35.0
+    mesh = model.load(files / "bad.npz").mesh
+    assert seen[1] == scene.default_camera(mesh)
+    assert "the model's camera is not one" in capsys.readouterr().err

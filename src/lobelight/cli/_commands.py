@@ -724,7 +724,9 @@ def run_view(args) -> dict:
     m = _said(load_model, args.model)
     width, height = _size(args)
     envs = [_env(path, m.provenance) for path in (args.env or [None])]  # each read at the door
-    return view(m, env=envs, width=width, height=height, sun=args.sun)
+    # the model's camera, as render takes it (a stored camera that is no camera is said)
+    cam = _camera_from(None, m.provenance, m.mesh)
+    return view(m, env=envs, width=width, height=height, sun=args.sun, camera=cam)
 
 
 def _run_view_web(args) -> dict:
