@@ -7,7 +7,7 @@ it as a single line and exit with a documented code instead of a traceback.
 
 from __future__ import annotations
 
-__all__ = ["InputError", "LobelightError", "Terminated", "one_line", "shorten"]
+__all__ = ["InputError", "LobelightError", "Terminated", "one_line", "os_problem", "shorten"]
 
 #: The longest name or problem an error message quotes in full: a longer one (a million-element
 #: argument, a file's whole line) keeps its head and tail (:func:`shorten`).
@@ -50,6 +50,11 @@ def one_line(text: str) -> str:
     if text.isprintable():
         return text
     return "".join(c if c.isprintable() else repr(c)[1:-1] for c in text)
+
+
+def os_problem(e: OSError) -> str:
+    """An OSError's reason in the words of an error line (``file name too long``)."""
+    return (e.strerror or str(e)).lower()
 
 
 def shorten(text: str, limit: int = MAX_QUOTED) -> str:

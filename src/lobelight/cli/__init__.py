@@ -45,7 +45,7 @@ from .. import __version__
 from .._cache import MAX_MB_ENV, cache_dir, cache_max_bytes, check_environment
 from .._container import read_ahead
 from .._io import protect_inputs
-from ..errors import MAX_QUOTED, InputError, Terminated, one_line, shorten
+from ..errors import MAX_QUOTED, InputError, Terminated, one_line, os_problem, shorten
 from ._arguments import _parser, _UsageError
 from ._process import end_process, imports_uncollected, tune
 
@@ -124,10 +124,6 @@ _PATH_ERRNOS = frozenset(
 )
 
 
-def _os_reason(e: OSError) -> str:
-    return (e.strerror or str(e)).lower()
-
-
 def _on_sigterm(signum, frame) -> None:
     raise Terminated
 
@@ -180,7 +176,7 @@ def _main(argv: list[str] | None) -> int:
         # a path the system refuses (too long a name, a loop of links, no permission) that
         # no check before the work caught: bad input, named as the system names it
         where = e.filename2 if e.filename2 is not None else e.filename
-        return _fail(args.json, "" if where is None else str(where), _os_reason(e), 2)
+        return _fail(args.json, "" if where is None else str(where), os_problem(e), 2)
     except Exception:
         return _unexpected(args.json, args.debug)
     try:

@@ -112,12 +112,12 @@ def _command(
     help: str,
     *,
     heavy: bool = True,
-    rays: bool | None = None,
+    rays: bool = True,
     progress: bool = True,
 ) -> argparse.ArgumentParser:
     """A command's parser with every command's options: ``--json`` and ``-q``, and for a
-    command that does heavy work (``heavy``) ``--device`` and, unless ``rays`` is False (it
-    casts no rays), ``--rays`` (the others run on the CPU with the default ray engine). A
+    command that does heavy work (``heavy``) ``--device`` and, where it casts rays (``rays``),
+    ``--rays`` (the others run on the CPU with the default ray engine). A
     command without progress (``progress`` False) accepts ``-q`` without offering it, so that
     a script may pass it to every command; ``run`` names its function in
     :mod:`lobelight.cli._commands`."""
@@ -145,7 +145,7 @@ def _command(
         )
     else:
         sp.set_defaults(device="cpu")
-    if heavy and rays is not False:
+    if heavy and rays:
         sp.add_argument(
             "--rays",
             default="auto",

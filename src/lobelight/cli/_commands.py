@@ -29,7 +29,7 @@ from ..brdf import sharp_lobe
 from ..data import envmap_names, resolve_envmap
 from ..envmap import builtin
 from ..envmap import load as load_env
-from ..errors import InputError, one_line
+from ..errors import InputError, one_line, os_problem
 from ..fit import cluster, fit_model
 from ..geometry import raycast
 from ..geometry.camera import Camera
@@ -41,9 +41,11 @@ from ..render import (
     auto_exposure,
     check_output_path,
     export_gltf,
+    frame_names,
     gl_available,
     require_display,
     save_image,
+    stored_camera,
     turntable,
     view,
 )
@@ -190,15 +192,14 @@ def _camera_from(text: str | None, provenance: dict, mesh):
             return Camera.look_at(origin, target, fov=fov)
         except InputError as e:  # the camera's own checks: said of the flag
             raise InputError("--camera", f"{e.what}: {e.problem}") from None
-    cam = provenance.get("camera")
-    if isinstance(cam, dict):
-        try:
-            return Camera(**{k: (tuple(v) if isinstance(v, list) else v) for k, v in cam.items()})
-        except (TypeError, ValueError, InputError) as e:
-            print(f"lobelight: the model's camera is not one ({one_line(str(e))[:200]}): the "
-                  "mesh's default framing instead (--camera names one)", file=sys.stderr,
-                  flush=True)  # fmt: skip
-    return default_camera(mesh)
+    try:
+        cam = stored_camera(provenance)
+    except (TypeError, ValueError, InputError) as e:
+        cam = None
+        print(f"lobelight: the model's camera is not one ({one_line(str(e))[:200]}): the "
+              "mesh's default framing instead (--camera names one)", file=sys.stderr,
+              flush=True)  # fmt: skip
+    return default_camera(mesh) if cam is None else cam
 
 
 def _env_source(path: str | None, provenance: dict | None = None) -> str:
@@ -301,13 +302,8 @@ def _output_folder(path, *, beside: bool = False) -> Path:
         if not os.access(here, os.W_OK | os.X_OK):
             raise InputError(str(out), f"the directory {str(here)!r} is not writable")
     except OSError as e:
-        raise InputError(str(out), _os_problem(e)) from None
+        raise InputError(str(out), os_problem(e)) from None
     return out
-
-
-def _os_problem(e: OSError) -> str:
-    """An OSError's reason in the words of an error line (``file name too long``)."""
-    return (e.strerror or str(e)).lower()
 
 
 def _check_base_res(args) -> int | str:
@@ -334,14 +330,14 @@ def _model_path(scene: str, output: str | None) -> Path:
 def _writable_file(out: Path) -> Path:
     """``out`` if a file can be written there (checked before any work), else an InputError."""
     try:
-        if str(out).endswith(os.sep) or out.is_dir():
+        if out.is_dir():
             raise InputError(str(out), "is a directory: name the file (-o DIR/NAME)")
         if not out.parent.is_dir():
             raise InputError(str(out), f"the directory {str(out.parent)!r} does not exist")
         if not os.access(out.parent, os.W_OK | os.X_OK):
             raise InputError(str(out), f"the directory {str(out.parent)!r} is not writable")
     except OSError as e:
-        raise InputError(str(out), _os_problem(e)) from None
+        raise InputError(str(out), os_problem(e)) from None
     return out
 
 
@@ -627,8 +623,7 @@ def _render_outputs(args, width: int, height: int) -> list[Path]:
     if out_dir.suffix and not out_dir.is_dir():
         raise InputError(str(out_dir), "--turntable writes frames into a folder: -o DIR")
     _output_folder(out_dir)
-    digits = max(3, len(str(args.turntable - 1)))  # render.turntable's names
-    frames = [out_dir / f"frame_{i:0{digits}d}.png" for i in range(args.turntable)]
+    frames = [out_dir / name for name in frame_names(args.turntable)]
     return [out_dir, *frames, out_dir / "frames.gif"]
 
 

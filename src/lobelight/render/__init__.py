@@ -57,8 +57,8 @@ from ._tonemap import (
     save_image,
     tonemap,
 )
-from ._turntable import orbit, turntable
-from ._window import Orbit, model_camera, require_display, view
+from ._turntable import frame_names, orbit, turntable
+from ._window import Orbit, model_camera, require_display, stored_camera, view
 
 __all__ = [
     "AUTO_BASE_BLUR",
@@ -80,6 +80,7 @@ __all__ = [
     "create_context",
     "export_gltf",
     "fallback_material",
+    "frame_names",
     "gl_available",
     "import_gltf",
     "load_shader",
@@ -90,6 +91,7 @@ __all__ = [
     "sample_offsets",
     "save_image",
     "stage_sources",
+    "stored_camera",
     "tonemap",
     "turntable",
     "view",

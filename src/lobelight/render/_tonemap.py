@@ -13,7 +13,7 @@ import torch
 from PIL import Image
 
 from .._io import atomic_path
-from ..errors import InputError
+from ..errors import InputError, os_problem
 
 __all__ = [
     "CURVES",
@@ -176,7 +176,7 @@ def check_output_path(path, *, types: tuple[str, ...] = DISPLAY_TYPES + LINEAR_T
         if not os.access(parent, os.W_OK | os.X_OK):
             raise InputError(str(p), f"the directory {str(parent)!r} is not writable")
     except OSError as e:  # a name too long, a loop of links: the system's reason
-        raise InputError(str(p), (e.strerror or str(e)).lower()) from None
+        raise InputError(str(p), os_problem(e)) from None
     return p
 
 

@@ -171,6 +171,12 @@ def _check_arguments(renderer, camera, n_frames, rotate, curve, exposure, fps) -
     return int(n_frames)
 
 
+def frame_names(n: int) -> list[str]:
+    """The file names of a turntable's ``n`` frames, in order (``frame_000.png``, ...)."""
+    digits = max(3, len(str(n - 1)))
+    return [f"frame_{k:0{digits}d}.png" for k in range(n)]
+
+
 def _output_paths(out: Path, n: int, animation) -> tuple[list[Path], Path | None]:
     """The ``n`` frames' paths in ``out`` (made if missing) and the animation's path (None
     for none), each checked as an output before any frame is rendered."""
@@ -179,8 +185,7 @@ def _output_paths(out: Path, n: int, animation) -> tuple[list[Path], Path | None
         raise InputError(str(anim), "this Pillow has no WebP support: use .gif")
     if out.exists() and not out.is_dir():
         raise InputError(str(out), "is a file, not a folder for the frames")
-    digits = max(3, len(str(n - 1)))
-    names = [f"frame_{k:0{digits}d}.png" for k in range(n)]
+    names = frame_names(n)
     if out.is_dir():  # frames these would not replace would pass for theirs
         stale = sorted(set(q.name for q in out.glob("frame_*.png")) - set(names))
         if stale:

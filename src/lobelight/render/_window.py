@@ -65,17 +65,25 @@ def _open_window(width: int, height: int, title: str):
     return glfw, win
 
 
+def stored_camera(provenance: dict | None) -> Camera | None:
+    """The camera a model was baked with (its provenance's ``camera``: a scene file's
+    ``[camera]``, or the bare mesh's framing), None where it records none; raises
+    InputError, TypeError or ValueError where what it records is no camera."""
+    cam = (provenance or {}).get("camera")
+    if not isinstance(cam, dict):
+        return None
+    return Camera(**{k: (tuple(v) if isinstance(v, list) else v) for k, v in cam.items()})
+
+
 def model_camera(model: Model) -> Camera:
-    """The camera ``model`` is shown from by default: the one it was baked with (its
-    provenance's ``camera``: a scene file's ``[camera]``, or the bare mesh's framing), else
-    :func:`lobelight.scene.default_camera` of its mesh, as ``lobelight render`` does."""
-    cam = (model.provenance or {}).get("camera")
-    if isinstance(cam, dict):
-        try:
-            return Camera(**{k: (tuple(v) if isinstance(v, list) else v) for k, v in cam.items()})
-        except (TypeError, ValueError, InputError):
-            pass
-    return default_camera(model.mesh)
+    """The camera ``model`` is shown from by default: :func:`stored_camera`, else (none, or
+    none that is a camera) :func:`lobelight.scene.default_camera` of its mesh, as ``lobelight
+    render`` does."""
+    try:
+        cam = stored_camera(model.provenance)
+    except (TypeError, ValueError, InputError):
+        cam = None
+    return default_camera(model.mesh) if cam is None else cam
 
 
 class Orbit:
