@@ -361,6 +361,48 @@ def test_shaders_match_the_torch_path_where_the_object_sees_itself():
     assert float((rel > 1e-3).float().mean()) < 0.01, float(rel.max())
 
 
+#: A Phong lobe as sharp as the mirror: one Gaussian of the mixture's five carries its light.
+PHONG = {"diffuse": [0.2, 0.1, 0.05], "model": "phong", "specular": 0.6, "exponent": 600.0}
+
+
+def test_shader_defines_name_the_live_gaussians_and_whether_hits_are_found():
+    # a Phong lobe is one Gaussian of five, a GGX lobe all five: the shaders' loops run over
+    # those alone; HIT_TILES says whether the hits' code is compiled in
+    phong = brdf.sharp_lobe(scene.uniform(PHONG, 3).specular)
+    ggx = brdf.sharp_lobe(scene.uniform(SHARP, 3).specular)
+    d = _reflection.sharp_shader_defines(phong, hit_tiles=False)
+    live = [i for i, w in enumerate(phong.weights.tolist()) if w != 0.0]
+    assert d["MIXTURE"] == 5 and d["HIT_TILES"] == 0
+    assert (d["MIXTURE_LIVE"], d["SHARP_LIVE"]) == (1, str(live[0])) and len(live) == 1
+    d = _reflection.sharp_shader_defines(ggx)
+    assert (d["MIXTURE_LIVE"], d["SHARP_LIVE"], d["HIT_TILES"]) == (5, "0, 1, 2, 3, 4", 1)
+
+
+@pytest.mark.skipif(not render.gl_available(), reason="needs an OpenGL context")
+@pytest.mark.parametrize("hits", [True, False])
+def test_shaders_match_the_torch_path_on_a_phong_lobe(hits):
+    # a Phong torus, its mixture one live Gaussian of five (the shaders' loops run over it
+    # alone), with its hit tiles (the hits' code compiled in) and without (compiled out): both
+    # renderers, one sample, the same float32 formulas; the bound as for the GGX torus above
+    mesh = _torus()
+    sc = scene.Scene(mesh, scene.uniform(PHONG, mesh.n_vertices), name="torus")
+    m = _bare_model(sc) if hits else _no_hits(_bare_model(sc))
+    light = render.Lighting(_step_sky(), base_res=128)
+    with render.Renderer(m, light, 80, 80, backend="gl", samples=1) as r:
+        img, mask = r.render(TORUS_CAM, return_mask=True, background=False)
+    rows, cols = mask.nonzero().unbind(-1)
+    px = torch.stack([rows, cols], -1)
+    with render.Renderer(m, light, 80, 80, backend="torch", samples=1) as r:
+        ref, hit = r.render_pixels(TORUS_CAM, px)
+    assert bool(hit.all())
+    got = img[px[:, 0], px[:, 1]]
+    rel = (got - ref).abs().amax(-1) / ref.amax(-1).clamp_min(1e-6)
+    assert float((rel > 1e-3).float().mean()) < 0.01, float(rel.max())
+    # each case takes its path: the torus's inner side finds itself in its hit tiles
+    face, _ = m.hits()
+    assert bool((face >= 0).any()) == hits
+
+
 def _gltf_torus(alpha: torch.Tensor, f0) -> scene.Scene:
     mesh = _torus()
     v = mesh.n_vertices

@@ -514,7 +514,7 @@ def test_a_model_beyond_the_texture_limits_gets_a_clear_message(browser, sky, tm
     page.close()
 
 
-def sharp_torus(indirect: bool = False, varying: bool = False) -> Model:
+def sharp_torus(indirect: bool = False, varying: bool = False, phong: bool = False) -> Model:
     """A torus of a sharp metal (GGX alpha 0.03: :func:`lobelight.brdf.sharp_lobe` holds a
     mixture for it) with no fitted glossy transport and a constant diffuse transfer
     (tests/test_reflection.py's bare model): the desktop shades its direct light per pixel
@@ -522,7 +522,9 @@ def sharp_torus(indirect: bool = False, varying: bool = False) -> Model:
     shaded from the vertex stage's capture (their diffuse light). ``indirect``: a second,
     indirect Gaussian about the normal (the capture's indirect lobes, read at the hit points).
     ``varying``: a glTF lobe whose roughness runs from 0.005 to 0.3 around the torus and
-    whose F0 changes across it (sharp at some vertices, shaded by the Gaussians at the rest)."""
+    whose F0 changes across it (sharp at some vertices, shaded by the Gaussians at the rest).
+    ``phong``: a Phong lobe as sharp (one live Gaussian of the mixture's five) and hit tiles
+    that find nothing, as a convex object's (the pages' shaders leave the hits' code out)."""
     tm = trimesh.creation.torus(
         major_radius=1.0, minor_radius=0.45, major_sections=48, minor_sections=24
     )
@@ -539,25 +541,36 @@ def sharp_torus(indirect: bool = False, varying: bool = False) -> Model:
         g = fit.Gaussians(w, mu, torch.cat([g.lam, torch.full((v, 92, 1), 4.0)], 2))
     diffuse = torch.zeros(v, 25, 3)
     diffuse[:, 0] = 0.2
+    if phong:
+        mat = {"diffuse": [0.3, 0.3, 0.3], "model": "phong", "specular": 0.6, "exponent": 600.0}
     materials = scene.uniform(mat, v)
     if varying:
         x = mesh.vertices[:, 0]
         alpha = 0.005 * (0.3 / 0.005) ** ((x - x.min()) / (x.max() - x.min()))
         f0 = torch.stack([0.9 - 0.5 * (x > 0).float(), torch.full_like(x, 0.7), 0.3 + 0 * x], -1)
         materials = scene.Materials(materials.diffuse, brdf.GGXSchlick(alpha=alpha, f0=f0))
-    return Model(
+    m = Model(
         mesh, sphere.geodesic_views(), g, diffuse, materials, {"scene": "torus"},
         indirect_gaussians=int(indirect),
     )  # fmt: skip
+    if phong:
+        face, dist = m.hits()
+        m._hits = (torch.full_like(face, -1), torch.zeros_like(dist))
+    return m
 
 
 @needs_browser
 @pytest.mark.parametrize(
-    ("sun", "indirect", "varying"),
-    [(False, False, False), (True, True, False), (True, False, True)],
+    ("sun", "indirect", "varying", "phong"),
+    [
+        (False, False, False, False),
+        (True, True, False, False),
+        (True, False, True, False),
+        (True, False, False, True),
+    ],
 )
 def test_a_sharp_metal_is_shaded_per_pixel_as_the_torch_path(
-    browser, tmp_path, sun, indirect, varying
+    browser, tmp_path, sun, indirect, varying, phong
 ):
     """A sharp metal's per-pixel reflection (reflection.glsl: visibility tiles, the object seen
     in the lobe through the hit tiles and the vertex stage's capture; with the sun, its shape
@@ -576,15 +589,17 @@ def test_a_sharp_metal_is_shaded_per_pixel_as_the_torch_path(
     map's penumbrae differ from the torch path's rays as the desktop shader's do (up to 0.05,
     tests/test_sun.py): one pixel in 400 may exceed the neighbour bound (measured 3 in 85K).
     A glTF lobe varying per vertex (``lobe`` and ``split`` in the model file, the page's
-    ``lobe_at``) is held to the same bounds."""
-    m = sharp_torus(indirect, varying)
+    ``lobe_at``) is held to the same bounds, and so is a Phong lobe with hit tiles that find
+    nothing (the shaders' loops over its one live Gaussian, the hits' code left out)."""
+    m = sharp_torus(indirect, varying, phong)
     # the built-in sky at 256 x 128: its sun's disc (spread 0.0095 rad) is resolved by the
     # mixture's sharpest Gaussian (lam sigma^2 >= SUN_RESOLVED), so whole_atlas is read
     lighting = render.Lighting(envmap.builtin(height=128), base_res=32, sun=sun)
     info = web.export_web(m, tmp_path / "v", [lighting])
     assert not info["notes"]
     folder = web.read_web(tmp_path / "v")
-    assert ("whole_atlas" in folder.envs[0][1]) == sun
+    # (the Phong lobe's sharpest live Gaussian does not resolve the disc)
+    assert ("whole_atlas" in folder.envs[0][1]) == (sun and not phong)
     assert ("lobe" in folder.arrays) == varying
     page = open_page(browser, tmp_path / "v")
     assert not page.locator("#notes").is_visible()

@@ -29,7 +29,7 @@ import numpy as np
 import torch
 
 from .. import model as model_module
-from ..brdf import ALBEDO_STEPS, MIXTURE, sharp_lobe
+from ..brdf import ALBEDO_STEPS, sharp_lobe
 from ..envmap import Prefiltered
 from ..errors import InputError
 from ..geometry import sphere
@@ -272,6 +272,16 @@ def hit_slots(face: torch.Tensor, dist: torch.Tensor) -> tuple[np.ndarray, ...]:
         tiles = np.full((1, *f.shape[1:]), -1, np.int32)
         d = np.zeros((1, *f.shape[1:]), np.float16)
     return slots, tiles.astype(np.int32, copy=False), d.astype(np.float16, copy=False)
+
+
+def _set_uniform(prog, name: str, value) -> None:
+    """Sets ``prog``'s uniform ``name`` where the compiler kept it: an array (a list) to as
+    many elements as it kept (a driver drops an array's elements past the last one the shader
+    reads: a sharp lobe's mixture read at its live Gaussians alone)."""
+    u = prog.get(name, None)
+    if u is None:
+        return
+    u.value = tuple(value[: u.array_length]) if isinstance(value, list) else value
 
 
 def atlas_image(pf: Prefiltered) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -700,8 +710,10 @@ class GLRenderer:
         self._specular, self._n_vertices = spec, model.mesh.n_vertices
         self.has_sun = lighting.sun is not None
         self.sun_glossy = self.has_sun and sun_glossy_supported(spec)
-        # a sharp lobe's direct light per pixel (render/_reflection.py)
+        # a sharp lobe's direct light per pixel (render/_reflection.py), and the vertices' hit
+        # tiles as the shaders read them (none finds the object: its code is compiled out)
         self.sharp = sharp_lobe(spec)
+        self._hit_slots = None if self.sharp is None else hit_slots(*model.hits())
         # a rough lobe's direct Gaussians corrected for what the object blocks
         # (render/_lobe_visibility.py)
         self.lobe_vis = lobe_visibility_applies(model)
@@ -713,6 +725,11 @@ class GLRenderer:
         pf = lighting.rest_prefiltered if self.sun_glossy else lighting.prefiltered
         self.n_levels = len(pf.levels)
         return pf
+
+    def _hits_found(self) -> bool:
+        """Whether a sharp lobe's hit tiles find the object anywhere (reflection.glsl
+        ``HIT_TILES``)."""
+        return self._hit_slots is not None and bool((self._hit_slots[0] >= 0).any())
 
     def _compile_programs(self, model, n_sh: int, geo_defines: dict) -> None:
         """The object's shading and depth pre-pass programs (prt.glsl), the background's, the
@@ -741,9 +758,8 @@ class GLRenderer:
             "STAGE_PER_ROW": stage_layout(model)[0],
             **lobe_visibility_defines(),
             "VIS_RES": VISIBILITY_RES,
-            "MIXTURE": MIXTURE,
             "ALBEDO_STEPS": ALBEDO_STEPS,
-            **sharp_shader_defines(self.sharp),
+            **sharp_shader_defines(self.sharp, hit_tiles=self._hits_found()),
             "SHADOW_SAMPLES": SHADOW_SAMPLES,
             "BLOCKER_SAMPLES": BLOCKER_SAMPLES,
             **geo_defines,
@@ -879,7 +895,7 @@ class GLRenderer:
         fimg = np.zeros((2 * nbr_offset, 3), np.int32)
         fimg[: faces.shape[0]] = faces
         fimg[nbr_offset : nbr_offset + faces.shape[0]] = model.mesh.face_neighbours.cpu().numpy()
-        slots, tiles, hit_dist = hit_slots(*model.hits())
+        slots, tiles, hit_dist = self._hit_slots
         pimg = np.zeros((-(-verts.shape[0] // width) * width, 3), np.float32)
         pimg[: verts.shape[0]] = verts
         self.face_tex = self.ctx.texture(
@@ -910,21 +926,22 @@ class GLRenderer:
                   self.hit_dist_tex):  # fmt: skip
             t.filter = (moderngl.NEAREST, moderngl.NEAREST)
         p, sh = self.prog, self.sharp
-        p["vis_per_row"].value = per_row
-        p["hit_per_row"].value = hit_per_row
-        p["face_width"].value = width
-        p["nbr_offset"].value = nbr_offset
-        p["sharp_weight"].value = tuple(float(x) for x in sh.weights)
+        # without hit tiles the hits' code is compiled out, and with a lobe the same at every
+        # vertex the pixel's corners with it
+        for name, value in (("face_width", width), ("vis_per_row", per_row),
+                            ("hit_per_row", hit_per_row), ("nbr_offset", nbr_offset)):  # fmt: skip
+            _set_uniform(p, name, value)
+        _set_uniform(p, "sharp_weight", [float(x) for x in sh.weights])
         p["sharp_warp"].value = float(sh.warp)
         self.lobe_tex = self.split_tex = None
         if sh.sharp is None:
-            p["sharp_lam"].value = tuple(float(x) for x in sh.lam)
+            _set_uniform(p, "sharp_lam", [float(x) for x in sh.lam])
             p["sharp_albedo"].value = [tuple(float(c) for c in row) for row in sh.albedo]
             return
         # a lobe per vertex: the mixture at the reference roughness, each vertex's roughness
         # (negative where the Gaussians shade it) and F0, and the albedo's split table
         lam, lobe, split = varying_lobe_arrays(sh)
-        p["sharp_lam"].value = tuple(lam)
+        _set_uniform(p, "sharp_lam", lam)
         limg = np.zeros((pimg.shape[0], 4), np.float32)
         limg[: verts.shape[0]] = lobe
         self.lobe_tex = self.ctx.texture(size, 4, np.ascontiguousarray(limg), dtype="f4")

@@ -73,6 +73,7 @@ import torch
 
 from .._tol import DIVISOR_F32
 from ..brdf import (
+    MIXTURE,
     SPLIT_ALPHA_RANGE,
     SPLIT_ALPHAS,
     VARYING_ALPHA_REF,
@@ -150,17 +151,30 @@ SHARP_DEFINES = {
 }
 
 
-def sharp_shader_defines(sharp: SharpLobe | None = None) -> dict[str, str | int]:
+def sharp_shader_defines(
+    sharp: SharpLobe | None = None, *, hit_tiles: bool = True
+) -> dict[str, str | int]:
     """:data:`SHARP_DEFINES` as a shader loader's defines: numbers in exponent notation,
-    the index as it is; with the material's lobe ``sharp``, also whether it varies per vertex
-    (``SHARP_VARYING``) and the split table's roughness axis."""
+    the index as it is, and the mixture's size (``MIXTURE``); with the material's lobe
+    ``sharp``, also whether it varies per vertex (``SHARP_VARYING``), the split table's
+    roughness axis, and the Gaussians of non-zero weight (``SHARP_LIVE``, their indices,
+    ``MIXTURE_LIVE`` of them: a Phong lobe is one of the five); ``hit_tiles``: whether any
+    vertex's hit tile finds the object (``HIT_TILES``; without, the hits' shading is compiled
+    out). The loops over the live Gaussians alone, and the hits' code left out, matter on a
+    rasteriser that runs every branch of a shader for every pixel (SwiftShader, llvmpipe)."""
     out = {k: x if isinstance(x, int) else f"{x:.6e}" for k, x in SHARP_DEFINES.items()}
+    out["MIXTURE"] = MIXTURE
+    out["HIT_TILES"] = int(hit_tiles)
+    live = list(range(MIXTURE))
     if sharp is not None:
         out["SHARP_VARYING"] = int(sharp.sharp is not None)
         out["VARYING_ALPHA_REF"] = f"{VARYING_ALPHA_REF:.6e}"
         out["SPLIT_ALPHAS"] = SPLIT_ALPHAS
         out["SPLIT_ALPHA_MIN"] = f"{SPLIT_ALPHA_RANGE[0]:.6e}"
         out["SPLIT_ALPHA_MAX"] = f"{SPLIT_ALPHA_RANGE[1]:.6e}"
+        live = [i for i, w in enumerate(sharp.weights.tolist()) if w != 0.0] or [0]
+    out["MIXTURE_LIVE"] = len(live)
+    out["SHARP_LIVE"] = ", ".join(str(i) for i in live)
     return out
 
 

@@ -25,7 +25,7 @@ import numpy as np
 import torch
 
 from .. import model as model_module
-from ..brdf import ALBEDO_STEPS, MIXTURE, SPLIT_ALPHAS, sharp_lobe
+from ..brdf import ALBEDO_STEPS, SPLIT_ALPHAS, sharp_lobe
 from ..envmap import EnvMap
 from ..errors import InputError
 from ..lobes import sh
@@ -305,14 +305,15 @@ def _programs(model, n_sh: int, geo_defines: dict, key_args: tuple) -> dict[str,
 
 
 def _sharp_defines(model) -> dict:
-    """The defines of a sharp material's programs: the tiles' resolution, the mixture's and
-    albedo table's sizes, and :func:`lobelight.render.layout.sharp_shader_defines`."""
+    """The defines of a sharp material's programs: the tiles' resolution, the albedo table's
+    size, and :func:`lobelight.render.layout.sharp_shader_defines` (the mixture's live
+    Gaussians, whether any vertex's hit tile finds the object)."""
+    found = bool((model.hits()[0] >= 0).any())
     return {
         "SHARP": 1,
         "VIS_RES": int(model.visibility().shape[-1]),
-        "MIXTURE": MIXTURE,
         "ALBEDO_STEPS": ALBEDO_STEPS,
-        **sharp_shader_defines(sharp_lobe(model.materials.specular)),
+        **sharp_shader_defines(sharp_lobe(model.materials.specular), hit_tiles=found),
     }
 
 

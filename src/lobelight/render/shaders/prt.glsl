@@ -450,8 +450,8 @@ vec3 sun_shape(vec3 spec, vec3 n, vec3 d, Lobe lobe, float tail) {
     float c = warp ? max(nv, SHARP_NV_MIN) : 1.0;
     float disc_all = 0.0, disc_res = 0.0;
     vec3 shape = vec3(0.0);
-    for (int i = 0; i < MIXTURE; ++i) {
-        if (sharp_weight[i] == 0.0) continue;  // no light, no lookups (sharp_lighting_in)
+    for (int j = 0; j < MIXTURE_LIVE; ++j) {  // the Gaussians of non-zero weight
+        int i = sharp_live[j];
         float lam_i = sharp_lam[i] * lobe.scale;
         float lam = warp ? lam_i / (c * c) : lam_i;
         float lw = 1.0 / (1.0 / lam + 0.5 * s2);
@@ -561,7 +561,13 @@ void main() {
         fitted = 1.0 - share;
         if (share > 0.0) {
             float nv = max(dot(n, d), 0.0);
+#if HIT_TILES
             vec4 seen = object_light(v_pos, mirror, nv, cs, cb, lobe.scale);
+#else
+            // no vertex's hit tile finds the object (a convex mesh): the lobe sees the
+            // environment alone, and the hits' code is left out
+            const vec4 seen = vec4(0.0);
+#endif
             vec3 albedo = directional_albedo(lobe, nv);
             float vis = 1.0;
             vec3 hit = vec3(0.0);

@@ -5,7 +5,8 @@
 // walked from a tile's triangle, meets the object, there and in the whole lobe), and the
 // environment in the rest of the lobe. A hit's own visible fraction is read from its corners'
 // octahedral visibility tiles (lobelight.model.visibility_tiles). Included in prt.glsl's fragment stage
-// when SHARP is 1; VIS_RES, MIXTURE and ALBEDO_STEPS are defined by the loader.
+// when SHARP is 1; VIS_RES, MIXTURE, MIXTURE_LIVE, SHARP_LIVE, HIT_TILES and ALBEDO_STEPS are
+// defined by the loader.
 
 uniform isampler2D face_tex;      // RGB32I, face_width wide: each triangle's corner vertex ids,
                                   // then from texel nbr_offset each triangle's neighbours
@@ -25,6 +26,11 @@ uniform int hit_per_row;
 // the first texel of hit-tile slot s
 ivec2 hit_origin(int s) { return ivec2(s % hit_per_row, s / hit_per_row) * VIS_RES; }
 uniform float sharp_weight[MIXTURE];
+// the mixture's Gaussians of non-zero weight, MIXTURE_LIVE of them (a Phong lobe is one of the
+// five; lobelight.render.layout.sharp_shader_defines): the loops over the mixture run over these
+// alone, as a rasteriser that runs every branch for every pixel (SwiftShader, llvmpipe) would
+// still pay a skipped Gaussian's arithmetic
+const int sharp_live[MIXTURE_LIVE] = int[MIXTURE_LIVE](SHARP_LIVE);
 uniform float sharp_lam[MIXTURE];
 uniform float sharp_warp;         // 1: the sharpness divides by n.v (microfacet lobes)
 uniform vec3 sharp_albedo[ALBEDO_STEPS];
@@ -213,15 +219,13 @@ vec3 across(vec3 n, vec3 r) {
 // plane of incidence's direction across R (both rotated); a microfacet lobe as two lookups of
 // sharpness lam_i / (n.v)^2 at R +- s_i t, s_i^2 = (1 - (n.v)^2) / lam_i; each lookup's
 // variance grown by blur; lam_i = sharp_lam[i] scale (render/_reflection.py shade,
-// lobe_points); a Gaussian of weight 0 (a Phong lobe is one of the mixture's sharpnesses) is
-// skipped, not looked up: the branch is on a uniform, so a rasteriser that runs both sides of a
-// pixel-dependent branch skips it for every pixel
+// lobe_points), over the Gaussians of non-zero weight (sharp_live)
 vec3 sharp_lighting_in(sampler2D tex, vec3 r, vec3 t, float nv, float blur, float scale) {
     vec3 acc = vec3(0.0);
     if (sharp_warp > 0.0) {
         float c = max(nv, SHARP_NV_MIN);
-        for (int i = 0; i < MIXTURE; ++i) {
-            if (sharp_weight[i] == 0.0) continue;  // a uniform: every pixel skips it
+        for (int j = 0; j < MIXTURE_LIVE; ++j) {
+            int i = sharp_live[j];
             float lam_i = sharp_lam[i] * scale;
             float lam = 1.0 / ((c * c) / lam_i + blur);
             vec3 step = sqrt(max(1.0 - c * c, 0.0) / lam_i) * t;
@@ -230,8 +234,8 @@ vec3 sharp_lighting_in(sampler2D tex, vec3 r, vec3 t, float nv, float blur, floa
         }
         return acc;
     }
-    for (int i = 0; i < MIXTURE; ++i) {
-        if (sharp_weight[i] == 0.0) continue;
+    for (int j = 0; j < MIXTURE_LIVE; ++j) {
+        int i = sharp_live[j];
         acc += sharp_weight[i]
                * prefiltered_lookup_in(tex, r, 1.0 / (1.0 / (sharp_lam[i] * scale) + blur));
     }
