@@ -378,6 +378,19 @@ def test_shader_defines_name_the_live_gaussians_and_whether_hits_are_found():
     assert (d["MIXTURE_LIVE"], d["SHARP_LIVE"], d["HIT_TILES"]) == (5, "0, 1, 2, 3, 4", 1)
 
 
+def test_the_sun_s_shape_is_read_where_a_live_gaussian_resolves_it():
+    # Phong's mixture carries its light in one Gaussian; the sharper ones, of weight 0, read
+    # nothing: a sun that only they would resolve (lam sigma^2 >= SUN_RESOLVED) leaves the
+    # shaders' shape lookups out
+    phong = brdf.sharp_lobe(scene.uniform(PHONG, 3).specular)
+    lam = phong.lam[phong.weights != 0]
+    assert lam.numel() == 1 and float(phong.lam.max()) > 2 * float(lam[0])
+    between = math.sqrt(_reflection.SUN_RESOLVED / float(lam[0])) * 0.8
+    assert float(phong.lam.max()) * between**2 >= _reflection.SUN_RESOLVED
+    assert not _reflection.sun_shape_resolved(phong, between)
+    assert _reflection.sun_shape_resolved(phong, between / 0.7)
+
+
 @pytest.mark.skipif(not render.gl_available(), reason="needs an OpenGL context")
 @pytest.mark.parametrize("hits", [True, False])
 def test_shaders_match_the_torch_path_on_a_phong_lobe(hits):

@@ -42,7 +42,7 @@ from ._lighting import Lighting
 from ._lobe_visibility import SAMPLES as LOBE_VISIBILITY_SAMPLES
 from ._lobe_visibility import lobe_visibility_applies
 from ._lobe_visibility import shader_defines as lobe_visibility_defines
-from ._reflection import SUN_RESOLVED, sharp_shader_defines, varying_lobe_arrays
+from ._reflection import sharp_shader_defines, sun_shape_resolved, varying_lobe_arrays
 from ._sun_glossy import (
     sun_glossy_supported,
     sun_glossy_uniforms,
@@ -714,6 +714,8 @@ class GLRenderer:
         # tiles as the shaders read them (none finds the object: its code is compiled out)
         self.sharp = sharp_lobe(spec)
         self._hit_slots = None if self.sharp is None else hit_slots(*model.hits())
+        # ... and whether it reads the sun's shape (prt.glsl SUN_SHAPE)
+        self.sun_shape = self._reads_sun_shape(lighting)
         # a rough lobe's direct Gaussians corrected for what the object blocks
         # (render/_lobe_visibility.py)
         self.lobe_vis = lobe_visibility_applies(model)
@@ -725,6 +727,15 @@ class GLRenderer:
         pf = lighting.rest_prefiltered if self.sun_glossy else lighting.prefiltered
         self.n_levels = len(pf.levels)
         return pf
+
+    def _reads_sun_shape(self, lighting: Lighting) -> bool:
+        """Whether a sharp lobe reads the sun's shape under ``lighting`` (prt.glsl
+        ``sun_shape``, :func:`lobelight.render.layout.sun_shape_resolved`)."""
+        if self.sharp is None or lighting.sun is None:
+            return False
+        if not sun_glossy_supported(self._specular):
+            return False
+        return sun_shape_resolved(self.sharp, float(lighting.sun.spread))
 
     def _hits_found(self) -> bool:
         """Whether a sharp lobe's hit tiles find the object anywhere (reflection.glsl
@@ -745,6 +756,7 @@ class GLRenderer:
             "HAS_BOUNCE": int(self.has_bounce),
             "HAS_SUN": int(self.has_sun),
             "SUN_GLOSSY": int(self.sun_glossy),
+            "SUN_SHAPE": int(self.sun_shape),
             "SHARP": int(self.sharp is not None),
             "ALBEDO_TEX": int(model.albedo is not None),
             "ALBEDO_LAYERS": 1 if model.albedo is None else len(model.albedo.images),
@@ -1014,7 +1026,7 @@ class GLRenderer:
         spread = float(lighting.sun.spread)
         if self.sharp.sharp is None:  # a lobe per vertex has its tail per point
             self.prog["sun_tail"].value = tail_scale(self._specular, spread)
-        if not bool((self.sharp.lam * spread**2 >= SUN_RESOLVED).any()):
+        if not self.sun_shape:
             return
         atlas = atlas_image(lighting.prefiltered)[0]
         if atlas.shape != (self.atlas.height, self.atlas.width, 4):
@@ -1218,8 +1230,9 @@ class GLRenderer:
         or target is made again).
 
         Returns False, changing nothing, when the programs were compiled for another kind of
-        lighting: a sun where there was none or none where there was one, or another number
-        of SH coefficients or chain layout (base resolution, levels); then a new renderer is
+        lighting: a sun where there was none or none where there was one, a sun whose shape
+        a sharp lobe reads where it read none's or the reverse, or another number of SH
+        coefficients or chain layout (base resolution, levels); then a new renderer is
         needed.
         """
         self.make_current()
@@ -1232,6 +1245,7 @@ class GLRenderer:
             or len(pf.levels) != self.n_levels
             or pf.base_res != int(self._atlas_uniforms["level_res"][0])
             or float(pf.lambdas[0]) != self._atlas_uniforms["lam0"]
+            or self._reads_sun_shape(lighting) != self.sun_shape
         ):
             return False
         self.atlas.write(np.ascontiguousarray(atlas_image(pf)[0]))

@@ -102,6 +102,7 @@ __all__ = [
     "object_light",
     "shade",
     "sharp_shader_defines",
+    "sun_shape_resolved",
     "sun_sharp",
     "varying_lobe_arrays",
     "visible_fraction",
@@ -176,6 +177,16 @@ def sharp_shader_defines(
     out["MIXTURE_LIVE"] = len(live)
     out["SHARP_LIVE"] = ", ".join(str(i) for i in live)
     return out
+
+
+def sun_shape_resolved(sharp: SharpLobe, spread: float) -> bool:
+    """Whether a Gaussian of the mixture's of non-zero weight resolves a sun of RMS angle
+    ``spread`` (radians) at some point (``lam_i sigma^2 >=`` :data:`SUN_RESOLVED`; a lobe
+    varying per vertex at its sharpest vertex, which bounds every point's): then the renderers
+    read the sun's shape from the whole map's chain (:func:`sun_sharp`; the shaders' ``sun_shape``
+    compiled with ``SUN_SHAPE``), else its disc alone."""
+    live = sharp.weights != 0
+    return bool((sharp.lam[..., live] * spread**2 >= SUN_RESOLVED).any())
 
 
 def varying_lobe_arrays(sharp: SharpLobe) -> tuple[list[float], np.ndarray, np.ndarray]:

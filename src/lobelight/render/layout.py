@@ -56,7 +56,12 @@ from ._lobe_visibility import MOVING_SAMPLES as LOBE_VISIBILITY_MOVING_SAMPLES
 from ._lobe_visibility import SAMPLES as LOBE_VISIBILITY_SAMPLES
 from ._lobe_visibility import lobe_visibility_applies
 from ._lobe_visibility import shader_defines as lobe_visibility_defines
-from ._reflection import SHARP_DEFINES, sharp_shader_defines, varying_lobe_arrays
+from ._reflection import (
+    SHARP_DEFINES,
+    sharp_shader_defines,
+    sun_shape_resolved,
+    varying_lobe_arrays,
+)
 from ._sun_glossy import (
     sun_glossy_supported,
     sun_glossy_uniforms,
@@ -101,6 +106,7 @@ __all__ = [
     "sun_glossy_supported",
     "sun_glossy_uniforms",
     "sun_glossy_vertex_params",
+    "sun_shape_resolved",
     "sun_widened",
     "tail_scale",
     "varying_lobe_arrays",

@@ -39,7 +39,6 @@ from ..render.layout import (
     LOBE_VISIBILITY_SAMPLES,
     SHADOW_RES,
     SHADOW_SAMPLES,
-    SHARP_DEFINES,
     TEX_WIDTH,
     albedo_array,
     albedo_uniforms,
@@ -60,6 +59,7 @@ from ..render.layout import (
     sun_glossy_supported,
     sun_glossy_uniforms,
     sun_glossy_vertex_params,
+    sun_shape_resolved,
     sun_widened,
     tail_scale,
     varying_lobe_arrays,
@@ -231,15 +231,19 @@ def _lobe_visibility(model) -> tuple[dict | None, dict[str, np.ndarray]]:
     return header, arrays
 
 
-def shader_variant(has_sun: bool, sun_glossy: bool, bounce: bool, levels: int) -> str:
-    """The key of the shader variant a map needs (``shaders.js``)."""
-    return f"sun{int(has_sun)}-glossy{int(sun_glossy)}-bounce{int(bounce)}-levels{levels}"
+def shader_variant(
+    has_sun: bool, sun_glossy: bool, bounce: bool, levels: int, shape: bool = False
+) -> str:
+    """The key of the shader variant a map needs (``shaders.js``); ``shape``: a sharp lobe
+    reads its sun's shape (``whole_atlas``)."""
+    key = f"sun{int(has_sun)}-glossy{int(sun_glossy)}-bounce{int(bounce)}-levels{levels}"
+    return key + ("-shape" if shape else "")
 
 
 def _programs(model, n_sh: int, geo_defines: dict, key_args: tuple) -> dict[str, list[str]]:
     """The page's programs of one variant as ES 3.00 stage texts: the object's shading and
     depth pre-pass (prt.glsl), the shadow map's, the background's and the tone mapping's."""
-    has_sun, sun_glossy, bounce, levels = key_args
+    has_sun, sun_glossy, bounce, levels, shape = key_args
     es = dialect()
     defines = {
         "N_GAUSSIANS": model.n_gaussians,
@@ -251,6 +255,7 @@ def _programs(model, n_sh: int, geo_defines: dict, key_args: tuple) -> dict[str,
         "HAS_BOUNCE": int(bounce),
         "HAS_SUN": int(has_sun),
         "SUN_GLOSSY": int(sun_glossy),
+        "SUN_SHAPE": int(shape),
         "SHARP": 0,
         "ALBEDO_TEX": int(model.albedo is not None),
         "ALBEDO_LAYERS": 1 if model.albedo is None else len(model.albedo.images),
@@ -495,7 +500,7 @@ def _env_file(model, lighting: Lighting, sun_glossy_spec: bool) -> tuple[dict, d
             _sharp_sun(model, lighting, atlas.shape, header, arrays)
             u = sun_glossy_uniforms(spec)
             header["sun_brdf"] = {"model": int(u["sun_model"]), "fresnel": float(u["sun_fresnel"])}
-    key_args = (has_sun, sun_glossy, header["has_bounce"], len(pf.levels))
+    key_args = (has_sun, sun_glossy, header["has_bounce"], len(pf.levels), "whole_atlas" in arrays)
     header["variant"] = shader_variant(*key_args)
     return header, arrays, key_args
 
@@ -512,7 +517,7 @@ def _sharp_sun(model, lighting: Lighting, shape, header: dict, arrays: dict) -> 
     spread = float(lighting.sun.spread)
     if sl.sharp is None:  # a lobe varying per vertex has its tail per point
         header["sun_tail"] = float(tail_scale(model.materials.specular, spread))
-    if not bool((sl.lam * spread**2 >= SHARP_DEFINES["SUN_RESOLVED"]).any()):
+    if not sun_shape_resolved(sl, spread):
         return
     whole = _atlas(lighting.prefiltered)[0]
     if whole.shape != shape:

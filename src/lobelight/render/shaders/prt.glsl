@@ -6,8 +6,8 @@
 // varyings premultiplied by the live flag, divided by the interpolated flag.
 // Stages are selected by VERTEX_SHADER / FRAGMENT_SHADER; N_GAUSSIANS (Gaussians per view),
 // N_INDIRECT (how many of the last hold indirect glossy transport,
-// lobelight.model.Model.indirect_gaussians), HAS_SUN (the lighting has a sun) and SUN_GLOSSY (its
-// glossy reflection is shaded per pixel), ALBEDO_TEX (the diffuse albedo is read per pixel from
+// lobelight.model.Model.indirect_gaussians), HAS_SUN (the lighting has a sun), SUN_GLOSSY (its
+// glossy reflection is shaded per pixel) and SUN_SHAPE (a sharp lobe reads its shape), ALBEDO_TEX (the diffuse albedo is read per pixel from
 // textures, albedo.glsl, and the diffuse transfer is per unit albedo), SPECULAR_TEX (the glossy
 // light is scaled per pixel by the textures' F0 over the vertices', render/_albedo.py) and DEPTH_ONLY (1: the
 // depth pre-pass, which projects the vertices and shades nothing) are defined by the loader, and the per-frame values (camera,
@@ -439,8 +439,10 @@ uniform float sun_tail;         // the analytic highlight's tail factor (_sun_gl
 // D what the mixture's lookups read of the sun as the Gaussian disc (per lookup of sharpness
 // lam at d, E lam' / (2 pi) exp(lam' (d.l - 1)), 1 / lam' = 1 / lam + sigma^2 / 2), S what they
 // read of the sun's own pixels (the whole chain less atlas) for the Gaussians that resolve the
-// disc (lam_i sigma^2 >= SUN_RESOLVED), D for the others. The world frame; lookups rotated.
-// lobe: the point's (reflection.glsl lobe_at), tail its tail factor.
+// disc (lam_i sigma^2 >= SUN_RESOLVED), D for the others; with SUN_SHAPE 0 none of them does
+// anywhere (lobelight.render.layout.sun_shape_resolved) and the shape's lookups are left out.
+// The world frame; lookups rotated. lobe: the point's (reflection.glsl lobe_at), tail its tail
+// factor.
 vec3 sun_shape(vec3 spec, vec3 n, vec3 d, Lobe lobe, float tail) {
     float nv = max(dot(n, d), 0.0);
     vec3 r = 2.0 * dot(n, d) * n - d;
@@ -461,12 +463,14 @@ vec3 sun_shape(vec3 spec, vec3 n, vec3 d, Lobe lobe, float tail) {
         float g = sharp_weight[i] * lw / (2.0 * PI)
                   * 0.5 * (exp(-0.5 * lw * dot(a, a)) + exp(-0.5 * lw * dot(b, b)));
         disc_all += g;
+#if SUN_SHAPE
         if (lam_i * s2 < SUN_RESOLVED) continue;
         disc_res += g;
         vec3 rp = rot_t * p, rq = rot_t * q;
         shape += (0.5 * sharp_weight[i])
                  * (prefiltered_lookup_in(whole_atlas, rp, lam) - prefiltered_lookup(rp, lam)
                     + prefiltered_lookup_in(whole_atlas, rq, lam) - prefiltered_lookup(rq, lam));
+#endif
     }
     vec3 albedo = directional_albedo(lobe, nv);
     vec3 out_ = tail * (spec - albedo * disc_all * sun_e) + albedo * (disc_all - disc_res) * sun_e
