@@ -714,6 +714,7 @@ class GLRenderer:
         # tiles as the shaders read them (none finds the object: its code is compiled out)
         self.sharp = sharp_lobe(spec)
         self._hit_slots = None if self.sharp is None else hit_slots(*model.hits())
+        self.hits_found = self._hit_slots is not None and bool((self._hit_slots[0] >= 0).any())
         # ... and whether it reads the sun's shape (prt.glsl SUN_SHAPE)
         self.sun_shape = self._reads_sun_shape(lighting)
         # a rough lobe's direct Gaussians corrected for what the object blocks
@@ -736,11 +737,6 @@ class GLRenderer:
         if not sun_glossy_supported(self._specular):
             return False
         return sun_shape_resolved(self.sharp, float(lighting.sun.spread))
-
-    def _hits_found(self) -> bool:
-        """Whether a sharp lobe's hit tiles find the object anywhere (reflection.glsl
-        ``HIT_TILES``)."""
-        return self._hit_slots is not None and bool((self._hit_slots[0] >= 0).any())
 
     def _compile_programs(self, model, n_sh: int, geo_defines: dict) -> None:
         """The object's shading and depth pre-pass programs (prt.glsl), the background's, the
@@ -771,7 +767,7 @@ class GLRenderer:
             **lobe_visibility_defines(),
             "VIS_RES": VISIBILITY_RES,
             "ALBEDO_STEPS": ALBEDO_STEPS,
-            **sharp_shader_defines(self.sharp, hit_tiles=self._hits_found()),
+            **sharp_shader_defines(self.sharp, hit_tiles=self.hits_found),
             "SHADOW_SAMPLES": SHADOW_SAMPLES,
             "BLOCKER_SAMPLES": BLOCKER_SAMPLES,
             **geo_defines,
@@ -907,7 +903,9 @@ class GLRenderer:
         fimg = np.zeros((2 * nbr_offset, 3), np.int32)
         fimg[: faces.shape[0]] = faces
         fimg[nbr_offset : nbr_offset + faces.shape[0]] = model.mesh.face_neighbours.cpu().numpy()
+        # (uploaded below and let go: a concave mesh's tiles are S x R^2 texels)
         slots, tiles, hit_dist = self._hit_slots
+        self._hit_slots = None
         pimg = np.zeros((-(-verts.shape[0] // width) * width, 3), np.float32)
         pimg[: verts.shape[0]] = verts
         self.face_tex = self.ctx.texture(
