@@ -632,6 +632,34 @@ def test_a_sharp_metal_is_shaded_per_pixel_as_the_torch_path(
     assert beyond <= (1 if sun else 0), (beyond, float(rel.max()))
 
 
+@needs_browser
+def test_the_depth_pre_pass_is_left_out_where_it_spares_no_shading(browser, tmp_path):
+    """SwiftShader shades every covered fragment before its depth test, so the page leaves
+    its depth pre-pass out there unless the URL asks for one; the picture is the same either
+    way: a torus, whose far side lies behind its near one, drawn without the pre-pass and with
+    it (one sample: the same front fragments, the same shading; measured equal to the bit)."""
+    m = sharp_torus()
+    lighting = render.Lighting(envmap.builtin(height=128), base_res=32, sun=True)
+    web.export_web(m, tmp_path / "v", [lighting])
+    cam = render.Camera.look_at((0.0, 2.2, 2.6), (0.0, 0.0, 0.0), fov=45)
+    images = []
+    for query, prepass in (("still=1", False), ("still=1&prepass=1", True)):
+        page = open_page(browser, tmp_path / "v", query=query)
+        assert "SwiftShader" in page.evaluate(
+            "() => { const gl = window.lobelight.viewer.gl;"
+            " const e = gl.getExtension('WEBGL_debug_renderer_info');"
+            " return gl.getParameter(e.UNMASKED_RENDERER_WEBGL); }"
+        )
+        assert page.evaluate("window.lobelight.viewer.prepass") is prepass
+        images.append(render_in_page(page, cam, 40.0))
+        page.close()
+    without, with_ = images
+    on = with_[..., 3] > 0.5
+    assert int(on.sum()) > 1000
+    # (a bound for rounding, not a tolerance for a difference: none was measured)
+    assert float(np.abs(without - with_).max()) <= 1e-6 * float(np.abs(with_).max())
+
+
 #: The 4-neighbours of a pixel, (dy, dx).
 NEIGHBOURS = ((0, 1), (0, -1), (1, 0), (-1, 0))
 

@@ -220,6 +220,10 @@
       FRAME = this.h.frame_layout;
       this.shaders = shaders;
       this.options = options;
+      // the depth pre-pass, unless the page's URL says: where the rasteriser shades a
+      // fragment before its depth test (SwiftShader), the pre-pass spares no shading and
+      // costs a pass (docs/web-viewer.md)
+      this.prepass = options.prepass != null ? options.prepass : rendererRejectsEarly(gl);
       this.maxTex = Math.min(gl.getParameter(gl.MAX_TEXTURE_SIZE), options.maxTexture || 1e9);
       this.a = arrays;
       this.programs = {};
@@ -1204,7 +1208,7 @@
       gl.clear(gl.COLOR_BUFFER_BIT | gl.DEPTH_BUFFER_BIT);
       gl.enable(gl.DEPTH_TEST);
       gl.depthFunc(gl.LESS);
-      if (this.options.prepass !== false) {
+      if (this.prepass) {
         gl.colorMask(false, false, false, false);
         gl.useProgram(p.depth);
         gl.bindVertexArray(p.depthVao);
@@ -1292,14 +1296,26 @@
     api.status = { ok: false, message: text };
   }
 
+  // whether this WebGL's rasteriser rejects a fragment by its depth before shading it, as
+  // GPUs and llvmpipe do; SwiftShader (Chrome's software WebGL) runs the fragment shader on
+  // every covered pixel and tests the depth after it (measured in docs/benchmarks.md: a heavy
+  // shader costs as much behind a depth test that fails everywhere). A renderer not named is
+  // taken to reject early.
+  function rendererRejectsEarly(gl) {
+    const e = gl.getExtension("WEBGL_debug_renderer_info");
+    const name = String(gl.getParameter(e ? e.UNMASKED_RENDERER_WEBGL : gl.RENDERER));
+    return !/swiftshader/i.test(name);
+  }
+
   function pageOptions() {
     const q = new URLSearchParams(window.location.search);
     const o = {};
     if (q.get("max_texture")) o.maxTexture = parseInt(q.get("max_texture"), 10);
     if (q.get("size")) o.size = q.get("size").split("x").map(function (s) { return parseInt(s, 10); });
     o.env = parseInt(q.get("env") || "0", 10);
-    // prepass=0: no depth pre-pass (each covered pixel may then be shaded more than once)
-    o.prepass = q.get("prepass") !== "0";
+    // prepass=0: no depth pre-pass (each covered pixel may then be shaded more than once);
+    // prepass=1: one; without: the Viewer chooses (rendererRejectsEarly)
+    if (q.get("prepass") === "0" || q.get("prepass") === "1") o.prepass = q.get("prepass") === "1";
     o.still = q.get("still") === "1";
     // moving=S: the frames drawn while the view changes have S times the canvas's pixels
     // across (0 < S <= 1); without it the page chooses S (MOVING_MIN..1) for MOVING_FPS
