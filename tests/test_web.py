@@ -660,6 +660,41 @@ def test_the_depth_pre_pass_is_left_out_where_it_spares_no_shading(browser, tmp_
     assert float(np.abs(without - with_).max()) <= 1e-6 * float(np.abs(with_).max())
 
 
+@needs_browser
+def test_a_closed_surface_leaves_out_its_triangles_seen_from_behind(browser, tmp_path):
+    """A closed surface wound outward (the header's ``closed``: watertight, consistently
+    wound, positive volume) is drawn without its triangles seen from behind: from outside it
+    they lie behind others, so the picture is the same to the bit as with them (``cull=0``);
+    were the wrong side left out, the torus's far inside would show. A torus with a hole cut
+    in it is not closed, and keeps every triangle."""
+    m = sharp_torus()
+    lighting = render.Lighting(envmap.builtin(height=128), base_res=32, sun=True)
+    web.export_web(m, tmp_path / "v", [lighting])
+    assert web.read_web(tmp_path / "v").header["closed"] is True
+    cam = render.Camera.look_at((0.0, 2.2, 2.6), (0.0, 0.0, 0.0), fov=45)
+    images = []
+    for query, cull in (("still=1", True), ("still=1&cull=0", False)):
+        page = open_page(browser, tmp_path / "v", query=query)
+        assert page.evaluate("window.lobelight.viewer.cull") is cull
+        images.append(render_in_page(page, cam, 40.0))
+        page.close()
+    culled, whole = images
+    assert int((whole[..., 3] > 0.5).sum()) > 1000
+    assert float(np.abs(culled - whole).max()) == 0.0
+    # a hole: the far side's inside shows through it, so no triangle may be left out
+    mesh = m.mesh
+    faces = mesh.faces[10:]
+    holed = scene.mesh_from_arrays(mesh.vertices.numpy(), faces.numpy(), name="holed")
+    h = Model(holed, m.views, m.gaussians, m.diffuse, scene.uniform(
+        {"diffuse": [0.3, 0.3, 0.3], "model": "ggx", "alpha": 0.03, "specular": 0.9},
+        holed.n_vertices), {"scene": "holed"})  # fmt: skip
+    web.export_web(h, tmp_path / "h", [lighting])
+    assert web.read_web(tmp_path / "h").header["closed"] is False
+    page = open_page(browser, tmp_path / "h")
+    assert page.evaluate("window.lobelight.viewer.cull") is False
+    page.close()
+
+
 #: The 4-neighbours of a pixel, (dy, dx).
 NEIGHBOURS = ((0, 1), (0, -1), (1, 0), (-1, 0))
 

@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["face_neighbours"]
+__all__ = ["encloses_outward", "face_neighbours"]
 
 
 def face_neighbours(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
@@ -45,3 +45,19 @@ def face_neighbours(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
     out = np.full(ks.shape[0], -1, np.int64)
     out[order[two]] = order[partner[two]] // 3
     return out.reshape(-1, 3).astype(np.int32)
+
+
+def encloses_outward(vertices: np.ndarray, faces: np.ndarray) -> bool:
+    """Whether the mesh is a closed surface wound outward: watertight once its vertices are
+    merged by position (every edge shared by exactly two triangles), its triangles wound
+    consistently, and the volume they enclose positive (counter-clockwise seen from outside).
+    Then from any viewpoint outside it a triangle seen from behind lies behind another one,
+    and a rasteriser may leave such triangles out (back-face culling). ``vertices (V, 3)``,
+    ``faces (F, 3)``; trimesh's checks."""
+    import trimesh  # a core dependency, imported where it is used
+
+    if len(faces) == 0:
+        return False
+    tm = trimesh.Trimesh(np.asarray(vertices, np.float64), np.asarray(faces, np.int64),
+                         process=True)  # fmt: skip
+    return bool(tm.is_watertight and tm.is_winding_consistent and tm.volume > 0)

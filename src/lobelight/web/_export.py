@@ -28,6 +28,7 @@ from .. import model as model_module
 from ..brdf import ALBEDO_STEPS, SPLIT_ALPHAS, sharp_lobe
 from ..envmap import EnvMap
 from ..errors import InputError
+from ..geometry.adjacency import encloses_outward
 from ..lobes import sh
 from ..render import Lighting, model_camera, sample_offsets
 from ..render.layout import (
@@ -424,6 +425,8 @@ def _model_file(model, float16: bool) -> tuple[dict, dict[str, np.ndarray], int]
         "version": WEB_VERSION,
         "n_vertices": mesh.n_vertices,
         "n_faces": int(mesh.faces.shape[0]),
+        # a closed surface wound outward: the page leaves out the triangles seen from behind
+        "closed": encloses_outward(mesh.vertices.detach().cpu().numpy(), mesh.faces.cpu().numpy()),
         "n_views": int(model.views.shape[0]),
         "n_gaussians": model.n_gaussians,
         "indirect_gaussians": model.indirect_gaussians,
@@ -733,6 +736,8 @@ def read_web(path) -> WebFolder:
     if header.get("version") != WEB_VERSION:
         raise InputError(str(path), f"layout version {header.get('version')}, not {WEB_VERSION}")
     _check_model_arrays(path / "model.js", header, arrays)
+    if not isinstance(header.get("closed", False), bool):
+        raise InputError(str(path / "model.js"), "its header's closed is not true or false")
     shaders, _ = read_data_file(path / "shaders.js", "shaders")
     envs = []
     for rec in header["envs"]:

@@ -224,6 +224,10 @@
       // fragment before its depth test (SwiftShader), the pre-pass spares no shading and
       // costs a pass (docs/web-viewer.md)
       this.prepass = options.prepass != null ? options.prepass : rendererRejectsEarly(gl);
+      // a closed surface wound outward (the header's closed): its triangles seen from behind
+      // are hidden from outside it, and left out; a rasteriser that shades before its depth
+      // test (SwiftShader) would shade them all
+      this.cull = !!this.h.closed && options.cull !== false;
       this.maxTex = Math.min(gl.getParameter(gl.MAX_TEXTURE_SIZE), options.maxTexture || 1e9);
       this.a = arrays;
       this.programs = {};
@@ -1208,6 +1212,10 @@
       gl.clear(gl.COLOR_BUFFER_BIT | gl.DEPTH_BUFFER_BIT);
       gl.enable(gl.DEPTH_TEST);
       gl.depthFunc(gl.LESS);
+      if (this.cull) {
+        gl.enable(gl.CULL_FACE);
+        gl.cullFace(gl.BACK);  // counter-clockwise in the image is the front, as GL's default
+      }
       if (this.prepass) {
         gl.colorMask(false, false, false, false);
         gl.useProgram(p.depth);
@@ -1234,6 +1242,7 @@
       if (this.h.sharp) gl.drawArrays(gl.TRIANGLES, 0, this.nCorners);
       else gl.drawElements(gl.TRIANGLES, this.nIndices, gl.UNSIGNED_INT, 0);
       if (env.header.sun) gl.bindSampler(UNITS.shadow_depth, null);
+      gl.disable(gl.CULL_FACE);
       this.mark("prt");
       if (background) {
         this.bindTexture(UNITS.env, gl.TEXTURE_CUBE_MAP, env.cube);
@@ -1316,6 +1325,8 @@
     // prepass=0: no depth pre-pass (each covered pixel may then be shaded more than once);
     // prepass=1: one; without: the Viewer chooses (rendererRejectsEarly)
     if (q.get("prepass") === "0" || q.get("prepass") === "1") o.prepass = q.get("prepass") === "1";
+    // cull=0: a closed surface's triangles seen from behind are drawn too
+    if (q.get("cull") === "0") o.cull = false;
     o.still = q.get("still") === "1";
     // moving=S: the frames drawn while the view changes have S times the canvas's pixels
     // across (0 < S <= 1); without it the page chooses S (MOVING_MIN..1) for MOVING_FPS
