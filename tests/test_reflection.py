@@ -679,6 +679,25 @@ def test_face_neighbours_match_edges_by_position():
         assert bool((back == torch.arange(f.shape[0])[:, None]).any(1).all())
 
 
+def test_a_closed_outward_surface_is_told_from_open_inverted_and_split_ones():
+    # the torus encloses positive volume with its triangles counter-clockwise from outside; the
+    # same triangles wound the other way enclose negative volume; a hole opens it; and a cube
+    # whose faces' corners are stored apart (split at every edge, as a flat-shaded mesh) is
+    # closed once merged by position (geometry.adjacency.encloses_outward: the web page
+    # leaves the triangles seen from behind out only for a closed outward surface)
+    from lobelight.geometry.adjacency import encloses_outward
+
+    mesh = _torus()
+    v, f = mesh.vertices.numpy(), mesh.faces.numpy()
+    assert encloses_outward(v, f)
+    assert not encloses_outward(v, f[:, ::-1])
+    assert not encloses_outward(v, f[4:])
+    box = trimesh.creation.box()
+    split = box.vertices[box.faces].reshape(-1, 3)  # three corners per triangle, none shared
+    assert encloses_outward(split, np.arange(split.shape[0]).reshape(-1, 3))
+    assert not encloses_outward(split, np.zeros((0, 3), np.int64))
+
+
 def test_a_hit_is_walked_to_the_triangle_the_pixels_ray_meets():
     # rays across the torus's hole from points inside its triangles, each walk started where
     # the renderer starts it: at the triangle a corner's hit tile names for the ray's texel.
