@@ -698,6 +698,25 @@ def test_a_closed_outward_surface_is_told_from_open_inverted_and_split_ones():
     assert not encloses_outward(split, np.zeros((0, 3), np.int64))
 
 
+@pytest.mark.skipif(not render.gl_available(), reason="needs an OpenGL context")
+def test_the_desktop_leaves_out_a_closed_surface_s_triangles_seen_from_behind():
+    # the torus is closed and wound outward: the GL renderer draws it without the triangles
+    # seen from behind (its cull), and the picture is the same to the bit as with them
+    mesh = _torus()
+    sc = scene.Scene(mesh, scene.uniform(PHONG, mesh.n_vertices), name="torus")
+    light = render.Lighting(_step_sky(), base_res=64, sun=True)
+    images = []
+    with render.Renderer(_bare_model(sc), light, 96, 72, backend="gl", samples=1) as r:
+        gl = r.gl
+        assert gl.cull
+        for cull in (True, False):
+            gl.cull = cull
+            images.append(r.render(TORUS_CAM, return_mask=True))
+    (a, ma), (b, mb) = images
+    assert bool(ma.any()) and bool((ma == mb).all())
+    assert float((a - b).abs().max()) == 0.0
+
+
 def test_a_hit_is_walked_to_the_triangle_the_pixels_ray_meets():
     # rays across the torus's hole from points inside its triangles, each walk started where
     # the renderer starts it: at the triangle a corner's hit tile names for the ray's texel.

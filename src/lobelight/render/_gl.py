@@ -33,6 +33,7 @@ from ..brdf import ALBEDO_STEPS, sharp_lobe
 from ..envmap import Prefiltered
 from ..errors import InputError
 from ..geometry import sphere
+from ..geometry.adjacency import encloses_outward
 from ..geometry.camera import Camera
 from ..lobes import sg
 from ..model import VISIBILITY_RES
@@ -660,8 +661,11 @@ class GLRenderer:
     changes. Each sample draws the object's depth first (:attr:`depth_prepass`, default on),
     then shades the object where its depth is the pre-pass's, so every covered pixel runs the
     fragment stage once (back faces drawn before the front ones would run it too), then the
-    background where the object left the far plane. :attr:`timer`: a :class:`PassTimer` to
-    time each pass of the next frames (None: untimed).
+    background where the object left the far plane. A closed surface wound outward
+    (:func:`lobelight.geometry.adjacency.encloses_outward`) is drawn without its triangles seen
+    from behind (:attr:`cull`): from outside it they lie behind others, so the picture does not
+    change. :attr:`timer`: a :class:`PassTimer` to time each pass of the next frames (None:
+    untimed).
     """
 
     def __init__(
@@ -805,6 +809,10 @@ class GLRenderer:
             ctx, "prt", {**prt_defines, "DEPTH_ONLY": 1}, ("frame",), ("frame",)
         )
         self.depth_prepass = True
+        # a closed surface wound outward: its triangles seen from behind are left out
+        self.cull = encloses_outward(
+            model.mesh.vertices.detach().cpu().numpy(), model.mesh.faces.cpu().numpy()
+        )
         # each vertex's factor on its direct Gaussians' light, once per frame
         self.lv_prog = None
         if self.lobe_vis:
@@ -1462,6 +1470,9 @@ class GLRenderer:
         s = self._sample_stride
         self.sample_ubo.bind_to_uniform_block(_SAMPLE_BINDING, offset=i * s, size=16)
         ctx.enable(moderngl.DEPTH_TEST)
+        if self.cull:
+            ctx.enable(moderngl.CULL_FACE)
+            ctx.cull_face = "back"
         if self.depth_prepass:
             with self._section("depth"):
                 ctx.depth_func = "<"
@@ -1497,6 +1508,7 @@ class GLRenderer:
                     self.lobe_tex.use(_LOBE_UNIT)
                     self.split_tex.use(_LOBE_UNIT + 1)
             self.vao.render(moderngl.TRIANGLES)
+            ctx.disable(moderngl.CULL_FACE)
             if self.has_sun:  # the unit's sampler would override other textures bound there
                 self.shadow_sampler.clear(_SHADOW_DEPTH_UNIT)
         if background:
