@@ -48,16 +48,32 @@ def face_neighbours(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
 
 
 def encloses_outward(vertices: np.ndarray, faces: np.ndarray) -> bool:
-    """Whether the mesh is a closed surface wound outward: watertight once its vertices are
-    merged by position (every edge shared by exactly two triangles), its triangles wound
-    consistently, and the volume they enclose positive (counter-clockwise seen from outside).
-    Then from any viewpoint outside it a triangle seen from behind lies behind another one,
-    and a rasteriser may leave such triangles out (back-face culling). ``vertices (V, 3)``,
-    ``faces (F, 3)``; trimesh's checks."""
-    import trimesh  # a core dependency, imported where it is used
-
-    if len(faces) == 0:
+    """Whether the mesh is a closed surface wound outward: once its vertices equal in every
+    coordinate are one, every edge is used once in each direction by the triangles' corner
+    order (watertight, consistently wound, no edge of three triangles), no triangle has two
+    corners at one point, and the volume it encloses is positive (counter-clockwise seen from
+    outside). Then from any viewpoint outside it a triangle seen from behind lies behind
+    another one, and a rasteriser may leave such triangles out (back-face culling).
+    ``vertices (V, 3)``, ``faces (F, 3)``. Hand-written, as :func:`face_neighbours`: a
+    render's start calls it, and importing trimesh for it would cost that start more than the
+    check."""
+    v = np.asarray(vertices, np.float64)
+    f = np.asarray(faces, np.int64)
+    if f.shape[0] == 0:
         return False
-    tm = trimesh.Trimesh(np.asarray(vertices, np.float64), np.asarray(faces, np.int64),
-                         process=True)  # fmt: skip
-    return bool(tm.is_watertight and tm.is_winding_consistent and tm.volume > 0)
+    _, weld = np.unique(v, axis=0, return_inverse=True)
+    w = weld.reshape(-1)[f]  # (F, 3) the corners, welded
+    a, b = w.reshape(-1), w[:, [1, 2, 0]].reshape(-1)  # each triangle's directed edges a -> b
+    if bool((a == b).any()):
+        return False
+    n = int(weld.max()) + 1
+    fwd = np.sort(a * n + b)
+    if bool((fwd[1:] == fwd[:-1]).any()):  # an edge used twice the same way
+        return False
+    rev = b * n + a
+    at = np.searchsorted(fwd, rev).clip(max=fwd.shape[0] - 1)
+    if not bool((fwd[at] == rev).all()):  # an edge used one way only: a boundary
+        return False
+    p = v[f]
+    volume = float(np.einsum("ij,ij->", p[:, 0], np.cross(p[:, 1], p[:, 2]))) / 6.0
+    return volume > 0.0
