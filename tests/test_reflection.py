@@ -195,6 +195,21 @@ def _ours(sc, env, cam, w, h, *, hits=False):
     return img, cov
 
 
+def _gl_against_torch(m, light, cam, w, h, *, background=True):
+    """Both renderers on the GL image's object pixels, one sample each: the torch path's
+    radiance there (P, 3) and the GL's largest channel error relative to the torch's largest
+    channel (P,)."""
+    with render.Renderer(m, light, w, h, backend="gl", samples=1) as r:
+        img, mask = r.render(cam, return_mask=True, background=background)
+    rows, cols = mask.nonzero().unbind(-1)
+    px = torch.stack([rows, cols], -1)
+    with render.Renderer(m, light, w, h, backend="torch", samples=1) as r:
+        ref, hit = r.render_pixels(cam, px)
+    assert bool(hit.all())
+    got = img[px[:, 0], px[:, 1]]
+    return ref, (got - ref).abs().amax(-1) / ref.amax(-1).clamp_min(1e-6)
+
+
 def _edge_rows(img: torch.Tensor, cols, lo: int, hi: int) -> list[float]:
     """Per column, the sub-pixel row where the luminance first falls through half-way between
     its values at rows ``lo`` and ``hi``."""
@@ -345,16 +360,7 @@ def test_shaders_match_the_torch_path_where_the_object_sees_itself():
     sc = scene.Scene(mesh, scene.uniform(SHARP, v), name="torus")
     m = Model(mesh, views, Gaussians(w, mu, lam), diffuse, sc.materials, {}, None, 1)
     light = render.Lighting(_step_sky(), base_res=128)
-    cam = TORUS_CAM
-    with render.Renderer(m, light, 80, 80, backend="gl", samples=1) as r:
-        img, mask = r.render(cam, return_mask=True)
-    rows, cols = mask.nonzero().unbind(-1)
-    px = torch.stack([rows, cols], -1)
-    with render.Renderer(m, light, 80, 80, backend="torch", samples=1) as r:
-        ref, hit = r.render_pixels(cam, px)
-    assert bool(hit.all())
-    got = img[px[:, 0], px[:, 1]]
-    rel = (got - ref).abs().amax(-1) / ref.amax(-1).clamp_min(1e-6)
+    _, rel = _gl_against_torch(m, light, TORUS_CAM, 80, 80)
     # the scene exercises the hit tiles: many pixels see the torus in their lobe
     face, _ = m.hits()
     assert int((face >= 0).sum()) > 0.05 * face.numel()
@@ -401,15 +407,7 @@ def test_shaders_match_the_torch_path_on_a_phong_lobe(hits):
     sc = scene.Scene(mesh, scene.uniform(PHONG, mesh.n_vertices), name="torus")
     m = _bare_model(sc) if hits else _no_hits(_bare_model(sc))
     light = render.Lighting(_step_sky(), base_res=128)
-    with render.Renderer(m, light, 80, 80, backend="gl", samples=1) as r:
-        img, mask = r.render(TORUS_CAM, return_mask=True, background=False)
-    rows, cols = mask.nonzero().unbind(-1)
-    px = torch.stack([rows, cols], -1)
-    with render.Renderer(m, light, 80, 80, backend="torch", samples=1) as r:
-        ref, hit = r.render_pixels(TORUS_CAM, px)
-    assert bool(hit.all())
-    got = img[px[:, 0], px[:, 1]]
-    rel = (got - ref).abs().amax(-1) / ref.amax(-1).clamp_min(1e-6)
+    _, rel = _gl_against_torch(m, light, TORUS_CAM, 80, 80, background=False)
     assert float((rel > 1e-3).float().mean()) < 0.01, float(rel.max())
     # each case takes its path: the torus's inner side finds itself in its hit tiles
     face, _ = m.hits()
@@ -619,15 +617,7 @@ def test_shaders_match_the_torch_path_on_a_sun_s_shape():
     sc, env, cam = _softbox_scene()
     light = render.Lighting(env, base_res=256, sun=True)
     m = _no_hits(_bare_model(sc))
-    with render.Renderer(m, light, 64, 64, backend="gl", samples=1) as r:
-        img, mask = r.render(cam, return_mask=True, background=False)
-    rows, cols = mask.nonzero().unbind(-1)
-    px = torch.stack([rows, cols], -1)
-    with render.Renderer(m, light, 64, 64, backend="torch", samples=1) as r:
-        ref, hit = r.render_pixels(cam, px)
-    assert bool(hit.all())
-    got = img[px[:, 0], px[:, 1]]
-    rel = (got - ref).abs().amax(-1) / ref.amax(-1).clamp_min(1e-6)
+    ref, rel = _gl_against_torch(m, light, cam, 64, 64, background=False)
     assert float(ref.amax()) > 50 * float(ref.median())  # the highlight is in the picture
     assert float((rel > 1e-3).float().mean()) < 0.01, float(rel.max())
 
