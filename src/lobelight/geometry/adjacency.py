@@ -13,6 +13,14 @@ import numpy as np
 __all__ = ["encloses_outward", "face_neighbours"]
 
 
+def _welded_corners(vertices: np.ndarray, faces: np.ndarray) -> tuple[np.ndarray, int]:
+    """The triangles' corners ``(F, 3)`` as indices of the distinct positions (vertices equal
+    in every coordinate are one), and how many distinct positions there are."""
+    _, weld = np.unique(np.asarray(vertices), axis=0, return_inverse=True)
+    weld = weld.reshape(-1)
+    return weld[faces], int(weld.max()) + 1
+
+
 def face_neighbours(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
     """The triangle across each triangle's edges: ``(F, 3)`` int32, entry ``(f, i)`` the triangle
     sharing the edge opposite corner ``i`` of triangle ``f`` (its corners ``i + 1`` and
@@ -24,14 +32,12 @@ def face_neighbours(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
     vertices : (V, 3) positions; those equal in every coordinate are one vertex here
     faces : (F, 3) vertex indices
     """
-    v = np.asarray(vertices)
     f = np.asarray(faces, np.int64)
     if f.shape[0] == 0:
         return np.zeros((0, 3), np.int32)
-    _, weld = np.unique(v, axis=0, return_inverse=True)
-    w = weld.reshape(-1)[f]  # (F, 3) the corners, welded
+    w, n = _welded_corners(vertices, f)
     a, b = w[:, [1, 2, 0]], w[:, [2, 0, 1]]  # the edge opposite each corner
-    key = (np.minimum(a, b) * (int(weld.max()) + 1) + np.maximum(a, b)).reshape(-1)  # (3F,)
+    key = (np.minimum(a, b) * n + np.maximum(a, b)).reshape(-1)  # (3F,)
     order = np.argsort(key, kind="stable")  # slots (3 f + i) by edge
     ks = key[order]
     start = np.r_[True, ks[1:] != ks[:-1]]
@@ -57,16 +63,13 @@ def encloses_outward(vertices: np.ndarray, faces: np.ndarray) -> bool:
     ``vertices (V, 3)``, ``faces (F, 3)``. Hand-written, as :func:`face_neighbours`: a
     render's start calls it, and importing trimesh for it would cost that start more than the
     check."""
-    v = np.asarray(vertices, np.float64)
     f = np.asarray(faces, np.int64)
     if f.shape[0] == 0:
         return False
-    _, weld = np.unique(v, axis=0, return_inverse=True)
-    w = weld.reshape(-1)[f]  # (F, 3) the corners, welded
+    w, n = _welded_corners(vertices, f)
     a, b = w.reshape(-1), w[:, [1, 2, 0]].reshape(-1)  # each triangle's directed edges a -> b
     if bool((a == b).any()):
         return False
-    n = int(weld.max()) + 1
     fwd = np.sort(a * n + b)
     if bool((fwd[1:] == fwd[:-1]).any()):  # an edge used twice the same way
         return False
@@ -74,6 +77,6 @@ def encloses_outward(vertices: np.ndarray, faces: np.ndarray) -> bool:
     at = np.searchsorted(fwd, rev).clip(max=fwd.shape[0] - 1)
     if not bool((fwd[at] == rev).all()):  # an edge used one way only: a boundary
         return False
-    p = v[f]
+    p = np.asarray(vertices, np.float64)[f]
     volume = float(np.einsum("ij,ij->", p[:, 0], np.cross(p[:, 1], p[:, 2]))) / 6.0
     return volume > 0.0

@@ -33,7 +33,6 @@ from ..brdf import ALBEDO_STEPS, sharp_lobe
 from ..envmap import Prefiltered
 from ..errors import InputError
 from ..geometry import sphere
-from ..geometry.adjacency import encloses_outward
 from ..geometry.camera import Camera
 from ..lobes import sg
 from ..model import VISIBILITY_RES
@@ -721,6 +720,8 @@ class GLRenderer:
         self.hits_found = self._hit_slots is not None and bool((self._hit_slots[0] >= 0).any())
         # ... and whether it reads the sun's shape (prt.glsl SUN_SHAPE)
         self.sun_shape = self._reads_sun_shape(lighting)
+        # a closed surface wound outward: its triangles seen from behind are left out
+        self.cull = model.mesh.encloses_outward
         # a rough lobe's direct Gaussians corrected for what the object blocks
         # (render/_lobe_visibility.py)
         self.lobe_vis = lobe_visibility_applies(model)
@@ -809,10 +810,6 @@ class GLRenderer:
             ctx, "prt", {**prt_defines, "DEPTH_ONLY": 1}, ("frame",), ("frame",)
         )
         self.depth_prepass = True
-        # a closed surface wound outward: its triangles seen from behind are left out
-        self.cull = encloses_outward(
-            model.mesh.vertices.detach().cpu().numpy(), model.mesh.faces.cpu().numpy()
-        )
         # each vertex's factor on its direct Gaussians' light, once per frame
         self.lv_prog = None
         if self.lobe_vis:

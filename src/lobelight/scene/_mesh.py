@@ -17,7 +17,7 @@ import torch
 from .._io import check_input
 from .._tol import DIVISOR_F64
 from ..errors import InputError
-from ..geometry.adjacency import face_neighbours
+from ..geometry.adjacency import encloses_outward, face_neighbours
 from ._gltf import GLTF_SUFFIXES, GltfMaterial, read_gltf, sample_texture
 
 
@@ -150,6 +150,13 @@ class Mesh:
         edges matched by their corners' positions)."""
         nb = face_neighbours(self.vertices.detach().cpu().numpy(), self.faces.cpu().numpy())
         return torch.from_numpy(nb).long().to(self.device)
+
+    @cached_property
+    def encloses_outward(self) -> bool:
+        """Whether the mesh is a closed surface wound outward, so that from outside it its
+        triangles seen from behind are hidden and the renderers leave them out
+        (:func:`lobelight.geometry.adjacency.encloses_outward`)."""
+        return encloses_outward(self.vertices.detach().cpu().numpy(), self.faces.cpu().numpy())
 
     def neighbors(self, i: int) -> torch.Tensor:
         """Sorted neighbour indices of vertex ``i``."""

@@ -28,7 +28,6 @@ from .. import model as model_module
 from ..brdf import ALBEDO_STEPS, SPLIT_ALPHAS, sharp_lobe
 from ..envmap import EnvMap
 from ..errors import InputError
-from ..geometry.adjacency import encloses_outward
 from ..lobes import sh
 from ..render import Lighting, model_camera, sample_offsets
 from ..render.layout import (
@@ -426,7 +425,7 @@ def _model_file(model, float16: bool) -> tuple[dict, dict[str, np.ndarray], int]
         "n_vertices": mesh.n_vertices,
         "n_faces": int(mesh.faces.shape[0]),
         # a closed surface wound outward: the page leaves out the triangles seen from behind
-        "closed": encloses_outward(mesh.vertices.detach().cpu().numpy(), mesh.faces.cpu().numpy()),
+        "closed": mesh.encloses_outward,
         "n_views": int(model.views.shape[0]),
         "n_gaussians": model.n_gaussians,
         "indirect_gaussians": model.indirect_gaussians,
