@@ -7,10 +7,11 @@ Python; ``--headless=new --use-angle=swiftshader``: WebGL 2 on SwiftShader, the 
 canvas size, and times the page's own frames (its script's ``benchmark`` hook: draw, tone-map
 into the canvas, read one pixel back, so each frame is finished before the next), at the
 canvas's size and at half its pixels across (the page's least while the view changes), and
-the milliseconds of each pass (the page's ``profile`` hook). The folder's size
-and the page's load time are recorded beside them, and the time of a still frame (four
-samples per pixel, drawn once the view rests), with the machine's load average: the
-machine may be shared.
+the milliseconds of each pass (the page's ``profile`` hook). The folder's size and the page's
+load are recorded beside them (the interactive page opened anew, to its first frame on the
+canvas, with the page's own steps: its ``timings``), and the time of a still frame (four
+samples per pixel, drawn once the view rests), with the machine's load average: the machine
+may be shared.
 """
 
 from __future__ import annotations
@@ -44,6 +45,25 @@ def _chromium() -> str:
     if path is None:
         raise InputError("bench web", "needs the system chromium (apt-get install chromium)")
     return path
+
+
+def _page_load(browser, folder: Path, size: int) -> dict:
+    """Seconds from the navigation's start to each of the interactive page's load steps
+    (its ``timings``: ``shown`` is its first frame on the canvas), and to the first frame as
+    seen from outside the page."""
+    page = browser.new_page(viewport={"width": size + 40, "height": size + 40})
+    t0 = time.perf_counter()
+    page.goto(f"file://{folder}/index.html?size={size}x{size}")
+    page.wait_for_function("window.lobelight && window.lobelight.ready")
+    page.evaluate("window.lobelight.ready")
+    if not page.evaluate("window.lobelight.status")["ok"]:
+        page.close()
+        return {}
+    page.wait_for_function("window.lobelight.timings.shown != null")
+    wall = time.perf_counter() - t0
+    steps = page.evaluate("window.lobelight.timings")
+    page.close()
+    return {"seconds": wall, "steps_seconds": {k: v / 1000 for k, v in steps.items()}}
 
 
 def _page_fps(browser, folder: Path, size: int, frames: int, query: str = "") -> dict:
@@ -118,6 +138,7 @@ def bench_web(
                             "size": size,
                             "folder_bytes": info["bytes"],
                             **r,
+                            "first_frame": _page_load(browser, folder, size),
                         })  # fmt: skip
             browser.close()
     finally:

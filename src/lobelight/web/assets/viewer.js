@@ -51,8 +51,9 @@
     return { data: new T(bytes.buffer), shape: rec.shape };
   }
 
-  async function decodeAll(doc) {
-    const keys = Object.keys(doc.arrays);
+  // the arrays of a data file's document (those named in `only`, where given)
+  async function decodeAll(doc, only) {
+    const keys = Object.keys(doc.arrays).filter(function (k) { return !only || only.includes(k); });
     const arrays = await Promise.all(keys.map(function (k) { return decode(doc.arrays[k]); }));
     const out = {};
     keys.forEach(function (k, i) { out[k] = arrays[i]; });
@@ -211,6 +212,14 @@
     lobe_tex: 21, split_tex: 22,
   };
   const CURVE_NEUTRAL = 2;
+  // the model's arrays the page decodes after it has queued its first draw (start, fill):
+  // the per-record and per-texel ones, most of the file. A rasteriser may compile a program
+  // for the GPU at its first draw (SwiftShader does, for a second or so on a large shader);
+  // it then compiles while these decode
+  const LATER = ["flags", "light", "sigma", "mean", "diffuse", "bounce", "vis_tiles",
+                 "hit_step", "hit_face_step", "hit_dist"];
+  // the linear image's format, of every frame the page draws
+  const FRAME_FORMAT = "RGBA16F";
 
   class Viewer {
     // model: the model file's header and its decoded arrays (decodeAll)
@@ -344,12 +353,10 @@
       return b;
     }
 
+    // everything but the arrays of LATER (fill): the geometry's buffers, the small textures,
+    // the vertex stage's buffer; the tile atlases' layouts checked against the device
     uploadModel() {
       const gl = this.gl, a = this.a, h = this.h;
-      this.gaussTex = this.gaussTexture();
-      this.diffTex = this.rgbTexture(a.diffuse);
-      this.bounceTex = a.bounce ? this.rgbTexture(a.bounce)
-                                : this.rgbTexture({ data: new Uint16Array(3 * h.n_sh) });
       const cand = a.candidates;
       this.candTex = this.dataTexture(cand.shape[1], cand.shape[0], gl.RGBA32F, gl.RGBA,
                                       gl.FLOAT, Float32Array.from(cand.data));
@@ -362,6 +369,7 @@
       if (a.albedo_layers) this.uploadAlbedo();
       if (h.sharp) this.uploadSharp();
       if (h.lobe_visibility) this.uploadLobeVisibility();
+      if (h.sharp || h.lobe_visibility) this.visibilityLayout(this.visRes());
       this.uploadStage();
       this.quad = this.buffer(gl.ARRAY_BUFFER, new Float32Array([-1, -1, 1, -1, -1, 1, 1, 1]));
       this.frameData = new Float32Array(FRAME.sh_light + 8 * h.n_sh);
@@ -374,6 +382,23 @@
       this.radius = h.radius;
       this.shadowRes = h.shadow.res;
       this.shadowKey = null;
+    }
+
+    // the arrays of LATER, decoded while the programs compile (start): the Gaussian records,
+    // the SH transfers, the visibility tiles and a sharp material's hits
+    fill(arrays) {
+      const a = Object.assign(this.a, arrays), h = this.h;
+      this.gaussTex = this.gaussTexture();
+      this.diffTex = this.rgbTexture(a.diffuse);
+      this.bounceTex = a.bounce ? this.rgbTexture(a.bounce)
+                                : this.rgbTexture({ data: new Uint16Array(3 * h.n_sh) });
+      if (h.sharp || h.lobe_visibility) this.uploadVisibility(this.visRes());
+      if (h.sharp) {
+        this.uploadHits();
+        for (const v in this.programs) {
+          this.uniform(this.programs[v].prt, "hit_per_row", "uniform1i", this.hitPerRow);
+        }
+      }
     }
 
     // the albedo textures (albedo.glsl): one mipmapped RGBA16F texture array, and the
@@ -449,14 +474,58 @@
       return { data: out, rows: rows };
     }
 
-    // a sharp material's per-pixel reflection (render/_gl.py _upload_sharp): the visibility
-    // and hit tiles, the triangles' corners and the vertices' positions, normals and albedos
-    // as textures, and the per-corner buffers of the unindexed
-    // draw (each corner its vertex's id and its triangle's: OpenGL ES has no gl_PrimitiveID)
+    // a sharp material's per-pixel reflection (render/_gl.py _upload_sharp), but for the
+    // arrays of LATER (uploadVisibility, uploadHits): the triangles' corners and the vertices'
+    // normals and albedos as textures, and the per-corner buffers of the unindexed draw (each
+    // corner its vertex's id and its triangle's: OpenGL ES has no gl_PrimitiveID)
     uploadSharp() {
+      const gl = this.gl, a = this.a, w = this.h.tex_width;
+      // the corners, then from nbrOffset the triangles across each edge (reflection.glsl
+      // walk_to_hit)
+      const faces = this.padded(new Int32Array(a.faces.data.buffer), 3, w, Int32Array);
+      const nbrs = this.padded(a.face_neighbours.data, 3, w, Int32Array);
+      const both = new Int32Array(faces.data.length + nbrs.data.length);
+      both.set(faces.data);
+      both.set(nbrs.data, faces.data.length);
+      this.nbrOffset = faces.rows * w;
+      this.faceTex = this.dataTexture(w, faces.rows + nbrs.rows, gl.RGB32I, gl.RGB_INTEGER,
+                                      gl.INT, both);
+      for (const [name, arr] of [["nrmTex", a.normals], ["albTex", a.albedo]]) {
+        const p = this.padded(arr.data, 3, w, Float32Array);
+        this[name] = this.dataTexture(w, p.rows, gl.RGB32F, gl.RGB, gl.FLOAT, p.data);
+      }
+      if (this.h.sharp.varying) {  // each vertex's roughness and F0, and the albedo's split table
+        const l = this.padded(a.lobe.data, 4, w, Float32Array);
+        this.lobeTex = this.dataTexture(w, l.rows, gl.RGBA32F, gl.RGBA, gl.FLOAT, l.data);
+        const [sa, st] = a.split.shape;
+        this.splitTex = this.dataTexture(st, sa, gl.RG32F, gl.RG, gl.FLOAT, a.split.data);
+      }
+      // the unindexed draw: every per-vertex buffer repeated per corner, and the ids
+      const f = a.faces.data, nc = f.length;
+      const ids = new Float32Array(nc), tri = new Float32Array(nc);
+      for (let c = 0; c < nc; ++c) { ids[c] = f[c]; tri[c] = Math.floor(c / 3); }
+      this.corner = {
+        in_vertex: [this.buffer(gl.ARRAY_BUFFER, ids), 1],
+        in_face: [this.buffer(gl.ARRAY_BUFFER, tri), 1],
+        in_pos: [this.buffer(gl.ARRAY_BUFFER, this.perCorner(a.positions.data, 3)), 3],
+        in_normal: [this.buffer(gl.ARRAY_BUFFER, this.perCorner(a.normals.data, 3)), 3],
+        in_albedo: [this.buffer(gl.ARRAY_BUFFER, this.perCorner(a.albedo.data, 3)), 3],
+      };
+      if (a.uvs) {
+        this.corner.in_uv = [this.buffer(gl.ARRAY_BUFFER, this.perCorner(a.uvs.data, 2)), 2];
+        this.corner.in_layer = [this.buffer(gl.ARRAY_BUFFER, this.perCorner(a.layer.data, 1)), 1];
+        this.corner.in_factor = [this.buffer(gl.ARRAY_BUFFER, this.perCorner(a.factor.data, 3)),
+                                 3];
+      }
+      if (a.f0) this.corner.in_f0 = [this.buffer(gl.ARRAY_BUFFER, this.perCorner(a.f0.data, 3)), 3];
+      this.nCorners = nc;
+    }
+
+    // a sharp material's hit tiles and the vertices' positions with their hit-tile slots
+    // (render/_gl.py _upload_sharp), from the arrays of LATER
+    uploadHits() {
       const gl = this.gl, a = this.a, h = this.h, r = h.sharp.vis_res, w = h.tex_width;
       const nv = h.n_vertices;
-      this.uploadVisibility(r);
       // the hit tiles, stored as their texels that see the object: a slot for each vertex
       // whose tile has one (in vertex order: the texels ascend), its tile at the slot's place
       // in the atlas, -1 (none) at its other texels (render/_gl.py hit_slots)
@@ -488,21 +557,6 @@
       this.hitPerRow = hitRow;
       this.hitFaceTex = this.dataTexture(hf.w, hf.h, gl.R32I, gl.RED_INTEGER, gl.INT, hf.data);
       this.hitDistTex = this.dataTexture(hd.w, hd.h, gl.R16F, gl.RED, gl.HALF_FLOAT, hd.data);
-      // the corners, then from nbrOffset the triangles across each edge (reflection.glsl
-      // walk_to_hit)
-      const faces = this.padded(new Int32Array(a.faces.data.buffer), 3, w, Int32Array);
-      const nbrs = this.padded(a.face_neighbours.data, 3, w, Int32Array);
-      const both = new Int32Array(faces.data.length + nbrs.data.length);
-      both.set(faces.data);
-      both.set(nbrs.data, faces.data.length);
-      this.nbrOffset = faces.rows * w;
-      this.faceTex = this.dataTexture(w, faces.rows + nbrs.rows, gl.RGB32I, gl.RGB_INTEGER,
-                                      gl.INT, both);
-      const tex = {};
-      for (const [name, arr] of [["nrm", a.normals], ["alb", a.albedo]]) {
-        const p = this.padded(arr.data, 3, w, Float32Array);
-        tex[name] = this.dataTexture(w, p.rows, gl.RGB32F, gl.RGB, gl.FLOAT, p.data);
-      }
       // the positions and each vertex's hit-tile slot
       const pos = this.padded(a.positions.data, 3, w, Float32Array);
       const pos4 = new Float32Array(pos.rows * w * 4);
@@ -512,50 +566,35 @@
         pos4[4 * v + 2] = pos.data[3 * v + 2];
         pos4[4 * v + 3] = slot[v];
       }
-      tex.pos = this.dataTexture(w, pos.rows, gl.RGBA32F, gl.RGBA, gl.FLOAT, pos4);
-      this.posTex = tex.pos;
-      this.nrmTex = tex.nrm;
-      this.albTex = tex.alb;
-      if (h.sharp.varying) {  // each vertex's roughness and F0, and the albedo's split table
-        const l = this.padded(a.lobe.data, 4, w, Float32Array);
-        this.lobeTex = this.dataTexture(w, l.rows, gl.RGBA32F, gl.RGBA, gl.FLOAT, l.data);
-        const [sa, st] = a.split.shape;
-        this.splitTex = this.dataTexture(st, sa, gl.RG32F, gl.RG, gl.FLOAT, a.split.data);
-      }
-      // the unindexed draw: every per-vertex buffer repeated per corner, and the ids
-      const f = a.faces.data, nc = f.length;
-      const ids = new Float32Array(nc), tri = new Float32Array(nc);
-      for (let c = 0; c < nc; ++c) { ids[c] = f[c]; tri[c] = Math.floor(c / 3); }
-      this.corner = {
-        in_vertex: [this.buffer(gl.ARRAY_BUFFER, ids), 1],
-        in_face: [this.buffer(gl.ARRAY_BUFFER, tri), 1],
-        in_pos: [this.buffer(gl.ARRAY_BUFFER, this.perCorner(a.positions.data, 3)), 3],
-        in_normal: [this.buffer(gl.ARRAY_BUFFER, this.perCorner(a.normals.data, 3)), 3],
-        in_albedo: [this.buffer(gl.ARRAY_BUFFER, this.perCorner(a.albedo.data, 3)), 3],
-      };
-      if (a.uvs) {
-        this.corner.in_uv = [this.buffer(gl.ARRAY_BUFFER, this.perCorner(a.uvs.data, 2)), 2];
-        this.corner.in_layer = [this.buffer(gl.ARRAY_BUFFER, this.perCorner(a.layer.data, 1)), 1];
-        this.corner.in_factor = [this.buffer(gl.ARRAY_BUFFER, this.perCorner(a.factor.data, 3)),
-                                 3];
-      }
-      if (a.f0) this.corner.in_f0 = [this.buffer(gl.ARRAY_BUFFER, this.perCorner(a.f0.data, 3)), 3];
-      this.nCorners = nc;
+      this.posTex = this.dataTexture(w, pos.rows, gl.RGBA32F, gl.RGBA, gl.FLOAT, pos4);
     }
 
-    // the vertices' visibility tiles (R x R each) as one R8 texture, tiles laid out to fit the
-    // device (render/_gl.py _upload_visibility): sets visTex and visPerRow, returns the atlas
-    uploadVisibility(r) {
-      const gl = this.gl, nv = this.h.n_vertices;
+    // the visibility tiles' resolution: the lobe visibility correction's where the model has
+    // one, else the sharp reflection's (both read the one atlas)
+    visRes() {
+      const lv = this.h.lobe_visibility;
+      return lv ? lv.vis_res : this.h.sharp.vis_res;
+    }
+
+    // the visibility tiles' atlas laid out to fit the device (render/_gl.py
+    // _upload_visibility): sets visPerRow, refuses an atlas beyond the device's textures
+    visibilityLayout(r) {
+      const nv = this.h.n_vertices;
       this.visPerRow = tilesPerRow(nv, r, this.h.tex_width, this.maxTex);
-      const vis = this.tileAtlas(this.a.vis_tiles.data, this.visPerRow, r);
-      if (vis.w > this.maxTex || vis.h > this.maxTex) {
-        throw new LimitError("This model's visibility tiles need an image of " + vis.w + " × " +
-                             vis.h + " texels; this device's largest texture is " +
+      const w = this.visPerRow * r, rows = Math.ceil(nv / this.visPerRow) * r;
+      if (w > this.maxTex || rows > this.maxTex) {
+        throw new LimitError("This model's visibility tiles need an image of " + w + " × " +
+                             rows + " texels; this device's largest texture is " +
                              this.maxTex + ".");
       }
+    }
+
+    // the vertices' visibility tiles (R x R each) as one R8 texture in visibilityLayout's
+    // atlas: sets visTex
+    uploadVisibility(r) {
+      const gl = this.gl;
+      const vis = this.tileAtlas(this.a.vis_tiles.data, this.visPerRow, r);
       this.visTex = this.dataTexture(vis.w, vis.h, gl.R8, gl.RED, gl.UNSIGNED_BYTE, vis.data);
-      return vis;
     }
 
     // the lobe visibility correction (render/_gl.py _upload_lobe_visibility): the visibility
@@ -563,7 +602,6 @@
     // vertex), and the buffer of each vertex's factor the pass writes by transform feedback
     uploadLobeVisibility() {
       const gl = this.gl, nv = this.h.n_vertices;
-      this.uploadVisibility(this.h.lobe_visibility.vis_res);
       this.rhoBuf = gl.createBuffer();
       gl.bindBuffer(gl.ARRAY_BUFFER, this.rhoBuf);
       gl.bufferData(gl.ARRAY_BUFFER, 12 * nv, gl.DYNAMIC_COPY);
@@ -921,10 +959,10 @@
     // the RGBA16F target of a frame of `scale` times the canvas's pixels across (bilinearly
     // filtered when it is smaller, for the tone mapping's stretch onto the canvas)
     movingTarget(w, h, scale) {
-      if (scale >= 1) return this.target(w, h, this.gl.RGBA16F);
+      if (scale >= 1) return this.target(w, h, this.gl[FRAME_FORMAT]);
       const gl = this.gl;
       const sw = Math.max(1, Math.round(w * scale)), sh = Math.max(1, Math.round(h * scale));
-      const t = this.target(sw, sh, gl.RGBA16F, "moving");
+      const t = this.target(sw, sh, gl[FRAME_FORMAT], "moving");
       if (!t.linear) {
         gl.bindTexture(gl.TEXTURE_2D, t.color);
         gl.texParameteri(gl.TEXTURE_2D, gl.TEXTURE_MIN_FILTER, gl.LINEAR);
@@ -1144,6 +1182,15 @@
       const gl = this.gl;
       gl.activeTexture(gl.TEXTURE0 + unit);
       gl.bindTexture(target, tex);
+    }
+
+    // one sample of a small image of camera cam queued and not read back, before the arrays
+    // of LATER are filled: the programs' pipelines for the frame's format are made while
+    // those decode (LATER); the image is of no use
+    warmUp(cam, rot) {
+      this.draw(this.target(8, 8, this.gl[FRAME_FORMAT], "warm-up"), cam, rot,
+                { diffuse: true, glossy: true, background: true });
+      this.gl.flush();
     }
 
     // one frame into target t (GLRenderer.draw): with several sub-pixel sample offsets
@@ -1431,7 +1478,8 @@
 
   // an exposure that puts the object's bright pixels near the top of the display range
   function autoExposure(viewer, state) {
-    const t = viewer.target(64, 64, viewer.gl.RGBA32F);
+    // in the frames' format: the programs made for it serve the first frame too
+    const t = viewer.target(64, 64, viewer.gl[FRAME_FORMAT]);
     viewer.draw(t, orbitCamera(state.orbit, 64, 64), rotationY(state.light),
                 { diffuse: true, glossy: true, background: false });
     const px = viewer.readLinear(t);
@@ -1475,6 +1523,13 @@
         background: state.background, offsets: offsets, moving: !offsets,
       });
       viewer.present(t, state.exposure);
+      if (api.timings.shown == null) {
+        // a pixel of the canvas read back: the first frame is on it
+        const gl = viewer.gl;
+        gl.bindFramebuffer(gl.FRAMEBUFFER, null);
+        gl.readPixels(0, 0, 1, 1, gl.RGBA, gl.UNSIGNED_BYTE, new Uint8Array(4));
+        api.timings.shown = performance.now();
+      }
     }
     function frame() {
       pending = false;
@@ -1531,8 +1586,11 @@
   }
 
   async function start() {
-    // milliseconds since the page's navigation began: the scripts read and parsed, the
-    // model's arrays decoded and uploaded, the first map's and the programs', the first frame
+    // milliseconds since the page's navigation began: the scripts read and parsed (scripts),
+    // the model's geometry and small arrays decoded and uploaded (model), the first map's
+    // (env), the rest of the model decoded and uploaded while the first draw's programs
+    // compile (decoded), the exposure chosen (first_frame) and the first frame on the canvas
+    // (shown, set by loop)
     const timings = api.timings = { scripts: performance.now() };
     const options = pageOptions();
     const canvas = document.getElementById("view");
@@ -1556,9 +1614,11 @@
     if (envs[options.env]) loadEnv(envs[options.env].file).catch(function () {});  // setEnv says
     let viewer;
     try {
-      const arrays = await decodeAll(store.model);
-      timings.decoded = performance.now();
-      viewer = new Viewer(gl, store.model, arrays, store.shaders, options);
+      const first = Object.keys(store.model.arrays).filter(function (k) {
+        return !LATER.includes(k);
+      });
+      viewer = new Viewer(gl, store.model, await decodeAll(store.model, first), store.shaders,
+                          options);
       timings.model = performance.now();
     } catch (e) {
       showMessage(e.message);
@@ -1591,6 +1651,11 @@
       await api.setEnv(state.env);
       timings.env = performance.now();
       sizeCanvas(canvas, options);
+      // the first draw queued, so that its programs compile while the rest of the model
+      // decodes (LATER)
+      viewer.warmUp(orbitCamera(state.orbit, 8, 8), rotationY(state.light));
+      viewer.fill(await decodeAll(store.model, LATER));
+      timings.decoded = performance.now();
       state.exposure = autoExposure(viewer, state);
       timings.first_frame = performance.now();
     } catch (e) {
