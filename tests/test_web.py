@@ -476,6 +476,43 @@ def test_maps_load_in_any_order_and_a_map_file_without_its_map_is_named(browser,
 
 
 @needs_browser
+def test_the_page_refuses_an_array_that_does_not_fill_its_shape(browser, sky, tmp_path):
+    # the model's Gaussian records gzipped (as a large model's are) with one row more in their
+    # shape than the member holds, and the positions (plain) likewise: each a message naming
+    # the array, not a picture drawn from zeros; the same records with their own shape draw
+    import gzip
+    import json
+
+    from lobelight.web import _format
+
+    web.export_web(analytic_model(1), tmp_path / "v", [sky], base_res=16)
+    path = tmp_path / "v" / "model.js"
+    text = path.read_text()
+    start = text.index("{")
+    head, doc = text[:start], json.loads(text[start : text.rstrip().rfind(")")])
+    light = _format.decode_array(doc["arrays"]["light"], "light")
+    packed = gzip.compress(np.ascontiguousarray(light).tobytes(), mtime=0)
+    good = {**doc["arrays"]["light"], "gzip": True, "b64": base64.b64encode(packed).decode()}
+    shape = [light.shape[0] + 1, *light.shape[1:]]
+    pos = doc["arrays"]["positions"]
+    cases = (
+        ({"light": good}, None),
+        ({"light": {**good, "shape": shape}}, "light does not inflate to its shape"),
+        ({"positions": {**pos, "shape": [pos["shape"][0] + 1, 3]}}, "positions holds"),
+    )
+    for change, says in cases:
+        arrays = {**doc["arrays"], **change}
+        path.write_text(f"{head}{json.dumps({**doc, 'arrays': arrays})});\n")
+        page = open_page(browser, tmp_path / "v", "size=64x48&still=1")
+        status = page.evaluate("window.lobelight.status")
+        page.close()
+        if says is None:
+            assert status["ok"], status
+        else:
+            assert not status["ok"] and says in status["message"], status
+
+
+@needs_browser
 def test_frames_while_moving_have_fewer_pixels_and_the_rested_frame_all(browser, sky, tmp_path):
     # the interactive page (no still=1): frames while the view changes at half the canvas's
     # pixels across (moving=0.5), stretched onto the canvas, then the rested frame
