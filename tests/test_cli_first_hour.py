@@ -261,10 +261,11 @@ def test_compare_refuses_gaussians_it_would_not_use(tiny_model, capsys):
 
 def test_every_flag_s_help_shows_its_default():
     """Each option's help says its default: the formatter adds it where there is one (a
-    boolean pair names the flag that is on), and an option without one says what happens."""
+    boolean pair names the flag that is on, a switch says it is off), and an option without
+    one says what happens."""
     from lobelight.cli._arguments import _Help
 
-    plain = (argparse._HelpAction, argparse._VersionAction, argparse._StoreTrueAction)
+    plain = (argparse._HelpAction, argparse._VersionAction)
     for name, sp in _subparsers().items():
         fmt = _Help(sp.prog)
         for action in sp._actions:
@@ -274,6 +275,7 @@ def test_every_flag_s_help_shows_its_default():
             assert "default" in text, f"lobelight {name} {action.option_strings[0]}: {text!r}"
     render = _subparsers()["render"].format_help()
     assert "vertical axis" in render and "(default: 0.0)" in render  # --rotate: axis, default
+    assert "(errors too, as JSON) (default: off)" in " ".join(render.split())  # a switch
 
 
 def test_the_gitignore_keeps_the_readme_s_outputs_out_of_git():

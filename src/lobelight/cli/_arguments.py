@@ -59,12 +59,14 @@ class _Parser(argparse.ArgumentParser):
 
 
 class _Help(argparse.ArgumentDefaultsHelpFormatter):
-    """Shows each flag's default (where it has one) after its help."""
+    """Shows each flag's default (where it has one) after its help; a switch's is off."""
 
     def _get_help_string(self, action):
         if isinstance(action, argparse.BooleanOptionalAction) and isinstance(action.default, bool):
             on, off = action.option_strings[:2]
             return f"{action.help} (default: {on if action.default else off})"
+        if isinstance(action, argparse._StoreTrueAction) and "default" not in (action.help or ""):
+            return f"{action.help} (default: off)"
         if action.default is None or action.default is False:
             return action.help
         if action.default is argparse.SUPPRESS or "%(default)" in (action.help or ""):
