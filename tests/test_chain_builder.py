@@ -150,8 +150,12 @@ def _clear_plans() -> None:
 def test_the_gpu_forms_of_every_operator_give_the_same_chain(monkeypatch):
     # A CUDA build takes other forms of four operators (kept gather indices, one padded window
     # group, the gathered halo, levels stacked per resolution); here they run on the CPU against
-    # the CPU's forms: float32 summation order apart (1e-6 of each level's peak), the stacked
-    # sharpening and padding equal to the bit.
+    # the CPU's forms: the same sums in another order, so float32 rounding apart. Each level
+    # sums hundreds of window taps through several passes, and the CPU's vector code changes
+    # the order again (1.1e-6 of a level's peak on a Xeon with AVX-512, under 1e-6 on an
+    # EPYC): 1e-5 (about 80 float32 epsilons), where a wrong index or weight errs by order 1. The
+    # stacked sharpening and padding are equal to the bit
+    # (test_stacked_levels_are_sharpened_and_padded_as_single_ones).
     cube = _map(6, res=64)
     cpu = prefilter(cube, base_res=64, cache=False)
     _clear_plans()
@@ -165,7 +169,7 @@ def test_the_gpu_forms_of_every_operator_give_the_same_chain(monkeypatch):
         _clear_plans()
     for a, b in zip(gpu.levels + gpu._padded, cpu.levels + cpu._padded, strict=True):
         assert a.shape == b.shape and a.is_contiguous()
-        assert float((a - b).abs().max()) <= 1e-6 * float(b.abs().max())
+        assert float((a - b).abs().max()) <= 1e-5 * float(b.abs().max())
 
 
 def test_stacked_levels_are_sharpened_and_padded_as_single_ones(monkeypatch):
