@@ -439,6 +439,39 @@ def test_the_records_texture_holds_the_records_in_order(model2, monkeypatch, ban
     np.testing.assert_array_equal(r[..., 1, 3], above.numpy())
 
 
+@needs_gl
+def test_the_chain_s_atlas_holds_each_level_s_faces_at_its_place():
+    # a chain whose levels shrink (a 32 base, 6 levels): each level's six padded faces side by
+    # side in their band, alpha 1 and ones past them; the texture written band by band holds
+    # the image, and the layout is the image's
+    from lobelight.render import _gl
+
+    pf = envmap.prefilter(torch.rand(6, 32, 32, 3, generator=torch.Generator().manual_seed(3)),
+                          base_res=32, cache=False)  # fmt: skip
+    img, rows, res = _gl.atlas_image(pf)
+    (h, w), rows2, res2 = _gl.atlas_layout(pf)
+    assert img.shape == (h, w, 4) and w == 6 * (32 + 2)
+    np.testing.assert_array_equal(rows, rows2)
+    np.testing.assert_array_equal(res, res2)
+    sizes = [int(p.shape[1]) for p in pf.padded]
+    assert len(set(sizes)) > 1  # bands of several heights: ones past the narrower ones
+    filled = np.zeros(img.shape[:2], bool)
+    for y, pad in zip(rows.astype(int), pf.padded, strict=True):
+        size = pad.shape[1]
+        for f in range(6):
+            np.testing.assert_array_equal(img[y : y + size, f * size : (f + 1) * size, :3], pad[f])
+        filled[y : y + size, : 6 * size] = True
+    assert (img[..., 3] == 1).all() and (img[~filled] == 1).all()
+    ctx = _gl.create_context()
+    try:
+        tex, uniforms = _gl.upload_prefiltered(ctx, pf)
+        got = np.frombuffer(tex.read(), np.float32).reshape(h, w, 4)
+    finally:
+        ctx.release()
+    np.testing.assert_array_equal(got, img)
+    assert uniforms["atlas_size"] == (float(w), float(h))
+
+
 def _with_gaussians(model: Model, n: int) -> Model:
     """``model`` with its Gaussians repeated to ``n`` per view (each copy a third of the
     light, so the image stays in range)."""

@@ -284,26 +284,50 @@ def _set_uniform(prog, name: str, value) -> None:
     u.value = tuple(value[: u.array_length]) if isinstance(value, list) else value
 
 
+def atlas_layout(pf: Prefiltered) -> tuple[tuple[int, int], np.ndarray, np.ndarray]:
+    """The atlas of all prefiltered levels (:func:`atlas_image`): its ``(H, W)``, and each
+    level's first row and resolution ``(L,)`` float32: the levels' padded faces one band of
+    rows each, six faces side by side."""
+    sizes = [int(p.shape[1]) for p in pf.padded]  # each level's padded face, P
+    rows = np.cumsum([0, *sizes[:-1]]).astype(np.float32)
+    res = np.asarray(sizes, np.float32) - 2
+    return (sum(sizes), 6 * (pf.base_res + 2)), rows, res
+
+
+def _atlas_bands(pf: Prefiltered):
+    """Each level's band of the atlas: its first row and its ``(P, W, 4)`` float32 texels (the
+    six padded faces side by side, RGB, alpha 1; ones past them). One buffer per band height,
+    reused: a band is used before the next is asked for."""
+    width = atlas_layout(pf)[0][1]
+    bands: dict[int, np.ndarray] = {}
+    y = 0
+    for p in pf.padded:
+        face = p.cpu().numpy()  # (6, P, P, 3)
+        size = face.shape[1]
+        # RGBA: llvmpipe filters four-channel float textures faster than three-channel ones,
+        # and GPUs pad RGB anyway
+        band = bands.setdefault(size, np.ones((size, width, 4), np.float32))
+        band[:, : 6 * size, :3] = face.transpose(1, 0, 2, 3).reshape(size, 6 * size, 3)
+        yield y, band
+        y += size
+
+
 def atlas_image(pf: Prefiltered) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """All prefiltered levels' padded faces in one image: ``(H, W, 4)`` (RGB, alpha 1), row and
-    res per level."""
-    base = pf.base_res
-    width = 6 * (base + 2)
-    pads = [p.cpu().numpy() for p in pf.padded]  # (6, P, P, 3)
-    height = sum(p.shape[1] for p in pads)
-    # RGBA: llvmpipe filters four-channel float textures faster than three-channel ones, and
-    # GPUs pad RGB anyway
-    atlas = np.ones((height, width, 4), np.float32)
-    y = 0
-    rows, res = [], []
-    for p in pads:
-        size = p.shape[1]
-        for f in range(6):  # six faces side by side: a loop over faces, not texels
-            atlas[y : y + size, f * size : (f + 1) * size, :3] = p[f]
-        rows.append(y)
-        res.append(size - 2)
-        y += size
-    return atlas, np.asarray(rows, np.float32), np.asarray(res, np.float32)
+    res per level (:func:`atlas_layout`)."""
+    (height, width), rows, res = atlas_layout(pf)
+    atlas = np.empty((height, width, 4), np.float32)
+    for y, band in _atlas_bands(pf):
+        atlas[y : y + band.shape[0]] = band
+    return atlas, rows, res
+
+
+def write_atlas(tex, pf: Prefiltered) -> None:
+    """Write the chain's atlas (:func:`atlas_image`) into texture ``tex`` of its size a level's
+    band at a time: the whole image never exists in memory (a 512-base chain's is 52 MB, and
+    a process's fresh memory costs its page faults)."""
+    for y, band in _atlas_bands(pf):
+        tex.write(band, viewport=(0, y, band.shape[1], band.shape[0]))
 
 
 def _rgb0(table: torch.Tensor) -> np.ndarray:
@@ -443,11 +467,12 @@ def upload_prefiltered(ctx, pf: Prefiltered):
     (bind the texture to the unit of its ``atlas`` sampler)."""
     import moderngl  # optional (the gl extra)
 
-    atlas, rows, res = atlas_image(pf)
-    tex = ctx.texture((atlas.shape[1], atlas.shape[0]), 4, np.ascontiguousarray(atlas), dtype="f4")
+    (height, width), rows, res = atlas_layout(pf)
+    tex = ctx.texture((width, height), 4, dtype="f4")
+    write_atlas(tex, pf)
     tex.filter = (moderngl.LINEAR, moderngl.LINEAR)
     tex.repeat_x = tex.repeat_y = False
-    return tex, atlas_uniforms(pf, atlas.shape, rows, res)
+    return tex, atlas_uniforms(pf, (height, width, 4), rows, res)
 
 
 def geodesic_tables() -> tuple[np.ndarray, np.ndarray, dict[str, int]]:
@@ -1031,12 +1056,11 @@ class GLRenderer:
             self.prog["sun_tail"].value = tail_scale(self._specular, spread)
         if not self.sun_shape:
             return
-        atlas = atlas_image(lighting.prefiltered)[0]
-        if atlas.shape != (self.atlas.height, self.atlas.width, 4):
+        (height, width), _, _ = atlas_layout(lighting.prefiltered)
+        if (height, width) != (self.atlas.height, self.atlas.width):
             raise InputError("lighting", "the whole map's chain differs in layout from its rest's")
-        tex = self.ctx.texture(
-            (atlas.shape[1], atlas.shape[0]), 4, np.ascontiguousarray(atlas), dtype="f4"
-        )
+        tex = self.ctx.texture((width, height), 4, dtype="f4")
+        write_atlas(tex, lighting.prefiltered)
         tex.filter = self.atlas.filter
         self.whole_atlas = tex
 
@@ -1251,7 +1275,7 @@ class GLRenderer:
             or self._reads_sun_shape(lighting) != self.sun_shape
         ):
             return False
-        self.atlas.write(np.ascontiguousarray(atlas_image(pf)[0]))
+        write_atlas(self.atlas, pf)
         self._upload_whole(lighting)
         for face, data in enumerate(_background(lighting)):
             self.env_cube.write(face, np.ascontiguousarray(data))
