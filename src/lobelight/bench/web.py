@@ -47,15 +47,22 @@ def _chromium() -> str:
     return path
 
 
+def _open(browser, folder: Path, size: int, query: str):
+    """The page at ``size`` squared (its URL's ``query`` appended) opened and loaded: the
+    page, the clock's reading at its navigation, and the seconds to its ``ready``."""
+    page = browser.new_page(viewport={"width": size + 40, "height": size + 40})
+    t0 = time.perf_counter()
+    page.goto(f"file://{folder}/index.html?size={size}x{size}{query}")
+    page.wait_for_function("window.lobelight && window.lobelight.ready")
+    page.evaluate("window.lobelight.ready")
+    return page, t0, time.perf_counter() - t0
+
+
 def _page_load(browser, folder: Path, size: int) -> dict:
     """Seconds from the navigation's start to each of the interactive page's load steps
     (its ``timings``: ``shown`` is its first frame on the canvas), and to the first frame as
     seen from outside the page."""
-    page = browser.new_page(viewport={"width": size + 40, "height": size + 40})
-    t0 = time.perf_counter()
-    page.goto(f"file://{folder}/index.html?size={size}x{size}")
-    page.wait_for_function("window.lobelight && window.lobelight.ready")
-    page.evaluate("window.lobelight.ready")
+    page, t0, _ = _open(browser, folder, size, "")
     if not page.evaluate("window.lobelight.status")["ok"]:
         page.close()
         return {}
@@ -68,12 +75,7 @@ def _page_load(browser, folder: Path, size: int) -> dict:
 
 def _page_fps(browser, folder: Path, size: int, frames: int, query: str = "") -> dict:
     """Load time and frames per second of the page at ``size`` squared."""
-    page = browser.new_page(viewport={"width": size + 40, "height": size + 40})
-    t0 = time.perf_counter()
-    page.goto(f"file://{folder}/index.html?size={size}x{size}&still=1{query}")
-    page.wait_for_function("window.lobelight && window.lobelight.ready")
-    page.evaluate("window.lobelight.ready")
-    load = time.perf_counter() - t0
+    page, _, load = _open(browser, folder, size, f"&still=1{query}")
     status = page.evaluate("window.lobelight.status")
     if not status["ok"]:
         page.close()
