@@ -196,6 +196,11 @@ class Model:
             self._hits = hit_tiles(self.mesh, res=int(self.visibility().shape[-1]))
         return self._hits
 
+    def sees_itself(self) -> bool:
+        """Whether any vertex's hit tile (:meth:`hits`) finds the object; where none does, the
+        renderers and the web page compile the shading of the hits out."""
+        return bool((self.hits()[0] >= 0).any())
+
     def to(self, device) -> Model:
         """The model with every tensor on ``device`` (in place; returns it)."""
         g = self.gaussians

@@ -742,7 +742,7 @@ class GLRenderer:
         # tiles as the shaders read them (none finds the object: its code is compiled out)
         self.sharp = sharp_lobe(spec)
         self._hit_slots = None if self.sharp is None else hit_slots(*model.hits())
-        self.hits_found = self._hit_slots is not None and bool((self._hit_slots[0] >= 0).any())
+        self.hits_found = self.sharp is not None and model.sees_itself()
         # ... and whether it reads the sun's shape (prt.glsl SUN_SHAPE)
         self.sun_shape = self._reads_sun_shape(lighting)
         # a closed surface wound outward: its triangles seen from behind are left out

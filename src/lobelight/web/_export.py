@@ -313,12 +313,11 @@ def _sharp_defines(model) -> dict:
     """The defines of a sharp material's programs: the tiles' resolution, the albedo table's
     size, and :func:`lobelight.render.layout.sharp_shader_defines` (the mixture's live
     Gaussians, whether any vertex's hit tile finds the object)."""
-    found = bool((model.hits()[0] >= 0).any())
     return {
         "SHARP": 1,
         "VIS_RES": int(model.visibility().shape[-1]),
         "ALBEDO_STEPS": ALBEDO_STEPS,
-        **sharp_shader_defines(sharp_lobe(model.materials.specular), hit_tiles=found),
+        **sharp_shader_defines(sharp_lobe(model.materials.specular), hit_tiles=model.sees_itself()),
     }
 
 
