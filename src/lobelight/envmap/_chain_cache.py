@@ -43,9 +43,11 @@ import torch
 
 from .._cache import UNREADABLE, cache_dir, cache_max_bytes, regular_entry
 from .._io import atomic_writer
+from ..errors import InputError
 
 __all__ = [
     "FORMAT_VERSION",
+    "cache_folder",
     "chain_key",
     "default_folder",
     "max_bytes",
@@ -96,6 +98,19 @@ def trim(folder: str | os.PathLike, limit: int, *, keep: str | os.PathLike | Non
 def default_folder() -> Path:
     """``cache_dir() / "prefilter"``, where :func:`lobelight.envmap.prefilter` keeps chains."""
     return cache_dir() / "prefilter"
+
+
+def cache_folder(cache, accepted: str = "a bool or a folder") -> Path | None:
+    """The folder a ``cache`` argument names: None for False (no cache), :func:`default_folder`
+    for True, else the folder given. Raises InputError naming ``cache`` for anything else
+    (``accepted`` says what the caller takes)."""
+    if cache is False:
+        return None
+    if cache is True:
+        return default_folder()
+    if isinstance(cache, (str, os.PathLike)):
+        return Path(cache)
+    raise InputError("cache", f"must be {accepted}, got {cache!r}")
 
 
 def chain_key(source: torch.Tensor, description: dict[str, Any]) -> str:
@@ -166,12 +181,17 @@ def _touch(path: Path) -> None:
         pass
 
 
-def _check(z, key: str, resolutions: list[int]) -> tuple[np.ndarray, list[np.ndarray]] | None:
+def _is_entry(z, key: str) -> bool:
+    """Whether an open entry's header names it the entry ``key``."""
     header = z["header"]
     if header.dtype.kind != "U" or header.ndim != 0:
-        return None
+        return False
     head = json.loads(header.item())
-    if not isinstance(head, dict) or head.get("key") != key:
+    return isinstance(head, dict) and head.get("key") == key
+
+
+def _check(z, key: str, resolutions: list[int]) -> tuple[np.ndarray, list[np.ndarray]] | None:
+    if not _is_entry(z, key):
         return None
     lambdas = z["lambdas"]
     if lambdas.dtype != np.float64 or lambdas.shape != (len(resolutions),):
@@ -223,11 +243,7 @@ def read_cube(path: str | os.PathLike, key: str, res: int) -> np.ndarray | None:
         return None
     try:
         with z:
-            header = z["header"]
-            if header.dtype.kind != "U" or header.ndim != 0:
-                return None
-            head = json.loads(header.item())
-            if not isinstance(head, dict) or head.get("key") != key:
+            if not _is_entry(z, key):
                 return None
             cube = z["cube"]
     except UNREADABLE as exc:

@@ -296,7 +296,7 @@ class EnvMap:
                 return self.data
             if supersample is None and src % res == 0:
                 return _cube_block_average(self.data, src // res)
-        folder = _cube_folder(cache)
+        folder = _chain_cache.cache_folder(cache)
         if folder is None:
             return self._resample_cube(res, supersample)
         description = _resample_description(self.layout, res, supersample)
@@ -790,17 +790,6 @@ def _cube_block_average(cube: torch.Tensor, m: int) -> torch.Tensor:
 
 def _check_s(supersample: Any) -> int | None:
     return None if supersample is None else check_int(supersample, "supersample")
-
-
-def _cube_folder(cache) -> Path | None:
-    """Where :meth:`EnvMap.to_cubemap` keeps its cube for its ``cache`` argument (None: not)."""
-    if cache is False:
-        return None
-    if cache is True:
-        return _chain_cache.default_folder()
-    if isinstance(cache, (str, os.PathLike)):
-        return Path(cache)
-    raise InputError("cache", f"must be a bool or a folder, got {cache!r}")
 
 
 def _resample_description(layout: str, res: int, supersample: int | None) -> dict:

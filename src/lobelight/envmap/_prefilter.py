@@ -49,7 +49,6 @@ from __future__ import annotations
 import logging
 import math
 import numbers
-import os
 from dataclasses import dataclass, field
 from functools import lru_cache
 from pathlib import Path
@@ -312,13 +311,7 @@ def _folder(cache, is_map: bool) -> Path | None:
     """Where the chain is cached (None: not at all) for the ``cache`` argument of prefilter."""
     if cache is None:
         cache = is_map
-    if cache is False:
-        return None
-    if cache is True:
-        return _chain_cache.default_folder()
-    if isinstance(cache, (str, os.PathLike)):
-        return Path(cache)
-    raise InputError("cache", f"must be None, a bool or a folder, got {cache!r}")
+    return _chain_cache.cache_folder(cache, "None, a bool or a folder")
 
 
 def clear_memory_caches() -> None:
