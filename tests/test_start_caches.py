@@ -17,6 +17,7 @@ import torch
 
 from lobelight.bench.start import PHASES, phases
 from lobelight.envmap import EnvMap
+from lobelight.errors import InputError
 from lobelight.geometry import sphere
 from lobelight.lobes import sh
 from lobelight.render import gl_available
@@ -124,6 +125,9 @@ def test_cube_map_from_the_cache_is_the_fresh_cube(tmp_path):
     assert torch.equal(other.to_cubemap(8, cache=tmp_path), other.to_cubemap(8))
     assert len(list(tmp_path.glob("cube-*.npz"))) == 2
     assert entry.exists()
+    # a cache argument that is neither a bool nor a folder is refused by name
+    with pytest.raises(InputError, match="cache"):
+        env.to_cubemap(8, cache=3)
 
 
 def test_sh_projection_through_the_cube_cache_is_the_fresh_projection(tmp_path):
