@@ -38,7 +38,7 @@ the SG-BRDF method (:mod:`lobelight.studies.compare_brdf`) times its GLSL rows w
 :func:`time_frames` and records :func:`machine`.
 """
 
-import importlib
+from .._lazy import lazy_names
 
 #: Where each public name lives (module of this package).
 _HOMES = {
@@ -65,16 +65,7 @@ _HOMES = {
 }
 
 
-def __getattr__(name: str):
-    if name not in _HOMES:
-        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
-    value = getattr(importlib.import_module(_HOMES[name], __name__), name)
-    globals()[name] = value
-    return value
-
-
-def __dir__() -> list[str]:
-    return sorted({*globals(), *_HOMES})
+__getattr__, __dir__ = lazy_names(__name__, _HOMES)
 
 
 __all__ = sorted(_HOMES)

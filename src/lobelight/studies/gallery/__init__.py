@@ -39,7 +39,7 @@ and checksum; the ``.glb`` files are fetched data, not kept in git).
 Installing Mitsuba's LLVM variant and rendering the references: DEVELOPERS.md.
 """
 
-import importlib
+from ..._lazy import lazy_names
 
 #: Where each public name lives: the submodules load on first use (PEP 562), so that the
 #: command line reads the reference settings' defaults for its parser without importing torch.
@@ -90,12 +90,7 @@ _HOMES = {
 }
 
 
-def __getattr__(name: str):
-    if name not in _HOMES:
-        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
-    value = getattr(importlib.import_module(_HOMES[name], __name__), name)
-    globals()[name] = value
-    return value
+__getattr__, __dir__ = lazy_names(__name__, _HOMES)
 
 
 __all__ = sorted(_HOMES)
