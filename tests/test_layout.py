@@ -26,6 +26,7 @@ LAYERS: list[tuple[str, ...]] = [
         "_cache",
         "_memory",
         "_container",
+        "_lazy",
         "progress",
         "data",
     ),
