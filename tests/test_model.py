@@ -187,3 +187,34 @@ def test_a_zip_bomb_is_refused_before_it_is_decompressed(tmp_path, fitted):
 def test_a_device_is_not_reported_as_a_missing_model():
     with pytest.raises(InputError, match="/dev/zero: is not a regular file"):
         model.load("/dev/zero")
+
+
+@pytest.mark.parametrize("float16", [False, True])
+def test_records_read_from_the_stored_rows_are_the_expansions(tmp_path, float16):
+    """A model read from a file holds its Gaussians as the file stores them and expands them
+    on first use; a range of records decoded straight from the stored rows (the GL renderer's
+    records texture) is the same range of the expansion, dropped rows included (zero weight,
+    unit sharpness, mean +y), for ranges that start and end inside a row of N = 3 Gaussians."""
+    from lobelight.bench.synthetic import synthetic_model
+
+    path = tmp_path / "m.npz"
+    synthetic_model(200, 3, vary=True).save(path, float16=float16)
+    stored = model.load(path).to("cpu").gaussians  # the CPU keeps the stored form
+    whole = model.load(path).gaussians
+    v, j, n = stored.shape
+    w, mu, lam = whole.w.reshape(-1, 3), whole.mu.reshape(-1, 3), whole.lam.reshape(-1)
+    keep = torch.from_numpy(np.load(path)["keep"]).reshape(-1)
+    assert 0 < int(keep.sum()) < v * j  # some rows dropped, and so decoded as dropped
+    assert bool((w.view(v * j, n, 3)[~keep] == 0).all())
+    assert bool((lam.view(v * j, n)[~keep] == 1).all())
+    count = v * j * n
+    for a, b in [(0, count), (1, count - 2), (4, 5), (3 * 7 + 2, 3 * 900 + 1), (count - 1, count)]:
+        got = stored.records(a, b)
+        # the same arithmetic on the same numbers; a vectorised kernel and its scalar tail
+        # may round the integral's expm1 differently (one float32 rounding)
+        for x, y in zip(got, (w[a:b], mu[a:b], lam[a:b]), strict=True):
+            torch.testing.assert_close(x, y, rtol=1e-6, atol=0)
+    # the ranges were decoded without the expansion; reading w makes it, once
+    assert stored._expanded is None
+    assert stored.w is stored.w and stored._expanded is not None
+    torch.testing.assert_close(stored.lam, whole.lam, rtol=1e-6, atol=0)

@@ -525,3 +525,29 @@ def test_a_sharp_model_wider_than_one_capture_is_refused(model2, lighting):
     ren = render.Renderer(rough, lighting, 32, 24, backend="gl")
     assert not ren.gl.staged
     ren.close()
+
+
+@needs_gl
+def test_a_read_models_records_texture_is_made_without_the_expansion(tmp_path):
+    """The records texture of a model read from a file is packed from its stored rows
+    (:class:`lobelight.model._stored.StoredGaussians`): the texels of the expanded model's
+    records, and the expansion (the model's largest arrays) never made."""
+    from lobelight import model
+    from lobelight.bench.synthetic import synthetic_model
+    from lobelight.render import _gl
+
+    path = tmp_path / "m.npz"
+    synthetic_model(300, 3, vary=True).save(path)
+    m = model.load(path)
+    width = _gl.transfer_width(m, torch.zeros_like(m.diffuse[:1]))
+    ctx = _gl.create_context()
+    try:
+        got = np.frombuffer(_gl.upload_records(ctx, m, width).read(), np.float32).reshape(-1, 4)
+    finally:
+        ctx.release()
+    assert m.gaussians._expanded is None
+    want = _gl.gaussian_records(model.load(path).to("cpu"))  # from the stored rows too
+    m.gaussians.expanded()
+    expanded = _gl.gaussian_records(m)  # read from the expansion
+    np.testing.assert_allclose(got[: want.shape[0]], want, rtol=0, atol=0)
+    np.testing.assert_allclose(want, expanded, rtol=1e-6, atol=0)

@@ -89,11 +89,28 @@ class Gaussians:
     mu: torch.Tensor
     lam: torch.Tensor
 
+    @property
+    def shape(self) -> tuple[int, ...]:
+        """``(B, J, N)``."""
+        return tuple(self.lam.shape)
+
+    @property
+    def device(self) -> torch.device:
+        return self.w.device
+
     def take(self, idx) -> Gaussians:
         return Gaussians(self.w[idx], self.mu[idx], self.lam[idx])
 
     def detach(self) -> Gaussians:
         return Gaussians(self.w.detach(), self.mu.detach(), self.lam.detach())
+
+    def to(self, device) -> Gaussians:
+        return Gaussians(self.w.to(device), self.mu.to(device), self.lam.to(device))
+
+    def records(self, a: int, b: int) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        """Records ``a`` to ``b`` of the ``B J N`` in row-major ``(b, j, n)`` order: ``w
+        (b - a, 3)``, ``mu (b - a, 3)``, ``lam (b - a,)``."""
+        return self.w.reshape(-1, 3)[a:b], self.mu.reshape(-1, 3)[a:b], self.lam.reshape(-1)[a:b]
 
 
 # --------------------------------------------------------------------------------------------

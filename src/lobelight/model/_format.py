@@ -68,6 +68,7 @@ from ..lobes import sg
 from ..lobes.sg import Gaussians
 from ..scene import AlbedoTexture, Materials, Mesh, check_precision
 from ._albedo_file import ALBEDO_ARRAYS, ALBEDO_DTYPES, albedo_arrays, check_albedo, read_albedo
+from ._stored import StoredGaussians
 
 __all__ = [
     "FORMAT",
@@ -313,12 +314,12 @@ def read(path) -> dict[str, Any]:
     """Read and check a model file: the :class:`lobelight.model.Model` fields it holds.
 
     The container is checked first (:func:`_open`: a zip of arrays whose declared sizes fit
-    :data:`MAX_READ_BYTES`), then everything :func:`check` checks, before the Gaussians are
-    expanded to every (vertex, view) record and the model built.
+    :data:`MAX_READ_BYTES`), then everything :func:`check` checks, before the model is built.
 
     Returns
     -------
-    dict with ``mesh``, ``views (J, 3)``, ``gaussians`` (:class:`Gaussians`, ``(V, J, N)``),
+    dict with ``mesh``, ``views (J, 3)``, ``gaussians`` (``(V, J, N)``, a
+    :class:`~lobelight.model._stored.StoredGaussians`: expanded to every record on first use),
     ``diffuse (V, n, 3)``, ``materials``, ``provenance``, ``bounce`` (or None),
     ``indirect_gaussians``, ``visibility`` (or None), ``hits`` (``(face, distance)`` or
     None) and ``albedo`` (:class:`lobelight.scene.AlbedoTexture` or None), all on the CPU
@@ -333,7 +334,9 @@ def read(path) -> dict[str, Any]:
     name = str(p)
     a = _open(p, name)
     h, mats = check(a, name)
-    g = _expand(a["gaussians"], a["keep"], h)
+    # expanded to every (vertex, view) record on first use (:mod:`._stored`)
+    integral = h.meta.get("weights", "peak") == "integral"
+    g = StoredGaussians(a["gaussians"], a["keep"], integral_weights=integral)
     out = _build(p, a, h, mats, g)
     vis = a.get("visibility")
     # the arrays read are this read's own and writable: copied only where not C-ordered
@@ -891,35 +894,6 @@ def _materials(h: _Header, name: str) -> Materials:
         raise InputError(name, f"bad materials entry: {exc}") from None
     except InputError as exc:
         raise InputError(name, f"bad materials entry: {exc}") from None
-
-
-def _expand(g7: np.ndarray, keep: np.ndarray, h: _Header) -> Gaussians:
-    """The Gaussians (V, J, N) of every record, dropped ones with zero weight (checked records
-    ``g7 (K, N, 7)`` of the ``keep (V, J)`` mask). Allocates the expanded arrays and nothing of
-    their size besides (:func:`_check_memory` has bounded them)."""
-    rec = torch.from_numpy(g7).float()  # (K, N, 7), no copy for float32
-    lam_k = rec[..., 6].pow(-2)  # (K, N)
-    w_k = rec[..., :3]
-    if h.meta.get("weights", "peak") == "integral":
-        w_k = w_k / sg.integral(lam_k.double()).float()[..., None]
-    mu_k = torch.nn.functional.normalize(rec[..., 3:6], dim=-1)  # (K, N, 3)
-    flat = torch.from_numpy(keep).reshape(-1)  # (V J,)
-    kept = flat.nonzero().squeeze(1)  # (K,) records in row-major (vertex, view) order
-    w = torch.zeros(h.v * h.j, h.n, 3)
-    w.index_copy_(0, kept, w_k)
-    lam = torch.ones(h.v * h.j, h.n)
-    lam.index_copy_(0, kept, lam_k)
-    mu = torch.empty(h.v * h.j, h.n, 3)
-    mu.index_copy_(0, kept, mu_k)
-    dropped = (~flat).nonzero().squeeze(1)
-    if dropped.numel():  # zero weight, any unit mean
-        mu.index_copy_(0, dropped, _UP.expand(dropped.shape[0], h.n, 3))
-    shape = (h.v, h.j, h.n)
-    return Gaussians(w.view(*shape, 3), mu.view(*shape, 3), lam.view(shape))
-
-
-#: The mean of a dropped record (its weight is zero).
-_UP = torch.tensor([0.0, 1.0, 0.0])
 
 
 def _build(p: Path, a, h: _Header, mats: Materials, g: Gaussians) -> dict[str, Any]:

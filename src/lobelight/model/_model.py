@@ -84,7 +84,7 @@ class Model:
     _hits: tuple[torch.Tensor, torch.Tensor] | None = field(default=None, init=False, repr=False)
 
     def __post_init__(self):
-        n = int(self.gaussians.lam.shape[-1])
+        n = int(self.gaussians.shape[-1])
         if not 0 <= self.indirect_gaussians < n:
             raise InputError(
                 "indirect_gaussians", f"must be in 0..{n - 1}, got {self.indirect_gaussians}"
@@ -97,7 +97,7 @@ class Model:
     @property
     def n_gaussians(self) -> int:
         """Gaussians per view, direct and indirect."""
-        return int(self.gaussians.lam.shape[-1])
+        return int(self.gaussians.shape[-1])
 
     @property
     def direct_gaussians(self) -> int:
@@ -111,7 +111,7 @@ class Model:
 
     @property
     def device(self) -> torch.device:
-        return self.gaussians.w.device
+        return self.gaussians.device
 
     def transport(self, vertex_ids, view_dirs) -> Gaussians:
         """The Gaussians of vertices at arbitrary views, interpolated between stored views.
@@ -203,10 +203,9 @@ class Model:
 
     def to(self, device) -> Model:
         """The model with every tensor on ``device`` (in place; returns it)."""
-        g = self.gaussians
         self.mesh = self.mesh.to(device)
         self.views = self.views.to(device)
-        self.gaussians = Gaussians(g.w.to(device), g.mu.to(device), g.lam.to(device))
+        self.gaussians = self.gaussians.to(device)
         self.diffuse = self.diffuse.to(device)
         self.materials = self.materials.to(device)
         if self.bounce is not None:

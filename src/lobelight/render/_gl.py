@@ -379,24 +379,24 @@ def gaussian_records(model) -> np.ndarray:
 
 
 class _FlatRecords:
-    """A model's Gaussian records in the order of :func:`gaussian_records`, filled by range."""
+    """A model's Gaussian records in the order of :func:`gaussian_records`, filled by range
+    (from the stored rows where the model was read from a file: :meth:`Gaussians.records`)."""
 
     def __init__(self, model):
-        g = model.gaussians
-        v, j, n = g.lam.shape
+        self.g = model.gaussians
+        v, j, n = self.g.shape
         self.count = v * j * n
-        self.w, self.mu, self.lam = g.w.reshape(-1, 3), g.mu.reshape(-1, 3), g.lam.reshape(-1)
         # whether each record's view is above its vertex's horizon (model.horizon_scale)
         above = (model.views[None] * model.mesh.normals[:, None]).sum(-1) > 0  # (V, J)
         self.above = above.reshape(-1, 1).expand(-1, n).reshape(-1)
 
     def fill(self, a: int, b: int, out: torch.Tensor) -> None:
         """Records ``a`` to ``b`` into ``out (b - a, 2, 4)``."""
-        lam = self.lam[a:b]
+        w, mu, lam = self.g.records(a, b)
         torch.rsqrt(lam, out=out[:, 0, 3])
         # the light each lobe carries (prt.glsl blends it, not the peak weight)
-        torch.mul(self.w[a:b], sg.integral(lam)[:, None], out=out[:, 0, :3])
-        out[:, 1, :3] = self.mu[a:b]
+        torch.mul(w, sg.integral(lam)[:, None], out=out[:, 0, :3])
+        out[:, 1, :3] = mu
         out[:, 1, 3] = self.above[a:b]
 
 
@@ -427,7 +427,7 @@ def upload_records(ctx, model, width: int):
 def transfer_width(model, bounce: torch.Tensor) -> int:
     """The width in texels the transfer's three textures share (each needs at least its own,
     :func:`_wrap_size`): the records, the diffuse transfer, and ``bounce``."""
-    g = model.gaussians.lam.shape
+    g = model.gaussians.shape
     return max(
         _wrap_size(2 * g[0] * g[1] * g[2])[1],
         _wrap_size(model.diffuse.shape[0] * model.diffuse.shape[1])[1],

@@ -509,7 +509,7 @@ def export_gltf(model: Model, path, *, lighting=None, float16: bool = True) -> d
     except (TypeError, ValueError) as exc:  # a provenance value JSON cannot hold
         raise InputError(str(p), f"cannot write the model's metadata: {exc}") from None
     total = _write_glb(p, doc)
-    v, j = model.gaussians.lam.shape[:2]
+    v, j = model.gaussians.shape[:2]
     return {"bytes": total, "records": lobes["records"], "records_total": v * j}
 
 
