@@ -20,7 +20,7 @@ from lobelight.geometry import octahedral, sphere
 from lobelight.geometry.adjacency import face_neighbours
 from lobelight.geometry.raycast import RayCaster
 from lobelight.lobes.sg import Gaussians
-from lobelight.model import Model, hit_tiles, load, visibility_tiles
+from lobelight.model import HitTexels, Model, hit_tiles, load, visibility_tiles
 from lobelight.render import _reflection
 
 SHARP = {"diffuse": [0.0, 0.0, 0.0], "model": "ggx", "alpha": 0.03, "specular": [0.9, 0.8, 0.6]}
@@ -528,23 +528,44 @@ def test_hit_tiles_travel_in_the_model_file(tmp_path):
         load(tmp_path / "whole_bad.npz")
 
 
-def test_hit_slots_keep_the_tiles_that_find_the_object():
+@pytest.mark.parametrize("width", [16 * 5, 4096])
+def test_hit_atlases_hold_the_tiles_that_find_the_object_at_their_slots(tmp_path, width):
     # the shaders read a hit tile at its vertex's slot: slots in vertex order for the vertices
-    # whose tile holds a hit, each slot's tile that vertex's own; a mesh that never sees
-    # itself (a sphere) keeps one tile of misses and no slot
-    from lobelight.render._gl import hit_slots
+    # whose tile holds a hit, slot s's tile that vertex's own at atlas row s // per_row and
+    # column s % per_row (several rows of five tiles, or one row of 4096 texels), misses -1
+    # and 0; laid from the model file's texels that hit, without the tiles made whole; a
+    # mesh that never sees itself (a sphere) keeps one tile of misses and no slot
+    from lobelight.render._gl import hit_atlases
 
-    face, dist = hit_tiles(_torus(), res=16)
-    slots, tiles, d = hit_slots(face, dist)
+    mesh = _torus()
+    m = _bare_model(scene.Scene(mesh, scene.uniform(SHARP, mesh.n_vertices), name="t"))
+    face, dist = m.hits()
+    m.save(tmp_path / "m.npz")
+    back = load(tmp_path / "m.npz")
+    slots, fa, da, per_row = hit_atlases(back.hit_texels(), width)
+    assert back._hits is None  # the file's texels, not whole tiles
+    r = face.shape[-1]
     has = (face.reshape(face.shape[0], -1) >= 0).any(1).numpy()
     assert 0 < has.mean() < 1  # the torus: some vertices see it, some do not
     assert np.array_equal(slots >= 0, has)
     assert np.array_equal(slots[has], np.arange(int(has.sum())))
-    assert np.array_equal(tiles, face.numpy()[has])
-    assert np.array_equal(d.view(np.int16), dist.numpy()[has].view(np.int16))
+    assert per_row == min(int(has.sum()), width // r)
+    assert fa.shape == da.shape == (-(-int(has.sum()) // per_row) * r, per_row * r)
+    placed = np.zeros(fa.shape, bool)
+    for v in np.nonzero(has)[0]:
+        y, x = (slots[v] // per_row) * r, (slots[v] % per_row) * r
+        assert np.array_equal(fa[y : y + r, x : x + r], face[v].numpy())
+        assert np.array_equal(
+            da[y : y + r, x : x + r].view(np.int16), dist[v].numpy().view(np.int16)
+        )
+        placed[y : y + r, x : x + r] = True
+    assert (fa[~placed] == -1).all() and (da[~placed] == 0).all()
+    # the same from whole tiles (a model made in memory)
+    again = hit_atlases(m.hit_texels(), width)
+    assert all(np.array_equal(a, b) for a, b in zip(again[:3], (slots, fa, da), strict=True))
     ball = scene.builtin("sphere", subdivisions=2).mesh
-    slots, tiles, d = hit_slots(*hit_tiles(ball, res=16))
-    assert (slots == -1).all() and tiles.shape == (1, 16, 16) and (tiles == -1).all()
+    slots, fa, da, per_row = hit_atlases(HitTexels.of_tiles(*hit_tiles(ball, res=16)))
+    assert (slots == -1).all() and fa.shape == (16, 16) and (fa == -1).all() and per_row == 1
 
 
 def _softbox(height: int = 256) -> envmap.EnvMap:

@@ -528,16 +528,18 @@ def test_a_sharp_model_wider_than_one_capture_is_refused(model2, lighting):
 
 
 @needs_gl
-def test_a_read_models_records_texture_is_made_without_the_expansion(tmp_path):
+def test_a_read_model_renders_without_its_expansion_or_whole_hit_tiles(tmp_path, lighting):
     """The records texture of a model read from a file is packed from its stored rows
-    (:class:`lobelight.model._stored.StoredGaussians`): the texels of the expanded model's
-    records, and the expansion (the model's largest arrays) never made."""
+    (:class:`lobelight.model._stored.StoredGaussians`) and its hit atlases laid from its
+    texels that hit (:class:`lobelight.model.HitTexels`): the texels of the expanded
+    model's records, the frame of the model made whole, and neither the expansion nor the
+    whole tiles (the model's largest arrays) ever made."""
     from lobelight import model
     from lobelight.bench.synthetic import synthetic_model
     from lobelight.render import _gl
 
     path = tmp_path / "m.npz"
-    synthetic_model(300, 3, vary=True).save(path)
+    synthetic_model(300, 3, vary=True).save(path)  # a sharp Phong lobe: hit tiles saved
     m = model.load(path)
     width = _gl.transfer_width(m, torch.zeros_like(m.diffuse[:1]))
     ctx = _gl.create_context()
@@ -545,9 +547,19 @@ def test_a_read_models_records_texture_is_made_without_the_expansion(tmp_path):
         got = np.frombuffer(_gl.upload_records(ctx, m, width).read(), np.float32).reshape(-1, 4)
     finally:
         ctx.release()
-    assert m.gaussians._expanded is None
-    want = _gl.gaussian_records(model.load(path).to("cpu"))  # from the stored rows too
-    m.gaussians.expanded()
-    expanded = _gl.gaussian_records(m)  # read from the expansion
-    np.testing.assert_allclose(got[: want.shape[0]], want, rtol=0, atol=0)
-    np.testing.assert_allclose(want, expanded, rtol=1e-6, atol=0)
+    cam = CAM
+    with render.Renderer(m, lighting, 48, 48, backend="gl", samples=1) as r:
+        img, mask = r.render(cam, return_mask=True)
+    assert 0.1 < float(mask.float().mean()) < 0.9  # the object and the sky around it
+    assert m.gaussians._expanded is None and m._hits is None and m._hit_texels is not None
+    want = _gl.gaussian_records(m)  # from the stored rows too
+    whole = model.load(path)  # made whole, and its atlases laid from the whole tiles
+    whole.gaussians.expanded()
+    whole.hits()
+    whole._hit_texels = None
+    np.testing.assert_array_equal(got[: want.shape[0]], want)
+    # the same arithmetic on the same numbers; a vectorised kernel and its scalar tail may
+    # round the lobe's integral differently (one float32 rounding)
+    np.testing.assert_allclose(want, _gl.gaussian_records(whole), rtol=1e-6, atol=0)
+    with render.Renderer(whole, lighting, 48, 48, backend="gl", samples=1) as r:
+        torch.testing.assert_close(img, r.render(cam), rtol=1e-5, atol=1e-6)

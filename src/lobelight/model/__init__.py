@@ -10,7 +10,10 @@
 - :func:`blend_lobes`, :func:`horizon_scale` the view blend (:mod:`lobelight.model._blend`)
 - :func:`visibility_tiles` each vertex's visibility of the environment by direction, on an
   octahedral tile (:meth:`Model.visibility`): where a sharp reflection is occluded, per pixel;
-  :func:`hit_tiles` what it sees of the object there (:meth:`Model.hits`)
+  :func:`hit_tiles` what it sees of the object there (:meth:`Model.hits`), and
+  :class:`HitTexels` those tiles as the texels that hit, as a file stores them
+  (:meth:`Model.hit_texels`; :mod:`lobelight.model._stored`, with the Gaussians as a file
+  stores them)
 
 The model knows nothing of how it was fitted (:mod:`lobelight.fit` builds it).
 """
@@ -18,6 +21,7 @@ The model knows nothing of how it was fitted (:mod:`lobelight.fit` builds it).
 from ._blend import LIVE_FLOOR, MIN_SAY, blend_lobes, horizon_scale
 from ._format import FORMAT, MAX_LIGHT, MAX_READ_BYTES, SIGMA_MAX, SIGMA_MIN, VERSION
 from ._model import ALBEDO_MIN, Model, load, per_unit_albedo, save
+from ._stored import HitTexels
 from ._visibility import VISIBILITY_RES, hit_tiles, visibility_tiles
 
 __all__ = [
@@ -31,6 +35,7 @@ __all__ = [
     "SIGMA_MIN",
     "VERSION",
     "VISIBILITY_RES",
+    "HitTexels",
     "Model",
     "blend_lobes",
     "hit_tiles",

@@ -68,7 +68,7 @@ from ..lobes import sg
 from ..lobes.sg import Gaussians
 from ..scene import AlbedoTexture, Materials, Mesh, check_precision
 from ._albedo_file import ALBEDO_ARRAYS, ALBEDO_DTYPES, albedo_arrays, check_albedo, read_albedo
-from ._stored import StoredGaussians
+from ._stored import HitTexels, StoredGaussians, hit_offsets
 
 __all__ = [
     "FORMAT",
@@ -120,7 +120,7 @@ def write(
     bounce: torch.Tensor | None = None,
     indirect_gaussians: int = 0,
     visibility: torch.Tensor | None = None,
-    hits: tuple[torch.Tensor, torch.Tensor] | None = None,
+    hits: tuple[torch.Tensor, torch.Tensor] | HitTexels | None = None,
     albedo: AlbedoTexture | None = None,
 ) -> dict[str, Any]:
     """Write a model file atomically (module docstring); returns sizes (bytes, records kept).
@@ -189,7 +189,7 @@ def write(
     if visibility is not None:
         arrays["visibility"] = visibility.cpu().numpy().astype(np.uint8)
     if hits is not None:
-        arrays.update(_sparse_hits(*hits))
+        arrays.update((hits if isinstance(hits, HitTexels) else HitTexels.of_tiles(*hits)).arrays())
     arrays.update(albedo_arrays(albedo))
     try:
         check(arrays, str(p))
@@ -205,40 +205,14 @@ def write(
     }
 
 
-def _sparse_hits(face: torch.Tensor, dist: torch.Tensor) -> dict[str, np.ndarray]:
-    """Hit tiles ``(V, R, R)`` as the file stores them: the texels that hit (module
-    docstring)."""
-    v = face.shape[0]
-    flat = face.reshape(v, -1).cpu().numpy()
-    hit = flat >= 0
-    vert, texel = np.nonzero(hit)  # row-major: vertex after vertex, texels ascending
-    return {
-        "hit_count": hit.sum(1, dtype=np.int32),
-        "hit_texel": texel.astype(np.uint16),
-        "hit_face": flat[vert, texel].astype(np.int32),
-        "hit_distance": dist.reshape(v, -1).cpu().numpy()[vert, texel].astype(np.float16),
-    }
-
-
-def _dense_hits(a: dict[str, np.ndarray], v: int) -> tuple[torch.Tensor, torch.Tensor]:
-    """The hit tiles ``(V, R, R)`` of checked arrays: -1 and 0 where a texel's ray misses."""
-    if "hit_texel" not in a:  # held whole
+def _hits(a: dict[str, np.ndarray]) -> tuple[torch.Tensor, torch.Tensor] | HitTexels:
+    """The hit tiles of checked arrays as the file holds them: whole tiles ``(face, distance)``
+    ``(V, R, R)``, or their texels that hit."""
+    if "hit_texel" not in a:
         return _tensor(a["hit_face"]), _tensor(a["hit_distance"])
-    r = a["visibility"].shape[-1]
-    flat = _hit_offsets(a["hit_count"], a["hit_texel"], r * r)
-    face = torch.full((v * r * r,), -1, dtype=torch.int32)
-    dist = torch.zeros(v * r * r, dtype=torch.float16)
-    face[flat] = torch.from_numpy(a["hit_face"])
-    dist[flat] = torch.from_numpy(a["hit_distance"])
-    return face.view(v, r, r), dist.view(v, r, r)
-
-
-def _hit_offsets(count: np.ndarray, texel: np.ndarray, per_tile: int) -> torch.Tensor:
-    """Each stored hit's place in the tiles laid end to end, ``vertex R² + texel`` (K,) int64."""
-    vert = torch.repeat_interleave(
-        torch.arange(count.shape[0], dtype=torch.int64), torch.from_numpy(count.astype(np.int64))
-    )
-    return vert * per_tile + torch.from_numpy(texel.astype(np.int64))
+    fields = ("hit_count", "hit_texel", "hit_face", "hit_distance")
+    count, texel, face, dist = (a[k] for k in fields)
+    return HitTexels(count, texel, face, dist, res=int(a["visibility"].shape[-1]))
 
 
 def _need(cond: bool, name: str, problem: str) -> None:
@@ -321,8 +295,9 @@ def read(path) -> dict[str, Any]:
     dict with ``mesh``, ``views (J, 3)``, ``gaussians`` (``(V, J, N)``, a
     :class:`~lobelight.model._stored.StoredGaussians`: expanded to every record on first use),
     ``diffuse (V, n, 3)``, ``materials``, ``provenance``, ``bounce`` (or None),
-    ``indirect_gaussians``, ``visibility`` (or None), ``hits`` (``(face, distance)`` or
-    None) and ``albedo`` (:class:`lobelight.scene.AlbedoTexture` or None), all on the CPU
+    ``indirect_gaussians``, ``visibility`` (or None), ``hits`` (whole tiles ``(face,
+    distance)``, the texels that hit as :class:`~lobelight.model.HitTexels`, or None) and
+    ``albedo`` (:class:`lobelight.scene.AlbedoTexture` or None), all on the CPU
 
     Raises
     ------
@@ -341,7 +316,7 @@ def read(path) -> dict[str, Any]:
     vis = a.get("visibility")
     # the arrays read are this read's own and writable: copied only where not C-ordered
     out["visibility"] = None if vis is None else _tensor(vis)
-    out["hits"] = _dense_hits(a, h.v) if "hit_face" in a else None
+    out["hits"] = _hits(a) if "hit_face" in a else None
     out["albedo"] = read_albedo(a)
     return out
 
@@ -484,7 +459,7 @@ def _check_sparse_hits(a: dict[str, np.ndarray], vis, v: int, name: str) -> None
           f"hit_count must be counts adding up to the {k:,} texels stored")  # fmt: skip
     if texel.size:
         _need(int(texel.max()) < rr, name, f"hit_texel holds texels outside 0..{rr - 1}")
-        flat = _hit_offsets(count, texel, rr)
+        flat = hit_offsets(count, texel, rr)
         _need(
             bool((flat[1:] > flat[:-1]).all()),
             name,

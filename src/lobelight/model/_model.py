@@ -17,6 +17,7 @@ from ..lobes.sg import Gaussians
 from ..scene import AlbedoTexture, Materials, Mesh
 from ._blend import blend_lobes, horizon_scale
 from ._format import read, write
+from ._stored import HitTexels
 from ._visibility import hit_tiles, visibility_tiles
 
 __all__ = ["ALBEDO_MIN", "Model", "load", "per_unit_albedo", "save"]
@@ -82,6 +83,8 @@ class Model:
     albedo: AlbedoTexture | None = None
     _visibility: torch.Tensor | None = field(default=None, init=False, repr=False)
     _hits: tuple[torch.Tensor, torch.Tensor] | None = field(default=None, init=False, repr=False)
+    # the hit tiles as a file holds them (the texels that hit); _hits, once made, is the same
+    _hit_texels: HitTexels | None = field(default=None, init=False, repr=False)
 
     def __post_init__(self):
         n = int(self.gaussians.shape[-1])
@@ -184,21 +187,34 @@ class Model:
 
     @property
     def hits_held(self) -> tuple[torch.Tensor, torch.Tensor] | None:
-        """The hit tiles if the model holds them (read from its file, or computed by
-        :meth:`hits`), else None; computes nothing."""
-        return self._hits
+        """The hit tiles (:meth:`hits`) if the model holds them (read from its file, or
+        computed by :meth:`hits`), else None; casts no ray."""
+        return None if self._hits is None and self._hit_texels is None else self.hits()
 
     def hits(self) -> tuple[torch.Tensor, torch.Tensor]:
         """What each vertex sees of the object along its tile's texel centres: ``face (V, R, R)``
         int32 (-1: none) and ``distance (V, R, R)`` float16 (:func:`lobelight.model.hit_tiles`,
-        at the visibility tiles' resolution), computed from the mesh on first use and kept."""
+        at the visibility tiles' resolution): made whole from the file's texels that hit, or
+        computed from the mesh, on first use, and kept."""
         if self._hits is None:
-            self._hits = hit_tiles(self.mesh, res=int(self.visibility().shape[-1]))
+            if self._hit_texels is not None:
+                self._hits = self._hit_texels.tiles()
+            else:
+                self._hits = hit_tiles(self.mesh, res=int(self.visibility().shape[-1]))
         return self._hits
+
+    def hit_texels(self) -> HitTexels:
+        """The hit tiles (:meth:`hits`) as their texels that hit: as the file holds them, without
+        making the tiles whole, or taken from :meth:`hits`."""
+        if self._hit_texels is not None:
+            return self._hit_texels
+        return HitTexels.of_tiles(*self.hits())
 
     def sees_itself(self) -> bool:
         """Whether any vertex's hit tile (:meth:`hits`) finds the object; where none does, the
         renderers and the web page compile the shading of the hits out."""
+        if self._hit_texels is not None:
+            return self._hit_texels.found()
         return bool((self.hits()[0] >= 0).any())
 
     def to(self, device) -> Model:
@@ -229,7 +245,7 @@ class Model:
         spec = self.materials.specular
         if spec is not None and spec.sun_model is not None:
             self.visibility()
-        if sharp_lobe(spec) is not None:
+        if sharp_lobe(spec) is not None and self._hit_texels is None:
             self.hits()
         return write(
             path,
@@ -244,7 +260,7 @@ class Model:
             bounce=self.bounce,
             indirect_gaussians=self.indirect_gaussians,
             visibility=self._visibility,
-            hits=self._hits,
+            hits=self._hits if self._hit_texels is None else self._hit_texels,
             albedo=self.albedo,
         )
 
@@ -297,5 +313,8 @@ def load(path, *, device=None) -> Model:
     hits = fields.pop("hits")
     model = Model(**fields)
     model._visibility = visibility
-    model._hits = hits
+    if isinstance(hits, HitTexels):
+        model._hit_texels = hits
+    else:
+        model._hits = hits
     return model.to(device) if device is not None else model

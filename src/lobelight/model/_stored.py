@@ -1,17 +1,22 @@
-"""The Gaussians as a model file holds them: the records of the kept (vertex, view) rows,
-expanded to every record on first use.
+"""The Gaussians and hit tiles as a model file holds them, made whole on first use.
 
-A file stores ``gaussians (K, N, 7)`` for the ``K`` rows its ``keep (V, J)`` mask holds
-(:mod:`lobelight.model._format`); a :class:`~lobelight.lobes.sg.Gaussians` has ``(V, J, N)`` of
-each array, the dropped rows with zero weight. :class:`StoredGaussians` is both: read as
-``w``, ``mu`` and ``lam`` it expands once and keeps the expansion, while
+Gaussians. A file stores ``gaussians (K, N, 7)`` for the ``K`` rows its ``keep (V, J)`` mask
+holds (:mod:`lobelight.model._format`); a :class:`~lobelight.lobes.sg.Gaussians` has ``(V, J,
+N)`` of each array, the dropped rows with zero weight. :class:`StoredGaussians` is both: read
+as ``w``, ``mu`` and ``lam`` it expands once and keeps the expansion, while
 :meth:`StoredGaussians.records` decodes a range of records straight from the stored rows. The
 GL renderer packs its records texture a band at a time through ``records``, so a render never
-allocates the expansion (the model's largest arrays, about a third more than the stored
-records).
+allocates the expansion (28 bytes per vertex, view and Gaussian: the model's largest arrays).
+
+Hit tiles. A file stores the hit tiles ``(V, R, R)`` (:func:`lobelight.model.hit_tiles`) as
+the texels whose ray hits the object, a few percent of them: :class:`HitTexels`. The GL
+renderer lays those texels straight into its atlases (``lobelight.render._gl.hit_atlases``);
+:meth:`HitTexels.tiles` makes the tiles whole for the other readers.
 """
 
 from __future__ import annotations
+
+from dataclasses import dataclass
 
 import numpy as np
 import torch
@@ -19,7 +24,7 @@ import torch
 from ..lobes import sg
 from ..lobes.sg import Gaussians
 
-__all__ = ["StoredGaussians"]
+__all__ = ["HitTexels", "StoredGaussians", "hit_offsets"]
 
 #: The mean of a dropped record (its weight is zero).
 _UP = torch.tensor([0.0, 1.0, 0.0])
@@ -126,3 +131,77 @@ class StoredGaussians(Gaussians):
             w = w / sg.integral(lam.double()).float()[..., None]
         mu = torch.nn.functional.normalize(rec[..., 3:6], dim=-1)
         return w, mu, lam
+
+
+@dataclass(frozen=True)
+class HitTexels:
+    """Hit tiles ``(V, R, R)`` as the texels whose ray hits the object (the file's layout,
+    :mod:`lobelight.model._format`).
+
+    Attributes
+    ----------
+    count : (V,) int32 texels per vertex
+    texel : (K,) each texel's index in its vertex's tile (row-major), in vertex order and
+        ascending within a vertex
+    face : (K,) int32 the triangle its ray hits;  dist : (K,) float16 how far
+    res : R, the tiles' resolution
+    """
+
+    count: np.ndarray
+    texel: np.ndarray
+    face: np.ndarray
+    dist: np.ndarray
+    res: int
+
+    @classmethod
+    def of_tiles(cls, face: torch.Tensor, dist: torch.Tensor) -> HitTexels:
+        """The texels that hit of whole tiles ``face (V, R, R)`` (-1: none) and ``dist``."""
+        v, r = face.shape[0], int(face.shape[-1])
+        flat = face.reshape(v, -1).cpu().numpy()
+        hit = flat >= 0
+        vert, texel = np.nonzero(hit)  # row-major: vertex after vertex, texels ascending
+        return cls(
+            count=hit.sum(1, dtype=np.int32),
+            texel=texel,
+            face=flat[vert, texel].astype(np.int32),
+            dist=dist.reshape(v, -1).cpu().numpy()[vert, texel].astype(np.float16),
+            res=r,
+        )
+
+    def arrays(self) -> dict[str, np.ndarray]:
+        """The file's members (``hit_count``, ``hit_texel`` uint16, ``hit_face``,
+        ``hit_distance``)."""
+        return {
+            "hit_count": self.count.astype(np.int32),
+            "hit_texel": self.texel.astype(np.uint16),
+            "hit_face": self.face.astype(np.int32),
+            "hit_distance": self.dist.astype(np.float16),
+        }
+
+    def found(self) -> bool:
+        """Whether any texel's ray hits the object."""
+        return bool((self.count > 0).any())
+
+    def offsets(self) -> torch.Tensor:
+        """Each texel's place in the tiles laid end to end, ``vertex R² + texel`` (K,) int64,
+        ascending."""
+        return hit_offsets(self.count, self.texel, self.res * self.res)
+
+    def tiles(self) -> tuple[torch.Tensor, torch.Tensor]:
+        """The whole tiles: ``face (V, R, R)`` int32 (-1 where the ray misses) and ``dist (V,
+        R, R)`` float16 (0 there)."""
+        v, r = self.count.shape[0], self.res
+        flat = self.offsets()
+        face = torch.full((v * r * r,), -1, dtype=torch.int32)
+        dist = torch.zeros(v * r * r, dtype=torch.float16)
+        face[flat] = torch.from_numpy(np.ascontiguousarray(self.face, np.int32))
+        dist[flat] = torch.from_numpy(np.ascontiguousarray(self.dist, np.float16))
+        return face.view(v, r, r), dist.view(v, r, r)
+
+
+def hit_offsets(count: np.ndarray, texel: np.ndarray, per_tile: int) -> torch.Tensor:
+    """Each stored hit's place in the tiles laid end to end, ``vertex R² + texel`` (K,) int64."""
+    vert = torch.repeat_interleave(
+        torch.arange(count.shape[0], dtype=torch.int64), torch.from_numpy(count.astype(np.int64))
+    )
+    return vert * per_tile + torch.from_numpy(texel.astype(np.int64))

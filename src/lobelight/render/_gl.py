@@ -35,7 +35,7 @@ from ..errors import InputError
 from ..geometry import sphere
 from ..geometry.camera import Camera
 from ..lobes import sg
-from ..model import VISIBILITY_RES
+from ..model import VISIBILITY_RES, HitTexels
 from ._albedo import F0_MIN, specular_f0
 from ._gl_albedo import albedo_array, albedo_uniforms
 from ._lighting import Lighting
@@ -259,19 +259,30 @@ def _tile_atlas(tiles: np.ndarray, per_row: int, dtype=None) -> np.ndarray:
     return out.reshape(rows * r, per_row * r)
 
 
-def hit_slots(face: torch.Tensor, dist: torch.Tensor) -> tuple[np.ndarray, ...]:
-    """The hit tiles ``(V, R, R)`` of the vertices whose tile finds the object, as the shaders
-    read them (reflection.glsl): each vertex's slot ``(V,)`` int32 (-1: no hit in its tile),
-    and the slots' tiles ``(S, R, R)`` int32 and float16, in vertex order (one tile of -1 where
-    no vertex has a hit: a texture is never empty)."""
-    f = face.cpu().numpy()
-    has = (f.reshape(f.shape[0], -1) >= 0).any(1)
+def hit_atlases(hits: HitTexels, width: int = _VIS_TEX_WIDTH) -> tuple:
+    """The hit tiles of the vertices whose tile finds the object as the shaders read them
+    (reflection.glsl), laid straight from the texels that hit: each vertex's slot ``(V,)``
+    int32 (-1: no hit in its tile, slots in vertex order), the slots' tiles side by side,
+    ``per_row`` to a row of at most ``width`` texels, as atlases ``(rows R, per_row R)`` int32
+    (-1 where the ray misses) and float16 distances (one tile of misses where no vertex has a
+    hit: a texture is never empty), and ``per_row``."""
+    r = hits.res
+    has = hits.count > 0
     slots = np.where(has, np.cumsum(has) - 1, -1).astype(np.int32)
-    tiles, d = f[has], dist.cpu().numpy()[has]
-    if not tiles.shape[0]:
-        tiles = np.full((1, *f.shape[1:]), -1, np.int32)
-        d = np.zeros((1, *f.shape[1:]), np.float16)
-    return slots, tiles.astype(np.int32, copy=False), d.astype(np.float16, copy=False)
+    n_slots = max(1, int(has.sum()))
+    per_row = max(1, min(n_slots, width // r))
+    rows, cols = -(-n_slots // per_row) * r, per_row * r
+    face = np.full(rows * cols, -1, np.int32)
+    dist = np.zeros(rows * cols, np.float16)
+    # each slot's first texel in the atlas, then each texel's offset in its tile: one flat
+    # index in int32 (a scatter along one axis is faster than along two)
+    first = (slots // per_row) * (r * cols) + (slots % per_row) * r  # (V,)
+    ty, tx = np.divmod(hits.texel.astype(np.int32), r)
+    at = np.repeat(first, hits.count) + ty * cols + tx  # (K,)
+    face[at] = hits.face
+    dist[at] = hits.dist
+    face, dist = face.reshape(rows, cols), dist.reshape(rows, cols)
+    return slots, face, dist, per_row
 
 
 def _set_uniform(prog, name: str, value) -> None:
@@ -741,7 +752,7 @@ class GLRenderer:
         # a sharp lobe's direct light per pixel (render/_reflection.py), and the vertices' hit
         # tiles as the shaders read them (none finds the object: its code is compiled out)
         self.sharp = sharp_lobe(spec)
-        self._hit_slots = None if self.sharp is None else hit_slots(*model.hits())
+        self._hit_slots = None if self.sharp is None else hit_atlases(model.hit_texels())
         self.hits_found = self.sharp is not None and model.sees_itself()
         # ... and whether it reads the sun's shape (prt.glsl SUN_SHAPE)
         self.sun_shape = self._reads_sun_shape(lighting)
@@ -934,7 +945,7 @@ class GLRenderer:
         fimg[: faces.shape[0]] = faces
         fimg[nbr_offset : nbr_offset + faces.shape[0]] = model.mesh.face_neighbours.cpu().numpy()
         # (uploaded below and let go: a concave mesh's tiles are S x R^2 texels)
-        slots, tiles, hit_dist = self._hit_slots
+        slots, hit_face, hit_dist, hit_per_row = self._hit_slots
         self._hit_slots = None
         pimg = np.zeros((-(-verts.shape[0] // width) * width, 3), np.float32)
         pimg[: verts.shape[0]] = verts
@@ -953,9 +964,6 @@ class GLRenderer:
         size = (width, pimg.shape[0] // width)
         self.nrm_tex = self.ctx.texture(size, 3, np.ascontiguousarray(nimg), dtype="f4")
         self.alb_tex = self.ctx.texture(size, 3, np.ascontiguousarray(aimg), dtype="f4")
-        hit_per_row = max(1, min(tiles.shape[0], _VIS_TEX_WIDTH // tiles.shape[1]))
-        hit_face = _tile_atlas(tiles, hit_per_row, np.int32)
-        hit_dist = _tile_atlas(hit_dist, hit_per_row, np.float16)
         self.hit_face_tex = self.ctx.texture(
             (hit_face.shape[1], hit_face.shape[0]), 1, hit_face, dtype="i4"
         )

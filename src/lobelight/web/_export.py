@@ -352,7 +352,7 @@ def _albedo(model) -> tuple[dict, dict[str, np.ndarray]]:
 def _sharp(model) -> tuple[dict | None, dict[str, np.ndarray]]:
     """A sharp material's per-pixel reflection (``reflection.glsl``): the header (the lobe's
     mixture, its directional albedo table, the tiles' resolution) and the arrays (the
-    vertices' visibility and hit tiles, ``model.visibility()``, ``model.hits()``); None and
+    vertices' visibility and hit tiles, ``model.visibility()``, ``model.hit_texels()``); None and
     nothing for another material. A glTF lobe varying per vertex has the mixture at
     :data:`lobelight.brdf.VARYING_ALPHA_REF` and no albedo table in the header, and two
     arrays more, as the desktop renderer uploads them: ``lobe`` (V, 4), each vertex's
@@ -362,8 +362,8 @@ def _sharp(model) -> tuple[dict | None, dict[str, np.ndarray]]:
     if sl is None:
         return None, {}
     tiles = model.visibility().cpu().numpy().astype(np.uint8)  # (V, R, R)
-    face, dist = (t.cpu().numpy().reshape(-1) for t in model.hits())  # (V R R,) each
-    hit = np.nonzero(face >= 0)[0]  # the texels that see the object: the rest find none
+    hits = model.hit_texels()  # the texels that see the object: the rest find none
+    hit = hits.offsets().numpy()  # (K,) ascending places in the tiles laid end to end
     varying = sl.sharp is not None
     lam, lobe, split = varying_lobe_arrays(sl) if varying else (sl.lam, None, None)
     header = {
@@ -379,8 +379,8 @@ def _sharp(model) -> tuple[dict | None, dict[str, np.ndarray]]:
         # ascending texel indices, and the triangles of neighbouring texels, as steps from
         # the one before: runs of small numbers that gzip shrinks several times over
         "hit_step": np.diff(hit, prepend=0).astype("<u4"),
-        "hit_face_step": np.diff(face[hit].astype(np.int64), prepend=0).astype("<i4"),
-        "hit_dist": dist[hit].astype("<f2"),
+        "hit_face_step": np.diff(hits.face.astype(np.int64), prepend=0).astype("<i4"),
+        "hit_dist": hits.dist.astype("<f2"),
         # the triangle across each edge: a hit walked to the pixel's own ray's triangle
         "face_neighbours": model.mesh.face_neighbours.cpu().numpy().astype("<i4"),
     }
