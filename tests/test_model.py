@@ -218,3 +218,17 @@ def test_records_read_from_the_stored_rows_are_the_expansions(tmp_path, float16)
     assert stored._expanded is None
     assert stored.w is stored.w and stored._expanded is not None
     torch.testing.assert_close(stored.lam, whole.lam, rtol=1e-6, atol=0)
+
+
+def test_a_read_model_moved_to_a_device_makes_its_arrays_there(tmp_path):
+    """A read model holds its Gaussians and hit tiles as the file stores them (on the CPU);
+    moved to a device, what it makes whole later (the expansion, the whole tiles) is made
+    there, as every tensor it holds is (the meta device stands in for a GPU here)."""
+    from lobelight.bench.synthetic import synthetic_model
+
+    synthetic_model(200, 3, vary=True).save(tmp_path / "m.npz")  # a sharp lobe: hit tiles
+    m = model.load(tmp_path / "m.npz")
+    assert m.device.type == "cpu" and m.to("cpu").gaussians.w.device.type == "cpu"
+    m = model.load(tmp_path / "m.npz").to("meta")
+    assert m.device.type == "meta" and m.gaussians.w.device.type == "meta"
+    assert all(t.device.type == "meta" for t in m.hits())

@@ -197,8 +197,9 @@ class Model:
         at the visibility tiles' resolution): made whole from the file's texels that hit, or
         computed from the mesh, on first use, and kept."""
         if self._hits is None:
-            if self._hit_texels is not None:
-                self._hits = self._hit_texels.tiles()
+            if self._hit_texels is not None:  # on the CPU as read: placed on the model's device
+                face, dist = self._hit_texels.tiles()
+                self._hits = (face.to(self.device), dist.to(self.device))
             else:
                 self._hits = hit_tiles(self.mesh, res=int(self.visibility().shape[-1]))
         return self._hits
