@@ -563,3 +563,19 @@ def test_a_read_model_renders_without_its_expansion_or_whole_hit_tiles(tmp_path,
     np.testing.assert_allclose(want, _gl.gaussian_records(whole), rtol=1e-6, atol=0)
     with render.Renderer(whole, lighting, 48, 48, backend="gl", samples=1) as r:
         torch.testing.assert_close(img, r.render(cam), rtol=1e-5, atol=1e-6)
+
+
+def test_the_records_of_gaussians_in_any_memory_order_are_the_same(model2):
+    """Gaussians whose arrays are not C-ordered (a transposed fit's, say) give the records of
+    their C-ordered copy: they are made C-ordered once, not once per band."""
+    from lobelight.render import _gl
+
+    g = model2.gaussians
+    # the same values, held (J, V, N) in memory and seen as (V, J, N)
+    strided = sg.Gaussians(
+        *(x.transpose(0, 1).contiguous().transpose(0, 1) for x in (g.w, g.mu, g.lam))
+    )
+    assert not strided.w.is_contiguous()
+    assert strided.contiguous().w.is_contiguous() and g.contiguous().w is g.w
+    other = dataclasses.replace(model2, gaussians=strided)
+    np.testing.assert_array_equal(_gl.gaussian_records(other), _gl.gaussian_records(model2))

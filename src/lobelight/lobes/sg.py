@@ -107,9 +107,14 @@ class Gaussians:
     def to(self, device) -> Gaussians:
         return Gaussians(self.w.to(device), self.mu.to(device), self.lam.to(device))
 
+    def contiguous(self) -> Gaussians:
+        """The same Gaussians with C-ordered arrays (itself where they are)."""
+        return Gaussians(self.w.contiguous(), self.mu.contiguous(), self.lam.contiguous())
+
     def records(self, a: int, b: int) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
         """Records ``a`` to ``b`` of the ``B J N`` in row-major ``(b, j, n)`` order: ``w
-        (b - a, 3)``, ``mu (b - a, 3)``, ``lam (b - a,)``."""
+        (b - a, 3)``, ``mu (b - a, 3)``, ``lam (b - a,)`` (views where the arrays are
+        C-ordered, :meth:`contiguous`)."""
         return self.w.reshape(-1, 3)[a:b], self.mu.reshape(-1, 3)[a:b], self.lam.reshape(-1)[a:b]
 
 

@@ -77,6 +77,10 @@ class StoredGaussians(Gaussians):
             return self
         return self.expanded().to(device)
 
+    def contiguous(self) -> Gaussians:
+        """Itself: the stored records and the expansion are C-ordered."""
+        return self
+
     def expanded(self) -> Gaussians:
         """Every record, the dropped rows with zero weight, unit sharpness and mean +y; made
         on first use and kept."""

@@ -394,7 +394,8 @@ class _FlatRecords:
     (from the stored rows where the model was read from a file: :meth:`Gaussians.records`)."""
 
     def __init__(self, model):
-        self.g = model.gaussians
+        # C-ordered once, so that each band's records are views, not a copy of every record
+        self.g = model.gaussians.contiguous()
         v, j, n = self.g.shape
         self.count = v * j * n
         # whether each record's view is above its vertex's horizon (model.horizon_scale)
