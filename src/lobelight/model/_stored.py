@@ -137,7 +137,7 @@ class StoredGaussians(Gaussians):
         return w, mu, lam
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, eq=False)
 class HitTexels:
     """Hit tiles ``(V, R, R)`` as the texels whose ray hits the object (the file's layout,
     :mod:`lobelight.model._format`).
