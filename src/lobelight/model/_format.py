@@ -189,7 +189,8 @@ def write(
     if visibility is not None:
         arrays["visibility"] = visibility.cpu().numpy().astype(np.uint8)
     if hits is not None:
-        arrays.update((hits if isinstance(hits, HitTexels) else HitTexels.of_tiles(*hits)).arrays())
+        texels = hits if isinstance(hits, HitTexels) else HitTexels.of_tiles(*hits)
+        arrays.update(texels.arrays())
     arrays.update(albedo_arrays(albedo))
     try:
         check(arrays, str(p))
@@ -210,9 +211,7 @@ def _hits(a: dict[str, np.ndarray]) -> tuple[torch.Tensor, torch.Tensor] | HitTe
     ``(V, R, R)``, or their texels that hit."""
     if "hit_texel" not in a:
         return _tensor(a["hit_face"]), _tensor(a["hit_distance"])
-    fields = ("hit_count", "hit_texel", "hit_face", "hit_distance")
-    count, texel, face, dist = (a[k] for k in fields)
-    return HitTexels(count, texel, face, dist, res=int(a["visibility"].shape[-1]))
+    return HitTexels(*(a[k] for k in _HITS), res=int(a["visibility"].shape[-1]))
 
 
 def _need(cond: bool, name: str, problem: str) -> None:
